@@ -1,0 +1,14 @@
+"""The ``fleethealth`` command line."""
+
+from __future__ import annotations
+
+import typer
+
+from app.cli import service
+
+app = typer.Typer(help="fleethealth: aircraft engine fleet health trending.", no_args_is_help=True)
+service.register(app)
+
+
+def main() -> None:
+    app()

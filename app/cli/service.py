@@ -1,0 +1,103 @@
+"""Commands that run the service's components: migrate, serve, worker, beat, operators."""
+
+from __future__ import annotations
+
+import typer
+
+from app.config import get_settings
+
+
+def register(app: typer.Typer) -> None:
+    app.command()(migrate)
+    app.command()(downgrade)
+    app.command()(serve)
+    app.command()(worker)
+    app.command()(beat)
+    app.command("create-operator")(create_operator)
+
+
+def migrate(revision: str = typer.Option("head", help="Alembic revision to upgrade to.")) -> None:
+    """Upgrade the database to the latest schema (the only way tables are made)."""
+    from app.migrate import upgrade
+
+    settings = get_settings()
+    upgrade(settings.resolved_database_url, revision)
+    typer.echo(f"database at {revision}: {_safe_url(settings.resolved_database_url)}")
+
+
+def downgrade(
+    revision: str = typer.Argument(..., help="Alembic revision to go back to, e.g. base."),
+) -> None:
+    """Downgrade the database schema."""
+    from app.migrate import downgrade as alembic_downgrade
+
+    settings = get_settings()
+    alembic_downgrade(settings.resolved_database_url, revision)
+    typer.echo(f"database at {revision}")
+
+
+def serve(
+    host: str | None = typer.Option(None, help="Interface to listen on."),
+    port: int | None = typer.Option(None, help="Port to listen on."),
+    skip_migrate: bool = typer.Option(False, help="Do not run migrations first."),
+    demo: bool = typer.Option(True, help="Create the demo operator on first start."),
+) -> None:
+    """Migrate, then serve the API and the dashboard with uvicorn."""
+    import uvicorn
+
+    from app.db import make_engine, make_sessionmaker, transaction
+    from app.main import create_app
+    from app.migrate import upgrade
+    from app.services.demo import ensure_demo_operator
+
+    settings = get_settings()
+    host = host or settings.host
+    port = port or settings.port
+    if not skip_migrate:
+        upgrade(settings.resolved_database_url)
+    engine = make_engine(settings.resolved_database_url)
+    key = None
+    if demo:
+        with transaction(make_sessionmaker(engine)) as session:
+            key = ensure_demo_operator(session, settings.data_dir)
+    base = f"http://{host}:{port}"
+    typer.echo(f"fleethealth dashboard: {base}/")
+    typer.echo(f"API documentation:     {base}/docs")
+    if key:
+        typer.echo(f"demo API key:          {key}")
+    uvicorn.run(create_app(settings, engine), host=host, port=port, log_level="warning")
+
+
+def worker(concurrency: int = typer.Option(2, help="Worker processes.")) -> None:
+    """Run a Celery worker (deployment mode; the embedded default runs jobs in-process)."""
+    from app.jobs.celery_app import make_celery
+
+    make_celery().worker_main(["worker", "--loglevel=INFO", f"--concurrency={concurrency}"])
+
+
+def beat() -> None:
+    """Run Celery beat, which starts the scheduled fleet-wide jobs (deployment mode)."""
+    from app.jobs.celery_app import make_celery
+
+    make_celery().start(["beat", "--loglevel=INFO"])
+
+
+def create_operator(
+    name: str = typer.Argument(..., help="Operator (airline or MRO) name."),
+    role: str = typer.Option("admin", help="Role of the first API key: viewer, analyst or admin."),
+) -> None:
+    """Create an operator and print its first API key (shown once)."""
+    from app.db import make_engine, make_sessionmaker, transaction
+    from app.services import tenancy
+
+    settings = get_settings()
+    with transaction(make_sessionmaker(make_engine(settings.resolved_database_url))) as session:
+        operator = tenancy.create_operator(session, name=name)
+        _row, key = tenancy.issue_api_key(session, operator=operator, role=role, name="first key")
+    typer.echo(key)
+
+
+def _safe_url(url: str) -> str:
+    from sqlalchemy.engine import make_url
+
+    return make_url(url).render_as_string(hide_password=True)

@@ -1,0 +1,1 @@
+"""Job functions, their runners (in-process or Celery) and schedules."""

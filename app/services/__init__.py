@@ -1,0 +1,1 @@
+"""Business logic. Services take a session from the caller and never commit on their own."""
