@@ -1,0 +1,154 @@
+"""Chi-squared CUSUM: false-alarm rate and detection delay, theory vs Monte Carlo."""
+
+import numpy as np
+import pytest
+
+from estimation import detection as det
+from estimation import isolation as iso
+
+
+def _correlated_cov(rng, m):
+    X = rng.normal(size=(m, m))
+    return X @ X.T / m + 0.2 * np.eye(m)
+
+
+def _false_alarm_check(rng, m, arl0, engines, steps):
+    design = det.design_cusum(m, arl0)
+    P = _correlated_cov(rng, m)
+    base = rng.normal(size=m)
+    q = base + rng.multivariate_normal(np.zeros(m), P, size=(engines, steps))
+    out = det.cusum_detect(q, base, P, design)
+    n_alarms = out.alarms.sum()
+    expected = engines * steps / design.arl0
+    # Renewal process: alarms ~ Poisson-like; run lengths are near geometric.
+    assert abs(n_alarms - expected) < 5 * np.sqrt(expected), (n_alarms, expected)
+    return n_alarms, expected
+
+
+def test_false_alarm_rate_matches_design():
+    _false_alarm_check(np.random.default_rng(10), m=4, arl0=100.0, engines=100, steps=3000)
+
+
+@pytest.mark.slow
+def test_false_alarm_rate_matches_design_long():
+    n, e = _false_alarm_check(np.random.default_rng(11), 6, 1000.0, engines=1000, steps=20000)
+    assert abs(n / e - 1.0) < 0.03
+
+
+def _delay_check(rng, m, arl0, n_runs):
+    """A library-like fault: shift d = H_i appears at sample 0 with S = 0."""
+    design = det.design_cusum(m, arl0)
+    P = _correlated_cov(rng, m)
+    H = rng.normal(size=(m, 3))
+    scale = np.sqrt(m / (H[:, 0] @ np.linalg.solve(P, H[:, 0])))  # noncentrality m
+    d = H[:, 0] * scale
+    lam = float(d @ np.linalg.solve(P, d))
+    steps = 80
+    q = d + rng.multivariate_normal(np.zeros(m), P, size=(n_runs, steps))
+    out = det.cusum_detect(q, np.zeros(m), P, design)
+    delay = np.where(out.first_alarm >= 0, out.first_alarm + 1, steps + 1)
+    sf = det.run_length_survival(m, design.reference, design.threshold, lam, steps)
+    for n in (2, 5, 10, 20, 40):
+        se = np.sqrt(sf[n] * (1 - sf[n]) / n_runs)
+        assert abs(np.mean(delay > n) - sf[n]) < 5 * se + 2e-3, (n, np.mean(delay > n), sf[n])
+    arl1 = det.average_run_length(m, design.reference, design.threshold, lam)
+    assert abs(delay.mean() - arl1) < 5 * delay.std() / np.sqrt(n_runs)
+    # The library's isolation then names the fault from the mean shift since the alarm.
+    fired = out.first_alarm >= 0
+    assert fired.mean() > 0.99
+
+
+def test_detection_delay_distribution_matches_markov_chain():
+    _delay_check(np.random.default_rng(12), m=6, arl0=200.0, n_runs=4000)
+
+
+@pytest.mark.slow
+def test_detection_delay_distribution_matches_markov_chain_long():
+    _delay_check(np.random.default_rng(13), m=6, arl0=2000.0, n_runs=40000)
+
+
+def test_steady_start_delay_matches_monte_carlo():
+    """Fault after a long healthy run: S starts from its quasi-stationary law."""
+    rng = np.random.default_rng(14)
+    m, lam = 3, 4.0
+    design = det.design_cusum(m, 100.0)
+    n_runs, warm, after = 3000, 300, 60
+    d = np.zeros(m)
+    d[0] = np.sqrt(lam)
+    noise = rng.standard_normal((n_runs, warm + after, m))
+    noise[:, warm:] += d
+    out = det.cusum_detect(noise, np.zeros(m), np.eye(m), design)
+    # Runs without a false alarm before the fault (conditioning of the quasi-stationary law).
+    clean = ~out.alarms[:, :warm].any(axis=1)
+    first_after = np.argmax(out.alarms[clean, warm:], axis=1) + 1
+    first_after[~out.alarms[clean, warm:].any(axis=1)] = after + 1
+    theory = det.average_run_length(m, design.reference, design.threshold, lam, start="steady")
+    zero = det.average_run_length(m, design.reference, design.threshold, lam, start="zero")
+    se = first_after.std() / np.sqrt(first_after.size)
+    assert abs(first_after.mean() - theory) < 5 * se
+    assert theory < zero  # a warm statistic is already part way to the threshold
+
+
+def test_batch_equals_sequential():
+    rng = np.random.default_rng(15)
+    m = 3
+    design = det.CusumDesign(m, 1.0, 8.0, np.nan)
+    P = _correlated_cov(rng, m)
+    base = rng.normal(size=(5, m))
+    q = rng.normal(size=(5, 200, m)) * 1.5 + base[:, None, :]
+    batch = det.cusum_detect(q, base, P, design)
+    Pi = np.linalg.inv(P)
+    for e in range(5):
+        S, stats, alarms = 0.0, [], []
+        for k in range(200):
+            r = q[e, k] - base[e]
+            S = max(0.0, S + r @ Pi @ r - m - 1.0)
+            alarms.append(S > 8.0)
+            stats.append(S)
+            if S > 8.0:
+                S = 0.0
+        np.testing.assert_allclose(batch.statistic[e], stats, rtol=1e-9, atol=1e-9)
+        np.testing.assert_array_equal(batch.alarms[e], alarms)
+        expect_first = alarms.index(True) if any(alarms) else -1
+        assert batch.first_alarm[e] == expect_first
+
+
+def test_markov_chain_converges_with_cells():
+    coarse = det.average_run_length(4, 2.0, 10.0, 0.0, n_cells=100)
+    fine = det.average_run_length(4, 2.0, 10.0, 0.0, n_cells=800)
+    assert abs(coarse / fine - 1) < 2e-3
+
+
+def test_decorrelation_stride_scalar_closed_form():
+    a, level = 0.97, 0.05
+    Phi = np.array([[a]])
+    P_hat = np.array([[2.0]])
+    expected = int(np.ceil(np.log(level) / np.log(a)))
+    assert det.decorrelation_stride(Phi, P_hat, 1, level) == expected
+
+
+def test_detect_then_isolate_library_fault():
+    """Detection followed by WSSR isolation on the mean shift since the alarm."""
+    rng = np.random.default_rng(16)
+    m, n_f = 6, 8
+    H = rng.normal(size=(m, n_f)) * 2.0
+    P = _correlated_cov(rng, m)
+    design = det.design_cusum(m, 500.0)
+    true = 3
+    q = rng.multivariate_normal(np.zeros(m), P, size=(200, 120))
+    q[:, 60:] += H[:, true]
+    out = det.cusum_detect(q, np.zeros(m), P, design)
+    after = out.alarms[:, 60:].any(axis=1)
+    assert after.mean() == 1.0
+    # 20 samples after the fault, averaged: noise covariance P / 20.
+    mean_shift = q[:, 60:80].mean(axis=1)
+    res = iso.wssr_isolate(mean_shift, H, P / 20.0)
+    pmc = iso.misclassification_probability(H, P / 20.0)
+    assert np.mean(res.isolated == true) >= 1.0 - pmc[true].sum() - 0.02
+
+
+def test_design_errors():
+    with pytest.raises(det.DetectionError, match="ARL"):
+        det.design_cusum(3, 0.5)
+    with pytest.raises(det.DetectionError, match="P_q"):
+        det.cusum_detect(np.zeros((2, 5, 3)), np.zeros(3), np.eye(2), det.CusumDesign(3, 1, 5, 1))
