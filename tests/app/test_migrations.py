@@ -40,3 +40,12 @@ def test_upgrade_to_head_matches_the_models_and_downgrades_to_empty(
         engine.dispose()
     finally:
         urls.close()
+
+
+def test_migrations_form_one_line_of_history() -> None:
+    from alembic.script import ScriptDirectory
+
+    from app.migrate import alembic_config
+
+    script = ScriptDirectory.from_config(alembic_config("sqlite://"))
+    assert len(script.get_heads()) == 1, f"several migration heads: {script.get_heads()}"
