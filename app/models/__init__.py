@@ -1,6 +1,19 @@
 """SQLAlchemy 2.0 tables. Importing this package registers every table on ``Base.metadata``."""
 
 from app.models.base import Base
+from app.models.designs import EngineModel, EngineType, EstimatorDesign
+from app.models.fleet import Aircraft, Engine, Installation, MaintenanceAction
 from app.models.tenancy import ApiKey, Operator
 
-__all__ = ["ApiKey", "Base", "Operator"]
+__all__ = [
+    "Aircraft",
+    "ApiKey",
+    "Base",
+    "Engine",
+    "EngineModel",
+    "EngineType",
+    "EstimatorDesign",
+    "Installation",
+    "MaintenanceAction",
+    "Operator",
+]

@@ -1,0 +1,127 @@
+"""Engine types, engine models and estimator designs.
+
+An engine model is a ``fleethealth.linear-model/1`` dict (imported, or built from the built-in
+engine), versioned per (engine type, name) and immutable: a change is a new version, and a
+model that a design uses can no longer be deleted (``locked_at``). An estimator design is the
+``fleethealth.design/1`` result of the estimation core's design step for a spec, stored with its
+analytic errors; at most one design per engine type is active (a partial unique index).
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any
+
+from sqlalchemy import (
+    JSON,
+    CheckConstraint,
+    ForeignKey,
+    Index,
+    String,
+    Text,
+    UniqueConstraint,
+    text,
+)
+from sqlalchemy.dialects.postgresql import JSONB
+from sqlalchemy.orm import Mapped, mapped_column, relationship
+
+from app.models.base import Base, UTCDateTime, utcnow
+
+MODEL_SOURCES = ("imported", "builtin")
+DESIGN_STATUSES = ("pending", "ready", "failed")
+
+# JSONB on PostgreSQL (compact, indexable), JSON text on SQLite.
+JSONDocument = JSON().with_variant(JSONB(), "postgresql")
+
+
+class EngineType(Base):
+    __tablename__ = "engine_types"
+    __table_args__ = (UniqueConstraint("operator_id", "name"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    operator_id: Mapped[int] = mapped_column(
+        ForeignKey("operators.id", ondelete="CASCADE"), index=True
+    )
+    name: Mapped[str] = mapped_column(String(100))
+    description: Mapped[str] = mapped_column(Text, default="")
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
+
+
+class EngineModel(Base):
+    __tablename__ = "engine_models"
+    __table_args__ = (
+        UniqueConstraint("engine_type_id", "name", "version"),
+        CheckConstraint(
+            "source IN (" + ", ".join(f"'{s}'" for s in MODEL_SOURCES) + ")", name="source"
+        ),
+        CheckConstraint("version >= 1", name="version"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    operator_id: Mapped[int] = mapped_column(
+        ForeignKey("operators.id", ondelete="CASCADE"), index=True
+    )
+    engine_type_id: Mapped[int] = mapped_column(
+        ForeignKey("engine_types.id", ondelete="RESTRICT"), index=True
+    )
+    name: Mapped[str] = mapped_column(String(100))
+    version: Mapped[int]
+    source: Mapped[str] = mapped_column(String(16))
+    format: Mapped[str] = mapped_column(String(64))
+    content: Mapped[dict[str, Any]] = mapped_column(JSONDocument)
+    checksum: Mapped[str] = mapped_column(String(64))
+    dt: Mapped[float]
+    n_states: Mapped[int]
+    sensor_names: Mapped[list[str]] = mapped_column(JSONDocument)
+    health_names: Mapped[list[str]] = mapped_column(JSONDocument)
+    aux_names: Mapped[list[str]] = mapped_column(JSONDocument)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    # Set when a design first uses the model; from then on it may not be deleted.
+    locked_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
+
+    engine_type: Mapped[EngineType] = relationship(lazy="joined")
+
+
+class EstimatorDesign(Base):
+    __tablename__ = "estimator_designs"
+    __table_args__ = (
+        CheckConstraint(
+            "status IN (" + ", ".join(f"'{s}'" for s in DESIGN_STATUSES) + ")", name="status"
+        ),
+        CheckConstraint("NOT active OR status = 'ready'", name="active_ready"),
+        # One active design per engine type, on both backends.
+        Index(
+            "uq_estimator_designs_active_engine_type",
+            "engine_type_id",
+            unique=True,
+            sqlite_where=text("active"),
+            postgresql_where=text("active"),
+        ),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    operator_id: Mapped[int] = mapped_column(
+        ForeignKey("operators.id", ondelete="CASCADE"), index=True
+    )
+    engine_type_id: Mapped[int] = mapped_column(
+        ForeignKey("engine_types.id", ondelete="RESTRICT"), index=True
+    )
+    engine_model_id: Mapped[int] = mapped_column(
+        ForeignKey("engine_models.id", ondelete="RESTRICT"), index=True
+    )
+    name: Mapped[str] = mapped_column(String(100))
+    spec: Mapped[dict[str, Any]] = mapped_column(JSONDocument)
+    status: Mapped[str] = mapped_column(String(16), default="pending")
+    # The fleethealth.design/1 dict and its analytic errors (MATH.md section 3), when ready.
+    result: Mapped[dict[str, Any] | None] = mapped_column(JSONDocument, default=None)
+    analytic_errors: Mapped[dict[str, Any] | None] = mapped_column(JSONDocument, default=None)
+    ssee_health: Mapped[float | None] = mapped_column(default=None)
+    ssee_aux: Mapped[float | None] = mapped_column(default=None)
+    failure: Mapped[str | None] = mapped_column(Text, default=None)
+    active: Mapped[bool] = mapped_column(default=False)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    completed_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
+    activated_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
+
+    engine_type: Mapped[EngineType] = relationship(lazy="joined")
+    engine_model: Mapped[EngineModel] = relationship(lazy="raise")
