@@ -3,6 +3,7 @@
 from app.models.base import Base
 from app.models.designs import EngineModel, EngineType, EstimatorDesign
 from app.models.fleet import Aircraft, Engine, Installation, MaintenanceAction
+from app.models.jobs import Job, JobSchedule
 from app.models.tenancy import ApiKey, Operator
 
 __all__ = [
@@ -14,6 +15,8 @@ __all__ = [
     "EngineType",
     "EstimatorDesign",
     "Installation",
+    "Job",
+    "JobSchedule",
     "MaintenanceAction",
     "Operator",
 ]
