@@ -1,0 +1,100 @@
+"""Thermodynamics of the gas-path components, vectorised over engines.
+
+Each function maps inlet total conditions (and a pressure ratio or a fuel flow)
+to exit conditions and a specific work or heat, with the enthalpies of
+``gas.py``; mass is carried by the caller. Energy balances: compressor
+h_out = h_in + dh_is / eta; turbine h_out = h_in - eta dh_is; burner
+(1 + far) h(T4, far) = h(T3, 0) + far eta_b LHV; nozzle total enthalpy is
+kept and the exit velocity follows from the static pressure it reaches.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from estimation.engine.atmosphere import P_SL, T_SL
+from estimation.engine.gas import (
+    LHV,
+    R_GAS,
+    enthalpy,
+    gamma,
+    isentropic_temperature,
+    temperature_from_enthalpy,
+)
+
+
+def corrected_flow(w: np.ndarray, t: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Wc = W sqrt(T / 288.15) / (P / 101325)."""
+    return w * np.sqrt(t / T_SL) / (p / P_SL)
+
+
+def physical_flow(wc: np.ndarray, t: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """W from corrected flow: W = Wc (P / 101325) / sqrt(T / 288.15)."""
+    return wc * (p / P_SL) / np.sqrt(t / T_SL)
+
+
+def compression(
+    t_in: np.ndarray, pr: np.ndarray, eff: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Exit temperature [K] and specific work [J/kg] of a compression by pr at efficiency eff."""
+    h_in = enthalpy(t_in)
+    dh = (enthalpy(isentropic_temperature(t_in, pr)) - h_in) / eff
+    return temperature_from_enthalpy(h_in + dh), dh
+
+
+def expansion(
+    t_in: np.ndarray, pr: np.ndarray, eff: np.ndarray, far: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Exit temperature [K] and specific work [J/kg] of an expansion by pr (= p_in/p_out > 1)."""
+    h_in = enthalpy(t_in, far)
+    dh = eff * (h_in - enthalpy(isentropic_temperature(t_in, 1.0 / pr, far), far))
+    return temperature_from_enthalpy(h_in - dh, far), dh
+
+
+def burner(
+    t3: np.ndarray, w3: np.ndarray, wf: np.ndarray, eff: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Burner exit temperature [K] and fuel-air ratio: (1+far) h4 = h3 + far eff LHV."""
+    far = wf / w3
+    h4 = (enthalpy(t3) + far * eff * LHV) / (1.0 + far)
+    return temperature_from_enthalpy(h4, far), far
+
+
+def nozzle(
+    pt: np.ndarray, tt: np.ndarray, p_amb: np.ndarray, area: float, far: np.ndarray | float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Flow [kg/s] and gross thrust [N] of a convergent nozzle of throat ``area`` [m^2].
+
+    Subsonic: exit static pressure = ambient; choked (Pt/Pamb above critical): exit
+    Mach 1 and pressure thrust A (Ps - Pamb). gamma is taken at the inlet total
+    temperature. Pt/Pamb below one is clipped (no reverse flow), which only
+    Newton iterates far from a solution can see.
+    """
+    g = gamma(tt, far)
+    gm1 = g - 1.0
+    pr = np.maximum(pt / p_amb, 1.0 + 1e-9)
+    pr_crit = (0.5 * (g + 1.0)) ** (g / gm1)
+    pr_exit = np.minimum(pr, pr_crit)
+    m2 = 2.0 / gm1 * (pr_exit ** (gm1 / g) - 1.0)
+    ts = tt / (1.0 + 0.5 * gm1 * m2)
+    ps = pt / pr_exit
+    v = np.sqrt(m2 * g * R_GAS * ts)
+    rho = ps / (R_GAS * ts)
+    w = rho * v * area
+    return w, w * v + area * (ps - p_amb)
+
+
+def static_pressure(pt: np.ndarray, tt: np.ndarray, w: np.ndarray, area: float) -> np.ndarray:
+    """Static pressure of a low-Mach duct flow: Ps = Pt - W^2 R T / (2 A^2 Pt)."""
+    return pt - w * w * R_GAS * tt / (2.0 * area * area * pt)
+
+
+def bleed_valve(
+    position: np.ndarray, pt: np.ndarray, tt: np.ndarray, p_amb: np.ndarray, k: float
+) -> np.ndarray:
+    """Overboard bleed flow [kg/s] of a valve open ``position`` percent.
+
+    W = k (position / 100) Pt / sqrt(Tt) sqrt(1 - (Pamb/Pt)^2) (ellipse law).
+    """
+    r = np.clip(p_amb / pt, 0.0, 1.0)
+    return k * (position / 100.0) * pt / np.sqrt(tt) * np.sqrt(1.0 - r * r)

@@ -1,0 +1,363 @@
+"""The nonlinear two-spool turbofan: gas path, spool and heat-soak dynamics, outputs.
+
+Stations (SAE AS755): 0 ambient, 2 fan face, 13 fan exit, 15 bypass duct,
+18 bypass nozzle, 21 LPC inlet (= 13), 24 LPC exit / HPC inlet, 30 HPC exit,
+40 burner exit / HPT inlet, 48 HPT exit / LPT inlet (called 45 in code),
+50 LPT exit, 8 core nozzle.
+
+States x = [Nf rpm, Nc rpm, TMHPC degR, TMHPT degR] (spool speeds and the
+metal temperatures of the HPC and HPT, seed 000 Table 1 keeps these among its
+nine), inputs u = [Wf pps, VSV % open, VBV % open], environment
+env = [altitude ft, Mach, dTamb K], health h = the 13 percent parameters of
+``health.py``. Every function takes one engine (1-D arrays) or a batch
+(leading axis B) and returns the same layout.
+
+The gas path is quasi-steady: five unknowns (fan, LPC and HPC map beta, HPT and
+LPT pressure ratio over design) are solved by batched Newton so that flows match
+at the bypass nozzle, HPC inlet, HPT, LPT and core nozzle. The states then move by
+
+    dN/dt   = (eta_m P_turbine - P_compressors) / (J (pi/30)^2 N)      [rpm/s]
+    dTm/dt  = Q / (m c),  Q = hA (W/W_d)^0.8 (T_gas - Tm)               [K/s]
+
+and Q is taken out of the gas (HPC exit; HPT between inlet and exit), so a cold
+engine accelerates with lower T30, T48 and T50 than a soaked one (seed 004's
+model-plant mismatch). At steady state Q = 0 and Tm equals the gas temperature.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from estimation.engine.actuators import vbv_schedule, vsv_schedule
+from estimation.engine.atmosphere import (
+    LBF,
+    LBM,
+    PSI,
+    RANKINE,
+    FlightCondition,
+    flight_condition,
+)
+from estimation.engine.components import (
+    bleed_valve,
+    burner,
+    compression,
+    corrected_flow,
+    expansion,
+    nozzle,
+    physical_flow,
+    static_pressure,
+)
+from estimation.engine.design import EngineDesign, engine_design
+from estimation.engine.errors import EngineConvergenceError
+from estimation.engine.gas import enthalpy, temperature_from_enthalpy
+from estimation.engine.health import N_HEALTH
+from estimation.engine.maps import compressor, stall_margin, turbine
+from estimation.engine.newton import newton
+
+STATE_NAMES = ("Nf", "Nc", "TMHPC", "TMHPT")
+STATE_UNITS = ("rpm", "rpm", "degR", "degR")
+INPUT_NAMES = ("Wf", "VSV", "VBV")
+INPUT_UNITS = ("pps", "%", "%")
+ENV_NAMES = ("alt", "mach", "dtamb")
+ENV_UNITS = ("ft", "-", "K")
+INNER_NAMES = ("beta_fan", "beta_lpc", "beta_hpc", "pr_hpt_rel", "pr_lpt_rel")
+INNER_DESIGN = np.array([0.5, 0.5, 0.5, 1.0, 1.0])
+_RPM2 = (np.pi / 30.0) ** 2
+
+
+class Operating(NamedTuple):
+    """Per-engine arrays [B] the gas path needs besides its five unknowns."""
+
+    nf: np.ndarray
+    nc: np.ndarray
+    tm_hpc: np.ndarray  # K
+    tm_hpt: np.ndarray  # K
+    wf: np.ndarray  # commanded fuel flow, kg/s
+    vsv: np.ndarray  # commanded, % open
+    vbv: np.ndarray
+    fc: FlightCondition
+    h: np.ndarray  # [B, 13] percent
+
+    def take(self, rows: np.ndarray) -> Operating:
+        fc = FlightCondition(*(a[rows] for a in self.fc))
+        return Operating(*(a[rows] for a in self[:7]), fc, self.h[rows])
+
+
+def as_batch(
+    x: np.ndarray, u: np.ndarray, env: np.ndarray, health: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool]:
+    """Broadcast x [.., 4], u [.., 3], env [.., 3], health [.., 13] to a common batch B.
+
+    Returns 2-D arrays and whether every input was 1-D (one engine).
+    """
+    x = np.asarray(x, dtype=float)
+    u = np.asarray(u, dtype=float)
+    env = np.asarray(env, dtype=float)
+    h = np.zeros(N_HEALTH) if health is None else np.asarray(health, dtype=float)
+    single = x.ndim == 1 and u.ndim == 1 and env.ndim == 1 and h.ndim == 1
+    for name, arr, n in (("x", x, 4), ("u", u, 3), ("env", env, 3), ("health", h, N_HEALTH)):
+        if arr.ndim not in (1, 2) or arr.shape[-1] != n:
+            raise ValueError(f"{name} must have shape ({n},) or (B, {n}), found {arr.shape}")
+    b = max(a.shape[0] if a.ndim == 2 else 1 for a in (x, u, env, h))
+    out = []
+    for name, arr in (("x", x), ("u", u), ("env", env), ("health", h)):
+        a2 = np.atleast_2d(arr)
+        if a2.shape[0] not in (1, b):
+            raise ValueError(f"{name} has {a2.shape[0]} rows, other inputs have {b}")
+        out.append(np.broadcast_to(a2, (b, a2.shape[1])))
+    return out[0], out[1], out[2], out[3], single
+
+
+def operating(x: np.ndarray, u: np.ndarray, env: np.ndarray, h: np.ndarray) -> Operating:
+    """Pack 2-D batches (states in their units) into SI per-engine arrays."""
+    fc = flight_condition(env[:, 0], env[:, 1], env[:, 2])
+    return Operating(
+        x[:, 0], x[:, 1], x[:, 2] / RANKINE, x[:, 3] / RANKINE,
+        u[:, 0] * LBM, u[:, 1], u[:, 2], fc, h,
+    )
+
+
+def gas_path(
+    op: Operating,
+    z: np.ndarray,
+    d: EngineDesign,
+    heat: bool = True,
+    scheduled_actuators: bool = False,
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Residuals [B, 5] of the five flow matches and every station value.
+
+    ``heat=False`` removes the heat flows (steady state), and the returned
+    metal temperatures are then the gas temperatures they settle at.
+    ``scheduled_actuators=True`` commands VSV and VBV by their nominal schedules
+    on corrected core speed instead of ``op.vsv``, ``op.vbv`` (steady state).
+    """
+    hs = op.h / 100.0
+    fc = op.fc
+    wf = op.wf * (1.0 + hs[:, 10])
+    t2, p2, pamb = fc.t2, fc.p2, fc.p_amb
+
+    # Fan (one map for core and bypass streams).
+    n_fan = op.nf / np.sqrt(fc.theta) / d.nf
+    wc2, pr_fan, eff_fan = compressor(d.fan, n_fan, z[:, 0], 1.0 + hs[:, 1], 1.0 + hs[:, 0])
+    w2 = physical_flow(wc2, t2, p2)
+    t13, dh_fan = compression(t2, pr_fan, eff_fan)
+    p13 = p2 * pr_fan
+    # LPC (booster) on the fan shaft.
+    n_lpc = op.nf / np.sqrt(t13 / d.t13) / d.nf
+    wc21, pr_lpc, eff_lpc = compressor(d.lpc, n_lpc, z[:, 1], 1.0 + hs[:, 3], 1.0 + hs[:, 2])
+    w_core = physical_flow(wc21, t13, p13)
+    t24, dh_lpc = compression(t13, pr_lpc, eff_lpc)
+    p24 = p13 * pr_lpc
+    # Bypass duct and nozzle.
+    w_byp = w2 - w_core
+    dp = d.dp_byp * (corrected_flow(w_byp, t13, p13) / d.wc_byp) ** 2
+    p15 = p13 * (1.0 - dp)
+    w18, fg_byp = nozzle(p15, t13, pamb, d.a_byp, 0.0)
+    # Variable bleed overboard, then the HPC with its variable stators.
+    n_hpc = op.nc / np.sqrt(t24 / d.t24) / d.nc
+    vsv_nominal = vsv_schedule(n_hpc)
+    if scheduled_actuators:
+        vsv_cmd, vbv_cmd = vsv_nominal, vbv_schedule(n_hpc)
+    else:
+        vsv_cmd, vbv_cmd = op.vsv, op.vbv
+    vsv = vsv_cmd * (1.0 + hs[:, 11])
+    vbv = vbv_cmd * (1.0 + hs[:, 12])
+    w_vbv = bleed_valve(vbv, p24, t24, pamb, d.k_vbv)
+    w25 = w_core - w_vbv
+    dv = (vsv - vsv_nominal) / 100.0
+    flow_hpc = (1.0 + hs[:, 5]) * (1.0 + d.k_vsv * (vsv - 100.0) / 100.0)
+    wc25, pr_hpc, eff_hpc = compressor(
+        d.hpc, n_hpc, z[:, 2], flow_hpc, (1.0 + hs[:, 4]) * (1.0 - 0.5 * dv * dv)
+    )
+    w_hpc = physical_flow(wc25, t24, p24)
+    t3a, dh_hpc = compression(t24, pr_hpc, eff_hpc)
+    p3 = p24 * pr_hpc
+    if heat:
+        q_hpc = d.ha_hpc * np.abs(w25 / d.w25) ** 0.8 * (t3a - op.tm_hpc)
+        t3 = temperature_from_enthalpy(enthalpy(t3a) - q_hpc / w25)
+    else:
+        q_hpc = np.zeros_like(t3a)
+        t3 = t3a
+    # Burner.
+    dpb = d.dp_burner * (corrected_flow(w25, t3, p3) / d.wc3) ** 2
+    p4 = p3 * (1.0 - dpb)
+    t4, far = burner(t3, w25, wf, d.eta_burner)
+    w4 = w25 + wf
+    # HPT.
+    pr_hpt = z[:, 3] * d.hpt.pr_design
+    n_hpt = op.nc / np.sqrt(t4 / d.t4) / d.nc
+    wc4, eff_hpt = turbine(d.hpt, n_hpt, pr_hpt, 1.0 + hs[:, 7], 1.0 + hs[:, 6])
+    w4_map = physical_flow(wc4, t4, p4)
+    t45a, dh_hpt = expansion(t4, pr_hpt, eff_hpt, far)
+    t_gas_hpt = 0.5 * (t4 + t45a)
+    if heat:
+        q_hpt = d.ha_hpt * np.abs(w4 / d.w4) ** 0.8 * (t_gas_hpt - op.tm_hpt)
+        t45 = temperature_from_enthalpy(enthalpy(t45a, far) - q_hpt / w4, far)
+    else:
+        q_hpt = np.zeros_like(t45a)
+        t45 = t45a
+    p45 = p4 / pr_hpt
+    # LPT.
+    pr_lpt = z[:, 4] * d.lpt.pr_design
+    n_lpt = op.nf / np.sqrt(t45 / d.t45) / d.nf
+    wc45, eff_lpt = turbine(d.lpt, n_lpt, pr_lpt, 1.0 + hs[:, 9], 1.0 + hs[:, 8])
+    w45_map = physical_flow(wc45, t45, p45)
+    t5, dh_lpt = expansion(t45, pr_lpt, eff_lpt, far)
+    p5 = p45 / pr_lpt
+    # Core nozzle.
+    w8, fg_core = nozzle(p5, t5, pamb, d.a_core, far)
+
+    res = np.stack(
+        [
+            (w18 - w_byp) / d.w_byp,
+            (w_hpc - w25) / d.w25,
+            (w4_map - w4) / d.w4,
+            (w45_map - w4) / d.w4,
+            (w8 - w4) / d.w4,
+        ],
+        axis=1,
+    )
+    power = {
+        "fan": w2 * dh_fan, "lpc": w_core * dh_lpc, "hpc": w25 * dh_hpc,
+        "hpt": w4 * dh_hpt, "lpt": w4 * dh_lpt,
+    }
+    st = dict(
+        t2=t2, p2=p2, p_amb=pamb, v0=fc.v0, w2=w2, t13=t13, p13=p13, p15=p15,
+        w_core=w_core, w_byp=w_byp, w18=w18, t24=t24, p24=p24, w_vbv=w_vbv, w25=w25,
+        w_hpc=w_hpc, t3=t3, t3_adiabatic=t3a, p3=p3, q_hpc=q_hpc, t4=t4, p4=p4, far=far,
+        wf=wf, w4=w4, t45=t45, t45_adiabatic=t45a, p45=p45, q_hpt=q_hpt, t5=t5, p5=p5,
+        w8=w8, fg_byp=fg_byp, fg_core=fg_core, fn=fg_byp + fg_core - w2 * fc.v0,
+        vsv=vsv, vbv=vbv, vsv_cmd=vsv_cmd, vbv_cmd=vbv_cmd,
+        n_fan=n_fan, n_lpc=n_lpc, n_hpc=n_hpc, n_hpt=n_hpt, n_lpt=n_lpt,
+        wc2=wc2, pr_fan=pr_fan, wc21=wc21, pr_lpc=pr_lpc, wc25=wc25, pr_hpc=pr_hpc,
+        eff_fan=eff_fan, eff_lpc=eff_lpc, eff_hpc=eff_hpc, eff_hpt=eff_hpt, eff_lpt=eff_lpt,
+        pr_hpt=pr_hpt, pr_lpt=pr_lpt,
+        sm_fan=stall_margin(d.fan, wc2, pr_fan, 1.0 + hs[:, 1]),
+        sm_lpc=stall_margin(d.lpc, wc21, pr_lpc, 1.0 + hs[:, 3]),
+        sm_hpc=stall_margin(d.hpc, wc25, pr_hpc, flow_hpc),
+        tm_hpc_eq=t3a, tm_hpt_eq=t_gas_hpt,
+        ps30=static_pressure(p3, t3, w25, d.a_30),
+        power_fan=power["fan"], power_lpc=power["lpc"], power_hpc=power["hpc"],
+        power_hpt=power["hpt"], power_lpt=power["lpt"],
+        # Spool power balances over design fan / HPC power (steady-state residuals).
+        lp_balance=(d.eta_mech * power["lpt"] - power["fan"] - power["lpc"]) / d.power_fan,
+        hp_balance=(d.eta_mech * power["hpt"] - power["hpc"]) / d.power_hpc,
+        dnf=(d.eta_mech * power["lpt"] - power["fan"] - power["lpc"]) / (d.j_lp * _RPM2 * op.nf),
+        dnc=(d.eta_mech * power["hpt"] - power["hpc"]) / (d.j_hp * _RPM2 * op.nc),
+        dtm_hpc=q_hpc / d.mc_hpc * RANKINE,
+        dtm_hpt=q_hpt / d.mc_hpt * RANKINE,
+    )
+    return res, st
+
+
+class EngineEvaluation(NamedTuple):
+    """One evaluation of the model.
+
+    xdot [B, 4] state derivatives (per second, state units); sensors [B, ny] and
+    aux [B, nz] in the units of ``sensors.py``; inner [B, 5] the solved gas-path
+    unknowns (pass back as ``guess`` next step); stations: every station value
+    (SI) for checks. Arrays are 1-D when the call was for one engine.
+    """
+
+    xdot: np.ndarray
+    sensors: np.ndarray
+    aux: np.ndarray
+    inner: np.ndarray
+    stations: dict[str, np.ndarray]
+
+
+def solve_inner(
+    op: Operating,
+    guess: np.ndarray | None,
+    d: EngineDesign,
+    heat: bool = True,
+    tol: float = 1e-10,
+) -> np.ndarray:
+    """Solve the five gas-path unknowns [B, 5]; EngineConvergenceError if any row fails."""
+    b = op.nf.shape[0]
+    z0 = np.broadcast_to(INNER_DESIGN if guess is None else np.asarray(guess, float), (b, 5))
+
+    def fun(z: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        return gas_path(op.take(rows), z, d, heat)[0]
+
+    sol = newton(fun, z0, tol=tol, max_iter=40)
+    if not sol.converged.all():
+        bad = np.flatnonzero(~sol.converged)
+        worst = np.max(np.abs(sol.residual[bad]), axis=1)
+        raise EngineConvergenceError(
+            f"gas-path balance did not converge for engines {bad[:10].tolist()} "
+            f"(max residual {worst.max():.2e}, relative flow mismatch)"
+        )
+    return sol.x
+
+
+def outputs_from_stations(
+    st: dict[str, np.ndarray], op: Operating
+) -> tuple[np.ndarray, np.ndarray]:
+    """Sensors [B, 12] and aux [B, 6] in C-MAPSS units (see ``sensors.py``)."""
+    sensors = np.stack(
+        [
+            op.nf, op.nc, st["t24"] * RANKINE, st["p24"] / PSI, st["t3"] * RANKINE,
+            st["ps30"] / PSI, st["p3"] / PSI, st["t45"] * RANKINE, st["p5"] / PSI,
+            st["t5"] * RANKINE, st["p15"] / PSI, op.wf / LBM,
+        ],
+        axis=1,
+    )
+    aux = np.stack(
+        [
+            st["fn"] / LBF, st["t4"] * RANKINE, st["sm_fan"], st["sm_lpc"], st["sm_hpc"],
+            st["w_byp"] / st["w_core"],
+        ],
+        axis=1,
+    )
+    return sensors, aux
+
+
+def evaluate(
+    x: np.ndarray,
+    u: np.ndarray,
+    env: np.ndarray,
+    health: np.ndarray | None = None,
+    guess: np.ndarray | None = None,
+    design: EngineDesign | None = None,
+) -> EngineEvaluation:
+    """Derivatives and outputs at states x, inputs u, environment env, health h.
+
+    Shapes: x [4] or [B, 4]; u [3] or [B, 3]; env [3] or [B, 3]; health [13] or
+    [B, 13] (percent; None = nominal); guess [5] or [B, 5] (previous ``inner``).
+    """
+    d = design or engine_design()
+    x2, u2, e2, h2, single = as_batch(x, u, env, health)
+    op = operating(x2, u2, e2, h2)
+    z = solve_inner(op, guess, d)
+    _, st = gas_path(op, z, d)
+    xdot = np.stack([st["dnf"], st["dnc"], st["dtm_hpc"], st["dtm_hpt"]], axis=1)
+    y, aux = outputs_from_stations(st, op)
+    if single:
+        return EngineEvaluation(xdot[0], y[0], aux[0], z[0], {k: v[0] for k, v in st.items()})
+    return EngineEvaluation(xdot, y, aux, z, st)
+
+
+def derivatives(
+    x: np.ndarray,
+    u: np.ndarray,
+    env: np.ndarray,
+    health: np.ndarray | None = None,
+    guess: np.ndarray | None = None,
+) -> np.ndarray:
+    """State derivatives xdot [4] or [B, 4] (rpm/s, rpm/s, degR/s, degR/s)."""
+    return evaluate(x, u, env, health, guess).xdot
+
+
+def outputs(
+    x: np.ndarray,
+    u: np.ndarray,
+    env: np.ndarray,
+    health: np.ndarray | None = None,
+    guess: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Sensors [12] or [B, 12] and aux [6] or [B, 6], names and units in ``sensors.py``."""
+    ev = evaluate(x, u, env, health, guess)
+    return ev.sensors, ev.aux
