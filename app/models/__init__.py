@@ -3,6 +3,7 @@
 from app.models.base import Base
 from app.models.designs import EngineModel, EngineType, EstimatorDesign
 from app.models.fleet import Aircraft, Engine, Installation, MaintenanceAction
+from app.models.ingest import Snapshot, StreamChunk, StreamRecording, Upload
 from app.models.jobs import Job, JobSchedule
 from app.models.tenancy import ApiKey, Operator
 
@@ -19,4 +20,8 @@ __all__ = [
     "JobSchedule",
     "MaintenanceAction",
     "Operator",
+    "Snapshot",
+    "StreamChunk",
+    "StreamRecording",
+    "Upload",
 ]

@@ -1,0 +1,245 @@
+"""Uploads, snapshots and stream recordings: the data operators send, as stored.
+
+Snapshots keep one fixed ``DOUBLE PRECISION`` column per signal of the built-in engine, not a
+JSON document of sensor values: a 100,000-row COPY then writes plain numbers (no per-row JSON
+encoding on the way in, no JSON parsing on the way out), a trend query reads ten thousand rows
+of native floats through the ``(engine_id, recorded_at)`` index, and the database checks each
+value's type. NULL is a missing sensor. The unique key ``(engine_id, recorded_at)`` makes the
+same snapshot twice store nothing. Stream samples stay in Parquet files under
+``data_dir/recordings``; the database holds their metadata and one row per received chunk.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any
+
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    CheckConstraint,
+    Double,
+    ForeignKey,
+    Index,
+    Integer,
+    SmallInteger,
+    String,
+    UniqueConstraint,
+    text,
+)
+from sqlalchemy.dialects.postgresql import JSONB
+from sqlalchemy.orm import Mapped, mapped_column
+
+from app.models.base import Base, UTCDateTime, utcnow
+
+JSONDocument = JSON().with_variant(JSONB(), "postgresql")
+BigId = BigInteger().with_variant(Integer(), "sqlite")  # SQLite autoincrements INTEGER only
+
+PHASES = ("takeoff", "climb", "cruise")
+UPLOAD_KINDS = ("snapshots", "stream", "stream_chunk")
+UPLOAD_STATUSES = ("stored", "rejected")
+RECORDING_STATUSES = ("open", "closed")
+
+
+@dataclass(frozen=True)
+class SignalSpec:
+    """A stored signal: upload name, table column, quantity and the unit it is stored in.
+
+    ``percent_reference`` is 100 % in the stored unit (design spool speeds), for ``%`` uploads.
+    """
+
+    name: str
+    quantity: str
+    unit: str
+    low: float | None = None
+    high: float | None = None
+    percent_reference: float | None = None
+
+    @property
+    def column(self) -> str:
+        return self.name.lower()
+
+
+# Operating condition: every snapshot and stream sample carries all four.
+OPERATING_CONDITION = (
+    SignalSpec("alt_ft", "length", "ft", -2000.0, 60000.0),
+    SignalSpec("mach", "dimensionless", "1", 0.0, 1.0),
+    SignalSpec("dtamb_k", "temperature_difference", "K", -100.0, 100.0),
+    SignalSpec("power_pct", "percent", "%", 0.0, 110.0),
+)
+# Actuators and sensors in the built-in engine's units (C-MAPSS units, estimation/engine
+# turbofan.outputs_from_stations); 100 % spool speed is the design point (engine/design.py).
+ACTUATORS = (
+    SignalSpec("Wf", "mass_flow", "pps", 0.0),
+    SignalSpec("VSV", "percent", "%", 0.0, 100.0),
+    SignalSpec("VBV", "percent", "%", 0.0, 100.0),
+)
+SENSORS = (
+    SignalSpec("Nf", "rotational_speed", "rpm", 0.0, percent_reference=2388.06),
+    SignalSpec("Nc", "rotational_speed", "rpm", 0.0, percent_reference=9055.99),
+    SignalSpec("T24", "temperature", "degR", 0.0),
+    SignalSpec("P24", "pressure", "psia", 0.0),
+    SignalSpec("T30", "temperature", "degR", 0.0),
+    SignalSpec("Ps30", "pressure", "psia", 0.0),
+    SignalSpec("P30", "pressure", "psia", 0.0),
+    SignalSpec("T48", "temperature", "degR", 0.0),
+    SignalSpec("P50", "pressure", "psia", 0.0),
+    SignalSpec("T50", "temperature", "degR", 0.0),
+    SignalSpec("P15", "pressure", "psia", 0.0),
+)
+MEASURED = ACTUATORS + SENSORS  # nullable: NULL is a missing value
+SIGNALS = OPERATING_CONDITION + MEASURED
+
+
+def _in(column: str, values: tuple[str, ...]) -> str:
+    return f"{column} IN (" + ", ".join(f"'{v}'" for v in values) + ")"
+
+
+class Upload(Base):
+    """One upload request: who, when, what, its checksum, counts, and its row-level errors."""
+
+    __tablename__ = "uploads"
+    __table_args__ = (
+        CheckConstraint(_in("kind", UPLOAD_KINDS), name="kind"),
+        CheckConstraint(_in("status", UPLOAD_STATUSES), name="status"),
+        Index("ix_uploads_operator_created", "operator_id", "created_at"),
+        Index("ix_uploads_operator_checksum", "operator_id", "checksum"),
+        # An Idempotency-Key names one stored upload; rejected attempts may reuse it.
+        Index(
+            "uq_uploads_operator_idempotency_key",
+            "operator_id",
+            "idempotency_key",
+            unique=True,
+            sqlite_where=text("status = 'stored'"),
+            postgresql_where=text("status = 'stored'"),
+        ),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    operator_id: Mapped[int] = mapped_column(ForeignKey("operators.id", ondelete="CASCADE"))
+    api_key_id: Mapped[int | None] = mapped_column(
+        ForeignKey("api_keys.id", ondelete="SET NULL"), default=None
+    )
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    kind: Mapped[str] = mapped_column(String(16))
+    content_format: Mapped[str] = mapped_column(String(16))
+    checksum: Mapped[str] = mapped_column(String(64))
+    idempotency_key: Mapped[str | None] = mapped_column(String(200), default=None)
+    status: Mapped[str] = mapped_column(String(16))
+    rows_received: Mapped[int] = mapped_column(default=0)
+    rows_stored: Mapped[int] = mapped_column(default=0)
+    rows_duplicate: Mapped[int] = mapped_column(default=0)
+    bytes_received: Mapped[int] = mapped_column(BigInteger, default=0)
+    message: Mapped[str] = mapped_column(String(500), default="")
+    # [{"row", "column", "reason"}, ...], at most ingest_parse.MAX_ERRORS.
+    errors: Mapped[list[dict[str, Any]]] = mapped_column(JSONDocument, default=list)
+    # Per affected engine: {"engine_id", "esn", "rows", "earliest", "latest"}.
+    affected: Mapped[list[dict[str, Any]]] = mapped_column(JSONDocument, default=list)
+    recording_id: Mapped[int | None] = mapped_column(
+        ForeignKey("stream_recordings.id", ondelete="SET NULL"), default=None
+    )
+
+
+class Snapshot(Base):
+    """One steady-state report of one engine on one flight (UPLOAD.md), in stored units."""
+
+    __tablename__ = "snapshots"
+    __table_args__ = (
+        UniqueConstraint("engine_id", "recorded_at"),
+        CheckConstraint(_in("phase", PHASES), name="phase"),
+        CheckConstraint("position BETWEEN 1 AND 4", name="position"),
+    )
+
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    operator_id: Mapped[int] = mapped_column(ForeignKey("operators.id", ondelete="CASCADE"))
+    engine_id: Mapped[int] = mapped_column(ForeignKey("engines.id", ondelete="CASCADE"))
+    aircraft_id: Mapped[int] = mapped_column(ForeignKey("aircraft.id", ondelete="CASCADE"))
+    position: Mapped[int] = mapped_column(SmallInteger)
+    upload_id: Mapped[int] = mapped_column(ForeignKey("uploads.id", ondelete="CASCADE"))
+    recorded_at: Mapped[datetime] = mapped_column(UTCDateTime())
+    phase: Mapped[str] = mapped_column(String(8))
+    flight_id: Mapped[str | None] = mapped_column(String(64), default=None)
+    alt_ft: Mapped[float] = mapped_column(Double)
+    mach: Mapped[float] = mapped_column(Double)
+    dtamb_k: Mapped[float] = mapped_column(Double)
+    power_pct: Mapped[float] = mapped_column(Double)
+    wf: Mapped[float | None] = mapped_column(Double, default=None)
+    vsv: Mapped[float | None] = mapped_column(Double, default=None)
+    vbv: Mapped[float | None] = mapped_column(Double, default=None)
+    nf: Mapped[float | None] = mapped_column(Double, default=None)
+    nc: Mapped[float | None] = mapped_column(Double, default=None)
+    t24: Mapped[float | None] = mapped_column(Double, default=None)
+    p24: Mapped[float | None] = mapped_column(Double, default=None)
+    t30: Mapped[float | None] = mapped_column(Double, default=None)
+    ps30: Mapped[float | None] = mapped_column(Double, default=None)
+    p30: Mapped[float | None] = mapped_column(Double, default=None)
+    t48: Mapped[float | None] = mapped_column(Double, default=None)
+    p50: Mapped[float | None] = mapped_column(Double, default=None)
+    t50: Mapped[float | None] = mapped_column(Double, default=None)
+    p15: Mapped[float | None] = mapped_column(Double, default=None)
+
+
+# The table's data columns in COPY order (everything but the generated id).
+SNAPSHOT_COLUMNS = (
+    "operator_id",
+    "engine_id",
+    "aircraft_id",
+    "position",
+    "upload_id",
+    "recorded_at",
+    "phase",
+    "flight_id",
+) + tuple(s.column for s in SIGNALS)
+
+
+class StreamRecording(Base):
+    """A whole-flight recording of one engine at a fixed rate; samples are Parquet files.
+
+    ``path`` is relative to ``data_dir``: a directory of ``chunk-000000.parquet`` files in
+    chunk order (a whole-flight file is chunk 0).
+    """
+
+    __tablename__ = "stream_recordings"
+    __table_args__ = (
+        UniqueConstraint("engine_id", "started_at"),
+        CheckConstraint(_in("status", RECORDING_STATUSES), name="status"),
+        CheckConstraint("dt_s > 0", name="dt"),
+        Index("ix_stream_recordings_operator_started", "operator_id", "started_at"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    operator_id: Mapped[int] = mapped_column(ForeignKey("operators.id", ondelete="CASCADE"))
+    engine_id: Mapped[int] = mapped_column(ForeignKey("engines.id", ondelete="CASCADE"))
+    aircraft_id: Mapped[int] = mapped_column(ForeignKey("aircraft.id", ondelete="CASCADE"))
+    position: Mapped[int] = mapped_column(SmallInteger)
+    flight_id: Mapped[str | None] = mapped_column(String(64), default=None)
+    started_at: Mapped[datetime] = mapped_column(UTCDateTime())
+    dt_s: Mapped[float] = mapped_column(Double)
+    status: Mapped[str] = mapped_column(String(8))
+    n_samples: Mapped[int] = mapped_column(default=0)
+    n_chunks: Mapped[int] = mapped_column(default=0)
+    signals: Mapped[list[str]] = mapped_column(JSONDocument, default=list)
+    path: Mapped[str] = mapped_column(String(300))
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    closed_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
+
+
+class StreamChunk(Base):
+    """One received chunk of a recording, in order; its checksum makes a resend a no-op."""
+
+    __tablename__ = "stream_chunks"
+    __table_args__ = (UniqueConstraint("recording_id", "chunk_index"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    recording_id: Mapped[int] = mapped_column(
+        ForeignKey("stream_recordings.id", ondelete="CASCADE")
+    )
+    chunk_index: Mapped[int]
+    upload_id: Mapped[int | None] = mapped_column(
+        ForeignKey("uploads.id", ondelete="SET NULL"), default=None
+    )
+    checksum: Mapped[str] = mapped_column(String(64))
+    first_sample: Mapped[int]
+    n_samples: Mapped[int]
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
