@@ -2,6 +2,7 @@
 
 from app.models.base import Base
 from app.models.designs import EngineModel, EngineType, EstimatorDesign
+from app.models.estimates import Estimate, Event, EventComment, FilterCheckpoint, FilterState
 from app.models.fleet import Aircraft, Engine, Installation, MaintenanceAction
 from app.models.ingest import Snapshot, StreamChunk, StreamRecording, Upload
 from app.models.jobs import Job, JobSchedule
@@ -14,7 +15,12 @@ __all__ = [
     "Engine",
     "EngineModel",
     "EngineType",
+    "Estimate",
     "EstimatorDesign",
+    "Event",
+    "EventComment",
+    "FilterCheckpoint",
+    "FilterState",
     "Installation",
     "Job",
     "JobSchedule",

@@ -1,0 +1,262 @@
+"""Estimates, filter states and events: what the estimation pipeline derives from snapshots.
+
+Storage of estimates. A trend query reads thousands of rows of one engine and design, so each
+row keeps its numbers in one packed little-endian float32 blob (``packed``) and the names that
+say which number is which live once per (engine, design) on ``filter_states.layout`` (they come
+from the design). Decoding 10,000 rows is then one ``b"".join`` and one ``numpy.frombuffer``
+with no per-value parsing, on SQLite and PostgreSQL alike; the same query over JSON arrays parses
+every number as text. float32 keeps 7 significant digits, far below the 1-sigma bands it carries,
+and the pipeline is deterministic, so a re-run writes byte-identical blobs.
+
+Rows are derived data: they are deleted and rewritten when a late record re-runs an engine, so
+every table here cascades from the engine, design and snapshot it was computed from.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Any
+
+import numpy as np
+from sqlalchemy import (
+    CheckConstraint,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    LargeBinary,
+    String,
+    Text,
+    UniqueConstraint,
+)
+from sqlalchemy.orm import Mapped, mapped_column, relationship
+
+from app.models.base import Base, UTCDateTime, utcnow
+from app.models.designs import JSONDocument
+from app.models.ingest import BigId
+
+EVENT_KINDS = ("shift", "isolated_fault")
+EVENT_STATUSES = ("open", "acknowledged", "closed")
+
+
+class Estimate(Base):
+    """One snapshot's estimate under one design.
+
+    ``packed`` holds, in the order of ``filter_states.layout["blocks"]``: tuners q_hat and their
+    1-sigma, health parameters h_hat and 1-sigma (percent), auxiliary outputs z_hat and 1-sigma
+    (thrust deficit, stall margins), sensor residuals (percent of trim) and WSSR per library fault.
+    ``seq`` numbers the engine's records under the design in time order (0, 1, ...): the
+    "cycles" axis of a trend, and the place a re-run starts from.
+    """
+
+    __tablename__ = "estimates"
+    __table_args__ = (
+        UniqueConstraint("engine_id", "design_id", "seq"),
+        UniqueConstraint("snapshot_id", "design_id"),
+    )
+
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    operator_id: Mapped[int] = mapped_column(ForeignKey("operators.id", ondelete="CASCADE"))
+    engine_id: Mapped[int] = mapped_column(ForeignKey("engines.id", ondelete="CASCADE"))
+    design_id: Mapped[int] = mapped_column(
+        ForeignKey("estimator_designs.id", ondelete="CASCADE"), index=True
+    )
+    snapshot_id: Mapped[int] = mapped_column(ForeignKey("snapshots.id", ondelete="CASCADE"))
+    seq: Mapped[int] = mapped_column(Integer)
+    recorded_at: Mapped[datetime] = mapped_column(UTCDateTime())
+    phase: Mapped[str] = mapped_column(String(16))
+    packed: Mapped[bytes] = mapped_column(LargeBinary)
+
+
+class FilterState(Base):
+    """The pipeline's state for one engine and design after its last processed record.
+
+    ``state`` is the serialised snapshot filter plus the shift detector (baseline, CUSUM);
+    ``layout`` names the numbers packed in each estimate's blob; ``n_records`` is the next
+    ``seq``; ``last_recorded_at``/``last_snapshot_id`` order the records already processed.
+    """
+
+    __tablename__ = "filter_states"
+    __table_args__ = (UniqueConstraint("engine_id", "design_id"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    operator_id: Mapped[int] = mapped_column(
+        ForeignKey("operators.id", ondelete="CASCADE"), index=True
+    )
+    engine_id: Mapped[int] = mapped_column(ForeignKey("engines.id", ondelete="CASCADE"))
+    design_id: Mapped[int] = mapped_column(
+        ForeignKey("estimator_designs.id", ondelete="CASCADE"), index=True
+    )
+    layout: Mapped[dict[str, Any]] = mapped_column(JSONDocument)
+    state: Mapped[dict[str, Any]] = mapped_column(JSONDocument)
+    n_records: Mapped[int] = mapped_column(Integer, default=0)
+    last_recorded_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
+    last_snapshot_id: Mapped[int | None] = mapped_column(BigId, default=None)
+    updated_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
+
+
+class FilterCheckpoint(Base):
+    """The pipeline state after ``seq`` records (every N records): where a re-run restarts.
+
+    A late record at time t restarts from the newest checkpoint whose last record is before t,
+    so a re-run costs at most N records plus the records after t.
+    """
+
+    __tablename__ = "filter_checkpoints"
+    __table_args__ = (UniqueConstraint("engine_id", "design_id", "seq"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    engine_id: Mapped[int] = mapped_column(ForeignKey("engines.id", ondelete="CASCADE"))
+    design_id: Mapped[int] = mapped_column(
+        ForeignKey("estimator_designs.id", ondelete="CASCADE"), index=True
+    )
+    seq: Mapped[int] = mapped_column(Integer)
+    last_recorded_at: Mapped[datetime] = mapped_column(UTCDateTime())
+    last_snapshot_id: Mapped[int] = mapped_column(BigId)
+    state: Mapped[dict[str, Any]] = mapped_column(JSONDocument)
+
+
+class Event(Base):
+    """A detected shift of an engine's tuners, isolated to a library fault when one fits.
+
+    kind ``isolated_fault``: the smallest WSSR is consistent with its fault (``fault`` and
+    ``magnitude``, 1.0 = the library's nominal shift); kind ``shift``: no library fault explains
+    it. ``wssr`` maps every hypothesis to its WSSR; ``shift`` maps tuner names to the change
+    against the baseline; ``seq`` is the record at which the detector raised the alarm.
+    """
+
+    __tablename__ = "events"
+    __table_args__ = (
+        CheckConstraint(
+            "kind IN (" + ", ".join(f"'{k}'" for k in EVENT_KINDS) + ")", name="kind"
+        ),
+        CheckConstraint(
+            "status IN (" + ", ".join(f"'{s}'" for s in EVENT_STATUSES) + ")", name="status"
+        ),
+        UniqueConstraint("engine_id", "design_id", "seq"),
+        Index("ix_events_operator_status_detected", "operator_id", "status", "detected_at"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    operator_id: Mapped[int] = mapped_column(ForeignKey("operators.id", ondelete="CASCADE"))
+    engine_id: Mapped[int] = mapped_column(ForeignKey("engines.id", ondelete="CASCADE"))
+    design_id: Mapped[int] = mapped_column(
+        ForeignKey("estimator_designs.id", ondelete="CASCADE"), index=True
+    )
+    seq: Mapped[int] = mapped_column(Integer)
+    detected_at: Mapped[datetime] = mapped_column(UTCDateTime())
+    kind: Mapped[str] = mapped_column(String(16))
+    fault: Mapped[str | None] = mapped_column(String(64), default=None)
+    magnitude: Mapped[float | None] = mapped_column(Float, default=None)
+    statistic: Mapped[float] = mapped_column(Float)
+    wssr: Mapped[dict[str, Any]] = mapped_column(JSONDocument)
+    shift: Mapped[dict[str, Any]] = mapped_column(JSONDocument)
+    status: Mapped[str] = mapped_column(String(16), default="open")
+    acknowledged_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
+    acknowledged_by: Mapped[int | None] = mapped_column(
+        ForeignKey("api_keys.id", ondelete="SET NULL"), default=None
+    )
+    closed_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
+    closed_by: Mapped[int | None] = mapped_column(
+        ForeignKey("api_keys.id", ondelete="SET NULL"), default=None
+    )
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
+
+    comments: Mapped[list[EventComment]] = relationship(
+        back_populates="event", cascade="all, delete-orphan", order_by="EventComment.id"
+    )
+
+
+class EventComment(Base):
+    __tablename__ = "event_comments"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    event_id: Mapped[int] = mapped_column(
+        ForeignKey("events.id", ondelete="CASCADE"), index=True
+    )
+    author_key_id: Mapped[int | None] = mapped_column(
+        ForeignKey("api_keys.id", ondelete="SET NULL"), default=None
+    )
+    author: Mapped[str] = mapped_column(String(200))
+    body: Mapped[str] = mapped_column(Text)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
+
+    event: Mapped[Event] = relationship(back_populates="comments")
+
+
+# The blocks of an estimate's ``packed`` blob, in order: (block, names group).
+BLOCKS = (
+    ("q", "tuners"),
+    ("q_sigma", "tuners"),
+    ("h", "health"),
+    ("h_sigma", "health"),
+    ("z", "aux"),
+    ("z_sigma", "aux"),
+    ("residual", "sensors"),
+    ("wssr", "faults"),
+)
+VALUE_DTYPE = "<f4"
+
+
+@dataclass(frozen=True)
+class EstimateLayout:
+    """Names of the numbers in an estimate's blob (stored as ``filter_states.layout``).
+
+    ``units`` maps group -> list of units, aligned with the group's names.
+    """
+
+    tuners: tuple[str, ...]
+    health: tuple[str, ...]
+    aux: tuple[str, ...]
+    sensors: tuple[str, ...]
+    faults: tuple[str, ...]
+    units: dict[str, list[str]] = field(default_factory=dict)
+
+    def names(self, group: str) -> tuple[str, ...]:
+        return tuple(getattr(self, group))
+
+    @property
+    def width(self) -> int:
+        return sum(len(self.names(group)) for _block, group in BLOCKS)
+
+    def slices(self) -> dict[str, slice]:
+        out, start = {}, 0
+        for block, group in BLOCKS:
+            n = len(self.names(group))
+            out[block] = slice(start, start + n)
+            start += n
+        return out
+
+    def pack(self, rows: np.ndarray) -> list[bytes]:
+        """(n, width) numbers -> n blobs."""
+        rows = np.ascontiguousarray(rows, dtype=VALUE_DTYPE)
+        if rows.ndim != 2 or rows.shape[1] != self.width:
+            raise ValueError(f"estimate rows: expected (n, {self.width}) but found {rows.shape}")
+        return [row.tobytes() for row in rows]
+
+    def unpack(self, blobs: list[bytes]) -> np.ndarray:
+        """n blobs -> (n, width) float64 numbers."""
+        flat = np.frombuffer(b"".join(blobs), dtype=VALUE_DTYPE)
+        return flat.reshape(len(blobs), self.width).astype(np.float64)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "tuners": list(self.tuners),
+            "health": list(self.health),
+            "aux": list(self.aux),
+            "sensors": list(self.sensors),
+            "faults": list(self.faults),
+            "units": {k: list(v) for k, v in self.units.items()},
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> EstimateLayout:
+        return cls(
+            tuners=tuple(d["tuners"]),
+            health=tuple(d["health"]),
+            aux=tuple(d["aux"]),
+            sensors=tuple(d["sensors"]),
+            faults=tuple(d["faults"]),
+            units={k: list(v) for k, v in d.get("units", {}).items()},
+        )

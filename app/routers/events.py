@@ -1,0 +1,68 @@
+"""Events: list, show, acknowledge, comment, close."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated
+
+from fastapi import APIRouter, Query
+
+from app.schemas.estimates import (
+    CommentIn,
+    EventAction,
+    EventKind,
+    EventOut,
+    EventPage,
+    EventStatus,
+)
+from app.security import Analyst, CurrentPrincipal, DbSession
+from app.services import events as service
+
+router = APIRouter(prefix="/api/v1/events", tags=["events"])
+
+
+@router.get("", response_model=EventPage)
+def list_events(
+    session: DbSession,
+    principal: CurrentPrincipal,
+    status: EventStatus | None = None,
+    engine_id: int | None = None,
+    kind: EventKind | None = None,
+    since: Annotated[datetime | None, Query(description="detected at or after (ISO 8601)")] = None,
+    until: Annotated[datetime | None, Query(description="detected before")] = None,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+    offset: Annotated[int, Query(ge=0)] = 0,
+) -> object:
+    """Detected shifts and isolated faults, newest first."""
+    return service.list_events(
+        session, principal.operator_id, status=status, engine_id=engine_id, kind=kind,
+        since=since, until=until, limit=limit, offset=offset,
+    )
+
+
+@router.get("/{event_id}", response_model=EventOut)
+def show_event(event_id: int, session: DbSession, principal: CurrentPrincipal) -> object:
+    """One event with the WSSR of every fault hypothesis and its comments."""
+    return service.show_event(session, principal.operator_id, event_id)
+
+
+@router.post("/{event_id}/ack", response_model=EventOut)
+def acknowledge(
+    event_id: int, session: DbSession, principal: Analyst, body: EventAction | None = None
+) -> object:
+    """Acknowledge an open event (a repeat is a no-op), optionally with a comment."""
+    return service.acknowledge(session, principal, event_id, None if body is None else body.comment)
+
+
+@router.post("/{event_id}/comments", response_model=EventOut, status_code=201)
+def comment(event_id: int, body: CommentIn, session: DbSession, principal: Analyst) -> object:
+    """Add a comment to an event."""
+    return service.add_comment(session, principal, event_id, body.body)
+
+
+@router.post("/{event_id}/close", response_model=EventOut)
+def close(
+    event_id: int, session: DbSession, principal: Analyst, body: EventAction | None = None
+) -> object:
+    """Close an event, optionally with a comment."""
+    return service.close(session, principal, event_id, None if body is None else body.comment)

@@ -1,0 +1,28 @@
+"""Fleet status and fleet-average deterioration."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from fastapi import APIRouter
+
+from app.schemas.estimates import FleetDeterioration, FleetStatus
+from app.security import CurrentPrincipal, DbSession
+from app.services import fleet_status as service
+
+router = APIRouter(prefix="/api/v1/fleet", tags=["fleet status"])
+
+
+@router.get("/status", response_model=FleetStatus)
+def fleet_status(session: DbSession, principal: CurrentPrincipal) -> object:
+    """Every engine with its current tail and position, type, last data, latest health summary
+    and open events."""
+    return service.fleet_status(session, principal.operator_id)
+
+
+@router.get("/deterioration", response_model=FleetDeterioration)
+def fleet_deterioration(
+    session: DbSession, principal: CurrentPrincipal, bucket: Literal["week", "month"] = "month"
+) -> object:
+    """Fleet-average health-parameter and auxiliary estimates per week or month."""
+    return service.fleet_deterioration(session, principal.operator_id, bucket)

@@ -1,0 +1,77 @@
+"""Trend routes: per engine serial number and per tail, as JSON or CSV (``?format=csv``)."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Query, Response
+
+from app.schemas.estimates import AircraftTrend, EngineTrend
+from app.security import CurrentPrincipal, DbSession
+from app.services import trends
+
+router = APIRouter(prefix="/api/v1", tags=["trends"])
+
+CSV_RESPONSE: dict[int | str, dict[str, Any]] = {
+    200: {"content": {"text/csv": {}}, "description": "JSON, or CSV with ?format=csv"}
+}
+MaxPoints = Query(
+    trends.DEFAULT_MAX_POINTS,
+    ge=0,
+    le=100_000,
+    description="decimate into at most this many buckets (mean, min, max); 0 keeps every record",
+)
+
+
+def _csv(body: str, filename: str) -> Response:
+    return Response(
+        body,
+        media_type="text/csv",
+        headers={"Content-Disposition": f'attachment; filename="{filename}"'},
+    )
+
+
+@router.get("/engines/{engine_id}/trend", response_model=EngineTrend, responses=CSV_RESPONSE)
+def engine_trend(
+    engine_id: int,
+    session: DbSession,
+    principal: CurrentPrincipal,
+    start: Annotated[datetime | None, Query(description="from this time, ISO 8601")] = None,
+    end: Annotated[datetime | None, Query(description="before this time")] = None,
+    design_id: Annotated[
+        int | None, Query(description="default: the engine type's active design")
+    ] = None,
+    max_points: int = MaxPoints,
+    format: Literal["json", "csv"] = "json",
+) -> object:
+    """Tuners, health parameters with 1-sigma, thrust and margins, residuals and WSSR over time,
+    with installation changes, maintenance actions and events as markers."""
+    trend = trends.engine_trend(
+        session, principal.operator_id, engine_id, design_id=design_id, start=start, end=end,
+        max_points=max_points,
+    )
+    if format == "csv":
+        return _csv(trends.engine_trend_csv(trend), f"trend-{trend['esn']}.csv")
+    return trend
+
+
+@router.get(
+    "/aircraft/{aircraft_id}/trend", response_model=AircraftTrend, responses=CSV_RESPONSE
+)
+def aircraft_trend(
+    aircraft_id: int,
+    session: DbSession,
+    principal: CurrentPrincipal,
+    start: Annotated[datetime | None, Query(description="from this time, ISO 8601")] = None,
+    end: Annotated[datetime | None, Query(description="before this time")] = None,
+    max_points: int = MaxPoints,
+    format: Literal["json", "csv"] = "json",
+) -> object:
+    """The union over the tail's installations: each engine's trend while it sat on the tail."""
+    trend = trends.aircraft_trend(
+        session, principal.operator_id, aircraft_id, start=start, end=end, max_points=max_points
+    )
+    if format == "csv":
+        return _csv(trends.aircraft_trend_csv(trend), f"trend-{trend['tail']}.csv")
+    return trend

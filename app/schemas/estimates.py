@@ -1,0 +1,215 @@
+"""Response and request models of trends, fleet status and events.
+
+Trends are columnar (one array per signal sharing ``time`` and ``seq``), the shape plotly draws
+directly: a series' ``value`` with ``value +- sigma`` as its band, and on a decimated trend its
+bucket ``min``/``max`` envelope.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+EventKind = Literal["shift", "isolated_fault"]
+EventStatus = Literal["open", "acknowledged", "closed"]
+
+
+class TrendSeries(BaseModel):
+    name: str
+    unit: str
+    value: list[float | None]
+    sigma: list[float | None] | None = Field(None, description="1-sigma of the estimate")
+    min: list[float | None] | None = Field(None, description="bucket minimum (decimated)")
+    max: list[float | None] | None = Field(None, description="bucket maximum (decimated)")
+
+
+class TrendGroup(BaseModel):
+    key: Literal["tuners", "health", "aux", "residuals", "wssr"]
+    label: str
+    series: list[TrendSeries]
+
+
+class InstallationMarker(BaseModel):
+    aircraft_id: int
+    tail: str
+    position: int
+    installed_at: datetime
+    removed_at: datetime | None
+
+
+class MaintenanceMarker(BaseModel):
+    id: int
+    kind: str
+    performed_at: datetime
+    notes: str
+
+
+class EventMarker(BaseModel):
+    id: int
+    detected_at: datetime
+    kind: EventKind
+    fault: str | None
+    status: EventStatus
+    seq: int
+
+
+class EngineTrend(BaseModel):
+    engine_id: int
+    esn: str
+    engine_type: str
+    design_id: int | None
+    design_name: str | None
+    start: datetime | None
+    end: datetime | None
+    n_records: int = Field(description="estimates in the time range")
+    n_points: int = Field(description="points returned (buckets when decimated)")
+    decimated: bool
+    time: list[str] = Field(description="ISO 8601 UTC; bucket mean time when decimated")
+    seq: list[float] = Field(description="record number (cycles axis); bucket mean")
+    phase: list[str | None]
+    groups: list[TrendGroup]
+    installations: list[InstallationMarker]
+    maintenance: list[MaintenanceMarker]
+    events: list[EventMarker]
+
+
+class TrendSegment(BaseModel):
+    position: int
+    installed_at: datetime
+    removed_at: datetime | None
+    trend: EngineTrend
+
+
+class AircraftTrend(BaseModel):
+    aircraft_id: int
+    tail: str
+    start: datetime | None
+    end: datetime | None
+    segments: list[TrendSegment]
+
+
+class HealthSummary(BaseModel):
+    """The latest estimate of an engine in brief."""
+
+    recorded_at: datetime
+    seq: int
+    worst_health: str | None = Field(description="health parameter with the largest |h_hat|")
+    worst_health_value: float | None = Field(description="its h_hat, percent")
+    worst_health_sigma: float | None
+    thrust_deficit: float | None = Field(description="-z_hat of thrust, percent")
+    health: dict[str, float]
+    aux: dict[str, float]
+
+
+class OpenEventBrief(BaseModel):
+    id: int
+    detected_at: datetime
+    kind: EventKind
+    fault: str | None
+    magnitude: float | None
+    status: EventStatus
+
+
+class EngineStatus(BaseModel):
+    engine_id: int
+    esn: str
+    engine_type: str
+    aircraft_id: int | None
+    tail: str | None
+    position: int | None
+    design_id: int | None
+    last_data: datetime | None
+    n_records: int
+    state: Literal["no_data", "normal", "watch", "alert"]
+    health: HealthSummary | None
+    open_events: int
+    latest_event: OpenEventBrief | None
+
+
+class FleetStatus(BaseModel):
+    operator: str
+    n_engines: int
+    n_open_events: int
+    engines: list[EngineStatus]
+
+
+class DeteriorationSeries(BaseModel):
+    name: str
+    unit: str
+    mean: list[float | None]
+    sigma: list[float | None] = Field(description="spread over engines (standard deviation)")
+
+
+class DeteriorationGroup(BaseModel):
+    engine_type: str
+    design_id: int
+    time: list[str] = Field(description="bucket start, ISO 8601 UTC")
+    n_engines: list[int]
+    health: list[DeteriorationSeries]
+    aux: list[DeteriorationSeries]
+
+
+class FleetDeterioration(BaseModel):
+    bucket: Literal["week", "month"]
+    groups: list[DeteriorationGroup]
+
+
+class CommentOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+    id: int
+    author: str
+    author_key_id: int | None
+    body: str
+    created_at: datetime
+
+
+class EventOut(BaseModel):
+    id: int
+    engine_id: int
+    esn: str
+    tail: str | None = Field(description="tail the engine sat on when the event was detected")
+    position: int | None
+    design_id: int
+    seq: int
+    detected_at: datetime
+    kind: EventKind
+    fault: str | None
+    magnitude: float | None = Field(description="fitted f, 1.0 = the library's nominal shift")
+    statistic: float = Field(description="detector statistic at the alarm")
+    wssr: dict[str, float] = Field(description="WSSR of every fault hypothesis")
+    wssr_threshold: float | None = Field(description="WSSR below which a fault is accepted")
+    tuner_shift: dict[str, float] = Field(description="tuner change against the baseline")
+    health_shift: dict[str, float] = Field(description="h_hat change against the baseline, %")
+    fault_shift: dict[str, float] = Field(
+        description="the isolated fault's health shifts scaled by magnitude, %"
+    )
+    status: EventStatus
+    acknowledged_at: datetime | None
+    acknowledged_by: int | None
+    closed_at: datetime | None
+    closed_by: int | None
+    comments: list[CommentOut]
+
+
+class EventPage(BaseModel):
+    items: list[EventOut]
+    total: int
+    limit: int
+    offset: int
+
+
+class CommentIn(BaseModel):
+    model_config = ConfigDict(extra="forbid", str_strip_whitespace=True)
+
+    body: str = Field(min_length=1, max_length=10_000)
+
+
+class EventAction(BaseModel):
+    """Optional comment sent with acknowledge or close."""
+
+    model_config = ConfigDict(extra="forbid", str_strip_whitespace=True)
+
+    comment: str | None = Field(None, max_length=10_000)

@@ -1,0 +1,270 @@
+"""Fleet status (every engine with its latest state) and fleet-average deterioration.
+
+The status page reads a fixed number of queries whatever the fleet size: engines with their
+current installation, the active designs, each engine's filter state and the one estimate it
+points at (``seq = n_records - 1`` through the unique (engine, design, seq) index), and the
+open events. An engine's state is ``alert`` with an event not closed, ``watch`` when a health
+parameter has moved more than ``WATCH_PERCENT`` and 3 sigma from zero, else ``normal``.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from datetime import UTC, datetime
+from typing import Any
+
+import numpy as np
+from sqlalchemy import and_, select
+from sqlalchemy.orm import Session
+
+from app.errors import InvalidInput
+from app.models import Aircraft, Engine, EngineType, EstimatorDesign, Installation, Operator
+from app.models.estimates import Estimate, EstimateLayout, FilterState
+from app.services.events import latest_open_events, open_event_counts
+
+WATCH_PERCENT = 1.5
+WATCH_SIGMAS = 3.0
+THRUST_NAMES = ("fn", "thrust", "f_n")
+
+
+def thrust_index(aux: tuple[str, ...]) -> int | None:
+    for j, name in enumerate(aux):
+        if name.lower() in THRUST_NAMES:
+            return j
+    return None
+
+
+def health_summary(
+    layout: EstimateLayout, values: np.ndarray, recorded_at: datetime, seq: int
+) -> dict[str, Any]:
+    """Brief of one estimate: the worst health parameter and the thrust deficit."""
+    s = layout.slices()
+    h, h_sigma, z = values[s["h"]], values[s["h_sigma"]], values[s["z"]]
+    worst = int(np.argmax(np.abs(h))) if len(h) else None
+    k = thrust_index(layout.aux)
+    return {
+        "recorded_at": recorded_at,
+        "seq": seq,
+        "worst_health": None if worst is None else layout.health[worst],
+        "worst_health_value": None if worst is None else round(float(h[worst]), 4),
+        "worst_health_sigma": None if worst is None else round(float(h_sigma[worst]), 4),
+        "thrust_deficit": None if k is None else round(float(-z[k]), 4),
+        "health": {n: round(float(v), 4) for n, v in zip(layout.health, h, strict=True)},
+        "aux": {n: round(float(v), 4) for n, v in zip(layout.aux, z, strict=True)},
+    }
+
+
+def _state(summary: dict[str, Any] | None, n_open: int, layout: EstimateLayout | None,
+           values: np.ndarray | None) -> str:
+    if n_open:
+        return "alert"
+    if summary is None or layout is None or values is None:
+        return "no_data"
+    s = layout.slices()
+    h, sigma = np.abs(values[s["h"]]), values[s["h_sigma"]]
+    if np.any((h > WATCH_PERCENT) & (h > WATCH_SIGMAS * sigma)):
+        return "watch"
+    return "normal"
+
+
+def fleet_status(session: Session, operator_id: int) -> dict[str, Any]:
+    """Every engine of the operator with current tail/position, type, last data, latest health
+    summary and open events (``app.schemas.estimates.FleetStatus``)."""
+    operator = session.get(Operator, operator_id)
+    engines = session.execute(
+        select(Engine.id, Engine.esn, Engine.engine_type_id, EngineType.name)
+        .join(EngineType, EngineType.id == Engine.engine_type_id)
+        .where(Engine.operator_id == operator_id)
+        .order_by(Engine.esn)
+    ).all()
+    installed = {
+        engine_id: (aircraft_id, tail, position)
+        for engine_id, aircraft_id, tail, position in session.execute(
+            select(Installation.engine_id, Aircraft.id, Aircraft.tail, Installation.position)
+            .join(Aircraft, Aircraft.id == Installation.aircraft_id)
+            .where(Installation.operator_id == operator_id, Installation.removed_at.is_(None))
+        ).all()
+    }
+    active: dict[int, int] = {
+        type_id: design_id
+        for type_id, design_id in session.execute(
+            select(EstimatorDesign.engine_type_id, EstimatorDesign.id).where(
+                EstimatorDesign.operator_id == operator_id, EstimatorDesign.active.is_(True)
+            )
+        ).all()
+    }
+    latest = session.execute(
+        select(
+            FilterState.engine_id, FilterState.design_id, FilterState.layout,
+            FilterState.n_records, FilterState.last_recorded_at, Estimate.recorded_at,
+            Estimate.seq, Estimate.packed,
+        )
+        .outerjoin(
+            Estimate,
+            and_(
+                Estimate.engine_id == FilterState.engine_id,
+                Estimate.design_id == FilterState.design_id,
+                Estimate.seq == FilterState.n_records - 1,
+            ),
+        )
+        .where(FilterState.operator_id == operator_id)
+    ).all()
+    by_engine: dict[int, dict[int, Any]] = defaultdict(dict)
+    for state_row in latest:
+        by_engine[state_row.engine_id][state_row.design_id] = state_row
+    counts = open_event_counts(session, operator_id)
+    newest_events = latest_open_events(session, operator_id)
+    layouts: dict[str, EstimateLayout] = {}
+
+    out = []
+    for engine_id, esn, type_id, type_name in engines:
+        states = by_engine.get(engine_id, {})
+        design_id = active.get(type_id)
+        row: Any = states.get(design_id) if design_id is not None else None
+        if row is None and states:
+            row = max(states.values(), key=lambda r: (r.last_recorded_at is not None,
+                                                      r.last_recorded_at, r.design_id))
+        summary = layout = values = None
+        if row is not None and row.packed is not None:
+            key = repr(row.layout)
+            if key not in layouts:
+                layouts[key] = EstimateLayout.from_dict(row.layout)
+            layout = layouts[key]
+            values = layout.unpack([row.packed])[0]
+            summary = health_summary(layout, values, row.recorded_at, row.seq)
+        n_open = counts.get(engine_id, 0)
+        event = newest_events.get(engine_id)
+        where = installed.get(engine_id)
+        out.append(
+            {
+                "engine_id": engine_id,
+                "esn": esn,
+                "engine_type": type_name,
+                "aircraft_id": None if where is None else where[0],
+                "tail": None if where is None else where[1],
+                "position": None if where is None else where[2],
+                "design_id": None if row is None else row.design_id,
+                "last_data": None if row is None else row.last_recorded_at,
+                "n_records": 0 if row is None else row.n_records,
+                "state": _state(summary, n_open, layout, values),
+                "health": summary,
+                "open_events": n_open,
+                "latest_event": None
+                if event is None
+                else {
+                    "id": event.id,
+                    "detected_at": event.detected_at,
+                    "kind": event.kind,
+                    "fault": event.fault,
+                    "magnitude": event.magnitude,
+                    "status": event.status,
+                },
+            }
+        )
+    return {
+        "operator": "" if operator is None else operator.name,
+        "n_engines": len(out),
+        "n_open_events": sum(counts.values()),
+        "engines": out,
+    }
+
+
+def _series(
+    names: tuple[str, ...], units: list[str] | None, mean: np.ndarray, spread: np.ndarray,
+    offset: int,
+) -> list[dict[str, Any]]:
+    unit_list = units or ["%"] * len(names)
+    return [
+        {
+            "name": name,
+            "unit": unit_list[j],
+            "mean": np.round(mean[:, offset + j], 4).tolist(),
+            "sigma": np.round(spread[:, offset + j], 4).tolist(),
+        }
+        for j, name in enumerate(names)
+    ]
+
+
+def _bucket_starts(epoch: np.ndarray, bucket: str) -> np.ndarray:
+    """Start (epoch seconds) of the week (Monday) or calendar month of each time."""
+    days = np.floor(epoch / 86400.0).astype("datetime64[D]")
+    if bucket == "week":
+        # 1970-01-01 was a Thursday: shift so weeks start on Monday.
+        weeks = (days - np.datetime64("1969-12-29")).astype(np.int64) // 7
+        starts = np.datetime64("1969-12-29") + weeks * 7
+    else:
+        starts = days.astype("datetime64[M]").astype("datetime64[D]")
+    return starts.astype("datetime64[s]").astype(np.int64).astype(float)
+
+
+def fleet_deterioration(
+    session: Session, operator_id: int, bucket: str = "month"
+) -> dict[str, Any]:
+    """Fleet-average health and auxiliary estimates per week or month, per active design.
+
+    Each engine first counts once per bucket (the mean of its estimates there), then the
+    fleet mean and spread are taken over engines, so a busy engine does not dominate.
+    """
+    if bucket not in ("week", "month"):
+        raise InvalidInput(
+            "bucket must be week or month",
+            details=[{"row": None, "column": "bucket", "reason": f"unknown bucket {bucket!r}"}],
+        )
+    designs = session.execute(
+        select(EstimatorDesign.id, EngineType.name)
+        .join(EngineType, EngineType.id == EstimatorDesign.engine_type_id)
+        .where(EstimatorDesign.operator_id == operator_id, EstimatorDesign.active.is_(True))
+        .order_by(EngineType.name)
+    ).all()
+    groups = []
+    for design_id, type_name in designs:
+        layout_doc = session.scalar(
+            select(FilterState.layout).where(FilterState.design_id == design_id).limit(1)
+        )
+        if layout_doc is None:
+            continue
+        layout = EstimateLayout.from_dict(layout_doc)
+        rows = session.execute(
+            select(Estimate.engine_id, Estimate.recorded_at, Estimate.packed)
+            .where(Estimate.design_id == design_id, Estimate.operator_id == operator_id)
+        ).all()
+        if not rows:
+            continue
+        engine_ids = np.fromiter((r[0] for r in rows), np.int64, len(rows))
+        epoch = np.fromiter((r[1].timestamp() for r in rows), float, len(rows))
+        values = layout.unpack([r[2] for r in rows])
+        s = layout.slices()
+        hz = np.concatenate([values[:, s["h"]], values[:, s["z"]]], axis=1)
+        starts = _bucket_starts(epoch, bucket)
+        buckets, b_index = np.unique(starts, return_inverse=True)
+        # Per (engine, bucket) mean, then mean and spread over engines.
+        keys, k_index = np.unique(np.stack([b_index, engine_ids]), axis=1, return_inverse=True)
+        k_index = np.ravel(k_index)
+        sums = np.zeros((keys.shape[1], hz.shape[1]))
+        np.add.at(sums, k_index, hz)
+        per_engine = sums / np.bincount(k_index, minlength=keys.shape[1])[:, None]
+        n_engines = np.bincount(keys[0], minlength=len(buckets))
+        mean = np.zeros((len(buckets), hz.shape[1]))
+        np.add.at(mean, keys[0], per_engine)
+        mean /= n_engines[:, None]
+        sq = np.zeros_like(mean)
+        np.add.at(sq, keys[0], (per_engine - mean[keys[0]]) ** 2)
+        spread = np.sqrt(sq / n_engines[:, None])
+        p = len(layout.health)
+        units = layout.units
+
+
+        groups.append(
+            {
+                "engine_type": type_name,
+                "design_id": design_id,
+                "time": [
+                    datetime.fromtimestamp(t, UTC).isoformat().replace("+00:00", "Z")
+                    for t in buckets
+                ],
+                "n_engines": n_engines.tolist(),
+                "health": _series(layout.health, units.get("health"), mean, spread, 0),
+                "aux": _series(layout.aux, units.get("aux"), mean, spread, p),
+            }
+        )
+    return {"bucket": bucket, "groups": groups}

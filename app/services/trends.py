@@ -1,0 +1,425 @@
+"""Trends per engine serial number and per tail: estimates over time, decimated, JSON or CSV.
+
+An engine's trend is its estimates under one design (the engine type's active design unless
+another is asked for), in time order, each signal with its 1-sigma band. A long history is
+decimated into at most ``max_points`` buckets of consecutive records; each bucket keeps the
+mean and the min/max envelope of every signal, so a spike survives decimation. A tail's trend is
+the union over its installations: each engine's trend cut to the period it sat on that tail.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Any
+
+import numpy as np
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from app.errors import InvalidInput, NotFound
+from app.models import Aircraft, Engine, EstimatorDesign, Installation, MaintenanceAction
+from app.models.estimates import BLOCKS, Estimate, EstimateLayout, Event, FilterState
+
+# Trend groups as the dashboard draws them: (key, value block, sigma block, names group, label).
+GROUPS = (
+    ("tuners", "q", "q_sigma", "tuners", "Tuners"),
+    ("health", "h", "h_sigma", "health", "Health parameters"),
+    ("aux", "z", "z_sigma", "aux", "Thrust and stall margins"),
+    ("residuals", "residual", None, "sensors", "Sensor residuals"),
+    ("wssr", "wssr", None, "faults", "WSSR per fault hypothesis"),
+)
+DEFAULT_UNITS = {"tuners": "%", "health": "%", "aux": "%", "sensors": "%", "faults": "1"}
+DEFAULT_MAX_POINTS = 2000
+
+
+@dataclass(frozen=True)
+class TrendData:
+    """Decoded estimates of one engine and design, in time order (not decimated).
+
+    epoch : (n,) seconds since 1970 UTC; seq : (n,) record numbers; phase : n strings;
+    values : (n, width) per ``layout``.
+    """
+
+    layout: EstimateLayout
+    epoch: np.ndarray
+    seq: np.ndarray
+    phase: list[str]
+    values: np.ndarray
+
+
+def _epoch(t: datetime) -> float:
+    return t.timestamp()
+
+
+def _iso(epoch: float) -> str:
+    return datetime.fromtimestamp(float(epoch), UTC).isoformat().replace("+00:00", "Z")
+
+
+def get_engine(session: Session, operator_id: int, engine_id: int) -> Engine:
+    engine = session.get(Engine, engine_id)
+    if engine is None or engine.operator_id != operator_id:
+        raise NotFound(f"engine {engine_id} not found")
+    return engine
+
+
+def resolve_design(
+    session: Session, operator_id: int, engine: Engine, design_id: int | None
+) -> EstimatorDesign | None:
+    """The design to show: ``design_id`` if given, else the engine type's active design, else
+    the design of the engine's most recently updated filter state (None: nothing estimated)."""
+    if design_id is not None:
+        design = session.get(EstimatorDesign, design_id)
+        if design is None or design.operator_id != operator_id:
+            raise NotFound(f"design {design_id} not found")
+        return design
+    design = session.scalar(
+        select(EstimatorDesign).where(
+            EstimatorDesign.engine_type_id == engine.engine_type_id,
+            EstimatorDesign.active.is_(True),
+        )
+    )
+    if design is not None:
+        return design
+    state = session.scalar(
+        select(FilterState)
+        .where(FilterState.engine_id == engine.id)
+        .order_by(FilterState.updated_at.desc(), FilterState.id.desc())
+        .limit(1)
+    )
+    return None if state is None else session.get(EstimatorDesign, state.design_id)
+
+
+def load_trend_data(
+    session: Session,
+    engine_id: int,
+    design_id: int,
+    start: datetime | None = None,
+    end: datetime | None = None,
+) -> TrendData | None:
+    """Estimates of one engine and design in ``[start, end)``; None when never estimated."""
+    layout_doc = session.scalar(
+        select(FilterState.layout).where(
+            FilterState.engine_id == engine_id, FilterState.design_id == design_id
+        )
+    )
+    if layout_doc is None:
+        return None
+    layout = EstimateLayout.from_dict(layout_doc)
+    query = (
+        select(Estimate.recorded_at, Estimate.seq, Estimate.phase, Estimate.packed)
+        .where(Estimate.engine_id == engine_id, Estimate.design_id == design_id)
+        .order_by(Estimate.seq)
+    )
+    if start is not None:
+        query = query.where(Estimate.recorded_at >= start)
+    if end is not None:
+        query = query.where(Estimate.recorded_at < end)
+    rows = session.execute(query).all()
+    if not rows:
+        return TrendData(layout, np.empty(0), np.empty(0, int), [], np.empty((0, layout.width)))
+    recorded, seq, phase, blobs = zip(*rows, strict=True)
+    return TrendData(
+        layout=layout,
+        epoch=np.fromiter((_epoch(t) for t in recorded), float, len(rows)),
+        seq=np.asarray(seq, dtype=np.int64),
+        phase=list(phase),
+        values=layout.unpack(list(blobs)),
+    )
+
+
+def decimate(n: int, max_points: int) -> np.ndarray | None:
+    """Start indices of at most ``max_points`` equal-count buckets of n records (None: keep
+    every record)."""
+    if max_points <= 0 or n <= max_points:
+        return None
+    return np.unique(np.floor(np.arange(max_points) * (n / max_points)).astype(np.int64))
+
+
+def _series_columns(
+    data: TrendData, starts: np.ndarray | None
+) -> tuple[dict[str, Any], np.ndarray | None, np.ndarray | None]:
+    """Per-point time/seq/phase columns and the bucket mean, min and max of every value."""
+    if starts is None:
+        columns = {
+            "time": [_iso(t) for t in data.epoch],
+            "seq": data.seq.tolist(),
+            "phase": data.phase,
+        }
+        return columns, None, None
+    counts = np.diff(np.append(starts, len(data.epoch)))
+    mean_epoch = np.add.reduceat(data.epoch, starts) / counts
+    mean_seq = np.add.reduceat(data.seq.astype(float), starts) / counts
+    phases = []
+    for i, s in enumerate(starts):
+        bucket = set(data.phase[s : s + counts[i]])
+        phases.append(bucket.pop() if len(bucket) == 1 else None)
+    columns = {
+        "time": [_iso(t) for t in mean_epoch],
+        "seq": np.round(mean_seq, 1).tolist(),
+        "phase": phases,
+    }
+    lo = np.minimum.reduceat(data.values, starts, axis=0)
+    hi = np.maximum.reduceat(data.values, starts, axis=0)
+    return columns, lo, hi
+
+
+def _clean(column: np.ndarray) -> list[float | None]:
+    """JSON numbers; a missing value (NaN: sensor not reported) becomes null."""
+    rounded = np.round(column, 6)
+    if not np.isnan(rounded).any():
+        return rounded.tolist()
+    return [None if np.isnan(v) else v for v in rounded.tolist()]
+
+
+def trend_groups(
+    data: TrendData, starts: np.ndarray | None
+) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """Columns shared by all series, and the groups of series (mean, sigma, min, max)."""
+    columns, lo, hi = _series_columns(data, starts)
+    if starts is None:
+        values = data.values
+    else:
+        counts = np.diff(np.append(starts, len(data.epoch)))
+        with np.errstate(invalid="ignore"):
+            values = np.add.reduceat(data.values, starts, axis=0) / counts[:, None]
+    slices = data.layout.slices()
+    groups = []
+    for key, block, sigma_block, names_group, label in GROUPS:
+        names = data.layout.names(names_group)
+        units = data.layout.units.get(names_group) or [DEFAULT_UNITS[names_group]] * len(names)
+        block_slice = slices[block]
+        series = []
+        for j, name in enumerate(names):
+            col = block_slice.start + j
+            item: dict[str, Any] = {
+                "name": name,
+                "unit": units[j],
+                "value": _clean(values[:, col]),
+                "sigma": None,
+                "min": None,
+                "max": None,
+            }
+            if sigma_block is not None:
+                item["sigma"] = _clean(values[:, slices[sigma_block].start + j])
+            if lo is not None and hi is not None:
+                item["min"] = _clean(lo[:, col])
+                item["max"] = _clean(hi[:, col])
+            series.append(item)
+        groups.append({"key": key, "label": label, "series": series})
+    return columns, groups
+
+
+def _markers(
+    session: Session, engine: Engine, design_id: int | None
+) -> dict[str, list[dict[str, Any]]]:
+    installs = session.execute(
+        select(Installation.installed_at, Installation.removed_at, Installation.position,
+               Aircraft.id, Aircraft.tail)
+        .join(Aircraft, Aircraft.id == Installation.aircraft_id)
+        .where(Installation.engine_id == engine.id)
+        .order_by(Installation.installed_at)
+    ).all()
+    maintenance = session.execute(
+        select(MaintenanceAction.id, MaintenanceAction.kind, MaintenanceAction.performed_at,
+               MaintenanceAction.notes)
+        .where(MaintenanceAction.engine_id == engine.id)
+        .order_by(MaintenanceAction.performed_at)
+    ).all()
+    events_query = (
+        select(Event.id, Event.detected_at, Event.kind, Event.fault, Event.status, Event.seq)
+        .where(Event.engine_id == engine.id)
+        .order_by(Event.detected_at)
+    )
+    if design_id is not None:
+        events_query = events_query.where(Event.design_id == design_id)
+    events = session.execute(events_query).all()
+    return {
+        "installations": [
+            {"aircraft_id": a_id, "tail": tail, "position": pos, "installed_at": inst,
+             "removed_at": rem}
+            for inst, rem, pos, a_id, tail in installs
+        ],
+        "maintenance": [
+            {"id": m_id, "kind": kind, "performed_at": at, "notes": notes}
+            for m_id, kind, at, notes in maintenance
+        ],
+        "events": [
+            {"id": e_id, "detected_at": at, "kind": kind, "fault": fault, "status": status,
+             "seq": seq}
+            for e_id, at, kind, fault, status, seq in events
+        ],
+    }
+
+
+def _check_range(start: datetime | None, end: datetime | None) -> None:
+    for name, value in (("start", start), ("end", end)):
+        if value is not None and value.tzinfo is None:
+            raise InvalidInput(
+                f"{name} must carry a time zone",
+                details=[{"row": None, "column": name, "reason": "naive timestamp"}],
+            )
+    if start is not None and end is not None and end <= start:
+        raise InvalidInput(
+            "end must be after start",
+            details=[{"row": None, "column": "end", "reason": "end <= start"}],
+        )
+
+
+def engine_trend(
+    session: Session,
+    operator_id: int,
+    engine_id: int,
+    *,
+    design_id: int | None = None,
+    start: datetime | None = None,
+    end: datetime | None = None,
+    max_points: int = DEFAULT_MAX_POINTS,
+    markers: bool = True,
+) -> dict[str, Any]:
+    """The trend of one engine as a dict shaped like ``app.schemas.estimates.EngineTrend``."""
+    _check_range(start, end)
+    engine = get_engine(session, operator_id, engine_id)
+    design = resolve_design(session, operator_id, engine, design_id)
+    data = None if design is None else load_trend_data(session, engine.id, design.id, start, end)
+    out: dict[str, Any] = {
+        "engine_id": engine.id,
+        "esn": engine.esn,
+        "engine_type": engine.engine_type.name,
+        "design_id": None if design is None else design.id,
+        "design_name": None if design is None else design.name,
+        "start": start,
+        "end": end,
+        "n_records": 0,
+        "n_points": 0,
+        "decimated": False,
+        "time": [],
+        "seq": [],
+        "phase": [],
+        "groups": [],
+    }
+    if data is not None and len(data.epoch):
+        starts = decimate(len(data.epoch), max_points)
+        columns, groups = trend_groups(data, starts)
+        out.update(columns)
+        out.update(
+            n_records=len(data.epoch),
+            n_points=len(columns["time"]),
+            decimated=starts is not None,
+            groups=groups,
+        )
+    if markers:
+        out.update(_markers(session, engine, None if design is None else design.id))
+    else:
+        out.update(installations=[], maintenance=[], events=[])
+    return out
+
+
+def aircraft_trend(
+    session: Session,
+    operator_id: int,
+    aircraft_id: int,
+    *,
+    start: datetime | None = None,
+    end: datetime | None = None,
+    max_points: int = DEFAULT_MAX_POINTS,
+) -> dict[str, Any]:
+    """The union over a tail's installations: each engine's trend cut to its time there."""
+    _check_range(start, end)
+    aircraft = session.get(Aircraft, aircraft_id)
+    if aircraft is None or aircraft.operator_id != operator_id:
+        raise NotFound(f"aircraft {aircraft_id} not found")
+    installs = session.scalars(
+        select(Installation)
+        .where(Installation.aircraft_id == aircraft.id)
+        .order_by(Installation.position, Installation.installed_at)
+    ).all()
+    segments = []
+    for inst in installs:
+        seg_start = max(filter(None, (start, inst.installed_at)))
+        ends = [t for t in (end, inst.removed_at) if t is not None]
+        seg_end = min(ends) if ends else None
+        if seg_end is not None and seg_end <= seg_start:
+            continue
+        trend = engine_trend(
+            session, operator_id, inst.engine_id, start=seg_start, end=seg_end,
+            max_points=max_points, markers=False,
+        )
+        segments.append(
+            {
+                "position": inst.position,
+                "installed_at": inst.installed_at,
+                "removed_at": inst.removed_at,
+                "trend": trend,
+            }
+        )
+    return {"aircraft_id": aircraft.id, "tail": aircraft.tail, "start": start, "end": end,
+            "segments": segments}
+
+
+def _csv_header(trend: dict[str, Any]) -> list[str]:
+    header = []
+    for group in trend["groups"]:
+        for series in group["series"]:
+            base = f"{group['key']}.{series['name']}[{series['unit']}]"
+            header.append(base)
+            if series["sigma"] is not None:
+                header.append(f"{group['key']}.{series['name']}.sigma[{series['unit']}]")
+            if series["min"] is not None:
+                header += [f"{base}.min", f"{base}.max"]
+    return header
+
+
+def _csv_rows(trend: dict[str, Any], prefix: list[Any]) -> list[list[Any]]:
+    columns: list[list[Any]] = [trend["time"], trend["seq"], trend["phase"]]
+    for group in trend["groups"]:
+        for series in group["series"]:
+            columns.append(series["value"])
+            if series["sigma"] is not None:
+                columns.append(series["sigma"])
+            if series["min"] is not None:
+                columns += [series["min"], series["max"]]
+    return [prefix + ["" if v is None else v for v in row] for row in zip(*columns, strict=True)]
+
+
+def engine_trend_csv(trend: dict[str, Any]) -> str:
+    """The trend as CSV: one row per point, one column per signal, sigma and envelope."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(["esn", "recorded_at", "seq", "phase", *_csv_header(trend)])
+    writer.writerows(_csv_rows(trend, [trend["esn"]]))
+    return out.getvalue()
+
+
+def aircraft_trend_csv(trend: dict[str, Any]) -> str:
+    """The tail's trend as CSV: segments one after the other, with position and ESN."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    header_written = False
+    for segment in trend["segments"]:
+        engine = segment["trend"]
+        if not engine["groups"]:
+            continue
+        if not header_written:
+            writer.writerow(
+                ["tail", "position", "esn", "recorded_at", "seq", "phase", *_csv_header(engine)]
+            )
+            header_written = True
+        writer.writerows(_csv_rows(engine, [trend["tail"], segment["position"], engine["esn"]]))
+    if not header_written:
+        writer.writerow(["tail", "position", "esn", "recorded_at", "seq", "phase"])
+    return out.getvalue()
+
+
+__all__ = [
+    "BLOCKS",
+    "TrendData",
+    "aircraft_trend",
+    "aircraft_trend_csv",
+    "decimate",
+    "engine_trend",
+    "engine_trend_csv",
+    "load_trend_data",
+]
