@@ -16,7 +16,7 @@ from app.db import make_engine, make_sessionmaker
 from app.errors import install_error_handlers
 from app.limits import BodyLimitMiddleware
 from app.log import configure_logging, install_request_logging
-from app.routers import health, me
+from app.routers import events, fleet_status, health, me, trends
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
 
@@ -48,5 +48,8 @@ def create_app(settings: Settings | None = None, engine: Engine | None = None) -
 
     app.include_router(health.router)
     app.include_router(me.router)
+    app.include_router(trends.router)
+    app.include_router(fleet_status.router)
+    app.include_router(events.router)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
     return app
