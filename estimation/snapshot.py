@@ -1,0 +1,251 @@
+"""Snapshot-mode (ground-station) tuner filter (MATH.md section 8).
+
+Between snapshots the tuners follow a random walk; each snapshot is a
+steady-state measurement scheduled on its own operating condition theta_j:
+
+    q[j]  = q[j-1] + w_q,          w_q ~ N(0, s_j Q_q),  Q_q = V* Q_h V*^T
+    dy[j] = G_y(theta_j) V*^+ q[j] + v[j],      v ~ N(0, diag(std_j^2))
+    dy[j] = y[j] - y_trim(theta_j) - G_u(theta_j) du[j]   (percent of trim)
+
+a time-varying Kalman filter over flights. Scheduling (G_y, trim, G_u as
+functions of theta) stays with the caller, who passes the per-snapshot gains
+as an array or a callable. Missing sensors (NaN in dy) are dropped from that
+snapshot's update. Sensor noise is independent between sensors (diagonal R,
+as in the model format), so the update processes one sensor at a time: exact
+for diagonal R, no matrix inverse, and vectorised over engines.
+
+Arrays are engine-major: dy [n_engines, n_snapshots, ny].
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from estimation.errors import DimensionError
+
+SNAPSHOT_STATE_FORMAT = "fleethealth.snapshot-state/1"
+
+GainSource = np.ndarray | Callable[[int], np.ndarray]
+
+
+@dataclass(frozen=True, eq=False)
+class SnapshotState:
+    """Filter state per engine: q_hat [n_engines, m] and its covariance P [n_engines, m, m]."""
+
+    q_hat: np.ndarray
+    P: np.ndarray
+
+    def __post_init__(self) -> None:
+        q = np.array(self.q_hat, dtype=float, order="C")
+        P = np.array(self.P, dtype=float, order="C")
+        if q.ndim != 2:
+            raise DimensionError(f"q_hat must be [n_engines, m], found shape {q.shape}")
+        E, m = q.shape
+        if P.shape != (E, m, m):
+            raise DimensionError(
+                f"Incompatible dimensions of P; expected ({E}, {m}, {m}) but found {P.shape}"
+            )
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(P))):
+            raise ValueError("snapshot state must be finite")
+        object.__setattr__(self, "q_hat", q)
+        object.__setattr__(self, "P", P)
+
+    @classmethod
+    def initial(cls, n_engines: int, P0: np.ndarray, q0: np.ndarray | None = None) -> SnapshotState:
+        """Start state: q0 [m] or [n_engines, m] (default 0) with covariance P0 [m, m]
+        (for example V* P_h V*^T, the fleet spread in tuner space)."""
+        P0 = np.asarray(P0, float)
+        m = P0.shape[0]
+        q = np.zeros((n_engines, m)) if q0 is None else np.broadcast_to(q0, (n_engines, m))
+        return cls(np.array(q), np.array(np.broadcast_to(P0, (n_engines, m, m))))
+
+    @property
+    def n_engines(self) -> int:
+        return int(self.q_hat.shape[0])
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict (``fleethealth.snapshot-state/1``); floats survive a JSON round trip
+        exactly (repr of a float is exact)."""
+        return {
+            "format": SNAPSHOT_STATE_FORMAT,
+            "q_hat": self.q_hat.tolist(),
+            "P": self.P.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> SnapshotState:
+        if d.get("format") != SNAPSHOT_STATE_FORMAT:
+            raise ValueError(
+                f"format must be {SNAPSHOT_STATE_FORMAT!r}, found {d.get('format')!r}"
+            )
+        return cls(np.asarray(d["q_hat"], float), np.asarray(d["P"], float))
+
+    def select(self, engines: np.ndarray | list[int]) -> SnapshotState:
+        """State of a subset of engines (rows)."""
+        idx = np.asarray(engines)
+        return SnapshotState(self.q_hat[idx], self.P[idx])
+
+
+class SnapshotResult(NamedTuple):
+    """Per-snapshot a-posteriori estimates, engine-major.
+
+    q_hat [E, S, m]; P [E, S, m, m] (None unless kept); h_hat [E, S, p] = V*^+ q_hat;
+    h_std [E, S, p] (1-sigma, sqrt(diag(V*^+ P V*^+T)));
+    innovation [E, S, ny] = dy - G_y V*^+ q_prior (NaN where the sensor was missing);
+    state: the final SnapshotState.
+    """
+
+    q_hat: np.ndarray
+    P: np.ndarray | None
+    h_hat: np.ndarray
+    h_std: np.ndarray
+    innovation: np.ndarray
+    state: SnapshotState
+
+
+def snapshot_deviation(
+    y: np.ndarray,
+    y_trim: np.ndarray,
+    G_u: np.ndarray | None = None,
+    du: np.ndarray | None = None,
+) -> np.ndarray:
+    """dy = 100 (y - y_trim) / y_trim - G_u du (percent of trim; MATH.md section 8).
+
+    y, y_trim [..., ny] in engineering units; G_u [..., ny, nu]; du [..., nu] in percent.
+    """
+    y = np.asarray(y, float)
+    y_trim = np.asarray(y_trim, float)
+    dy = 100.0 * (y - y_trim) / y_trim
+    if G_u is not None and du is not None:
+        dy = dy - (np.asarray(G_u, float) @ np.asarray(du, float)[..., None])[..., 0]
+    return dy
+
+
+def snapshot_filter(
+    state: SnapshotState,
+    dy: np.ndarray,
+    gains: GainSource,
+    vstar: np.ndarray,
+    Qq: np.ndarray,
+    noise_std: np.ndarray,
+    walk_scale: np.ndarray | float = 1.0,
+    block: int = 1024,
+    keep_covariance: bool = True,
+) -> SnapshotResult:
+    """Time-varying tuner filter over snapshots, batched over engines (MATH.md section 8).
+
+    state     : SnapshotState, n_engines E, tuners m
+    dy        : [E, S, ny] sensor deviations in percent of trim, NaN = missing
+    gains     : G_y(theta_j) in health space, an array broadcastable to [E, S, ny, p],
+                or a callable j -> array broadcastable to [E, ny, p] (the caller's
+                operating-condition schedule)
+    vstar     : V* [m, p]  (h_hat = V*^+ q_hat)
+    Qq        : [m, m] tuner random-walk covariance per unit of walk_scale (V* Q_h V*^T)
+    noise_std : sensor noise std, broadcastable to [E, S, ny] (percent of trim)
+    walk_scale: broadcastable to [E, S]: multiplier of Qq before snapshot j (flights or
+                hours since the previous snapshot; 0 for a second snapshot of the same
+                steady state, and for padding rows whose dy are all NaN)
+
+    block     : engines processed together (cache-sized; any value gives the same result)
+    keep_covariance: store P per snapshot (P in the result is None otherwise; the
+                final P is always in ``state``)
+
+    Each snapshot: predict P += s_j Qq, then update with each present sensor in
+    turn (scalar Kalman update, exact for diagonal R).
+    """
+    dy = np.asarray(dy, float)
+    if dy.ndim != 3:
+        raise DimensionError(f"dy must be [n_engines, n_snapshots, ny], found shape {dy.shape}")
+    E, S, ny = dy.shape
+    if E != state.n_engines:
+        raise DimensionError(f"dy has {E} engines but the state has {state.n_engines}")
+    V = np.asarray(vstar, float)
+    m, p = V.shape
+    if state.q_hat.shape[1] != m:
+        raise DimensionError(f"state has {state.q_hat.shape[1]} tuners but V* has {m} rows")
+    Vp = np.linalg.solve(V @ V.T, V).T  # V*^+ [p, m]
+    Qq = np.asarray(Qq, float)
+    if Qq.shape != (m, m):
+        raise DimensionError(
+            f"Incompatible dimensions of Qq; expected ({m}, {m}) but found {Qq.shape}"
+        )
+    var = np.broadcast_to(np.asarray(noise_std, float) ** 2, (E, S, ny))
+    scale = np.broadcast_to(np.asarray(walk_scale, float), (E, S))
+    if callable(gains):
+        gain_at = gains
+    else:
+        G_all = np.asarray(gains, float)
+        if G_all.shape[-2:] != (ny, p):
+            raise DimensionError(
+                f"gains must end in ({ny}, {p}) (sensors, health), found {G_all.shape}"
+            )
+        G_all = np.broadcast_to(G_all, (E, S, ny, p))
+
+        def gain_at(j: int) -> np.ndarray:
+            return G_all[:, j]
+
+    # Tuner-major working layout per block of engines (q [m, B], P [m, m, B]): every
+    # operation is a contiguous elementwise sweep over engines, and a block stays in
+    # cache through the sensor loop.
+    q_res = np.empty((E, S, m))
+    P_res = np.empty((E, S, m, m)) if keep_covariance else None
+    h_std = np.empty((E, S, p))
+    innov = np.empty((E, S, ny))
+    q_end = np.empty((E, m))
+    P_end = np.empty((E, m, m))
+    QqE = Qq[:, :, None]
+    H_all = [np.asarray(gain_at(j), float) for j in range(S)] if callable(gains) else None
+    for c0 in range(0, E, block):
+        c1 = min(E, c0 + block)
+        Bn = c1 - c0
+        q = state.q_hat[c0:c1].T.copy(order="C")  # always a copy: the state is not mutated
+        P = state.P[c0:c1].transpose(1, 2, 0).copy(order="C")
+        Ph = np.empty((m, Bn))
+        tmp = np.empty((m, m, Bn))
+        for j in range(S):
+            G = H_all[j] if H_all is not None else gain_at(j)
+            if G.shape[-2:] != (ny, p):
+                raise DimensionError(
+                    f"gains at snapshot {j}: expected (..., {ny}, {p}), found {G.shape}"
+                )
+            if G.ndim > 2:
+                G = np.broadcast_to(G, (E, ny, p))[c0:c1]
+            HV = G @ Vp  # [ny, m] or [Bn, ny, m]
+            H = np.ascontiguousarray(np.broadcast_to(HV, (Bn, ny, m)).transpose(1, 2, 0))
+            P += scale[c0:c1, j] * QqE
+            y_j = dy[c0:c1, j].T  # [ny, Bn]
+            innov[c0:c1, j] = (y_j - np.einsum("ime,me->ie", H, q)).T
+            var_j = var[c0:c1, j].T
+            for i in range(ny):
+                present = np.isfinite(y_j[i])
+                if not present.any():
+                    continue
+                h = H[i]  # [m, Bn]
+                np.multiply(P, h[None, :, :], out=tmp)
+                tmp.sum(axis=1, out=Ph)  # P h
+                s_i = np.einsum("me,me->e", h, Ph) + var_j[i]
+                k = Ph / s_i
+                k *= present
+                resid = np.where(present, y_j[i] - np.einsum("me,me->e", h, q), 0.0)
+                q += k * resid
+                np.multiply(k[:, None, :], Ph[None, :, :], out=tmp)
+                P -= tmp  # P - P h h^T P / s
+            np.add(P, P.transpose(1, 0, 2), out=tmp)
+            np.multiply(tmp, 0.5, out=P)
+            q_res[c0:c1, j] = q.T
+            if P_res is not None:
+                P_res[c0:c1, j] = P.transpose(2, 0, 1)
+            # diag(V*^+ P V*^+T): [p, Bn]
+            VP = np.tensordot(Vp, P, axes=(1, 0))  # [p, m, Bn]
+            h_std[c0:c1, j] = np.sqrt(np.maximum(np.einsum("pme,pm->pe", VP, Vp), 0.0)).T
+        q_end[c0:c1] = q.T
+        P_end[c0:c1] = P.transpose(2, 0, 1)
+    if S == 0:
+        q_end, P_end = state.q_hat.copy(), state.P.copy()
+    return SnapshotResult(
+        q_res, P_res, q_res @ Vp.T, h_std, innov, SnapshotState(q_end, P_end)
+    )
