@@ -1,0 +1,87 @@
+"""Estimator designs: create from a spec on an engine model, list, read, activate."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Query, status
+
+from app.schemas.designs import DesignCreate, DesignDetail, DesignOut
+from app.schemas.fleet import Page, PageParams
+from app.security import Analyst, CurrentPrincipal, DbSession
+from app.services import fleet, models_designs
+
+router = APIRouter(prefix="/api/v1", tags=["designs"])
+
+
+@router.get("/designs", response_model=Page[DesignOut])
+def list_designs(
+    session: DbSession,
+    principal: CurrentPrincipal,
+    page: Annotated[PageParams, Query()],
+    engine_type_id: int | None = None,
+    engine_model_id: int | None = None,
+    active: bool | None = None,
+) -> Page[DesignOut]:
+    """Designs, newest first, with their analytic errors (SSEE of health and aux outputs)."""
+    rows, total = models_designs.list_designs(
+        session,
+        operator_id=principal.operator_id,
+        limit=page.limit,
+        offset=page.offset,
+        engine_type_id=engine_type_id,
+        engine_model_id=engine_model_id,
+        active=active,
+    )
+    return Page.of([DesignOut.model_validate(r) for r in rows], total, page)
+
+
+@router.post("/designs", response_model=DesignDetail, status_code=status.HTTP_201_CREATED)
+def create_design(body: DesignCreate, session: DbSession, principal: Analyst) -> DesignDetail:
+    """Run the estimation core's design step on the engine model and store the result."""
+    design = models_designs.create_design(
+        session,
+        operator_id=principal.operator_id,
+        engine_model_id=body.engine_model_id,
+        name=body.name,
+        spec=body.spec,
+    )
+    design = models_designs.run_design(session, design, models_designs.design_step())
+    return DesignDetail.model_validate(design)
+
+
+@router.get("/designs/{design_id}", response_model=DesignDetail)
+def get_design(design_id: int, session: DbSession, principal: CurrentPrincipal) -> DesignDetail:
+    row = models_designs.get_design(session, operator_id=principal.operator_id, design_id=design_id)
+    return DesignDetail.model_validate(row)
+
+
+@router.post("/designs/{design_id}/activate", response_model=DesignOut)
+def activate_design(design_id: int, session: DbSession, principal: Analyst) -> DesignOut:
+    """Put the design in service for its engine type; the previously active one retires."""
+    row = models_designs.activate_design(
+        session, operator_id=principal.operator_id, design_id=design_id
+    )
+    return DesignOut.model_validate(row)
+
+
+@router.post("/designs/{design_id}/deactivate", response_model=DesignOut)
+def deactivate_design(design_id: int, session: DbSession, principal: Analyst) -> DesignOut:
+    row = models_designs.deactivate_design(
+        session, operator_id=principal.operator_id, design_id=design_id
+    )
+    return DesignOut.model_validate(row)
+
+
+@router.get("/engine-types/{engine_type_id}/active-design", response_model=DesignOut | None)
+def active_design(
+    engine_type_id: int, session: DbSession, principal: CurrentPrincipal
+) -> DesignOut | None:
+    """The engine type's design in service, or null when none is active."""
+    engine_type = fleet.get_engine_type(
+        session, operator_id=principal.operator_id, engine_type_id=engine_type_id
+    )
+    row = models_designs.active_design(
+        session, operator_id=principal.operator_id, engine_type_id=engine_type.id
+    )
+    return DesignOut.model_validate(row) if row else None

@@ -1,0 +1,85 @@
+"""Maintenance actions (water wash, module change, shop visit): they reset detection baselines."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Query, status
+from pydantic import AwareDatetime
+
+from app.schemas.fleet import (
+    Deleted,
+    MaintenanceCreate,
+    MaintenanceKind,
+    MaintenanceOut,
+    MaintenanceUpdate,
+    Page,
+    PageParams,
+)
+from app.security import Analyst, CurrentPrincipal, DbSession
+from app.services import maintenance
+
+router = APIRouter(prefix="/api/v1/maintenance-actions", tags=["maintenance"])
+
+
+@router.get("", response_model=Page[MaintenanceOut])
+def list_actions(
+    session: DbSession,
+    principal: CurrentPrincipal,
+    page: Annotated[PageParams, Query()],
+    engine_id: int | None = None,
+    kind: MaintenanceKind | None = None,
+    since: AwareDatetime | None = None,
+    until: AwareDatetime | None = None,
+) -> Page[MaintenanceOut]:
+    """Actions, newest first; filter by engine, kind and [since, until)."""
+    rows, total = maintenance.list_actions(
+        session,
+        operator_id=principal.operator_id,
+        limit=page.limit,
+        offset=page.offset,
+        engine_id=engine_id,
+        kind=kind,
+        since=since,
+        until=until,
+    )
+    return Page.of([MaintenanceOut.model_validate(r) for r in rows], total, page)
+
+
+@router.post("", response_model=MaintenanceOut, status_code=status.HTTP_201_CREATED)
+def record_action(
+    body: MaintenanceCreate, session: DbSession, principal: Analyst
+) -> MaintenanceOut:
+    row = maintenance.record_action(session, operator_id=principal.operator_id, **body.model_dump())
+    return MaintenanceOut.model_validate(row)
+
+
+@router.get("/{maintenance_action_id}", response_model=MaintenanceOut)
+def get_action(
+    maintenance_action_id: int, session: DbSession, principal: CurrentPrincipal
+) -> MaintenanceOut:
+    row = maintenance.get_action(
+        session, operator_id=principal.operator_id, action_id=maintenance_action_id
+    )
+    return MaintenanceOut.model_validate(row)
+
+
+@router.patch("/{maintenance_action_id}", response_model=MaintenanceOut)
+def update_action(
+    maintenance_action_id: int, body: MaintenanceUpdate, session: DbSession, principal: Analyst
+) -> MaintenanceOut:
+    row = maintenance.update_action(
+        session,
+        operator_id=principal.operator_id,
+        action_id=maintenance_action_id,
+        changes=body.model_dump(exclude_unset=True),
+    )
+    return MaintenanceOut.model_validate(row)
+
+
+@router.delete("/{maintenance_action_id}", response_model=Deleted)
+def delete_action(maintenance_action_id: int, session: DbSession, principal: Analyst) -> Deleted:
+    maintenance.delete_action(
+        session, operator_id=principal.operator_id, action_id=maintenance_action_id
+    )
+    return Deleted(id=maintenance_action_id)

@@ -1,0 +1,1 @@
+"""Pydantic request and response models (not tables: those are in app/models)."""

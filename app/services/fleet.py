@@ -1,0 +1,582 @@
+"""Engine types, aircraft, engines and installations of one operator.
+
+Every function takes the operator from the caller's principal; another operator's rows are
+invisible (NotFound, which the API renders as 404). Installations never overlap for one engine
+nor for one tail position: ``install`` and ``update_installation`` check under row locks on the
+engine and the aircraft and answer Conflict (409) naming the installation in the way.
+``resolve_engines`` maps many (tail, position, time) records to engine ids with one query.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from datetime import UTC, datetime, timedelta
+from typing import Any, TypeVar
+
+import numpy as np
+from sqlalchemy import Select, and_, func, inspect, or_, select
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+
+from app.errors import Conflict, InvalidInput, NotFound
+from app.models import Aircraft, Engine, EngineType, Installation
+from app.models.base import Base
+from app.models.fleet import MAX_POSITIONS
+
+RowT = TypeVar("RowT", bound=Base)
+
+NO_ENGINE = -1
+_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
+_US = timedelta(microseconds=1)
+_OPEN_END = np.iinfo(np.int64).max
+# Tails per IN (...) list, well under SQLite's and PostgreSQL's bind-parameter limits.
+_TAIL_CHUNK = 5000
+
+
+# ------------------------------------------------------------------------------ helpers
+
+
+def field_error(field: str, reason: str, *, where: str = "body") -> InvalidInput:
+    """422 naming one field, in the same shape as request validation errors."""
+    return InvalidInput(
+        f"{field}: {reason}", details=[{"location": [where, field], "reason": reason}]
+    )
+
+
+def paginate(
+    session: Session, stmt: Select[Any], *, limit: int, offset: int
+) -> tuple[list[Any], int]:
+    """One page of ``stmt``'s rows (it must be ordered) and the total count."""
+    total = session.scalar(select(func.count()).select_from(stmt.order_by(None).subquery()))
+    rows = list(session.scalars(stmt.limit(limit).offset(offset)).unique())
+    return rows, int(total or 0)
+
+
+def owned(session: Session, model: type[RowT], operator_id: int, row_id: int, what: str) -> RowT:
+    """The operator's row ``row_id`` of ``model`` or NotFound (also for another operator's)."""
+    row = session.get(model, row_id)
+    if row is None or getattr(row, "operator_id", None) != operator_id:
+        raise NotFound(f"{what} {row_id} not found")
+    return row
+
+
+def referenced(
+    session: Session, model: type[RowT], operator_id: int, row_id: int, field: str, what: str
+) -> RowT:
+    """A row named in a request body: a missing (or foreign) one is a 422 naming the field."""
+    row = session.get(model, row_id)
+    if row is None or getattr(row, "operator_id", None) != operator_id:
+        raise field_error(field, f"no {what} {row_id} in your fleet")
+    return row
+
+
+def flush_or_conflict(session: Session, message: str) -> None:
+    """Flush inside a savepoint; a uniqueness, reference or exclusion violation becomes 409."""
+    try:
+        with session.begin_nested():
+            session.flush()
+    except IntegrityError as exc:
+        raise Conflict(message, details=[{"reason": str(exc.orig).splitlines()[0]}]) from None
+
+
+def delete_or_conflict(session: Session, row: Base, message: str) -> None:
+    """Delete ``row``; if other rows still refer to it, 409 and nothing changes."""
+    try:
+        with session.begin_nested():
+            session.delete(row)
+            session.flush()
+    except IntegrityError:
+        raise Conflict(message) from None
+
+
+def apply_changes(row: Base, changes: Mapping[str, Any]) -> None:
+    for name, value in changes.items():
+        setattr(row, name, value)
+
+
+# ------------------------------------------------------------------------ engine types
+
+
+def create_engine_type(
+    session: Session, *, operator_id: int, name: str, description: str = ""
+) -> EngineType:
+    row = EngineType(operator_id=operator_id, name=name, description=description)
+    session.add(row)
+    flush_or_conflict(session, f"engine type {name!r} exists already")
+    return row
+
+
+def get_engine_type(session: Session, *, operator_id: int, engine_type_id: int) -> EngineType:
+    return owned(session, EngineType, operator_id, engine_type_id, "engine type")
+
+
+def list_engine_types(
+    session: Session, *, operator_id: int, limit: int, offset: int
+) -> tuple[list[EngineType], int]:
+    stmt = select(EngineType).where(EngineType.operator_id == operator_id).order_by(EngineType.id)
+    return paginate(session, stmt, limit=limit, offset=offset)
+
+
+def update_engine_type(
+    session: Session, *, operator_id: int, engine_type_id: int, changes: Mapping[str, Any]
+) -> EngineType:
+    row = get_engine_type(session, operator_id=operator_id, engine_type_id=engine_type_id)
+    apply_changes(row, changes)
+    flush_or_conflict(session, f"engine type {row.name!r} exists already")
+    return row
+
+
+def delete_engine_type(session: Session, *, operator_id: int, engine_type_id: int) -> None:
+    row = get_engine_type(session, operator_id=operator_id, engine_type_id=engine_type_id)
+    delete_or_conflict(
+        session, row, f"engine type {row.name!r} still has engines, engine models or designs"
+    )
+
+
+# ---------------------------------------------------------------------------- aircraft
+
+
+def create_aircraft(
+    session: Session,
+    *,
+    operator_id: int,
+    tail: str,
+    aircraft_type: str | None = None,
+    engine_positions: int = 2,
+) -> Aircraft:
+    row = Aircraft(
+        operator_id=operator_id,
+        tail=tail,
+        aircraft_type=aircraft_type,
+        engine_positions=engine_positions,
+    )
+    session.add(row)
+    flush_or_conflict(session, f"aircraft {tail!r} exists already")
+    return row
+
+
+def get_aircraft(session: Session, *, operator_id: int, aircraft_id: int) -> Aircraft:
+    return owned(session, Aircraft, operator_id, aircraft_id, "aircraft")
+
+
+def find_aircraft(session: Session, *, operator_id: int, tail: str) -> Aircraft | None:
+    return session.scalar(
+        select(Aircraft).where(Aircraft.operator_id == operator_id, Aircraft.tail == tail)
+    )
+
+
+def list_aircraft(
+    session: Session, *, operator_id: int, limit: int, offset: int, tail: str | None = None
+) -> tuple[list[Aircraft], int]:
+    stmt = select(Aircraft).where(Aircraft.operator_id == operator_id)
+    if tail is not None:
+        stmt = stmt.where(Aircraft.tail == tail)
+    return paginate(session, stmt.order_by(Aircraft.tail, Aircraft.id), limit=limit, offset=offset)
+
+
+def update_aircraft(
+    session: Session, *, operator_id: int, aircraft_id: int, changes: Mapping[str, Any]
+) -> Aircraft:
+    row = _locked(session, get_aircraft(session, operator_id=operator_id, aircraft_id=aircraft_id))
+    positions = changes.get("engine_positions")
+    if positions is not None:
+        highest = session.scalar(
+            select(func.max(Installation.position)).where(Installation.aircraft_id == row.id)
+        )
+        if highest is not None and highest > positions:
+            raise Conflict(
+                f"aircraft {row.tail!r} has installations at position {highest}; "
+                f"engine_positions cannot drop to {positions}"
+            )
+    apply_changes(row, changes)
+    flush_or_conflict(session, f"aircraft {row.tail!r} exists already")
+    return row
+
+
+def delete_aircraft(session: Session, *, operator_id: int, aircraft_id: int) -> None:
+    row = get_aircraft(session, operator_id=operator_id, aircraft_id=aircraft_id)
+    delete_or_conflict(session, row, f"aircraft {row.tail!r} still has installations or data")
+
+
+# ----------------------------------------------------------------------------- engines
+
+
+def create_engine(session: Session, *, operator_id: int, esn: str, engine_type_id: int) -> Engine:
+    referenced(session, EngineType, operator_id, engine_type_id, "engine_type_id", "engine type")
+    row = Engine(operator_id=operator_id, esn=esn, engine_type_id=engine_type_id)
+    session.add(row)
+    flush_or_conflict(session, f"engine {esn!r} exists already")
+    return row
+
+
+def get_engine(session: Session, *, operator_id: int, engine_id: int) -> Engine:
+    return owned(session, Engine, operator_id, engine_id, "engine")
+
+
+def find_engine(session: Session, *, operator_id: int, esn: str) -> Engine | None:
+    return session.scalar(
+        select(Engine).where(Engine.operator_id == operator_id, Engine.esn == esn)
+    )
+
+
+def list_engines(
+    session: Session,
+    *,
+    operator_id: int,
+    limit: int,
+    offset: int,
+    esn: str | None = None,
+    engine_type_id: int | None = None,
+) -> tuple[list[Engine], int]:
+    stmt = select(Engine).where(Engine.operator_id == operator_id)
+    if esn is not None:
+        stmt = stmt.where(Engine.esn == esn)
+    if engine_type_id is not None:
+        stmt = stmt.where(Engine.engine_type_id == engine_type_id)
+    return paginate(session, stmt.order_by(Engine.esn, Engine.id), limit=limit, offset=offset)
+
+
+def update_engine(
+    session: Session, *, operator_id: int, engine_id: int, changes: Mapping[str, Any]
+) -> Engine:
+    row = get_engine(session, operator_id=operator_id, engine_id=engine_id)
+    if changes.get("engine_type_id") is not None:
+        referenced(
+            session,
+            EngineType,
+            operator_id,
+            changes["engine_type_id"],
+            "engine_type_id",
+            "engine type",
+        )
+    apply_changes(row, changes)
+    flush_or_conflict(session, f"engine {row.esn!r} exists already")
+    return row
+
+
+def delete_engine(session: Session, *, operator_id: int, engine_id: int) -> None:
+    row = get_engine(session, operator_id=operator_id, engine_id=engine_id)
+    delete_or_conflict(
+        session, row, f"engine {row.esn!r} still has installations, maintenance actions or data"
+    )
+
+
+# ----------------------------------------------------------------------- installations
+
+
+def _locked(session: Session, row: RowT) -> RowT:
+    """Lock ``row`` FOR UPDATE, serialising installation changes of one engine or aircraft.
+
+    Only the key is selected, so eager joins cannot meet the lock. SQLite ignores FOR UPDATE;
+    its writers are serialised by the database lock anyway.
+    """
+    key = inspect(type(row)).primary_key[0]
+    session.execute(select(key).where(key == inspect(row).identity[0]).with_for_update())
+    return row
+
+
+def _overlapping(
+    session: Session,
+    *,
+    start: datetime,
+    end: datetime | None,
+    match: Any,
+    exclude_id: int | None,
+) -> Installation | None:
+    """The first installation matching ``match`` whose period meets [start, end)."""
+    stmt = select(Installation).where(
+        match, or_(Installation.removed_at.is_(None), Installation.removed_at > start)
+    )
+    if end is not None:
+        stmt = stmt.where(Installation.installed_at < end)
+    if exclude_id is not None:
+        stmt = stmt.where(Installation.id != exclude_id)
+    return session.scalars(stmt.order_by(Installation.installed_at).limit(1)).first()
+
+
+def _describe(row: Installation) -> dict[str, Any]:
+    return {
+        "installation_id": row.id,
+        "esn": row.engine.esn,
+        "tail": row.aircraft.tail,
+        "position": row.position,
+        "installed_at": row.installed_at.isoformat(),
+        "removed_at": row.removed_at.isoformat() if row.removed_at else None,
+    }
+
+
+def _check_period_free(
+    session: Session,
+    *,
+    engine: Engine,
+    aircraft: Aircraft,
+    position: int,
+    start: datetime,
+    end: datetime | None,
+    exclude_id: int | None,
+) -> None:
+    if end is not None and end <= start:
+        raise field_error("removed_at", "must be later than installed_at")
+    if not 1 <= position <= aircraft.engine_positions:
+        raise field_error(
+            "position",
+            f"aircraft {aircraft.tail!r} has engine positions 1..{aircraft.engine_positions}",
+        )
+    same_engine = _overlapping(
+        session,
+        start=start,
+        end=end,
+        match=Installation.engine_id == engine.id,
+        exclude_id=exclude_id,
+    )
+    if same_engine is not None:
+        raise Conflict(
+            f"engine {engine.esn!r} is installed on {same_engine.aircraft.tail!r} position "
+            f"{same_engine.position} during that period (installation {same_engine.id})",
+            details=[_describe(same_engine)],
+        )
+    same_position = _overlapping(
+        session,
+        start=start,
+        end=end,
+        match=and_(Installation.aircraft_id == aircraft.id, Installation.position == position),
+        exclude_id=exclude_id,
+    )
+    if same_position is not None:
+        raise Conflict(
+            f"{aircraft.tail!r} position {position} holds engine {same_position.engine.esn!r} "
+            f"during that period (installation {same_position.id})",
+            details=[_describe(same_position)],
+        )
+
+
+def install(
+    session: Session,
+    *,
+    operator_id: int,
+    engine_id: int,
+    aircraft_id: int,
+    position: int,
+    installed_at: datetime,
+    removed_at: datetime | None = None,
+) -> Installation:
+    """Record that an engine sat at a tail position over [installed_at, removed_at)."""
+    engine = referenced(session, Engine, operator_id, engine_id, "engine_id", "engine")
+    aircraft = referenced(session, Aircraft, operator_id, aircraft_id, "aircraft_id", "aircraft")
+    engine, aircraft = _locked(session, engine), _locked(session, aircraft)
+    _check_period_free(
+        session,
+        engine=engine,
+        aircraft=aircraft,
+        position=position,
+        start=installed_at,
+        end=removed_at,
+        exclude_id=None,
+    )
+    row = Installation(
+        operator_id=operator_id,
+        engine=engine,
+        aircraft=aircraft,
+        position=position,
+        installed_at=installed_at,
+        removed_at=removed_at,
+    )
+    session.add(row)
+    flush_or_conflict(session, "the installation overlaps another one")
+    return row
+
+
+def get_installation(session: Session, *, operator_id: int, installation_id: int) -> Installation:
+    return owned(session, Installation, operator_id, installation_id, "installation")
+
+
+def update_installation(
+    session: Session, *, operator_id: int, installation_id: int, changes: Mapping[str, Any]
+) -> Installation:
+    """Change position or period (e.g. set ``removed_at`` when the engine comes off)."""
+    row = get_installation(session, operator_id=operator_id, installation_id=installation_id)
+    engine = _locked(session, row.engine)
+    aircraft = _locked(session, row.aircraft)
+    merged = {
+        "position": row.position,
+        "installed_at": row.installed_at,
+        "removed_at": row.removed_at,
+        **changes,
+    }
+    _check_period_free(
+        session,
+        engine=engine,
+        aircraft=aircraft,
+        position=merged["position"],
+        start=merged["installed_at"],
+        end=merged["removed_at"],
+        exclude_id=row.id,
+    )
+    apply_changes(row, changes)
+    flush_or_conflict(session, "the installation overlaps another one")
+    return row
+
+
+def delete_installation(session: Session, *, operator_id: int, installation_id: int) -> None:
+    row = get_installation(session, operator_id=operator_id, installation_id=installation_id)
+    delete_or_conflict(session, row, f"installation {row.id} is still referenced")
+
+
+def list_installations(
+    session: Session,
+    *,
+    operator_id: int,
+    limit: int,
+    offset: int,
+    engine_id: int | None = None,
+    aircraft_id: int | None = None,
+    position: int | None = None,
+    at: datetime | None = None,
+) -> tuple[list[Installation], int]:
+    """Installations, newest first; ``at`` keeps those in place at that time."""
+    stmt = select(Installation).where(Installation.operator_id == operator_id)
+    if engine_id is not None:
+        stmt = stmt.where(Installation.engine_id == engine_id)
+    if aircraft_id is not None:
+        stmt = stmt.where(Installation.aircraft_id == aircraft_id)
+    if position is not None:
+        stmt = stmt.where(Installation.position == position)
+    if at is not None:
+        stmt = stmt.where(
+            Installation.installed_at <= at,
+            or_(Installation.removed_at.is_(None), Installation.removed_at > at),
+        )
+    stmt = stmt.order_by(Installation.installed_at.desc(), Installation.id.desc())
+    return paginate(session, stmt, limit=limit, offset=offset)
+
+
+def engines_on_aircraft(
+    session: Session, *, operator_id: int, aircraft_id: int, at: datetime
+) -> list[tuple[int, Installation | None]]:
+    """(position, installation in place at ``at`` or None) for every position of a tail."""
+    aircraft = get_aircraft(session, operator_id=operator_id, aircraft_id=aircraft_id)
+    rows, _ = list_installations(
+        session,
+        operator_id=operator_id,
+        aircraft_id=aircraft.id,
+        at=at,
+        limit=MAX_POSITIONS,
+        offset=0,
+    )
+    by_position = {row.position: row for row in rows}
+    return [(p, by_position.get(p)) for p in range(1, aircraft.engine_positions + 1)]
+
+
+# -------------------------------------------------------------------------- resolution
+
+
+def resolve_engine(
+    session: Session, operator_id: int, tail: str, position: int, at: datetime
+) -> Engine | None:
+    """The engine installed at ``tail`` ``position`` at time ``at`` (None: no installation)."""
+    return session.scalar(
+        select(Engine)
+        .join(Installation, Installation.engine_id == Engine.id)
+        .join(Aircraft, Installation.aircraft_id == Aircraft.id)
+        .where(
+            Aircraft.operator_id == operator_id,
+            Aircraft.tail == tail,
+            Installation.position == position,
+            Installation.installed_at <= at,
+            or_(Installation.removed_at.is_(None), Installation.removed_at > at),
+        )
+    )
+
+
+def epoch_microseconds(times: Sequence[datetime] | np.ndarray) -> np.ndarray:
+    """int64 microseconds since 1970 UTC from datetime64 values or tz-aware datetimes."""
+    arr = np.asarray(times)
+    if np.issubdtype(arr.dtype, np.datetime64):
+        return arr.astype("datetime64[us]").astype(np.int64)
+    out = np.empty(arr.shape[0], dtype=np.int64)
+    for i, t in enumerate(arr):
+        if not isinstance(t, datetime) or t.tzinfo is None:
+            raise ValueError(f"record {i}: time must be a timezone-aware datetime, got {t!r}")
+        out[i] = (t - _EPOCH) // _US
+    return out
+
+
+def resolve_engines(
+    session: Session,
+    operator_id: int,
+    tails: Sequence[str] | np.ndarray,
+    positions: Sequence[int] | np.ndarray,
+    times: Sequence[datetime] | np.ndarray,
+) -> np.ndarray:
+    """Engine id of each (tail, position, time) record, NO_ENGINE (-1) where none was installed.
+
+    One query per chunk of distinct tails fetches their installations; the records are then
+    matched all at once: installations and records are keyed by (tail, position, time rank)
+    and each record takes the last installation starting at or before it
+    (``np.searchsorted``), kept when the record falls before that installation's removal.
+    tails, positions, times: [n]; times as datetime64 (UTC) or tz-aware datetimes.
+    """
+    tail_arr = np.asarray(tails, dtype=object).astype(str)
+    pos = np.asarray(positions, dtype=np.int64)
+    t = epoch_microseconds(times)
+    n = tail_arr.shape[0]
+    if pos.shape != (n,) or t.shape != (n,):
+        raise ValueError(
+            f"tails, positions and times must have the same length; got {n}, "
+            f"{pos.shape[0] if pos.ndim else 0} and {t.shape[0]}"
+        )
+    result = np.full(n, NO_ENGINE, dtype=np.int64)
+    if n == 0:
+        return result
+    unique_tails, tail_code = np.unique(tail_arr, return_inverse=True)
+
+    rows: list[Any] = []
+    names = unique_tails.tolist()
+    for start in range(0, len(names), _TAIL_CHUNK):
+        rows.extend(
+            session.execute(
+                select(
+                    Aircraft.tail,
+                    Installation.position,
+                    Installation.installed_at,
+                    Installation.removed_at,
+                    Installation.engine_id,
+                )
+                .join(Aircraft, Installation.aircraft_id == Aircraft.id)
+                .where(
+                    Aircraft.operator_id == operator_id,
+                    Aircraft.tail.in_(names[start : start + _TAIL_CHUNK]),
+                )
+            ).all()
+        )
+    if not rows:
+        return result
+
+    inst_tail = np.searchsorted(
+        unique_tails, np.array([r[0] for r in rows], dtype=object).astype(str)
+    )
+    inst_pos = np.array([r[1] for r in rows], dtype=np.int64)
+    inst_start = epoch_microseconds([r[2] for r in rows])
+    inst_end = np.array(
+        [_OPEN_END if r[3] is None else (r[3] - _EPOCH) // _US for r in rows], dtype=np.int64
+    )
+    inst_engine = np.array([r[4] for r in rows], dtype=np.int64)
+
+    # Dense time ranks over both sets keep the compound key small: key * n_ranks + rank.
+    ranks = np.unique(np.concatenate([inst_start, t]))
+    n_ranks = np.int64(ranks.shape[0])
+    slots = np.int64(MAX_POSITIONS + 1)
+    valid = (pos >= 1) & (pos <= MAX_POSITIONS)
+    rec_key = (tail_code.astype(np.int64) * slots + np.where(valid, pos, 0)) * n_ranks
+    rec_key += np.searchsorted(ranks, t)
+    inst_key = (inst_tail.astype(np.int64) * slots + inst_pos) * n_ranks
+    inst_key += np.searchsorted(ranks, inst_start)
+
+    order = np.argsort(inst_key, kind="stable")
+    inst_key, inst_end, inst_engine = inst_key[order], inst_end[order], inst_engine[order]
+    inst_group = inst_key // n_ranks
+    idx = np.searchsorted(inst_key, rec_key, side="right") - 1
+    safe = np.clip(idx, 0, None)
+    hit = valid & (idx >= 0) & (inst_group[safe] == rec_key // n_ranks) & (t < inst_end[safe])
+    result[hit] = inst_engine[safe[hit]]
+    return result
