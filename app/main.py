@@ -16,7 +16,21 @@ from app.db import make_engine, make_sessionmaker
 from app.errors import install_error_handlers
 from app.limits import BodyLimitMiddleware
 from app.log import configure_logging, install_request_logging
-from app.routers import events, fleet_status, health, me, trends
+from app.routers import (
+    aircraft,
+    designs,
+    engine_models,
+    engine_types,
+    engines,
+    events,
+    fleet_status,
+    health,
+    installations,
+    keys,
+    maintenance,
+    me,
+    trends,
+)
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
 
@@ -51,5 +65,13 @@ def create_app(settings: Settings | None = None, engine: Engine | None = None) -
     app.include_router(trends.router)
     app.include_router(fleet_status.router)
     app.include_router(events.router)
+    app.include_router(aircraft.router)
+    app.include_router(designs.router)
+    app.include_router(engine_models.router)
+    app.include_router(engine_types.router)
+    app.include_router(engines.router)
+    app.include_router(installations.router)
+    app.include_router(keys.router)
+    app.include_router(maintenance.router)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
     return app
