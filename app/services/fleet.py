@@ -516,10 +516,10 @@ def resolve_engines(
     (``np.searchsorted``), kept when the record falls before that installation's removal.
     tails, positions, times: [n]; times as datetime64 (UTC) or tz-aware datetimes.
     """
-    tail_arr = np.asarray(tails, dtype=object).astype(str)
+    tail_list = [str(tail) for tail in (tails.tolist() if isinstance(tails, np.ndarray) else tails)]
     pos = np.asarray(positions, dtype=np.int64)
     t = epoch_microseconds(times)
-    n = tail_arr.shape[0]
+    n = len(tail_list)
     if pos.shape != (n,) or t.shape != (n,):
         raise ValueError(
             f"tails, positions and times must have the same length; got {n}, "
@@ -528,10 +528,14 @@ def resolve_engines(
     result = np.full(n, NO_ENGINE, dtype=np.int64)
     if n == 0:
         return result
-    unique_tails, tail_code = np.unique(tail_arr, return_inverse=True)
+    # Tail codes by a dict: far faster than np.unique on strings for 10^5 records.
+    codes: dict[str, int] = {}
+    tail_code = np.fromiter(
+        (codes.setdefault(tail, len(codes)) for tail in tail_list), dtype=np.int64, count=n
+    )
 
     rows: list[Any] = []
-    names = unique_tails.tolist()
+    names = list(codes)
     for start in range(0, len(names), _TAIL_CHUNK):
         rows.extend(
             session.execute(
@@ -552,9 +556,7 @@ def resolve_engines(
     if not rows:
         return result
 
-    inst_tail = np.searchsorted(
-        unique_tails, np.array([r[0] for r in rows], dtype=object).astype(str)
-    )
+    inst_tail = np.array([codes[r[0]] for r in rows], dtype=np.int64)
     inst_pos = np.array([r[1] for r in rows], dtype=np.int64)
     inst_start = epoch_microseconds([r[2] for r in rows])
     inst_end = np.array(
