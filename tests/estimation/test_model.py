@@ -114,3 +114,15 @@ def test_arrays_are_read_only_and_signals_are_values():
         m.A[0, 0] = 2.0
     assert Signal("Nf", "rpm") == m.sensors[0]
     assert m.to_dict()["format"] == MODEL_FORMAT
+
+
+def test_documented_example_loads():
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).parents[2] / "docs" / "model-format.md").read_text()
+    block = re.search(r"```json\n(.*?)```", text, re.S).group(1)
+    m = LinearModel.from_dict(json.loads(block))
+    Gy, Gz = m.steady_state_gains()
+    assert Gy.shape == (2, 2) and Gz.shape == (1, 2)
+    assert m.sensor_names == ["Nf", "T48"] and m.R[1, 1] == 1.5**2
