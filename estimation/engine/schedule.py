@@ -1,0 +1,200 @@
+"""Linear models and trims on a grid of operating conditions, interpolated between.
+
+The grid spans altitude [ft], Mach, power [%] and dTamb [K] (dTamb may be a
+single value). At every node the engine is trimmed and linearised
+(``linearize.linear_model_at``); between nodes every matrix entry, trim value and
+the derived steady-state gains (G_y, G_z of MATH.md section 1, and those of the
+inputs) are interpolated multilinearly, which is what a snapshot filter
+scheduled on operating condition needs (MATH.md section 8). Trims are
+interpolated as corrected parameters (seed 004: temperatures over theta2,
+pressures and thrust over delta2, speeds over sqrt(theta2), fuel flow over
+delta2 sqrt(theta2)) and un-corrected at the query's own inlet conditions, so
+pressures follow the atmosphere between altitude nodes instead of a straight
+line. Queries outside the grid are clipped to its edges.
+
+``EngineSchedule.to_dict`` / ``from_dict`` give the ``fleethealth.engine-schedule/1``
+dict that the application caches on disk; ``design_fingerprint`` changes whenever
+the engine design changes, so a cache built for another model is not reused.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from estimation.engine.atmosphere import flight_condition
+from estimation.engine.design import engine_design
+from estimation.engine.linearize import DEFAULT_DT, linear_model_at
+from estimation.engine.steady import steady_state
+from estimation.errors import ModelFormatError
+from estimation.model import MATRIX_NAMES, LinearModel
+
+SCHEDULE_FORMAT = "fleethealth.engine-schedule/1"
+AXIS_NAMES = ("alt", "mach", "power", "dtamb")
+DEFAULT_AXES: dict[str, tuple[float, ...]] = {
+    "alt": (0.0, 10000.0, 20000.0, 30000.0, 40000.0),
+    "mach": (0.0, 0.25, 0.5, 0.7, 0.85),
+    "power": (0.0, 25.0, 50.0, 75.0, 100.0),
+    "dtamb": (0.0,),
+}
+GAIN_NAMES = ("Gy", "Gz", "Guy", "Guz")
+# Trim correction: value = corrected * theta2^a * delta2^b (seed 004 corrected parameters).
+_SPEED, _TEMP, _PRES, _FUEL = (0.5, 0.0), (1.0, 0.0), (0.0, 1.0), (0.5, 1.0)
+CORRECTION: dict[str, tuple[float, float]] = {
+    "Nf": _SPEED, "Nc": _SPEED, "TMHPC": _TEMP, "TMHPT": _TEMP, "T24": _TEMP, "T30": _TEMP,
+    "T48": _TEMP, "T50": _TEMP, "T40": _TEMP, "P24": _PRES, "Ps30": _PRES, "P30": _PRES,
+    "P50": _PRES, "P15": _PRES, "Fn": _PRES, "Wf": _FUEL,
+}
+
+
+def _correction(names: Sequence[str], cond: np.ndarray) -> np.ndarray:
+    """Factors theta2^a delta2^b [K, n_trim] at conditions [K, 4]."""
+    fc = flight_condition(cond[:, 0], cond[:, 1], cond[:, 3])
+    ab = np.array([CORRECTION.get(n, (0.0, 0.0)) for n in names])
+    return fc.theta[:, None] ** ab[:, 0] * fc.delta[:, None] ** ab[:, 1]
+
+
+def design_fingerprint() -> str:
+    """Hex digest identifying the engine design (maps, sizes, constants)."""
+    return hashlib.sha256(repr(engine_design()).encode()).hexdigest()[:16]
+
+
+@dataclass(frozen=True, eq=False)
+class EngineSchedule:
+    """Stacks over the grid: ``values[name]`` is [n_alt, n_mach, n_power, n_dtamb, ...]
+    for each matrix A..N, the gains Gy [ny, np], Gz, Guy [ny, nu], Guz, and
+    ``trim_corrected`` [.., n_trim] in the order of ``trim_names`` (see CORRECTION).
+    ``template`` carries the signals, noise and dt of every model."""
+
+    axes: tuple[np.ndarray, ...]
+    values: Mapping[str, np.ndarray]
+    trim_names: tuple[str, ...]
+    template: LinearModel
+    fingerprint: str
+
+    def _weights(self, cond: np.ndarray) -> list[tuple[tuple[np.ndarray, ...], np.ndarray]]:
+        """Corner indices and weights of multilinear interpolation for cond [K, 4]."""
+        lo, frac = [], []
+        for k, ax in enumerate(self.axes):
+            c = np.clip(cond[:, k], ax[0], ax[-1])
+            if len(ax) == 1:
+                lo.append(np.zeros(len(c), dtype=int))
+                frac.append(np.zeros(len(c)))
+                continue
+            i = np.clip(np.searchsorted(ax, c, side="right") - 1, 0, len(ax) - 2)
+            lo.append(i)
+            frac.append((c - ax[i]) / (ax[i + 1] - ax[i]))
+        out = []
+        for corner in itertools.product((0, 1), repeat=len(self.axes)):
+            w = np.ones(cond.shape[0])
+            idx = []
+            for k, bit in enumerate(corner):
+                if len(self.axes[k]) == 1 and bit:
+                    w = w * 0.0
+                w = w * (frac[k] if bit else 1.0 - frac[k])
+                idx.append(np.minimum(lo[k] + bit, len(self.axes[k]) - 1))
+            out.append((tuple(idx), w))
+        return out
+
+    def interpolate(self, name: str, cond: np.ndarray) -> np.ndarray:
+        """``values[name]`` at conditions cond [K, 4] (alt, mach, power, dtamb): [K, ...]."""
+        cond = np.atleast_2d(np.asarray(cond, dtype=float))
+        if cond.shape[1] != len(AXIS_NAMES):
+            raise ValueError(
+                f"conditions must be [K, 4] (alt, mach, power, dtamb), got {cond.shape}"
+            )
+        v = self.values[name]
+        acc = np.zeros((cond.shape[0],) + v.shape[len(self.axes):])
+        for idx, w in self._weights(cond):
+            acc += w.reshape((-1,) + (1,) * (acc.ndim - 1)) * v[idx]
+        return acc
+
+    def model_at(
+        self, alt: float, mach: float, power: float, dtamb: float = 0.0
+    ) -> LinearModel:
+        """Interpolated LinearModel at one operating condition."""
+        cond = np.array([[alt, mach, power, dtamb]], dtype=float)
+        mats = {m: self.interpolate(m, cond)[0] for m in MATRIX_NAMES}
+        trim = {k: float(v[0]) for k, v in self.trims_at(cond).items()}
+        oc = {"alt_ft": float(alt), "mach": float(mach), "dtamb_K": float(dtamb),
+              "power_pct": float(power), "interpolated": True}
+        return replace(self.template, **mats, trim=trim, operating_condition=oc)
+
+    def trims_at(self, cond: np.ndarray) -> dict[str, np.ndarray]:
+        """Trim values at conditions [K, 4] (alt, mach, power, dtamb): name -> [K]."""
+        cond = np.atleast_2d(np.asarray(cond, dtype=float))
+        t = self.interpolate("trim_corrected", cond) * _correction(self.trim_names, cond)
+        return {n: t[:, i] for i, n in enumerate(self.trim_names)}
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready ``fleethealth.engine-schedule/1`` dict."""
+        return {
+            "format": SCHEDULE_FORMAT,
+            "fingerprint": self.fingerprint,
+            "axes": {n: a.tolist() for n, a in zip(AXIS_NAMES, self.axes, strict=True)},
+            "trim_names": list(self.trim_names),
+            "template": self.template.to_dict(),
+            "values": {k: v.tolist() for k, v in self.values.items()},
+        }
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> EngineSchedule:
+        """Rebuild from ``to_dict`` output; ModelFormatError names a missing key."""
+        if d.get("format") != SCHEDULE_FORMAT:
+            raise ModelFormatError(f"format must be {SCHEDULE_FORMAT!r}, found {d.get('format')!r}")
+        for key in ("fingerprint", "axes", "trim_names", "template", "values"):
+            if key not in d:
+                raise ModelFormatError(f"missing key {key!r}")
+        axes = tuple(np.asarray(d["axes"][n], dtype=float) for n in AXIS_NAMES)
+        values = {k: np.asarray(v, dtype=float) for k, v in d["values"].items()}
+        shape = tuple(len(a) for a in axes)
+        for k, v in values.items():
+            if v.shape[: len(shape)] != shape:
+                raise ModelFormatError(f"values.{k} does not span the grid {shape}")
+        return cls(axes, values, tuple(d["trim_names"]), LinearModel.from_dict(d["template"]),
+                   str(d["fingerprint"]))
+
+
+def build_schedule(
+    axes: Mapping[str, Sequence[float]] | None = None,
+    dt: float = DEFAULT_DT,
+    health: np.ndarray | None = None,
+) -> EngineSchedule:
+    """Trim and linearise at every grid node (axes default to ``DEFAULT_AXES``).
+
+    All nodes are trimmed in one batched steady-state solve; each is then
+    linearised (about 10 ms a node).
+    """
+    ax = dict(DEFAULT_AXES)
+    ax.update(axes or {})
+    grid = tuple(np.asarray(sorted(ax[n]), dtype=float) for n in AXIS_NAMES)
+    for n, a in zip(AXIS_NAMES, grid, strict=True):
+        if len(a) == 0 or len(np.unique(a)) != len(a):
+            raise ValueError(f"axis {n!r} must hold distinct values, got {a.tolist()}")
+    nodes = np.array(list(itertools.product(*grid)))
+    env = nodes[:, [0, 1, 3]]
+    trims = steady_state(env, power=nodes[:, 2], health=health)
+    models = []
+    for i in range(len(nodes)):
+        one = type(trims)(*(
+            {k: v[i] for k, v in f.items()} if isinstance(f, dict) else f[i] for f in trims
+        ))
+        models.append(linear_model_at(one, dt))
+    shape = tuple(len(a) for a in grid)
+    values: dict[str, np.ndarray] = {}
+    for m in MATRIX_NAMES:
+        values[m] = np.stack([getattr(mod, m) for mod in models]).reshape(
+            shape + getattr(models[0], m).shape)
+    gains = [mod.steady_state_gains() + mod.steady_state_input_gains() for mod in models]
+    for j, g in enumerate(GAIN_NAMES):
+        values[g] = np.stack([gg[j] for gg in gains]).reshape(shape + gains[0][j].shape)
+    trim_names = tuple(models[0].trim)
+    trim = np.array([[mod.trim[n] for n in trim_names] for mod in models])
+    values["trim_corrected"] = (trim / _correction(trim_names, nodes)).reshape(
+        shape + (len(trim_names),))
+    return EngineSchedule(grid, values, trim_names, models[0], design_fingerprint())
