@@ -14,6 +14,9 @@ from app import __version__
 from app.config import Settings, get_settings
 from app.db import make_engine, make_sessionmaker
 from app.errors import install_error_handlers
+from app.jobs.background import start_background_jobs
+from app.jobs.dispatch import CeleryDispatch, Dispatcher, NoDispatch
+from app.jobs.registry import load_kinds
 from app.limits import BodyLimitMiddleware
 from app.log import configure_logging, install_request_logging
 from app.routers import (
@@ -31,19 +34,36 @@ from app.routers import (
     me,
     trends,
 )
+from app.routers import jobs as jobs_router
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
 
 
-def create_app(settings: Settings | None = None, engine: Engine | None = None) -> FastAPI:
-    """Build the application; ``engine`` lets tests hand in their own database."""
+def create_app(
+    settings: Settings | None = None,
+    engine: Engine | None = None,
+    *,
+    background_jobs: bool = False,
+) -> FastAPI:
+    """Build the application; ``engine`` lets tests hand in their own database.
+
+    ``background_jobs`` starts the in-process job runner and scheduler with the app when
+    ``settings.job_runner`` is ``inprocess`` (the embedded default; ``fleethealth serve``).
+    Without it queued jobs wait for a runner (tests run them with ``run_pending``).
+    """
     settings = settings or get_settings()
     configure_logging(settings.log_level, settings.log_json)
     engine = engine or make_engine(settings.resolved_database_url)
 
     @asynccontextmanager
-    async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        background = None
+        if background_jobs and settings.job_runner == "inprocess":
+            background = start_background_jobs(app.state.sessionmaker, app.state.job_registry)
+            app.state.job_dispatcher = background.runner
         yield
+        if background is not None:
+            background.stop()
         engine.dispose()
 
     app = FastAPI(
@@ -55,6 +75,9 @@ def create_app(settings: Settings | None = None, engine: Engine | None = None) -
     app.state.settings = settings
     app.state.engine = engine
     app.state.sessionmaker = make_sessionmaker(engine)
+    app.state.job_registry = load_kinds()
+    dispatcher: Dispatcher = CeleryDispatch() if settings.job_runner == "celery" else NoDispatch()
+    app.state.job_dispatcher = dispatcher
 
     install_error_handlers(app)
     install_request_logging(app)
@@ -73,5 +96,6 @@ def create_app(settings: Settings | None = None, engine: Engine | None = None) -
     app.include_router(installations.router)
     app.include_router(keys.router)
     app.include_router(maintenance.router)
+    app.include_router(jobs_router.router)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
     return app

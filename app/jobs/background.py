@@ -1,0 +1,31 @@
+"""The embedded default's background jobs: the in-process runner and scheduler, started together."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from app.jobs.registry import JobRegistry
+from app.jobs.runner import Runner, SessionFactory
+from app.jobs.scheduler import Scheduler
+
+
+@dataclass
+class BackgroundJobs:
+    runner: Runner
+    scheduler: Scheduler
+
+    def stop(self) -> None:
+        self.scheduler.stop()
+        self.runner.stop()
+
+
+def start_background_jobs(
+    factory: SessionFactory, registry: JobRegistry, *, workers: int = 2
+) -> BackgroundJobs:
+    """Start the runner's threads (requeueing jobs a stopped process left running) and the
+    scheduler thread, which wakes the runner for each job it submits."""
+    runner = Runner(factory, registry, workers=workers)
+    runner.start()
+    scheduler = Scheduler(factory, registry, runner)
+    scheduler.start()
+    return BackgroundJobs(runner=runner, scheduler=scheduler)

@@ -1,0 +1,106 @@
+"""The Celery tasks of a deployment: the same claim and run code as the in-process runner.
+
+``run_job(job_id)`` claims the job with the atomic UPDATE and runs it with ``execute``; a
+message for a job that is no longer queued (run already, cancelled, a duplicate message) does
+nothing. ``tick`` (sent by beat) submits due schedules, requeues jobs whose worker stopped and
+re-sends jobs whose message was lost.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from datetime import timedelta
+from typing import Any
+
+from celery.signals import worker_ready
+
+from app.jobs.celery_app import make_celery
+from app.jobs.dispatch import CeleryDispatch
+from app.jobs.registry import JobRegistry, load_kinds
+from app.jobs.runner import (
+    SessionFactory,
+    claim_job,
+    execute,
+    queued_before,
+    requeue_stale,
+    worker_name,
+)
+from app.jobs.scheduler import submit_due
+from app.models.base import utcnow
+
+log = logging.getLogger("fleethealth.jobs")
+
+celery = make_celery()
+
+# A queued job older than this without a worker taking it had its message lost (broker down
+# at submission, a purged queue): the tick sends it again; duplicates are harmless.
+RESEND_QUEUED_AFTER = timedelta(minutes=2)
+
+
+@dataclass(frozen=True)
+class WorkerContext:
+    factory: SessionFactory
+    registry: JobRegistry
+
+
+_context: WorkerContext | None = None
+
+
+def worker_context() -> WorkerContext:
+    """The database and job kinds of this worker process, made on first use (after the fork)."""
+    global _context
+    if _context is None:
+        from app.config import get_settings
+        from app.db import make_engine, make_sessionmaker
+
+        engine = make_engine(get_settings().resolved_database_url)
+        _context = WorkerContext(factory=make_sessionmaker(engine), registry=load_kinds())
+    return _context
+
+
+def configure(factory: SessionFactory, registry: JobRegistry) -> None:
+    """Use this database and registry instead of the settings' (a worker inside a test)."""
+    global _context
+    _context = WorkerContext(factory=factory, registry=registry)
+
+
+@celery.task(name="fleethealth.run_job")
+def run_job(job_id: int) -> str:
+    context = worker_context()
+    claim = claim_job(context.factory, job_id, worker=worker_name("celery"))
+    if claim is None:
+        return "not queued"
+    return execute(context.factory, claim, context.registry)
+
+
+@celery.task(name="fleethealth.tick")
+def tick() -> dict[str, list[int]]:
+    context = worker_context()
+    requeued = requeue_stale(context.factory)
+    lost = queued_before(context.factory, utcnow() - RESEND_QUEUED_AFTER)
+    submitted = submit_due(context.factory, context.registry)
+    dispatcher = CeleryDispatch()
+    for job_id in sorted(set(requeued) | set(lost) | set(submitted)):
+        dispatcher.dispatch(job_id)
+    return {"requeued": requeued, "resent": lost, "submitted": submitted}
+
+
+@worker_ready.connect
+def _requeue_on_start(sender: Any = None, **_kwargs: Any) -> None:
+    """A worker starting after a crash sends the jobs the crashed worker left running again."""
+    try:
+        context = worker_context()
+        queue = CeleryDispatch(_queue_of(sender))
+        for job_id in requeue_stale(context.factory):
+            queue.dispatch(job_id)
+    except Exception:  # the worker must start even if the database is not there yet
+        log.exception("requeueing stale jobs at worker start failed")
+
+
+def _queue_of(sender: Any) -> str:
+    try:
+        queues = sender.app.amqp.queues.consume_from
+        return str(next(iter(queues)))
+    except Exception:
+        return celery.conf.task_default_queue  # type: ignore[no-any-return]

@@ -1,0 +1,441 @@
+"""Claiming and running jobs: the code every runner shares, and the in-process thread pool.
+
+The in-process ``Runner`` (embedded default) and the Celery task ``run_job`` (deployment) both
+claim a job with one atomic UPDATE and run it with ``execute``. Tests run queued jobs
+synchronously with ``run_pending(session_factory)``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import socket
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from datetime import datetime, timedelta
+from typing import Any
+
+from sqlalchemy import select, update
+from sqlalchemy.exc import OperationalError
+from sqlalchemy.orm import Session, sessionmaker
+
+from app.db import transaction
+from app.errors import ServiceError
+from app.jobs.registry import JobCancelled, JobRegistry, load_kinds
+from app.models.base import utcnow
+from app.models.jobs import Job
+
+log = logging.getLogger("fleethealth.jobs")
+
+SessionFactory = sessionmaker[Session]
+
+# A worker that stopped (killed process, lost machine) leaves its job 'running' without
+# heartbeats; after STALE_AFTER the job is requeued, at most MAX_ATTEMPTS claims in all.
+HEARTBEAT_SECONDS = 15.0
+STALE_AFTER = timedelta(seconds=120)
+MAX_ATTEMPTS = 3
+PROGRESS_THROTTLE_SECONDS = 0.5
+# While a job's own transaction holds SQLite's single write lock, a progress write would wait;
+# it gives up quickly instead and the next report tries again.
+SQLITE_PROGRESS_WAIT_MS = 200
+
+
+def worker_name(prefix: str) -> str:
+    return f"{prefix}:{socket.gethostname()}:{os.getpid()}:{threading.get_ident()}"
+
+
+@dataclass(frozen=True)
+class Claim:
+    """A job this worker owns: every later write is conditioned on ``attempt``."""
+
+    job_id: int
+    attempt: int
+
+
+def _claim_values(worker: str) -> dict[str, Any]:
+    now = utcnow()
+    return {
+        "status": "running",
+        "attempts": Job.attempts + 1,
+        "started_at": now,
+        "heartbeat_at": now,
+        "worker": worker[:200],
+        "message": "running",
+    }
+
+
+def claim_next(factory: SessionFactory, *, worker: str) -> Claim | None:
+    """Atomically take the oldest queued job, or None when none is queued.
+
+    One UPDATE ... WHERE status = 'queued' RETURNING: of two workers racing for a job only one
+    gets the row back. On PostgreSQL the inner SELECT skips rows another worker has locked.
+    """
+    oldest = (
+        select(Job.id)
+        .where(Job.status == "queued")
+        .order_by(Job.id)
+        .limit(1)
+        .with_for_update(skip_locked=True)
+        .scalar_subquery()
+    )
+    return _claim(factory, Job.id == oldest, worker)
+
+
+def claim_job(factory: SessionFactory, job_id: int, *, worker: str) -> Claim | None:
+    """Atomically take job ``job_id`` if it is still queued (a Celery message names its job)."""
+    return _claim(factory, Job.id == job_id, worker)
+
+
+def _claim(factory: SessionFactory, which: Any, worker: str) -> Claim | None:
+    with transaction(factory) as session:
+        row = session.execute(
+            update(Job)
+            .where(which, Job.status == "queued")
+            .values(**_claim_values(worker))
+            .returning(Job.id, Job.attempts),
+            execution_options={"synchronize_session": False},
+        ).first()
+    return None if row is None else Claim(job_id=row[0], attempt=row[1])
+
+
+def _owned(claim: Claim) -> tuple[Any, ...]:
+    return (Job.id == claim.job_id, Job.status == "running", Job.attempts == claim.attempt)
+
+
+@contextmanager
+def _short_write(factory: SessionFactory) -> Iterator[Session]:
+    """A short transaction that gives up fast on a locked SQLite file (raises OperationalError)."""
+    with transaction(factory) as session:
+        connection = session.connection()
+        if connection.dialect.name != "sqlite":
+            yield session
+            return
+        previous = connection.exec_driver_sql("PRAGMA busy_timeout").scalar()
+        connection.exec_driver_sql(f"PRAGMA busy_timeout = {SQLITE_PROGRESS_WAIT_MS}")
+        try:
+            yield session
+        finally:
+            connection.exec_driver_sql(f"PRAGMA busy_timeout = {int(previous or 0)}")
+
+
+def _locked(exc: OperationalError) -> bool:
+    return "database is locked" in str(exc.orig)
+
+
+class ProgressReporter:
+    """The ``progress(fraction, message)`` callback a job function receives.
+
+    Writes at most every ``throttle_seconds`` (the first report always), each in its own short
+    transaction, so the dashboard sees it while the job's own transaction is still open. Raises
+    ``JobCancelled`` when the write finds the job no longer running under this claim.
+    """
+
+    def __init__(
+        self,
+        factory: SessionFactory,
+        claim: Claim,
+        *,
+        throttle_seconds: float = PROGRESS_THROTTLE_SECONDS,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self._factory = factory
+        self._claim = claim
+        self._throttle = throttle_seconds
+        self._clock = clock
+        self._last_write: float | None = None
+        self.fraction = 0.0
+        self.message = "running"
+
+    def __call__(self, fraction: float, message: str | None = None) -> None:
+        if not (math.isfinite(fraction) and 0.0 <= fraction <= 1.0):
+            raise ValueError(f"progress must be a fraction between 0 and 1, not {fraction!r}")
+        self.fraction = float(fraction)
+        if message is not None:
+            self.message = message[:500]
+        now = self._clock()
+        if self._last_write is not None and now - self._last_write < self._throttle:
+            return
+        self._last_write = now
+        try:
+            with _short_write(self._factory) as session:
+                written = session.execute(
+                    update(Job)
+                    .where(*_owned(self._claim))
+                    .values(progress=self.fraction, message=self.message, heartbeat_at=utcnow()),
+                    execution_options={"synchronize_session": False},
+                ).rowcount  # type: ignore[attr-defined]
+        except OperationalError as exc:
+            if not _locked(exc):
+                raise
+            self._last_write = None  # the job holds the lock; report again next time
+            return
+        if written == 0:
+            raise JobCancelled(f"job {self._claim.job_id} is no longer running here")
+
+
+class Heartbeat:
+    """Marks a running job alive every ``interval`` seconds from a daemon thread."""
+
+    def __init__(self, factory: SessionFactory, claim: Claim, interval: float) -> None:
+        self._factory = factory
+        self._claim = claim
+        self._interval = interval
+        self._stop = threading.Event()
+        self._thread = threading.Thread(
+            target=self._beat, name=f"job-{claim.job_id}-heartbeat", daemon=True
+        )
+        self._thread.start()
+
+    def _beat(self) -> None:
+        while not self._stop.wait(self._interval):
+            try:
+                with _short_write(self._factory) as session:
+                    written = session.execute(
+                        update(Job).where(*_owned(self._claim)).values(heartbeat_at=utcnow()),
+                        execution_options={"synchronize_session": False},
+                    ).rowcount  # type: ignore[attr-defined]
+            except OperationalError as exc:
+                log.debug("heartbeat of job %s skipped: %s", self._claim.job_id, exc)
+                continue
+            if written == 0:
+                return
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+
+def execute(
+    factory: SessionFactory,
+    claim: Claim,
+    registry: JobRegistry,
+    *,
+    throttle_seconds: float = PROGRESS_THROTTLE_SECONDS,
+    heartbeat_seconds: float | None = HEARTBEAT_SECONDS,
+) -> str:
+    """Run a claimed job to its end and return its final status.
+
+    The function runs in its own session; its result and the status 'succeeded' are written in
+    that same transaction, so the work and the record of it commit together. An exception rolls
+    the work back and records the error; ``JobCancelled`` rolls back and leaves 'cancelled'.
+    ``heartbeat_seconds=None`` runs without a heartbeat thread (synchronous tests, whose
+    session factory shares one connection).
+    """
+    with transaction(factory) as session:
+        job = session.get(Job, claim.job_id)
+        assert job is not None, f"claimed job {claim.job_id} vanished"
+        kind_name, raw_parameters, operator_id = job.kind, job.parameters, job.operator_id
+    try:
+        kind = registry.get(kind_name)
+        parameters = kind.validate(raw_parameters)
+    except ServiceError as exc:
+        return _record_failure(factory, claim, exc.message)
+
+    progress = ProgressReporter(factory, claim, throttle_seconds=throttle_seconds)
+    heartbeat = Heartbeat(factory, claim, heartbeat_seconds) if heartbeat_seconds else None
+    session = factory()
+    try:
+        try:
+            result = kind.function(session, parameters, progress, operator_id=operator_id)
+            result = _json_result(kind_name, result)
+        except JobCancelled:
+            session.rollback()
+            log.info("job %s (%s) stopped: cancelled", claim.job_id, kind_name)
+            return _status(factory, claim.job_id)
+        except Exception as exc:  # the job's own failure is recorded, never raised to the runner
+            session.rollback()
+            log.exception("job %s (%s) failed", claim.job_id, kind_name)
+            return _record_failure(factory, claim, f"{type(exc).__name__}: {exc}")
+        now = utcnow()
+        done = session.execute(
+            update(Job)
+            .where(*_owned(claim))
+            .values(
+                status="succeeded",
+                progress=1.0,
+                message=progress.message if progress.message != "running" else "done",
+                result=result,
+                finished_at=now,
+                heartbeat_at=now,
+            ),
+            execution_options={"synchronize_session": False},
+        )
+        if done.rowcount == 0:  # type: ignore[attr-defined]
+            # Cancelled (or requeued as stale) after the last progress report: undo the work.
+            session.rollback()
+            return _status(factory, claim.job_id)
+        session.commit()
+        return "succeeded"
+    finally:
+        session.close()
+        if heartbeat is not None:
+            heartbeat.stop()
+
+
+def _json_result(kind: str, result: object) -> dict[str, Any]:
+    if not isinstance(result, dict):
+        raise TypeError(f"job kind {kind!r} returned {type(result).__name__}, not a dict")
+    # Round-trip so a result that JSON cannot hold fails here, not at commit.
+    loaded: dict[str, Any] = json.loads(json.dumps(result, allow_nan=False))
+    return loaded
+
+
+def _record_failure(factory: SessionFactory, claim: Claim, error: str) -> str:
+    with transaction(factory) as session:
+        session.execute(
+            update(Job)
+            .where(*_owned(claim))
+            .values(status="failed", error=error, message="failed", finished_at=utcnow()),
+            execution_options={"synchronize_session": False},
+        )
+    return _status(factory, claim.job_id)
+
+
+def _status(factory: SessionFactory, job_id: int) -> str:
+    with transaction(factory) as session:
+        return session.scalar(select(Job.status).where(Job.id == job_id)) or "missing"
+
+
+def requeue_stale(
+    factory: SessionFactory,
+    *,
+    stale_after: timedelta = STALE_AFTER,
+    max_attempts: int = MAX_ATTEMPTS,
+    now: datetime | None = None,
+) -> list[int]:
+    """Requeue running jobs whose worker stopped beating; fail those out of attempts.
+
+    Returns the ids requeued (a Celery deployment sends them to the workers again).
+    """
+    cutoff = (now or utcnow()) - stale_after
+    stale = (Job.status == "running", Job.heartbeat_at < cutoff)
+    with transaction(factory) as session:
+        session.execute(
+            update(Job)
+            .where(*stale, Job.attempts >= max_attempts)
+            .values(
+                status="failed",
+                finished_at=utcnow(),
+                message="failed",
+                error=f"its worker stopped {max_attempts} times; not retried again",
+            ),
+            execution_options={"synchronize_session": False},
+        )
+        requeued = session.execute(
+            update(Job)
+            .where(*stale, Job.attempts < max_attempts)
+            .values(status="queued", message="requeued: its worker stopped", worker=None)
+            .returning(Job.id),
+            execution_options={"synchronize_session": False},
+        ).scalars()
+        ids = sorted(requeued)
+    if ids:
+        log.warning("requeued jobs whose worker stopped: %s", ids)
+    return ids
+
+
+def queued_before(factory: SessionFactory, cutoff: datetime) -> list[int]:
+    """Ids of jobs still queued that were created before ``cutoff`` (their message was lost)."""
+    with transaction(factory) as session:
+        return list(
+            session.scalars(
+                select(Job.id).where(Job.status == "queued", Job.created_at < cutoff)
+            ).all()
+        )
+
+
+def run_pending(
+    factory: SessionFactory,
+    registry: JobRegistry | None = None,
+    *,
+    throttle_seconds: float = 0.0,
+) -> list[int]:
+    """Run every queued job here and now, one after another; return their ids in order.
+
+    For tests and one-shot commands: no threads, no heartbeat, so it works with a session
+    factory bound to a single connection.
+    """
+    registry = registry or load_kinds()
+    worker = worker_name("inline")
+    ran: list[int] = []
+    while (claim := claim_next(factory, worker=worker)) is not None:
+        execute(factory, claim, registry, throttle_seconds=throttle_seconds, heartbeat_seconds=None)
+        ran.append(claim.job_id)
+    return ran
+
+
+class Runner:
+    """The embedded default's job runner: ``workers`` threads claiming queued jobs.
+
+    On start it requeues jobs a previous process left running. ``dispatch(job_id)`` wakes an
+    idle worker at once; otherwise workers look for queued jobs every ``poll_seconds``.
+    """
+
+    def __init__(
+        self,
+        factory: SessionFactory,
+        registry: JobRegistry,
+        *,
+        workers: int = 2,
+        poll_seconds: float = 2.0,
+        heartbeat_seconds: float = HEARTBEAT_SECONDS,
+        stale_after: timedelta = STALE_AFTER,
+        throttle_seconds: float = PROGRESS_THROTTLE_SECONDS,
+    ) -> None:
+        if workers < 1:
+            raise ValueError("a runner needs at least one worker thread")
+        self._factory = factory
+        self._registry = registry
+        self._workers = workers
+        self._poll = poll_seconds
+        self._heartbeat = heartbeat_seconds
+        self._stale_after = stale_after
+        self._throttle = throttle_seconds
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+
+    def start(self) -> None:
+        requeue_stale(self._factory, stale_after=self._stale_after)
+        for number in range(self._workers):
+            thread = threading.Thread(target=self._work, name=f"job-worker-{number}", daemon=True)
+            thread.start()
+            self._threads.append(thread)
+
+    def dispatch(self, job_id: int) -> None:
+        self._wake.set()
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """Stop claiming; wait up to ``timeout`` s for running jobs (the rest are requeued
+        as stale by the next start)."""
+        self._stop.set()
+        self._wake.set()
+        deadline = time.monotonic() + timeout
+        for thread in self._threads:
+            thread.join(timeout=max(0.0, deadline - time.monotonic()))
+        self._threads.clear()
+
+    def _work(self) -> None:
+        worker = worker_name("inprocess")
+        while not self._stop.is_set():
+            try:
+                claim = claim_next(self._factory, worker=worker)
+                if claim is not None:
+                    execute(
+                        self._factory,
+                        claim,
+                        self._registry,
+                        throttle_seconds=self._throttle,
+                        heartbeat_seconds=self._heartbeat,
+                    )
+                    continue
+            except Exception:  # a database hiccup must not kill the worker thread
+                log.exception("job worker %s: claiming or running a job failed", worker)
+            # Leave the event set while stopping so every other worker thread sees it too.
+            if self._wake.wait(self._poll) and not self._stop.is_set():
+                self._wake.clear()

@@ -1,0 +1,130 @@
+"""Submitting, reading and cancelling jobs. Callers pass the session and commit it."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from sqlalchemy import event, func, select, update
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+
+from app.errors import Conflict, NotFound
+from app.jobs.registry import JobRegistry, parameters_checksum
+from app.models.base import utcnow
+from app.models.jobs import ACTIVE_STATUSES, Job
+
+
+def submit(
+    session: Session,
+    *,
+    operator_id: int,
+    kind: str,
+    parameters: dict[str, Any] | None,
+    registry: JobRegistry,
+    schedule_id: int | None = None,
+) -> tuple[Job, bool]:
+    """Queue a job, or return the queued or running job with the same kind and parameters.
+
+    Returns ``(job, created)``. Unknown kinds and bad parameters raise ``InvalidInput`` before
+    anything is stored. The caller commits, then hands ``job.id`` to a dispatcher (see
+    ``dispatch_after_commit``).
+    """
+    job_kind = registry.get(kind)
+    validated = job_kind.validate(parameters)
+    checksum = parameters_checksum(kind, validated)
+    existing = _active_job(session, operator_id, kind, checksum)
+    if existing is not None:
+        return existing, False
+    job = Job(
+        operator_id=operator_id,
+        kind=kind,
+        parameters=validated.model_dump(mode="json"),
+        checksum=checksum,
+        status="queued",
+        progress=0.0,
+        message="queued",
+        attempts=0,
+        schedule_id=schedule_id,
+    )
+    try:
+        # A concurrent submission of the same work hits the partial unique index; the savepoint
+        # keeps the caller's transaction usable so the winner's row can be returned instead.
+        with session.begin_nested():
+            session.add(job)
+            session.flush()
+    except IntegrityError:
+        existing = _active_job(session, operator_id, kind, checksum)
+        if existing is None:
+            raise
+        return existing, False
+    return job, True
+
+
+def _active_job(session: Session, operator_id: int, kind: str, checksum: str) -> Job | None:
+    return session.scalar(
+        select(Job).where(
+            Job.operator_id == operator_id,
+            Job.kind == kind,
+            Job.checksum == checksum,
+            Job.status.in_(ACTIVE_STATUSES),
+        )
+    )
+
+
+def get_job(session: Session, *, operator_id: int, job_id: int) -> Job:
+    """The operator's job ``job_id``; another operator's job is not found."""
+    job = session.get(Job, job_id, populate_existing=True)
+    if job is None or job.operator_id != operator_id:
+        raise NotFound(f"job {job_id} not found")
+    return job
+
+
+def list_jobs(
+    session: Session,
+    *,
+    operator_id: int,
+    statuses: Sequence[str] = (),
+    kinds: Sequence[str] = (),
+    limit: int = 100,
+    offset: int = 0,
+) -> tuple[list[Job], int]:
+    """The operator's jobs, newest first, and how many match in all."""
+    conditions = [Job.operator_id == operator_id]
+    if statuses:
+        conditions.append(Job.status.in_(statuses))
+    if kinds:
+        conditions.append(Job.kind.in_(kinds))
+    total = session.scalar(select(func.count()).select_from(Job).where(*conditions)) or 0
+    rows = session.scalars(
+        select(Job).where(*conditions).order_by(Job.id.desc()).limit(limit).offset(offset)
+    ).all()
+    return list(rows), total
+
+
+def cancel(session: Session, *, operator_id: int, job_id: int) -> Job:
+    """Cancel a queued or running job.
+
+    A queued job never starts; a running one stops at its next progress report (its function
+    gets ``JobCancelled``) and its uncommitted work is rolled back. A finished job is a 409.
+    """
+    job = get_job(session, operator_id=operator_id, job_id=job_id)
+    cancelled = session.execute(
+        update(Job)
+        .where(Job.id == job_id, Job.status.in_(ACTIVE_STATUSES))
+        .values(status="cancelled", finished_at=utcnow(), message="cancelled"),
+        execution_options={"synchronize_session": False},
+    )
+    session.refresh(job)
+    if cancelled.rowcount == 0:  # type: ignore[attr-defined]
+        raise Conflict(f"job {job_id} has {job.status} already; only queued or running jobs cancel")
+    return job
+
+
+def dispatch_after_commit(session: Session, dispatch: Callable[[int], None], job_id: int) -> None:
+    """Call ``dispatch(job_id)`` once the session commits, so a worker can see the row."""
+
+    def after_commit(_session: Session) -> None:
+        dispatch(job_id)
+
+    event.listen(session, "after_commit", after_commit, once=True)

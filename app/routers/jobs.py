@@ -1,0 +1,195 @@
+"""Jobs (progress of long work) and job schedules. Another operator's job or schedule is 404."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, Query, Request, Response, status
+
+from app.errors import Forbidden, InvalidInput
+from app.jobs import schedules as schedule_service
+from app.jobs import store
+from app.jobs.dispatch import Dispatcher
+from app.jobs.registry import JobRegistry
+from app.schemas.jobs import (
+    JobKindOut,
+    JobList,
+    JobOut,
+    JobStatus,
+    JobSubmit,
+    ScheduleCreate,
+    ScheduleOut,
+    ScheduleUpdate,
+)
+from app.security import Admin, Analyst, CurrentPrincipal, DbSession
+
+router = APIRouter(prefix="/api/v1", tags=["jobs"])
+
+
+def get_registry(request: Request) -> JobRegistry:
+    registry: JobRegistry = request.app.state.job_registry
+    return registry
+
+
+def get_dispatcher(request: Request) -> Dispatcher:
+    dispatcher: Dispatcher = request.app.state.job_dispatcher
+    return dispatcher
+
+
+Registry = Annotated[JobRegistry, Depends(get_registry)]
+JobDispatcher = Annotated[Dispatcher, Depends(get_dispatcher)]
+
+
+@router.get("/jobs", response_model=JobList)
+def list_jobs(
+    session: DbSession,
+    principal: CurrentPrincipal,
+    status_: Annotated[list[JobStatus] | None, Query(alias="status")] = None,
+    kind: Annotated[list[str] | None, Query()] = None,
+    limit: Annotated[int, Query(ge=1, le=500)] = 100,
+    offset: Annotated[int, Query(ge=0)] = 0,
+) -> JobList:
+    """Your operator's jobs, newest first; repeat ``status`` or ``kind`` to match several."""
+    rows, total = store.list_jobs(
+        session,
+        operator_id=principal.operator_id,
+        statuses=status_ or (),
+        kinds=kind or (),
+        limit=limit,
+        offset=offset,
+    )
+    return JobList(items=[JobOut.model_validate(row) for row in rows], total=total)
+
+
+@router.post(
+    "/jobs",
+    response_model=JobOut,
+    status_code=status.HTTP_202_ACCEPTED,
+    responses={200: {"description": "The same job is queued or running already", "model": JobOut}},
+)
+def submit_job(
+    body: JobSubmit,
+    session: DbSession,
+    principal: Analyst,
+    registry: Registry,
+    dispatcher: JobDispatcher,
+    response: Response,
+) -> JobOut:
+    """Queue a job (202), or get the queued or running job with the same kind and parameters
+    (200). Parameters are checked before anything is stored (422)."""
+    kind = registry.get(body.kind)
+    if not kind.submittable:
+        raise InvalidInput(
+            f"job kind {body.kind!r} is started by the service, not submitted directly",
+            details=[{"column": "kind", "reason": "not submittable"}],
+        )
+    if not principal.can(kind.role):
+        raise Forbidden(f"job kind {body.kind!r} needs the {kind.role} role")
+    job, created = store.submit(
+        session,
+        operator_id=principal.operator_id,
+        kind=body.kind,
+        parameters=body.parameters,
+        registry=registry,
+    )
+    if created:
+        store.dispatch_after_commit(session, dispatcher.dispatch, job.id)
+    else:
+        response.status_code = status.HTTP_200_OK
+    return JobOut.model_validate(job)
+
+
+@router.get("/jobs/kinds", response_model=list[JobKindOut])
+def list_job_kinds(_principal: CurrentPrincipal, registry: Registry) -> list[JobKindOut]:
+    """The registered job kinds with the JSON schema of their parameters."""
+    return [
+        JobKindOut(
+            name=kind.name,
+            description=kind.description,
+            role=kind.role,
+            submittable=kind.submittable,
+            parameters_schema=kind.parameters.model_json_schema(),
+        )
+        for kind in registry
+    ]
+
+
+@router.get("/jobs/{job_id}", response_model=JobOut)
+def get_job(job_id: int, session: DbSession, principal: CurrentPrincipal) -> JobOut:
+    """One job with its status, progress, message, and result or error."""
+    return JobOut.model_validate(
+        store.get_job(session, operator_id=principal.operator_id, job_id=job_id)
+    )
+
+
+@router.post("/jobs/{job_id}/cancel", response_model=JobOut)
+def cancel_job(job_id: int, session: DbSession, principal: Analyst) -> JobOut:
+    """Cancel a queued or running job (a running job stops at its next progress report)."""
+    return JobOut.model_validate(
+        store.cancel(session, operator_id=principal.operator_id, job_id=job_id)
+    )
+
+
+@router.get("/schedules", response_model=list[ScheduleOut])
+def list_schedules(session: DbSession, principal: Admin) -> list[ScheduleOut]:
+    rows = schedule_service.list_schedules(session, operator_id=principal.operator_id)
+    return [ScheduleOut.model_validate(row) for row in rows]
+
+
+@router.post("/schedules", response_model=ScheduleOut, status_code=status.HTTP_201_CREATED)
+def create_schedule(
+    body: ScheduleCreate, session: DbSession, principal: Admin, registry: Registry
+) -> ScheduleOut:
+    """Submit a job of ``kind`` every ``interval_seconds``, the first at ``first_run_at``."""
+    schedule = schedule_service.create_schedule(
+        session,
+        operator_id=principal.operator_id,
+        kind=body.kind,
+        parameters=body.parameters,
+        interval_seconds=body.interval_seconds,
+        first_run_at=body.first_run_at,
+        enabled=body.enabled,
+        registry=registry,
+    )
+    return ScheduleOut.model_validate(schedule)
+
+
+@router.get("/schedules/{schedule_id}", response_model=ScheduleOut)
+def get_schedule(schedule_id: int, session: DbSession, principal: Admin) -> ScheduleOut:
+    return ScheduleOut.model_validate(
+        schedule_service.get_schedule(
+            session, operator_id=principal.operator_id, schedule_id=schedule_id
+        )
+    )
+
+
+@router.patch("/schedules/{schedule_id}", response_model=ScheduleOut)
+def update_schedule(
+    schedule_id: int,
+    body: ScheduleUpdate,
+    session: DbSession,
+    principal: Admin,
+    registry: Registry,
+) -> ScheduleOut:
+    """Change parameters, interval, next run or enabled; fields left out stay as they are."""
+    schedule = schedule_service.update_schedule(
+        session,
+        operator_id=principal.operator_id,
+        schedule_id=schedule_id,
+        registry=registry,
+        parameters=body.parameters,
+        interval_seconds=body.interval_seconds,
+        enabled=body.enabled,
+        next_run_at=body.next_run_at,
+    )
+    return ScheduleOut.model_validate(schedule)
+
+
+@router.delete("/schedules/{schedule_id}", response_model=ScheduleOut)
+def delete_schedule(schedule_id: int, session: DbSession, principal: Admin) -> ScheduleOut:
+    """Delete a schedule and answer what it was; the jobs it submitted stay."""
+    return ScheduleOut.model_validate(
+        schedule_service.delete_schedule(
+            session, operator_id=principal.operator_id, schedule_id=schedule_id
+        )
+    )
