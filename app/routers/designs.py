@@ -46,7 +46,7 @@ def create_design(body: DesignCreate, session: DbSession, principal: Analyst) ->
         name=body.name,
         spec=body.spec,
     )
-    design = models_designs.run_design(session, design, models_designs.design_step())
+    design = models_designs.run_design(session, design, models_designs.design_step)
     return DesignDetail.model_validate(design)
 
 

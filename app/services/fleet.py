@@ -271,7 +271,9 @@ def _locked(session: Session, row: RowT) -> RowT:
     its writers are serialised by the database lock anyway.
     """
     key = inspect(type(row)).primary_key[0]
-    session.execute(select(key).where(key == inspect(row).identity[0]).with_for_update())
+    identity = inspect(row).identity
+    assert identity is not None, "only stored rows are locked"
+    session.execute(select(key).where(key == identity[0]).with_for_update())
     return row
 
 

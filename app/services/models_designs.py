@@ -11,7 +11,6 @@ design per engine type is active.
 from __future__ import annotations
 
 import hashlib
-import importlib
 import json
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -19,10 +18,11 @@ from typing import Any
 from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
 
-from app.errors import Conflict, InvalidInput, ServiceError
+from app.errors import Conflict, InvalidInput
 from app.models import EngineModel, EngineType, EstimatorDesign
 from app.models.base import utcnow
 from app.services.fleet import delete_or_conflict, owned, paginate, referenced
+from estimation.design import run_design as run_spec
 from estimation.model import MODEL_FORMAT, LinearModel
 
 # ------------------------------------------------------------------------ engine models
@@ -315,17 +315,10 @@ def active_design(
     )
 
 
-class DesignStepUnavailable(ServiceError):
-    status_code = 503
-    code = "design_step_unavailable"
+def design_step(model: LinearModel, spec: Mapping[str, Any]) -> Mapping[str, Any]:
+    """The estimation core's design step: spec on ``model`` -> fleethealth.design/1 dict.
 
-
-def design_step() -> DesignStep:
-    """The estimation core's design step: (model, spec) -> fleethealth.design/1 dict."""
-    try:
-        core = importlib.import_module("estimation.design")
-    except ImportError:
-        raise DesignStepUnavailable(
-            "estimator design is not available in this build (estimation.design missing)"
-        ) from None
-    return core.design_document  # type: ignore[no-any-return]
+    The spec's own ``model`` key (a file name for command-line use) is ignored: the API names
+    the stored engine model by id.
+    """
+    return run_spec(spec, model)
