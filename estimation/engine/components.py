@@ -16,11 +16,13 @@ from estimation.engine.atmosphere import P_SL, T_SL
 from estimation.engine.gas import (
     LHV,
     R_GAS,
-    enthalpy,
-    gamma,
-    isentropic_temperature,
-    temperature_from_enthalpy,
+    coefficients,
+    enthalpy_ab,
+    isentropic_temperature_ab,
+    temperature_from_enthalpy_ab,
 )
+
+_A_AIR, _B_AIR = coefficients(0.0)
 
 
 def corrected_flow(w: np.ndarray, t: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -37,18 +39,20 @@ def compression(
     t_in: np.ndarray, pr: np.ndarray, eff: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Exit temperature [K] and specific work [J/kg] of a compression by pr at efficiency eff."""
-    h_in = enthalpy(t_in)
-    dh = (enthalpy(isentropic_temperature(t_in, pr)) - h_in) / eff
-    return temperature_from_enthalpy(h_in + dh), dh
+    a, b = _A_AIR, _B_AIR
+    h_in = enthalpy_ab(t_in, a, b)
+    dh = (enthalpy_ab(isentropic_temperature_ab(t_in, pr, a, b), a, b) - h_in) / eff
+    return temperature_from_enthalpy_ab(h_in + dh, a, b), dh
 
 
 def expansion(
     t_in: np.ndarray, pr: np.ndarray, eff: np.ndarray, far: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Exit temperature [K] and specific work [J/kg] of an expansion by pr (= p_in/p_out > 1)."""
-    h_in = enthalpy(t_in, far)
-    dh = eff * (h_in - enthalpy(isentropic_temperature(t_in, 1.0 / pr, far), far))
-    return temperature_from_enthalpy(h_in - dh, far), dh
+    a, b = coefficients(far)
+    h_in = enthalpy_ab(t_in, a, b)
+    dh = eff * (h_in - enthalpy_ab(isentropic_temperature_ab(t_in, 1.0 / pr, a, b), a, b))
+    return temperature_from_enthalpy_ab(h_in - dh, a, b), dh
 
 
 def burner(
@@ -56,8 +60,9 @@ def burner(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Burner exit temperature [K] and fuel-air ratio: (1+far) h4 = h3 + far eff LHV."""
     far = wf / w3
-    h4 = (enthalpy(t3) + far * eff * LHV) / (1.0 + far)
-    return temperature_from_enthalpy(h4, far), far
+    h4 = (enthalpy_ab(t3, _A_AIR, _B_AIR) + far * eff * LHV) / (1.0 + far)
+    a, b = coefficients(far)
+    return temperature_from_enthalpy_ab(h4, a, b), far
 
 
 def nozzle(
@@ -70,7 +75,9 @@ def nozzle(
     temperature. Pt/Pamb below one is clipped (no reverse flow), which only
     Newton iterates far from a solution can see.
     """
-    g = gamma(tt, far)
+    a, b = coefficients(far)
+    c = a + b * tt
+    g = c / (c - R_GAS)
     gm1 = g - 1.0
     pr = np.maximum(pt / p_amb, 1.0 + 1e-9)
     pr_crit = (0.5 * (g + 1.0)) ** (g / gm1)

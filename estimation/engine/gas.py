@@ -29,8 +29,37 @@ _B0, _B1 = 0.176, 1.62
 
 
 def _coefficients(far: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
-    fa = np.asarray(far) / (1.0 + np.asarray(far))
+    """cp = a + b T coefficients; air (far = 0.0, a Python float) skips the arithmetic."""
+    if isinstance(far, float) and far == 0.0:
+        return _A0, _B0  # type: ignore[return-value]
+    fa = far / (1.0 + far)
     return _A0 + _A1 * fa, _B0 + _B1 * fa
+
+
+def coefficients(far: np.ndarray | float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """(a, b) of cp = a + b T at fuel-air ratio far, for the ``*_ab`` functions below."""
+    return _coefficients(far)
+
+
+def enthalpy_ab(t: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """h = a T + b T^2 / 2 with given coefficients (the hot path of the cycle)."""
+    return t * (a + 0.5 * b * t)
+
+
+def temperature_from_enthalpy_ab(h: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Inverse of ``enthalpy_ab``."""
+    return 2.0 * h / (a + np.sqrt(a * a + 2.0 * b * h))
+
+
+def isentropic_temperature_ab(
+    t1: np.ndarray, pressure_ratio: np.ndarray, a: np.ndarray, b: np.ndarray
+) -> np.ndarray:
+    """``isentropic_temperature`` with given coefficients."""
+    target = a * np.log(t1) + b * t1 + R_GAS * np.log(pressure_ratio)
+    t = t1 * pressure_ratio ** (R_GAS / (a + b * t1))
+    for _ in range(3):
+        t = t - (a * np.log(t) + b * t - target) / (a / t + b)
+    return t
 
 
 def cp(t: np.ndarray, far: np.ndarray | float = 0.0) -> np.ndarray:
@@ -73,8 +102,4 @@ def isentropic_temperature(
     Works for compression (ratio > 1) and expansion (ratio < 1).
     """
     a, b = _coefficients(far)
-    target = a * np.log(t1) + b * t1 + R_GAS * np.log(pressure_ratio)
-    t = t1 * pressure_ratio ** (R_GAS / (a + b * t1))
-    for _ in range(3):
-        t = t - (a * np.log(t) + b * t - target) / (a / t + b)
-    return t
+    return isentropic_temperature_ab(t1, pressure_ratio, a, b)

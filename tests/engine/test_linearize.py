@@ -61,7 +61,7 @@ def test_small_step_linear_agrees_with_nonlinear(case):
     else:
         dh[HEALTH_NAMES.index("hpt_eff")] = -0.5
     u = trim.u * (1.0 + du / 100.0)
-    y_nl = _simulate_nonlinear(trim, u, trim.health + dh, seconds=4.0)
+    y_nl = _simulate_nonlinear(trim, u, trim.health + dh, seconds=3.0)
     y_nl_pct = 100.0 * (y_nl - trim.sensors) / trim.sensors
     y_lin = _simulate_linear(m, du, dh, len(y_nl))
     response = np.max(np.abs(y_nl_pct), axis=0)
