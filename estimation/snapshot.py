@@ -134,7 +134,7 @@ def snapshot_filter(
     noise_std: np.ndarray,
     walk_scale: np.ndarray | float = 1.0,
     block: int = 1024,
-    keep_covariance: bool = True,
+    keep_covariance: bool = False,
 ) -> SnapshotResult:
     """Time-varying tuner filter over snapshots, batched over engines (MATH.md section 8).
 
@@ -212,25 +212,35 @@ def snapshot_filter(
                 raise DimensionError(
                     f"gains at snapshot {j}: expected (..., {ny}, {p}), found {G.shape}"
                 )
-            if G.ndim > 2:
+            shared = G.ndim == 2  # one operating condition for every engine at this step
+            if not shared:
                 G = np.broadcast_to(G, (E, ny, p))[c0:c1]
             HV = G @ Vp  # [ny, m] or [Bn, ny, m]
-            H = np.ascontiguousarray(np.broadcast_to(HV, (Bn, ny, m)).transpose(1, 2, 0))
+            H = HV if shared else np.ascontiguousarray(HV.transpose(1, 2, 0))  # [ny, m, Bn]
             P += scale[c0:c1, j] * QqE
             y_j = dy[c0:c1, j].T  # [ny, Bn]
-            innov[c0:c1, j] = (y_j - np.einsum("ime,me->ie", H, q)).T
+            pred = HV @ q if shared else np.einsum("ime,me->ie", H, q)
+            innov[c0:c1, j] = (y_j - pred).T
             var_j = var[c0:c1, j].T
             for i in range(ny):
                 present = np.isfinite(y_j[i])
                 if not present.any():
                     continue
-                h = H[i]  # [m, Bn]
-                np.multiply(P, h[None, :, :], out=tmp)
-                tmp.sum(axis=1, out=Ph)  # P h
-                s_i = np.einsum("me,me->e", h, Ph) + var_j[i]
+                # P h, using P's symmetry so the contraction runs over the leading axis.
+                if shared:
+                    h = H[i]  # [m]
+                    np.dot(h, P.reshape(m, m * Bn), out=Ph.reshape(m * Bn))
+                    s_i = h @ Ph + var_j[i]
+                    hq = h @ q
+                else:
+                    h = H[i]  # [m, Bn]
+                    np.multiply(P, h[:, None, :], out=tmp)
+                    tmp.sum(axis=0, out=Ph)
+                    s_i = np.einsum("me,me->e", h, Ph) + var_j[i]
+                    hq = np.einsum("me,me->e", h, q)
                 k = Ph / s_i
                 k *= present
-                resid = np.where(present, y_j[i] - np.einsum("me,me->e", h, q), 0.0)
+                resid = np.where(present, y_j[i] - hq, 0.0)
                 q += k * resid
                 np.multiply(k[:, None, :], Ph[None, :, :], out=tmp)
                 P -= tmp  # P - P h h^T P / s
@@ -240,7 +250,7 @@ def snapshot_filter(
             if P_res is not None:
                 P_res[c0:c1, j] = P.transpose(2, 0, 1)
             # diag(V*^+ P V*^+T): [p, Bn]
-            VP = np.tensordot(Vp, P, axes=(1, 0))  # [p, m, Bn]
+            VP = (Vp @ P.reshape(m, m * Bn)).reshape(p, m, Bn)
             h_std[c0:c1, j] = np.sqrt(np.maximum(np.einsum("pme,pm->pe", VP, Vp), 0.0)).T
         q_end[c0:c1] = q.T
         P_end[c0:c1] = P.transpose(2, 0, 1)

@@ -49,7 +49,9 @@ def _textbook(V, G, dy, std, scale, Qq, P0):
 
 def test_batched_scalar_updates_equal_textbook_filter_with_dropped_rows():
     V, G, dy, std, scale, Qq, P0 = _case()
-    res = snapshot_filter(SnapshotState.initial(E, P0), dy, G, V, Qq, std, walk_scale=scale)
+    res = snapshot_filter(
+        SnapshotState.initial(E, P0), dy, G, V, Qq, std, walk_scale=scale, keep_covariance=True
+    )
     q_ref, P_ref = _textbook(V, G, dy, std, scale, Qq, P0)
     np.testing.assert_allclose(res.q_hat, q_ref, rtol=1e-9, atol=1e-11)
     np.testing.assert_allclose(res.P, P_ref, rtol=1e-9, atol=1e-11)
@@ -63,11 +65,14 @@ def test_batched_scalar_updates_equal_textbook_filter_with_dropped_rows():
 def test_restart_from_serialised_state_equals_uninterrupted():
     V, G, dy, std, scale, Qq, P0 = _case(1)
     start = SnapshotState.initial(E, P0)
-    whole = snapshot_filter(start, dy, G, V, Qq, std, walk_scale=scale)
-    first = snapshot_filter(start, dy[:, :5], G[:, :5], V, Qq, std, walk_scale=scale[:, :5])
+    whole = snapshot_filter(start, dy, G, V, Qq, std, walk_scale=scale, keep_covariance=True)
+    first = snapshot_filter(
+        start, dy[:, :5], G[:, :5], V, Qq, std, walk_scale=scale[:, :5], keep_covariance=True
+    )
     saved = json.loads(json.dumps(first.state.to_dict()))
     second = snapshot_filter(
-        SnapshotState.from_dict(saved), dy[:, 5:], G[:, 5:], V, Qq, std, walk_scale=scale[:, 5:]
+        SnapshotState.from_dict(saved), dy[:, 5:], G[:, 5:], V, Qq, std, walk_scale=scale[:, 5:],
+        keep_covariance=True,
     )
     np.testing.assert_array_equal(np.concatenate([first.q_hat, second.q_hat], 1), whole.q_hat)
     np.testing.assert_array_equal(np.concatenate([first.P, second.P], 1), whole.P)
@@ -114,3 +119,16 @@ def test_state_checks_and_deviation():
     du = np.array([2.0])
     dy = snapshot_deviation(y_trim * np.array([1.02, 0.99]), y_trim, G_u, du)
     np.testing.assert_allclose(dy, [2.0 - 1.0, -1.0 - 2.0])
+
+
+def test_one_operating_condition_for_all_engines_equals_per_engine_gains():
+    V, G, dy, std, scale, Qq, P0 = _case(4)
+    shared = G[0, 0]  # [ny, p]
+    start = SnapshotState.initial(E, P0)
+    a = snapshot_filter(start, dy, shared, V, Qq, std, walk_scale=scale, block=4)
+    b = snapshot_filter(
+        start, dy, np.broadcast_to(shared, G.shape).copy(), V, Qq, std, walk_scale=scale
+    )
+    np.testing.assert_allclose(a.q_hat, b.q_hat, rtol=1e-12, atol=1e-13)
+    np.testing.assert_allclose(a.h_std, b.h_std, rtol=1e-12)
+    np.testing.assert_allclose(a.innovation, b.innovation, rtol=1e-12, atol=1e-13)
