@@ -152,3 +152,37 @@ def test_design_errors():
         det.design_cusum(3, 0.5)
     with pytest.raises(det.DetectionError, match="P_q"):
         det.cusum_detect(np.zeros((2, 5, 3)), np.zeros(3), np.eye(2), det.CusumDesign(3, 1, 5, 1))
+
+
+def test_library_fault_delay_on_reference_design():
+    """Delay of the seed 002 library fault hardest to see (smallest P_q-weighted size) on
+    the reference design with noisy sensors: snapshots q ~ N(q_0 + H_i, P_q), one per
+    decorrelation stride of the stream, against the Markov-chain delay distribution."""
+    import dataclasses
+
+    from estimation import evaluate as ev
+    from estimation import tuners
+    from tests.estimation.models import reference_model, reference_noise
+
+    model = reference_model()
+    model = dataclasses.replace(model, sensor_noise_std=model.sensor_noise_std * 100.0)
+    d = tuners.optimal_tuners(model, 6, **reference_noise(model))
+    infl = ev.fault_influence(d)
+    lam = np.einsum("mi,mi->i", infl.H_q, np.linalg.solve(infl.P_q, infl.H_q))
+    i = int(np.argmin(lam))
+    assert infl.faults[i] == "VSV"
+    design = det.design_cusum(d.n_tuners, 500.0)
+    rng = np.random.default_rng(17)
+    base = rng.normal(size=d.n_tuners)
+    n_runs, steps = 4000, 200
+    q = base + infl.H_q[:, i] + rng.multivariate_normal(
+        np.zeros(d.n_tuners), d.P_q, size=(n_runs, steps)
+    )
+    out = det.cusum_detect(q, base, d.P_q, design)
+    delay = np.where(out.first_alarm >= 0, out.first_alarm + 1, steps + 1)
+    sf = det.run_length_survival(design.m, design.reference, design.threshold, lam[i], steps)
+    for n in (1, 3, 10, 30):
+        se = np.sqrt(sf[n] * (1 - sf[n]) / n_runs)
+        assert abs(np.mean(delay > n) - sf[n]) < 5 * se + 2e-3
+    arl1 = det.average_run_length(design.m, design.reference, design.threshold, lam[i])
+    assert abs(delay.mean() - arl1) < 5 * delay.std() / np.sqrt(n_runs)

@@ -48,6 +48,15 @@ def test_ssee_monte_carlo_matches_theory(design):
     assert d["ssee_health"] == pytest.approx(exp.ssee)
 
 
+def test_ssee_steady_start_matches_theory_on_short_runs(design):
+    """From the stationary regime the theory describes, a short window suffices."""
+    exp = ev.ssee_monte_carlo(
+        design, 3000, rng=np.random.default_rng(21), duration=2.0, window=2.0,
+        start="steady", process_noise=False,
+    )
+    _check_ssee(exp)
+
+
 @pytest.mark.slow
 def test_ssee_monte_carlo_matches_theory_random_models():
     for seed in (3, 4):
