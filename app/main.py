@@ -33,6 +33,7 @@ from app.routers import (
     maintenance,
     me,
     trends,
+    uploads,
 )
 from app.routers import jobs as jobs_router
 
@@ -96,6 +97,7 @@ def create_app(
     app.include_router(installations.router)
     app.include_router(keys.router)
     app.include_router(maintenance.router)
+    app.include_router(uploads.router)
     app.include_router(jobs_router.router)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
     return app
