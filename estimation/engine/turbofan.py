@@ -167,9 +167,9 @@ def gas_path(
     w_vbv = bleed_valve(vbv, p24, t24, pamb, d.k_vbv)
     w25 = w_core - w_vbv
     dv = (vsv - vsv_nominal) / 100.0
-    flow_hpc = (1.0 + hs[:, 5]) * (1.0 + d.k_vsv * (vsv - 100.0) / 100.0)
+    flow_vsv = 1.0 + d.k_vsv * (vsv - 100.0) / 100.0
     wc25, pr_hpc, eff_hpc = compressor(
-        d.hpc, n_hpc, z[:, 2], flow_hpc, (1.0 + hs[:, 4]) * (1.0 - 0.5 * dv * dv)
+        d.hpc, n_hpc, z[:, 2], (1.0 + hs[:, 5]) * flow_vsv, (1.0 + hs[:, 4]) * (1.0 - 0.5 * dv * dv)
     )
     w_hpc = physical_flow(wc25, t24, p24)
     t3a, dh_hpc = compression(t24, pr_hpc, eff_hpc)
@@ -234,9 +234,11 @@ def gas_path(
         wc2=wc2, pr_fan=pr_fan, wc21=wc21, pr_lpc=pr_lpc, wc25=wc25, pr_hpc=pr_hpc,
         eff_fan=eff_fan, eff_lpc=eff_lpc, eff_hpc=eff_hpc, eff_hpt=eff_hpt, eff_lpt=eff_lpt,
         pr_hpt=pr_hpt, pr_lpt=pr_lpt,
-        sm_fan=stall_margin(d.fan, wc2, pr_fan, 1.0 + hs[:, 1]),
-        sm_lpc=stall_margin(d.lpc, wc21, pr_lpc, 1.0 + hs[:, 3]),
-        sm_hpc=stall_margin(d.hpc, wc25, pr_hpc, flow_hpc),
+        # Stall lines move with the stators, not with deterioration: a flow
+        # capacity loss at the same pressure ratio eats stall margin.
+        sm_fan=stall_margin(d.fan, wc2, pr_fan),
+        sm_lpc=stall_margin(d.lpc, wc21, pr_lpc),
+        sm_hpc=stall_margin(d.hpc, wc25, pr_hpc, flow_vsv),
         tm_hpc_eq=t3a, tm_hpt_eq=t_gas_hpt,
         ps30=static_pressure(p3, t3, w25, d.a_30),
         power_fan=power["fan"], power_lpc=power["lpc"], power_hpc=power["hpc"],
