@@ -1,0 +1,815 @@
+"""The estimation pipeline: snapshots -> tuner filter -> estimates, shift detection, isolation.
+
+After an upload commits, each affected engine's snapshot filter (``estimation.snapshot``,
+MATH.md section 8) continues from its stored state under the engine type's active design. A
+record older than the last processed one re-runs the engine from the newest checkpoint before
+it: estimates, events and checkpoints from there on are deleted and recomputed, so a re-run
+writes the same rows as an uninterrupted run (the arithmetic per record does not depend on
+how records are grouped into runs, and a state restored from JSON is bit-exact).
+
+Per record the pipeline stores q_hat, h_hat = V*^+ q_hat and z_hat = G_z V*^+ q_hat with their
+1-sigma (from the filter covariance P), the innovation per sensor, and the WSSR of every
+library fault (seed 002 eq. 21-23) for the tuner change against the baseline.
+
+Detection (MATH.md section 4, last paragraph): a chi-squared CUSUM (``estimation.detection``
+design) runs on each tuner update dq = q_hat[k] - q_hat[k-1] normalised by its covariance
+P_prior - P (white under no change, so the run-length theory holds; slow deterioration is
+tracked by the filter and does not raise it). The baseline is the mean of ``N_BASE`` tuner
+estimates ending ``GAP`` records before the alarm. After an alarm the filter is given
+``N_CONFIRM`` records to settle on the new level, then the change (mean of the last ``N_AVG``
+estimates minus the baseline) is isolated by WSSR: an event of kind ``isolated_fault`` when the
+smallest WSSR is consistent with its fault (below the chi-squared quantile with m - 1 degrees of
+freedom), else ``shift``. Then the baseline restarts. A maintenance action restarts the baseline
+too and widens the filter covariance (the health may jump at a shop visit or wash).
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Any, NamedTuple
+
+import numpy as np
+from scipy import stats
+from sqlalchemy import delete, insert, or_, select
+from sqlalchemy.orm import Session
+
+from app.models import Engine, EngineModel, EstimatorDesign, MaintenanceAction, Snapshot
+from app.models.base import utcnow
+from app.models.estimates import (
+    Estimate,
+    EstimateLayout,
+    Event,
+    FilterCheckpoint,
+    FilterState,
+)
+from app.models.ingest import ACTUATORS, OPERATING_CONDITION, SENSORS, SignalSpec
+from app.services import units
+from estimation import isolation
+from estimation.detection import CusumDesign, design_cusum
+from estimation.model import LinearModel
+from estimation.snapshot import SnapshotState, snapshot_deviation, snapshot_filter
+
+log = logging.getLogger("fleethealth.pipeline")
+
+# Detector settings (records are snapshots; a flight gives one to three).
+N_BASE = 30  # records averaged into the baseline
+GAP = 15  # the baseline ends this many records before the alarm (the fault's onset)
+N_CONFIRM = 80  # records between an alarm and its isolation (the filter settles)
+N_AVG = 20  # records averaged for the isolated change
+ARL0 = 20_000.0  # mean records between false alarms of the CUSUM (theory, independent samples)
+ISOLATION_LEVEL = 0.999  # WSSR quantile below which the best fault explains the change
+# Filter settings: tuner random walk per flight (percent), fleet spread at start (percent).
+WALK_STD = 0.05
+FLEET_STD = 1.5
+NEW_FLIGHT_S = 3600.0  # records further apart than this are different flights
+CHECKPOINT_EVERY = 256
+CHUNK = 512  # records per engine per filter call (bounds the scheduled-gain arrays)
+
+SNAPSHOT_SIGNALS: dict[str, SignalSpec] = {s.name: s for s in SENSORS + ACTUATORS}
+CONDITION_COLUMNS = tuple(s.column for s in OPERATING_CONDITION)
+
+
+class PipelineError(RuntimeError):
+    """A design or engine model the pipeline cannot run."""
+
+
+class ScheduledGains(NamedTuple):
+    """Linear model quantities at each record's operating condition (S records).
+
+    y_trim [S, ny], u_trim [S, nu] in stored units; G_y [S, ny, p], G_u [S, ny, nu],
+    G_z [S, nz, p] in percent of trim per percent.
+    """
+
+    y_trim: np.ndarray
+    u_trim: np.ndarray
+    G_y: np.ndarray
+    G_u: np.ndarray
+    G_z: np.ndarray
+
+
+Schedule = Callable[[np.ndarray], ScheduledGains]  # conditions [S, 4] -> gains
+
+
+def _stored_unit(name: str, unit: str, value: float) -> float:
+    """A trim value from the model's unit into the unit snapshots are stored in (NaN when the
+    signal is not stored or its unit does not convert)."""
+    spec = SNAPSHOT_SIGNALS.get(name)
+    if spec is None:
+        return math.nan
+    if unit == spec.unit or not unit:
+        return value
+    try:
+        a, b = units.affine(spec.quantity, unit, spec.unit, reference=spec.percent_reference)
+    except units.UnknownUnitError:
+        return math.nan
+    return a * value + b
+
+
+def single_point_schedule(model: LinearModel) -> Schedule:
+    """An imported model at one operating point: the same gains and trims for every record."""
+    G_y, G_z = model.steady_state_gains()
+    G_u, _ = model.steady_state_input_gains()
+    y_trim = np.array(
+        [_stored_unit(s.name, s.unit, model.trim.get(s.name, math.nan)) for s in model.sensors]
+    )
+    u_trim = np.array(
+        [_stored_unit(s.name, s.unit, model.trim.get(s.name, math.nan)) for s in model.inputs]
+    )
+    if not np.all(np.isfinite(y_trim)):
+        missing = [s.name for s, v in zip(model.sensors, y_trim, strict=True) if not np.isfinite(v)]
+        raise PipelineError(f"no trim in a stored unit for the engine model's sensors {missing}")
+
+    def schedule(conditions: np.ndarray) -> ScheduledGains:
+        S = conditions.shape[0]
+        return ScheduledGains(
+            np.broadcast_to(y_trim, (S, len(y_trim))),
+            np.broadcast_to(u_trim, (S, len(u_trim))),
+            np.broadcast_to(G_y, (S, *G_y.shape)),
+            np.broadcast_to(G_u, (S, *G_u.shape)),
+            np.broadcast_to(G_z, (S, *G_z.shape)),
+        )
+
+    return schedule
+
+
+def _find(document: Any, key: str, depth: int = 3) -> Any:
+    """``document[key]``, looked up breadth-first in nested dicts (design documents nest)."""
+    if not isinstance(document, Mapping):
+        return None
+    if key in document:
+        return document[key]
+    if depth == 0:
+        return None
+    for value in document.values():
+        found = _find(value, key, depth - 1)
+        if found is not None:
+            return found
+    return None
+
+
+def _covariance(value: Any, n: int, default_std: float) -> np.ndarray:
+    if value is None:
+        return np.eye(n) * default_std**2
+    arr = np.asarray(value, float)
+    return np.diag(arr) if arr.ndim == 1 else arr
+
+
+@dataclass(frozen=True, eq=False)
+class SnapshotEstimator:
+    """Everything the pipeline needs of one design, ready to run."""
+
+    design_id: int
+    layout: EstimateLayout
+    sensor_columns: tuple[str, ...]  # snapshot column per design sensor ("" = not stored)
+    input_columns: tuple[str, ...]
+    vstar: np.ndarray  # [m, p]
+    Vp: np.ndarray  # V*^+ [p, m]
+    Qq: np.ndarray  # [m, m] tuner random walk per flight
+    P0: np.ndarray  # [m, m] start covariance
+    noise_std: np.ndarray  # [ny] percent
+    H: np.ndarray  # [m, n_faults] tuner change per library fault (nominal magnitude)
+    fault_shifts: tuple[dict[str, float], ...]
+    schedule: Schedule
+    cusum: CusumDesign
+    wssr_threshold: float
+
+    @property
+    def m(self) -> int:
+        return int(self.vstar.shape[0])
+
+
+@functools.lru_cache(maxsize=32)
+def cusum_for(m: int) -> CusumDesign:
+    """The CUSUM for m tuners at the pipeline's false-alarm rate (its design takes seconds)."""
+    return design_cusum(m, arl0=ARL0)
+
+
+def build_estimator(
+    design_id: int, model: LinearModel, result: Mapping[str, Any],
+    schedule: Schedule | None = None,
+) -> SnapshotEstimator:
+    """A runnable estimator from a design document and its engine model.
+
+    The document gives V* (``vstar``), optionally the sensor suite (``sensors``), the fleet
+    health covariance ``Ph`` and the fault library (``faults``); defaults fill the rest.
+    """
+    vstar_doc = _find(result, "vstar")
+    if vstar_doc is None:
+        raise PipelineError(f"design {design_id} has no V* (vstar)")
+    sensors = _find(result, "sensors")
+    if isinstance(sensors, list) and sensors and all(isinstance(s, str) for s in sensors):
+        model = model.select_sensors(sensors)
+    vstar = np.asarray(vstar_doc, float)
+    m, p = vstar.shape
+    if p != model.n_health:
+        raise PipelineError(f"design {design_id}: V* has {p} columns, the model {model.n_health}")
+    Vp = np.linalg.solve(vstar @ vstar.T, vstar).T  # V*^+ (seed 002 eq. 5)
+    walk = np.eye(p) * WALK_STD**2
+    Ph = _covariance(_find(result, "Ph"), p, FLEET_STD)
+    Qq = vstar @ walk @ vstar.T
+    P0 = vstar @ Ph @ vstar.T
+
+    # Fault influence in tuner space at the design point: the snapshot filter settles on the
+    # R^-1-weighted least-squares tuner fit of a constant health shift (MATH.md section 4 with
+    # the filter's steady state replaced by that fit; equal to V* S when m = p).
+    G_y, _G_z = model.steady_state_gains()
+    G_u, _ = model.steady_state_input_gains()
+    names = list(model.health_names) + [f"{s.name.lower()}_bias" for s in model.inputs]
+    G_full = np.concatenate([G_y, G_u], axis=1)
+    faults_doc = _find(result, "faults")
+    library = isolation.faults_from_list(faults_doc if isinstance(faults_doc, list) else None)
+    known = {n.lower() for n in names}
+    library = tuple(f for f in library if all(k.lower() in known for k in f.shifts))
+    S = isolation.signature_matrix(library, names)
+    Hd = G_y @ Vp
+    Rinv = 1.0 / model.sensor_noise_std**2
+    normal = Hd.T @ (Rinv[:, None] * Hd)
+    H = np.linalg.solve(normal, Hd.T @ (Rinv[:, None] * (G_full @ S)))
+    usable = np.sum(H**2, axis=0) > 1e-12
+    library = tuple(f for f, ok in zip(library, usable, strict=True) if ok)
+    H = H[:, usable]
+
+    layout = EstimateLayout(
+        tuners=tuple(f"q{i + 1}" for i in range(m)),
+        health=tuple(model.health_names),
+        aux=tuple(model.aux_names),
+        sensors=tuple(model.sensor_names),
+        faults=tuple(f.name for f in library),
+        units={
+            "tuners": ["%"] * m,
+            "health": ["%"] * p,
+            "aux": ["%"] * model.n_aux,
+            "sensors": ["%"] * model.n_sensors,
+            "faults": ["1"] * len(library),
+        },
+    )
+    sensor_columns = tuple(
+        SNAPSHOT_SIGNALS[s.name].column if s.name in SNAPSHOT_SIGNALS else ""
+        for s in model.sensors
+    )
+    # An actuator is used only where its trim converts to the stored unit.
+    input_columns = tuple(
+        SNAPSHOT_SIGNALS[s.name].column
+        if s.name in SNAPSHOT_SIGNALS
+        and np.isfinite(_stored_unit(s.name, s.unit, model.trim.get(s.name, math.nan)))
+        else ""
+        for s in model.inputs
+    )
+    return SnapshotEstimator(
+        design_id=design_id,
+        layout=layout,
+        sensor_columns=sensor_columns,
+        input_columns=input_columns,
+        vstar=vstar,
+        Vp=Vp,
+        Qq=0.5 * (Qq + Qq.T),
+        P0=0.5 * (P0 + P0.T),
+        noise_std=np.asarray(model.sensor_noise_std, float),
+        H=H,
+        fault_shifts=tuple(dict(f.shifts) for f in library),
+        schedule=schedule or single_point_schedule(model),
+        cusum=cusum_for(m),
+        wssr_threshold=float(stats.chi2.ppf(ISOLATION_LEVEL, max(m - 1, 1))),
+    )
+
+
+def estimator_for_design(session: Session, design: EstimatorDesign) -> SnapshotEstimator:
+    """The estimator of a stored design: its document and its engine model's schedule."""
+    if design.status != "ready" or design.result is None:
+        raise PipelineError(f"design {design.id} is not ready")
+    row = session.get(EngineModel, design.engine_model_id)
+    if row is None:
+        raise PipelineError(f"design {design.id}: engine model {design.engine_model_id} missing")
+    content = row.content
+    model_doc = content.get("model", content) if isinstance(content, Mapping) else content
+    schedule = _builtin_schedule(content)
+    model = LinearModel.from_dict(model_doc)
+    return build_estimator(design.id, model, design.result, schedule)
+
+
+def _builtin_schedule(content: Any) -> Schedule | None:
+    """The built-in engine's operating-condition schedule when the model document has one."""
+    if not isinstance(content, Mapping) or "schedule" not in content:
+        return None
+    try:
+        from app.services.engine_schedule import schedule_from_document  # type: ignore
+    except ImportError:
+        return None
+    return schedule_from_document(content)  # type: ignore[no-any-return]
+
+
+# ---------------------------------------------------------------------------- detection
+
+
+def initial_state(est: SnapshotEstimator) -> dict[str, Any]:
+    """Pipeline state before an engine's first record."""
+    return {
+        "filter": SnapshotState.initial(1, est.P0).to_dict(),
+        "detector": {"history": [], "S": 0.0, "pending": None},
+        "last_epoch": None,
+    }
+
+
+@dataclass
+class Detector:
+    """Sequential baseline, CUSUM and isolation state of one engine (JSON round trip).
+
+    history: the last N_BASE + GAP tuner estimates, oldest first.
+    """
+
+    history: list[list[float]]
+    S: float
+    pending: dict[str, Any] | None
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> Detector:
+        return cls([list(map(float, q)) for q in d["history"]], float(d["S"]), d.get("pending"))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"history": [list(q) for q in self.history], "S": self.S, "pending": self.pending}
+
+    def reset(self) -> None:
+        self.history, self.S, self.pending = [], 0.0, None
+
+    def baseline(self) -> np.ndarray | None:
+        if len(self.history) < N_BASE + GAP:
+            return None
+        return np.mean(np.asarray(self.history[:N_BASE]), axis=0)
+
+
+class EventDraft(NamedTuple):
+    seq: int
+    epoch: float
+    kind: str
+    fault: str | None
+    magnitude: float | None
+    statistic: float
+    wssr: dict[str, float]
+    shift: dict[str, Any]
+
+
+def wssr_all(shift: np.ndarray, P: np.ndarray, H: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """WSSR_i and f_i of every fault for one shift (seed 002 eq. 21-23), solving with P."""
+    if H.shape[1] == 0:
+        return np.zeros(0), np.zeros(0)
+    X = np.linalg.solve(P, np.column_stack([shift, H]))
+    Pinv_s, Pinv_H = X[:, 0], X[:, 1:]
+    norm2 = np.einsum("ij,ij->j", H, Pinv_H)  # H_i^T P^-1 H_i
+    proj = H.T @ Pinv_s  # H_i^T P^-1 q
+    f = proj / norm2
+    return np.maximum(shift @ Pinv_s - proj * f, 0.0), f
+
+
+def tuner_update_statistic(
+    q: np.ndarray, q_prev: np.ndarray, P: np.ndarray, P_prior: np.ndarray
+) -> float:
+    """s = dq^T (P_prior - P)^-1 dq for the tuner update dq = q - q_prev = K nu.
+
+    Under no change the innovations nu are white, so dq ~ N(0, K S K^T) = N(0, P_prior - P)
+    independently from record to record: chi-squared with m degrees of freedom, the
+    independent samples the CUSUM's run-length theory assumes (estimation/detection.py).
+    """
+    C = P_prior - P
+    C = 0.5 * (C + C.T)
+    dq = q - q_prev
+    try:
+        return float(dq @ np.linalg.solve(C, dq))
+    except np.linalg.LinAlgError:
+        return 0.0
+
+
+def detect_step(
+    est: SnapshotEstimator, det: Detector, seq: int, epoch: float, q: np.ndarray,
+    P: np.ndarray, q_prev: np.ndarray, P_prior: np.ndarray, reset: bool,
+) -> tuple[np.ndarray, EventDraft | None]:
+    """One record through the detector: WSSR per fault against the baseline (NaN without one),
+    and the event when an alarm's isolation is due."""
+    nan = np.full(est.H.shape[1], np.nan)
+    if reset:
+        det.reset()
+    base_before = det.baseline()
+    det.history.append(q.tolist())
+    if len(det.history) > N_BASE + GAP:
+        del det.history[0]
+    if det.pending is not None:
+        pending = det.pending
+        pending["wait"] -= 1
+        base = np.asarray(pending["baseline"])
+        if pending["wait"] > 0:
+            return wssr_all(q - base, P, est.H)[0], None
+        change = np.mean(np.asarray(det.history[-N_AVG:]), axis=0) - base
+        wssr, f = wssr_all(change, P, est.H)
+        draft = _event(est, pending, change, wssr, f)
+        det.reset()
+        return wssr, draft
+    s = tuner_update_statistic(q, q_prev, P, P_prior)
+    det.S = max(0.0, det.S + s - est.m - est.cusum.reference)
+    if det.S > est.cusum.threshold and base_before is not None:
+        det.pending = {"seq": seq, "epoch": epoch, "statistic": det.S, "wait": N_CONFIRM,
+                       "baseline": base_before.tolist()}
+        det.S = 0.0
+    elif det.S > est.cusum.threshold:
+        det.S = 0.0  # an alarm before a baseline exists (start-up): nothing to compare with
+    if base_before is None:
+        return nan, None
+    return wssr_all(q - base_before, P, est.H)[0], None
+
+
+def _event(
+    est: SnapshotEstimator, pending: Mapping[str, Any], change: np.ndarray, wssr: np.ndarray,
+    f: np.ndarray,
+) -> EventDraft:
+    names = est.layout.faults
+    best = int(np.argmin(wssr)) if len(names) else None
+    isolated = best is not None and wssr[best] <= est.wssr_threshold
+    h_change = est.Vp @ change
+    fault_shift = {}
+    if isolated and best is not None:
+        fault_shift = {k: round(float(v * f[best]), 4) for k, v in est.fault_shifts[best].items()}
+    return EventDraft(
+        seq=int(pending["seq"]),
+        epoch=float(pending["epoch"]),
+        kind="isolated_fault" if isolated else "shift",
+        fault=names[best] if isolated and best is not None else None,
+        magnitude=float(f[best]) if isolated and best is not None else None,
+        statistic=float(pending["statistic"]),
+        wssr={n: float(w) for n, w in zip(names, wssr, strict=True)},
+        shift={
+            "tuners": {n: float(v) for n, v in zip(est.layout.tuners, change, strict=True)},
+            "health": {n: float(v) for n, v in zip(est.layout.health, h_change, strict=True)},
+            "fault": fault_shift,
+            "wssr_threshold": est.wssr_threshold,
+            "nearest": names[best] if best is not None else None,
+        },
+    )
+
+
+# ------------------------------------------------------------------------ the filter run
+
+
+@dataclass
+class EngineRun:
+    """One engine's records to process and where it starts."""
+
+    engine_id: int
+    operator_id: int
+    seq0: int
+    state: dict[str, Any]
+    snapshot_id: np.ndarray  # [S]
+    epoch: np.ndarray  # [S]
+    phase: list[str]
+    conditions: np.ndarray  # [S, 4]
+    y: np.ndarray  # [S, ny] stored units, NaN = missing
+    u: np.ndarray  # [S, nu]
+    maintenance: np.ndarray  # epochs of the engine's maintenance actions
+
+
+@dataclass
+class EngineOutput:
+    rows: list[dict[str, Any]]
+    events: list[EventDraft]
+    checkpoints: list[tuple[int, float, int, dict[str, Any]]]  # seq, epoch, snapshot id, state
+    state: dict[str, Any]
+
+
+def run_filters(est: SnapshotEstimator, runs: Sequence[EngineRun]) -> list[EngineOutput]:
+    """Filter, detect and pack every engine's records; engines are batched in the filter."""
+    outputs = [EngineOutput([], [], [], r.state) for r in runs]
+    filt = [SnapshotState.from_dict(r.state["filter"]) for r in runs]
+    dets = [Detector.from_dict(r.state["detector"]) for r in runs]
+    last = [r.state.get("last_epoch") for r in runs]
+    longest = max((len(r.epoch) for r in runs), default=0)
+    s = est.layout.slices()
+    E = len(runs)
+    ny = len(est.sensor_columns)
+    for c0 in range(0, longest, CHUNK):
+        c1 = min(c0 + CHUNK, longest)
+        S = c1 - c0
+        dy = np.full((E, S, ny), np.nan)
+        scale = np.zeros((E, S))
+        G_y = np.zeros((E, S, ny, est.Vp.shape[0]))
+        G_z = np.zeros((E, S, len(est.layout.aux), est.Vp.shape[0]))
+        resets = np.zeros((E, S), dtype=bool)
+        for e, r in enumerate(runs):
+            n = max(0, min(c1, len(r.epoch)) - c0)
+            if n == 0:
+                continue
+            g = est.schedule(r.conditions[c0 : c0 + n])
+            u_dev = 100.0 * (r.u[c0 : c0 + n] - g.u_trim) / g.u_trim
+            u_dev = np.where(np.isfinite(u_dev), u_dev, 0.0)  # a missing actuator: at trim
+            dy[e, :n] = snapshot_deviation(r.y[c0 : c0 + n], g.y_trim, g.G_u, u_dev)
+            G_y[e, :n] = g.G_y
+            G_z[e, :n] = g.G_z
+            epochs = r.epoch[c0 : c0 + n]
+            prev = np.concatenate([[np.nan if last[e] is None else last[e]], epochs[:-1]])
+            new_flight = ~(epochs - prev < NEW_FLIGHT_S)  # NaN (first record) counts as new
+            maint = np.zeros(n, dtype=bool)
+            for t in r.maintenance:
+                maint |= (t <= epochs) & (t > prev)  # NaN prev (first record): no reset
+            resets[e, :n] = maint
+            # A maintenance action may move the health: widen P to the fleet spread.
+            scale[e, :n] = new_flight.astype(float) + maint * (FLEET_STD / WALK_STD) ** 2
+            last[e] = float(epochs[-1])
+        state = SnapshotState(
+            np.concatenate([f.q_hat for f in filt]), np.concatenate([f.P for f in filt])
+        )
+        result = snapshot_filter(
+            state, dy, G_y, est.vstar, est.Qq, est.noise_std, scale, keep_covariance=True
+        )
+        assert result.P is not None
+        for e, r in enumerate(runs):
+            n = max(0, min(c1, len(r.epoch)) - c0)
+            if n == 0:
+                continue
+            q = result.q_hat[e, :n]
+            P = result.P[e, :n]
+            h = q @ est.Vp.T
+            VpP = np.einsum("pa,sab->spb", est.Vp, P)
+            h_var = np.einsum("spb,pb->sp", VpP, est.Vp)
+            Gz_Vp = np.einsum("szp,pa->sza", G_z[e, :n], est.Vp)
+            z = np.einsum("sza,sa->sz", Gz_Vp, q)
+            z_var = np.einsum("sza,sab,szb->sz", Gz_Vp, P, Gz_Vp)
+            values = np.empty((n, est.layout.width))
+            values[:, s["q"]] = q
+            values[:, s["q_sigma"]] = np.sqrt(np.maximum(np.einsum("saa->sa", P), 0.0))
+            values[:, s["h"]] = h
+            values[:, s["h_sigma"]] = np.sqrt(np.maximum(h_var, 0.0))
+            values[:, s["z"]] = z
+            values[:, s["z_sigma"]] = np.sqrt(np.maximum(z_var, 0.0))
+            values[:, s["residual"]] = result.innovation[e, :n]
+            out = outputs[e]
+            det = dets[e]
+            q_prev = np.concatenate([filt[e].q_hat, q[:-1]])
+            P_prior = np.concatenate([filt[e].P, P[:-1]]) + scale[e, :n, None, None] * est.Qq
+            blobs = est.layout.pack(
+                _wssr_filled(est, det, r, c0, n, q, P, q_prev, P_prior, resets[e], values, out)
+            )
+            for j in range(n):
+                k = c0 + j
+                seq = r.seq0 + k
+                out.rows.append(
+                    {
+                        "operator_id": r.operator_id,
+                        "engine_id": r.engine_id,
+                        "design_id": est.design_id,
+                        "snapshot_id": int(r.snapshot_id[k]),
+                        "seq": seq,
+                        "recorded_at": datetime.fromtimestamp(float(r.epoch[k]), UTC),
+                        "phase": r.phase[k],
+                        "packed": blobs[j],
+                    }
+                )
+            filt[e] = SnapshotState(q[-1:], P[-1:])
+            out.state = {"filter": filt[e].to_dict(), "detector": det.to_dict(),
+                         "last_epoch": last[e]}
+    return outputs
+
+
+def _wssr_filled(
+    est: SnapshotEstimator, det: Detector, r: EngineRun, c0: int, n: int, q: np.ndarray,
+    P: np.ndarray, q_prev: np.ndarray, P_prior: np.ndarray, resets: np.ndarray,
+    values: np.ndarray, out: EngineOutput,
+) -> np.ndarray:
+    """Run the detector over the chunk, fill the WSSR block, collect events and checkpoints."""
+    s = est.layout.slices()["wssr"]
+    for j in range(n):
+        seq = r.seq0 + c0 + j
+        epoch = float(r.epoch[c0 + j])
+        wssr, draft = detect_step(
+            est, det, seq, epoch, q[j], P[j], q_prev[j], P_prior[j], bool(resets[j])
+        )
+        values[j, s] = wssr
+        if draft is not None:
+            out.events.append(draft)
+        done = seq + 1  # records processed once this one is
+        if done % CHECKPOINT_EVERY == 0:
+            out.checkpoints.append(
+                (
+                    done,
+                    epoch,
+                    int(r.snapshot_id[c0 + j]),
+                    {
+                        "filter": SnapshotState(q[j : j + 1], P[j : j + 1]).to_dict(),
+                        "detector": det.to_dict(),
+                        "last_epoch": epoch,
+                    },
+                )
+            )
+    return values
+
+
+# ---------------------------------------------------------------------- database side
+
+
+def _load_records(
+    session: Session, est: SnapshotEstimator, engine_id: int, after: datetime | None
+) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray, np.ndarray, np.ndarray]:
+    table = Snapshot.__table__
+    sensor_cols = [table.c[c] if c else None for c in est.sensor_columns]
+    input_cols = [table.c[c] if c else None for c in est.input_columns]
+    columns = [table.c.id, table.c.recorded_at, table.c.phase]
+    columns += [table.c[c] for c in CONDITION_COLUMNS]
+    columns += [c for c in sensor_cols + input_cols if c is not None]
+    query = select(*columns).where(table.c.engine_id == engine_id).order_by(table.c.recorded_at)
+    if after is not None:
+        query = query.where(table.c.recorded_at > after)
+    rows = session.execute(query).all()
+    n = len(rows)
+    ids = np.fromiter((r[0] for r in rows), np.int64, n)
+    epoch = np.fromiter((r[1].timestamp() for r in rows), float, n)
+    phase = [r[2] for r in rows]
+    data = np.array([r[3:] for r in rows], dtype=float).reshape(n, -1)  # None -> nan
+    conditions = data[:, :4]
+    rest = data[:, 4:]
+    y = np.full((n, len(sensor_cols)), np.nan)
+    u = np.full((n, len(input_cols)), np.nan)
+    k = 0
+    for i, c in enumerate(sensor_cols):
+        if c is not None:
+            y[:, i] = rest[:, k]
+            k += 1
+    for i, c in enumerate(input_cols):
+        if c is not None:
+            u[:, i] = rest[:, k]
+            k += 1
+    return ids, epoch, phase, conditions, y, u
+
+
+def _restart_point(
+    session: Session, est: SnapshotEstimator, fs: FilterState | None, earliest: datetime | None
+) -> tuple[int, dict[str, Any], datetime | None]:
+    """(seq0, state, after): where the engine's run starts, deleting what it will redo."""
+    if fs is None:
+        return 0, initial_state(est), None
+    if earliest is None or fs.last_recorded_at is None or earliest > fs.last_recorded_at:
+        return fs.n_records, fs.state, fs.last_recorded_at
+    checkpoint = session.scalar(
+        select(FilterCheckpoint)
+        .where(
+            FilterCheckpoint.engine_id == fs.engine_id,
+            FilterCheckpoint.design_id == fs.design_id,
+            FilterCheckpoint.last_recorded_at < earliest,
+        )
+        .order_by(FilterCheckpoint.seq.desc())
+        .limit(1)
+    )
+    if checkpoint is None:
+        seq0, state, after = 0, initial_state(est), None
+    else:
+        seq0, state, after = checkpoint.seq, checkpoint.state, checkpoint.last_recorded_at
+    _delete_from(session, fs.engine_id, fs.design_id, seq0, state)
+    return seq0, state, after
+
+
+def _delete_from(
+    session: Session, engine_id: int, design_id: int, seq0: int, state: Mapping[str, Any]
+) -> None:
+    """Remove what a re-run from ``seq0`` recomputes (an alarm pending at the restart point
+    is isolated again by the re-run, so its event goes too)."""
+    pending = (state.get("detector") or {}).get("pending")
+    same = (Event.engine_id == engine_id, Event.design_id == design_id)
+    if pending is not None:
+        session.execute(delete(Event).where(*same, or_(Event.seq >= seq0,
+                                                           Event.seq == int(pending["seq"]))))
+    else:
+        session.execute(delete(Event).where(*same, Event.seq >= seq0))
+    session.execute(
+        delete(Estimate).where(
+            Estimate.engine_id == engine_id, Estimate.design_id == design_id, Estimate.seq >= seq0
+        )
+    )
+    session.execute(
+        delete(FilterCheckpoint).where(
+            FilterCheckpoint.engine_id == engine_id,
+            FilterCheckpoint.design_id == design_id,
+            FilterCheckpoint.seq > seq0,
+        )
+    )
+
+
+def _maintenance_epochs(session: Session, engine_id: int) -> np.ndarray:
+    times = session.scalars(
+        select(MaintenanceAction.performed_at).where(MaintenanceAction.engine_id == engine_id)
+    ).all()
+    return np.array(sorted(t.timestamp() for t in times), dtype=float)
+
+
+def estimate_engines(
+    session: Session,
+    operator_id: int,
+    affected: Mapping[int, datetime | None],
+    progress: Callable[[float, str], None] | None = None,
+    design_id: int | None = None,
+) -> dict[str, Any]:
+    """Bring every affected engine's estimates up to date.
+
+    affected: engine id -> earliest recorded_at of its new records (None: just continue).
+    Engines of one design run batched; each is written in the caller's transaction.
+    Returns counts per outcome.
+    """
+    engines = session.scalars(
+        select(Engine).where(Engine.operator_id == operator_id, Engine.id.in_(list(affected)))
+    ).all()
+    by_design: dict[int, list[Engine]] = {}
+    skipped = []
+    designs: dict[int, EstimatorDesign] = {}
+    for engine in engines:
+        if design_id is not None:
+            design = session.get(EstimatorDesign, design_id)
+        else:
+            design = session.scalar(
+                select(EstimatorDesign).where(
+                    EstimatorDesign.engine_type_id == engine.engine_type_id,
+                    EstimatorDesign.active.is_(True),
+                )
+            )
+        if design is None or design.operator_id != operator_id:
+            skipped.append(engine.esn)
+            continue
+        designs[design.id] = design
+        by_design.setdefault(design.id, []).append(engine)
+    summary: dict[str, Any] = {"engines": 0, "records": 0, "events": 0, "reruns": 0,
+                               "skipped_no_design": skipped}
+    total = sum(len(v) for v in by_design.values()) or 1
+    done = 0
+    for d_id, group in by_design.items():
+        est = estimator_for_design(session, designs[d_id])
+        runs, states = [], []
+        for engine in group:
+            fs = session.scalar(
+                select(FilterState).where(
+                    FilterState.engine_id == engine.id, FilterState.design_id == d_id
+                )
+            )
+            seq0, state, after = _restart_point(session, est, fs, affected.get(engine.id))
+            if fs is not None and seq0 < fs.n_records:
+                summary["reruns"] += 1
+            ids, epoch, phase, cond, y, u = _load_records(session, est, engine.id, after)
+            if len(ids) == 0 and fs is not None and seq0 == fs.n_records:
+                continue
+            runs.append(EngineRun(engine.id, operator_id, seq0, state, ids, epoch, phase, cond,
+                                  y, u, _maintenance_epochs(session, engine.id)))
+            states.append(fs)
+        for start in range(0, len(runs), 64):
+            batch = runs[start : start + 64]
+            outputs = run_filters(est, batch)
+            for run, fs, out in zip(batch, states[start : start + 64], outputs, strict=True):
+                _store(session, est, run, fs, out)
+                summary["records"] += len(out.rows)
+                summary["events"] += len(out.events)
+                summary["engines"] += 1
+            done += len(batch)
+            if progress is not None:
+                progress(done / total, f"estimated {done} of {total} engines")
+    return summary
+
+
+def _store(
+    session: Session, est: SnapshotEstimator, run: EngineRun, fs: FilterState | None,
+    out: EngineOutput,
+) -> None:
+    if out.rows:
+        session.execute(insert(Estimate), out.rows)
+    if out.checkpoints:
+        session.execute(
+            insert(FilterCheckpoint),
+            [
+                {"engine_id": run.engine_id, "design_id": est.design_id, "seq": seq,
+                 "last_recorded_at": datetime.fromtimestamp(epoch, UTC),
+                 "last_snapshot_id": snap, "state": state}
+                for seq, epoch, snap, state in out.checkpoints
+            ],
+        )
+    for draft in out.events:
+        session.add(
+            Event(
+                operator_id=run.operator_id, engine_id=run.engine_id, design_id=est.design_id,
+                seq=draft.seq, detected_at=datetime.fromtimestamp(draft.epoch, UTC),
+                kind=draft.kind, fault=draft.fault, magnitude=draft.magnitude,
+                statistic=draft.statistic, wssr=draft.wssr, shift=draft.shift, status="open",
+            )
+        )
+    n_records = run.seq0 + len(run.epoch)
+    last_time = (
+        datetime.fromtimestamp(float(run.epoch[-1]), UTC) if len(run.epoch)
+        else (fs.last_recorded_at if fs is not None and run.seq0 == fs.n_records else None)
+    )
+    last_id = int(run.snapshot_id[-1]) if len(run.epoch) else None
+    if fs is None:
+        fs = FilterState(operator_id=run.operator_id, engine_id=run.engine_id,
+                         design_id=est.design_id)
+        session.add(fs)
+    fs.layout = est.layout.to_dict()
+    fs.state = out.state
+    fs.n_records = n_records
+    if len(run.epoch) or run.seq0 == 0:
+        fs.last_recorded_at = last_time
+        fs.last_snapshot_id = last_id
+    fs.updated_at = utcnow()
+    session.flush()
+
