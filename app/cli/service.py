@@ -41,6 +41,11 @@ def serve(
     port: int | None = typer.Option(None, help="Port to listen on."),
     skip_migrate: bool = typer.Option(False, help="Do not run migrations first."),
     demo: bool = typer.Option(True, help="Create the demo operator on first start."),
+    jobs: bool = typer.Option(
+        True,
+        "--jobs/--no-jobs",
+        help="Run jobs and schedules in this process (when FLEETHEALTH_JOB_RUNNER=inprocess).",
+    ),
 ) -> None:
     """Migrate, then serve the API and the dashboard with uvicorn."""
     import uvicorn
@@ -65,21 +70,35 @@ def serve(
     typer.echo(f"API documentation:     {base}/docs")
     if key:
         typer.echo(f"demo API key:          {key}")
-    uvicorn.run(create_app(settings, engine), host=host, port=port, log_level="warning")
+    app = create_app(settings, engine, background_jobs=jobs)
+    uvicorn.run(app, host=host, port=port, log_level="warning")
 
 
-def worker(concurrency: int = typer.Option(2, help="Worker processes.")) -> None:
-    """Run a Celery worker (deployment mode; the embedded default runs jobs in-process)."""
-    from app.jobs.celery_app import make_celery
+def worker(
+    concurrency: int = typer.Option(2, help="Worker processes."),
+    queue: str = typer.Option("fleethealth", help="Broker queue to take jobs from."),
+) -> None:
+    """Run a Celery worker (deployment mode; the embedded default runs jobs in-process).
 
-    make_celery().worker_main(["worker", "--loglevel=INFO", f"--concurrency={concurrency}"])
+    It runs the same job functions as the in-process runner, claiming each job in the database.
+    """
+    from app.jobs.celery_tasks import celery
+
+    # Workers coordinate through the jobs table, not through each other: no mingle or gossip.
+    celery.worker_main(
+        ["worker", "--loglevel=INFO", f"--concurrency={concurrency}", "--queues", queue]
+        + ["--without-mingle", "--without-gossip"]
+    )
 
 
 def beat() -> None:
-    """Run Celery beat, which starts the scheduled fleet-wide jobs (deployment mode)."""
-    from app.jobs.celery_app import make_celery
+    """Run Celery beat (deployment mode): it sends the tick that submits due job schedules.
 
-    make_celery().start(["beat", "--loglevel=INFO"])
+    The schedules themselves live in the database (/api/v1/schedules); run one beat only.
+    """
+    from app.jobs.celery_tasks import celery
+
+    celery.start(["beat", "--loglevel=INFO"])
 
 
 def create_operator(

@@ -1,0 +1,169 @@
+"""A real Celery worker (``fleethealth worker`` in a subprocess) runs a job against Redis.
+
+Skips with a reason where Redis does not answer, except under CI (``CI`` set), where that is an
+error: CI on this machine must run it.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import uuid
+from collections.abc import Iterator
+from datetime import timedelta
+from pathlib import Path
+
+import pytest
+from sqlalchemy import select
+from sqlalchemy.orm import Session, sessionmaker
+
+from app.db import transaction
+from app.jobs import store
+from app.jobs.celery_tasks import celery
+from app.jobs.dispatch import CeleryDispatch
+from app.jobs.registry import load_kinds
+from app.models import Job
+from app.models.base import utcnow
+from tests.app.jobs_support import job_row, live_database, make_operator, wait_until
+from tests.conftest import BACKENDS
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def redis_unavailable_reason(url: str) -> str | None:
+    import redis
+
+    try:
+        redis.Redis.from_url(url, socket_connect_timeout=3).ping()
+    except Exception as exc:  # any failure to reach the server means: no Redis here
+        return f"no Redis at {url}: {exc}"
+    return None
+
+
+@pytest.fixture(scope="module")
+def redis_url() -> str:
+    url = str(celery.conf.broker_url)
+    reason = redis_unavailable_reason(url)
+    if reason is not None:
+        if os.environ.get("CI"):
+            pytest.fail(f"CI must run the Celery tests, but {reason}")
+        pytest.skip(reason)
+    return url
+
+
+@pytest.fixture(params=BACKENDS)
+def live(
+    request: pytest.FixtureRequest, tmp_path: Path
+) -> Iterator[tuple[str, sessionmaker[Session]]]:
+    yield from live_database(request.param, tmp_path)
+
+
+@pytest.fixture
+def worker_queue(
+    live: tuple[str, sessionmaker[Session]], redis_url: str, tmp_path: Path
+) -> Iterator[str]:
+    """``fleethealth worker`` on its own queue and the test database; stopped afterwards."""
+    import redis
+
+    url, _factory = live
+    queue = f"fleethealth-test-{uuid.uuid4().hex[:12]}"
+    env = {
+        **os.environ,
+        "FLEETHEALTH_DATABASE_URL": url,
+        "FLEETHEALTH_REDIS_URL": redis_url,
+        "FLEETHEALTH_DATA_DIR": str(tmp_path / "worker-data"),
+        "FLEETHEALTH_LOG_JSON": "false",
+    }
+    log_path = tmp_path / "worker.log"
+    with log_path.open("w") as log:
+        worker = subprocess.Popen(
+            [sys.executable, "-c", "from app.cli import main; main()", "worker"]
+            + ["--concurrency", "1", "--queue", queue],
+            cwd=ROOT,
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
+    try:
+        yield queue
+    finally:
+        worker.terminate()
+        try:
+            worker.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            worker.kill()
+            worker.wait(timeout=10)
+        client = redis.Redis.from_url(redis_url)
+        client.delete(queue, f"_kombu.binding.{queue}")
+        print(log_path.read_text()[-4000:])  # shown by pytest when the test failed
+
+
+def test_a_celery_worker_runs_a_job_to_completion(
+    live: tuple[str, sessionmaker[Session]], worker_queue: str
+) -> None:
+    _url, factory = live
+    registry = load_kinds()
+    now = utcnow()
+    with transaction(factory) as session:
+        operator, _key = make_operator(session, "Celery Air")
+        operator_id = operator.id
+        days_ago = [3, 10, 45, 60, 90]
+        for index, days in enumerate(days_ago):
+            session.add(
+                Job(
+                    operator_id=operator_id,
+                    kind="purge_finished_jobs",
+                    parameters={"case": index},
+                    checksum=f"case-{index}",
+                    status="succeeded",
+                    finished_at=now - timedelta(days=days),
+                )
+            )
+    with transaction(factory) as session:
+        job, created = store.submit(
+            session,
+            operator_id=operator_id,
+            kind="purge_finished_jobs",
+            parameters={"older_than_days": 30, "batch_size": 2},
+            registry=registry,
+        )
+        store.dispatch_after_commit(session, CeleryDispatch(worker_queue).dispatch, job.id)
+        job_id = job.id
+    assert created
+
+    wait_until(
+        lambda: job_row(factory, job_id).status not in ("queued", "running"),
+        "the Celery worker to finish the job",
+        timeout=60,
+    )
+    done = job_row(factory, job_id)
+    assert done.status == "succeeded", done.error
+    expected = sum(1 for days in days_ago if days > 30)
+    assert done.result is not None and done.result["deleted"] == expected
+    assert done.worker is not None and done.worker.startswith("celery:")
+    assert done.message == f"deleted {expected} of {expected} finished jobs"
+    with transaction(factory) as session:
+        left = session.scalars(select(Job.finished_at).where(Job.id != job_id)).all()
+    assert sorted(now - finished for finished in left if finished is not None) == [
+        timedelta(days=days) for days in sorted(days_ago) if days <= 30
+    ]
+
+    # A second message for the finished job (a duplicate delivery) changes nothing: the worker
+    # takes messages in order, so once a later job is done the duplicate was handled.
+    CeleryDispatch(worker_queue).dispatch(job_id)
+    with transaction(factory) as session:
+        later, _ = store.submit(
+            session,
+            operator_id=operator_id,
+            kind="purge_finished_jobs",
+            parameters={"older_than_days": 1},
+            registry=registry,
+        )
+        store.dispatch_after_commit(session, CeleryDispatch(worker_queue).dispatch, later.id)
+        later_id = later.id
+    wait_until(
+        lambda: job_row(factory, later_id).status == "succeeded", "the later job", timeout=60
+    )
+    again = job_row(factory, job_id)
+    assert (again.status, again.attempts, again.result) == ("succeeded", 1, done.result)
