@@ -33,7 +33,7 @@ def _coefficients(far: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
     if isinstance(far, float) and far == 0.0:
         return _A0, _B0  # type: ignore[return-value]
     fa = far / (1.0 + far)
-    return _A0 + _A1 * fa, _B0 + _B1 * fa
+    return _A0 + _A1 * fa, _B0 + _B1 * fa  # type: ignore[return-value]
 
 
 def coefficients(far: np.ndarray | float = 0.0) -> tuple[np.ndarray, np.ndarray]:

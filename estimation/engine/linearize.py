@@ -68,7 +68,7 @@ class ContinuousModel(NamedTuple):
     step_check: float
 
 
-def _jacobian(trim: SteadyState, step: float) -> tuple[np.ndarray, np.ndarray, float]:
+def _jacobian(trim: SteadyState, step: float) -> tuple[np.ndarray, int, float]:
     """Richardson Jacobian [out, 20] of [xdot%, y%, z%] in [x%, u%, h] and the step check."""
     nx, nu, nh = 4, 3, len(HEALTH_NAMES)
     n = nx + nu + nh

@@ -30,7 +30,7 @@ import numpy as np
 from estimation.engine.atmosphere import flight_condition
 from estimation.engine.design import engine_design
 from estimation.engine.linearize import DEFAULT_DT, linear_model_at
-from estimation.engine.steady import steady_state
+from estimation.engine.steady import SteadyState, steady_state
 from estimation.errors import ModelFormatError
 from estimation.model import MATRIX_NAMES, LinearModel
 
@@ -170,7 +170,7 @@ def build_schedule(
     All nodes are trimmed in one batched steady-state solve; each is then
     linearised (about 10 ms a node).
     """
-    ax = dict(DEFAULT_AXES)
+    ax: dict[str, Sequence[float]] = dict(DEFAULT_AXES)
     ax.update(axes or {})
     grid = tuple(np.asarray(sorted(ax[n]), dtype=float) for n in AXIS_NAMES)
     for n, a in zip(AXIS_NAMES, grid, strict=True):
@@ -181,9 +181,11 @@ def build_schedule(
     trims = steady_state(env, power=nodes[:, 2], health=health)
     models = []
     for i in range(len(nodes)):
-        one = type(trims)(*(
-            {k: v[i] for k, v in f.items()} if isinstance(f, dict) else f[i] for f in trims
-        ))
+        one = SteadyState(
+            trims.x[i], trims.u[i], trims.env[i], trims.health[i], trims.inner[i],
+            trims.sensors[i], trims.aux[i], {k: v[i] for k, v in trims.stations.items()},
+            trims.power[i],
+        )
         models.append(linear_model_at(one, dt))
     shape = tuple(len(a) for a in grid)
     values: dict[str, np.ndarray] = {}

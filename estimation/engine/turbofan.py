@@ -82,7 +82,10 @@ class Operating(NamedTuple):
 
     def take(self, rows: np.ndarray) -> Operating:
         fc = FlightCondition(*(a[rows] for a in self.fc))
-        return Operating(*(a[rows] for a in self[:7]), fc, self.h[rows])
+        return Operating(
+            self.nf[rows], self.nc[rows], self.tm_hpc[rows], self.tm_hpt[rows],
+            self.wf[rows], self.vsv[rows], self.vbv[rows], fc, self.h[rows],
+        )
 
 
 def as_batch(
