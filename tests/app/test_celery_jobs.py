@@ -15,7 +15,7 @@ from datetime import timedelta
 from pathlib import Path
 
 import pytest
-from sqlalchemy import select
+from sqlalchemy import select, update
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db import transaction
@@ -167,3 +167,60 @@ def test_a_celery_worker_runs_a_job_to_completion(
     )
     again = job_row(factory, job_id)
     assert (again.status, again.attempts, again.result) == ("succeeded", 1, done.result)
+
+
+def test_beat_sends_the_tick_and_the_tick_submits_requeues_and_resends(
+    live: tuple[str, sessionmaker[Session]], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The tick's bookkeeping, called as the worker would (no broker needed: sends recorded)."""
+    from app.jobs import celery_tasks
+    from app.jobs.runner import claim_next
+    from app.jobs.schedules import create_schedule
+    from tests.app.jobs_support import make_registry
+
+    entries = celery.conf.beat_schedule.values()
+    assert {entry["task"] for entry in entries} == {celery_tasks.tick.name}
+    assert celery_tasks.tick.name in celery.tasks and celery_tasks.run_job.name in celery.tasks
+
+    _url, factory = live
+    registry = make_registry()
+    sent: list[int] = []
+    monkeypatch.setattr(CeleryDispatch, "dispatch", lambda self, job_id: sent.append(job_id))
+    monkeypatch.setattr(celery_tasks, "_context", None)
+    celery_tasks.configure(factory, registry)
+    long_ago = utcnow() - timedelta(hours=1)
+    with transaction(factory) as session:
+        operator, _key = make_operator(session, "Tick Air")
+        operator_id = operator.id
+        schedule = create_schedule(
+            session,
+            operator_id=operator_id,
+            kind="add",
+            parameters={"a": 1},
+            interval_seconds=3600,
+            registry=registry,
+            first_run_at=long_ago,
+        )
+        schedule_id = schedule.id
+    with transaction(factory) as session:
+        stale, _ = store.submit(
+            session, operator_id=operator_id, kind="add", parameters={"a": 2}, registry=registry
+        )
+        lost, _ = store.submit(
+            session, operator_id=operator_id, kind="add", parameters={"a": 3}, registry=registry
+        )
+        stale_id, lost_id = stale.id, lost.id
+    assert claim_next(factory, worker="a worker that died") is not None  # takes `stale`
+    with transaction(factory) as session:
+        session.execute(update(Job).where(Job.id == stale_id).values(heartbeat_at=long_ago))
+        session.execute(update(Job).where(Job.id == lost_id).values(created_at=long_ago))
+    try:
+        outcome = celery_tasks.tick()
+    finally:
+        monkeypatch.setattr(celery_tasks, "_context", None)
+
+    scheduled = outcome["submitted"]
+    assert len(scheduled) == 1 and job_row(factory, scheduled[0]).schedule_id == schedule_id
+    assert (outcome["requeued"], outcome["resent"]) == ([stale_id], [lost_id])
+    assert sorted(sent) == sorted([stale_id, lost_id, *scheduled])
+    assert job_row(factory, stale_id).status == "queued"
