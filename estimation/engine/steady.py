@@ -102,7 +102,7 @@ def _solve(
         res, st = gas_path(split(v, rows), v[:, :5], d, heat=False, scheduled_actuators=True)
         return np.concatenate([res, st["lp_balance"][:, None], st["hp_balance"][:, None]], 1)
 
-    sol = newton(fun, v0, tol=tol, max_iter=30, max_step=0.1)
+    sol = newton(fun, v0, tol=tol, max_iter=30, max_step=0.25)
     return sol.x, sol.converged
 
 
