@@ -366,40 +366,77 @@ def optimal_tuners(
     aux_weights: Sequence[float] | np.ndarray | None = None,
     start: np.ndarray | None = None,
     max_iter: int = 200,
+    multi_start: bool = False,
 ) -> TunerDesign:
     """Optimal tuners (seed 003, Simon & Garg 2010): argmin over V* [m, p] of the analytic
     objective w_h . SSE_h + w_z . SSE_z (default: health SSEE).
 
     Starts from ``start`` or from the better of the best subset and the SVD tuners
-    (SVD rows weighted towards the aux outputs in the objective); never returns
-    a design worse than its start.
+    (SVD rows weighted towards the aux outputs in the objective); with
+    ``multi_start`` the other of the two is searched from as well and the better
+    end point kept. Never returns a design worse than its start.
     """
     _check_tuner_count(model, m)
     problem = error_problem(model, Q, Qh, Ph, health_weights, aux_weights)
-    V0 = _start(model, problem, m) if start is None else np.asarray(start, float)
-    result = gradient_search(lambda V: _evaluate(problem, V), V0, max_iter=max_iter)
+    if start is not None:
+        starts = [np.asarray(start, float)]
+    else:
+        cands = start_candidates(model, problem, m)
+        starts = [c.vstar for c in (cands if multi_start else cands[:1])]
+    result = search_from_starts(lambda V: _evaluate(problem, V), starts, max_iter)
     return design_filter(
         model, result.vstar, Q, Qh, Ph, "optimal", health_weights, aux_weights
     )
 
 
-def _start(model: LinearModel, problem: ErrorProblem, m: int) -> np.ndarray:
-    """Better of the best subset and the SVD tuners under the problem's objective."""
+class Start(NamedTuple):
+    """A starting point of the optimal search: method ("subset" or "svd"), V*, objective."""
+
+    method: str
+    vstar: np.ndarray
+    objective: float
+
+
+def start_candidates(model: LinearModel, problem: ErrorProblem, m: int) -> list[Start]:
+    """Best-subset and SVD tuners with their objectives, best first (observable ones only).
+
+    The SVD stacks the aux rows the objective weights (seed 000 step 1).
+    """
     candidates = []
     try:
-        candidates.append(best_subset(problem, model.n_health, m))
+        candidates.append(Start("subset", *best_subset(problem, model.n_health, m)))
     except UnobservableDesignError:
         pass
     aux = [a for a, w in zip(model.aux_names, problem.aux_weights, strict=True) if w > 0]
     V_svd = svd_vstar(model, m, aux)
     f_svd = _evaluate(problem, V_svd[None])[0]
     if np.isfinite(f_svd):
-        candidates.append((V_svd, float(f_svd)))
+        candidates.append(Start("svd", V_svd, float(f_svd)))
     if not candidates:
         raise UnobservableDesignError(
             f"neither subset nor SVD tuners ({m}) are observable from these sensors"
         )
-    return min(candidates, key=lambda c: c[1])[0]
+    return sorted(candidates, key=lambda c: c.objective)
+
+
+def _start(model: LinearModel, problem: ErrorProblem, m: int) -> np.ndarray:
+    """Better of the best subset and the SVD tuners under the problem's objective."""
+    return start_candidates(model, problem, m)[0].vstar
+
+
+def search_from_starts(
+    objective: Callable[[np.ndarray], np.ndarray],
+    starts: Sequence[np.ndarray],
+    max_iter: int = 200,
+) -> SearchResult:
+    """gradient_search from each start; the best result (ties: the earlier start)."""
+    best: SearchResult | None = None
+    for V0 in starts:
+        r = gradient_search(objective, V0, max_iter=max_iter)
+        if best is None or r.objective < best.objective:
+            best = r
+    assert best is not None
+    return best
 
 
 # ------------------------------------------------------------ diagnostics-aware
@@ -554,24 +591,21 @@ def sensor_selection(
         sensors = tuple(base) + tuple(extra)
         sub = model.select_sensors(list(sensors))
         m = min(len(sensors), p) if n_tuners is None else n_tuners
-        if m > len(sensors) or m < 1:
-            out.append(SensorSuite(sensors, m, math.nan, math.nan, None))
-            continue
+        cands: list[Start] = []
         problem = error_problem(sub, Q, Qh, Ph, health_weights, aux_weights)
-        try:
-            Vs, fs = best_subset(problem, p, m)
-        except UnobservableDesignError:
-            Vs, fs = None, math.nan
-        aux = [a for a, w in zip(sub.aux_names, problem.aux_weights, strict=True) if w > 0]
-        V_svd = svd_vstar(sub, m, aux)
-        f_svd = float(_evaluate(problem, V_svd[None])[0])
-        starts = [(V, f) for V, f in ((Vs, fs), (V_svd, f_svd)) if V is not None and f == f]
-        if not starts:
+        if 1 <= m <= len(sensors):
+            try:
+                cands = start_candidates(sub, problem, m)
+            except UnobservableDesignError:
+                cands = []
+        fs = next((c.objective for c in cands if c.method == "subset"), math.nan)
+        if not cands:
             out.append(SensorSuite(sensors, m, fs, math.nan, None))
-            continue
-        V0 = min(starts, key=lambda s: s[1])[0]
-        res = gradient_search(lambda V, pr=problem: _evaluate(pr, V), V0, max_iter=max_iter)
-        out.append(SensorSuite(sensors, m, fs, res.objective, res.vstar))
+        else:
+            res = gradient_search(
+                lambda V, pr=problem: _evaluate(pr, V), cands[0].vstar, max_iter=max_iter
+            )
+            out.append(SensorSuite(sensors, m, fs, res.objective, res.vstar))
         if progress is not None:
             progress(i + 1, len(subsets))
     return out

@@ -82,7 +82,8 @@ def test_explicit_vstar_replaces_the_method_and_sensor_health_selection():
 
 def test_aux_objective_is_the_weighted_aux_error():
     model = reference_model()
-    result = run_design(_spec(objective={"aux": {"Fn": 2.0, "SmHPC": 1.0}}), model)
+    spec = _spec(objective={"aux": {"Fn": 2.0, "SmHPC": 1.0}}, max_iter=15)
+    result = run_design(spec, model)
     aux = result["theory"]["aux"]
     err = dict(zip(aux["names"], np.add(aux["bias2"], aux["variance"]), strict=True))
     assert result["objective"] == pytest.approx(2.0 * err["Fn"] + err["SmHPC"], rel=1e-9)

@@ -28,7 +28,7 @@ def _design_matrices(seed: int = 0, m: int = 6):
     return model, reduced_model(model, V, noise["Q"], np.eye(model.n_health) * 1e-2)
 
 
-def _riccati_iteration(A, C, Q, R, tol=1e-15, max_iter=500_000):
+def _riccati_iteration(A, C, Q, R, tol=1e-14, max_iter=500_000):
     """Independent solution: iterate the a-priori covariance recursion to convergence."""
     P = np.eye(A.shape[0])
     for _ in range(max_iter):

@@ -46,7 +46,9 @@ def test_optimal_on_aux_objective_never_worse_than_its_starts():
     model = reference_model()
     Q, Qh, Ph = _noise(model)
     w = np.array([1.0, 0.5, 0.5, 0.5, 0.0])  # thrust and margins
-    opt = tuners.optimal_tuners(model, 3, Q, Qh, Ph, health_weights=np.zeros(10), aux_weights=w)
+    opt = tuners.optimal_tuners(
+        model, 3, Q, Qh, Ph, health_weights=np.zeros(10), aux_weights=w, max_iter=15
+    )
     sub = tuners.subset_tuners(model, 3, Q, Qh, Ph, health_weights=np.zeros(10), aux_weights=w)
     svd_V = tuners.svd_vstar(model, 3, aux=["Fn", "SmFan", "SmLPC", "SmHPC"])
     f_svd = _objective(model, svd_V, Q, Qh, Ph, health_weights=np.zeros(10), aux_weights=w)
@@ -180,3 +182,11 @@ def test_sensor_selection_matches_per_suite_designs():
     # Adding a sensor never hurts the best design (seed 003 table is monotone).
     values = [best[n].optimal_objective for n in sorted(best)]
     assert all(b <= a * (1 + 1e-9) for a, b in zip(values, values[1:], strict=False))
+
+
+def test_multi_start_is_never_worse_than_the_single_start():
+    model = reference_model()
+    Q, Qh, Ph = _noise(model)
+    one = tuners.optimal_tuners(model, 3, Q, Qh, Ph)
+    both = tuners.optimal_tuners(model, 3, Q, Qh, Ph, multi_start=True)
+    assert both.objective <= one.objective * (1 + 1e-10)
