@@ -183,6 +183,71 @@ def subset_tuners(
     return design_filter(model, V, Q, Qh, Ph, "subset", health_weights, aux_weights)
 
 
+def ols_select(A: np.ndarray, deltas: np.ndarray, m: int) -> np.ndarray:
+    """Greedy orthogonal least squares: for each shift in ``deltas`` [n, r], the m columns
+    of A [r, p] chosen one at a time, each the column that most reduces the residual
+    after orthogonalising against those already chosen. Returns indices [n, m].
+    Vectorised over the shifts.
+    """
+    A = np.asarray(A, float)
+    n, p = deltas.shape[0], A.shape[1]
+    W = np.broadcast_to(A, (n,) + A.shape).copy()  # columns orthogonalised per shift
+    r = np.array(deltas, dtype=float)
+    chosen = np.zeros((n, m), dtype=int)
+    taken = np.zeros((n, p), dtype=bool)
+    rows = np.arange(n)
+    for step in range(m):
+        norm2 = np.einsum("nrp,nrp->np", W, W)
+        proj = np.einsum("nrp,nr->np", W, r)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            score = np.where((norm2 > 1e-24) & ~taken, proj**2 / norm2, -np.inf)
+        j = np.argmax(score, axis=1)
+        chosen[:, step] = j
+        taken[rows, j] = True
+        qv = W[rows, :, j] / np.sqrt(np.maximum(norm2[rows, j], 1e-300))[:, None]  # [n, r]
+        r -= qv * np.einsum("nr,nr->n", qv, r)[:, None]
+        W -= qv[:, :, None] * np.einsum("nr,nrp->np", qv, W)[:, None, :]
+    return chosen
+
+
+def ols_tally(
+    model: LinearModel,
+    m: int,
+    rng: np.random.Generator,
+    n_draws: int = 2000,
+    max_shift: float = 3.0,
+    directions: Sequence[float] | np.ndarray | None = None,
+    aux: Sequence[str] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Subset tuners by the orthogonal-least-squares tally of seed 000.
+
+    The row-scaled G = [L; M; N_aux] of the SVD design (step 2) multiplies random
+    health shifts p (each element uniform in 0..max_shift percent in its direction
+    of degradation); OLS picks the m columns that best explain each shift
+    delta = W G p; the m columns picked most often are the tuners.
+    directions [p]: +1 or -1 per health parameter; default -1 except turbine flow
+    capacities (names ending in ``t_flow``: hpt_flow, lpt_flow), which rise.
+    Returns (V* [m, p] rows of the identity, tally [p] of selections).
+    """
+    names = model.aux_names if aux is None else list(aux)
+    idx = model.index("aux", names) if names else []
+    G = np.vstack([model.L, model.M, model.N[idx]])
+    norms = np.linalg.norm(G, axis=1)
+    WG = np.divide(1.0, norms, out=np.zeros_like(norms), where=norms > 0)[:, None] * G
+    p = model.n_health
+    if directions is None:
+        sign = np.array([1.0 if n.lower().endswith("t_flow") else -1.0 for n in model.health_names])
+    else:
+        sign = np.asarray(directions, float)
+        if sign.shape != (p,):
+            raise DimensionError(f"directions: expected ({p},), found {sign.shape}")
+    shifts = rng.uniform(0.0, max_shift, (n_draws, p)) * sign
+    picks = ols_select(WG, shifts @ WG.T, m)
+    tally = np.bincount(picks.ravel(), minlength=p)
+    best = np.sort(np.argsort(-tally, kind="stable")[:m])
+    return np.eye(p)[best], tally
+
+
 # --------------------------------------------------------------------------- SVD
 
 

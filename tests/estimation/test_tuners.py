@@ -190,3 +190,35 @@ def test_multi_start_is_never_worse_than_the_single_start():
     one = tuners.optimal_tuners(model, 3, Q, Qh, Ph)
     both = tuners.optimal_tuners(model, 3, Q, Qh, Ph, multi_start=True)
     assert both.objective <= one.objective * (1 + 1e-10)
+
+
+def test_ols_first_pick_is_the_best_single_column_and_orthogonal_columns_are_exact():
+    rng = np.random.default_rng(31)
+    A = rng.standard_normal((9, 6))
+    deltas = rng.standard_normal((40, 9))
+
+    def residual(cols, d):
+        sub = A[:, list(cols)]
+        x, *_ = np.linalg.lstsq(sub, d, rcond=None)
+        return np.sum((d - sub @ x) ** 2)
+
+    first = tuners.ols_select(A, deltas, 1)[:, 0]
+    for d, j in zip(deltas, first, strict=True):
+        assert j == min(range(6), key=lambda c: residual([c], d))
+    # With orthogonal columns greedy selection is the exhaustive best subset.
+    Qo, _ = np.linalg.qr(A)
+    A = Qo * np.array([3.0, 1.0, 2.0, 0.5, 1.5, 2.5])
+    picks = tuners.ols_select(A, deltas, 3)
+    for d, pick in zip(deltas, picks, strict=True):
+        best = min(itertools.combinations(range(6), 3), key=lambda c: residual(c, d))
+        assert sorted(pick) == sorted(best)
+
+
+def test_ols_tally_returns_the_most_selected_parameters():
+    model = reference_model()
+    V, tally = tuners.ols_tally(model, 4, np.random.default_rng(0), n_draws=500)
+    assert tally.sum() == 500 * 4
+    chosen = np.flatnonzero(V.sum(axis=0))
+    assert set(chosen) == set(np.argsort(-tally, kind="stable")[:4])
+    d = tuners.design_filter(model, V, *_noise(model))
+    assert np.isfinite(d.theory.ssee_health)
