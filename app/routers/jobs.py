@@ -4,13 +4,12 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, Query, Request, Response, status
+from fastapi import APIRouter, Query, Response, status
 
 from app.errors import Forbidden, InvalidInput
 from app.jobs import schedules as schedule_service
 from app.jobs import store
-from app.jobs.dispatch import Dispatcher
-from app.jobs.registry import JobRegistry
+from app.jobs.queue import Jobs
 from app.schemas.jobs import (
     JobKindOut,
     JobList,
@@ -24,20 +23,6 @@ from app.schemas.jobs import (
 from app.security import Admin, Analyst, CurrentPrincipal, DbSession
 
 router = APIRouter(prefix="/api/v1", tags=["jobs"])
-
-
-def get_registry(request: Request) -> JobRegistry:
-    registry: JobRegistry = request.app.state.job_registry
-    return registry
-
-
-def get_dispatcher(request: Request) -> Dispatcher:
-    dispatcher: Dispatcher = request.app.state.job_dispatcher
-    return dispatcher
-
-
-Registry = Annotated[JobRegistry, Depends(get_registry)]
-JobDispatcher = Annotated[Dispatcher, Depends(get_dispatcher)]
 
 
 @router.get("/jobs", response_model=JobList)
@@ -71,13 +56,12 @@ def submit_job(
     body: JobSubmit,
     session: DbSession,
     principal: Analyst,
-    registry: Registry,
-    dispatcher: JobDispatcher,
+    jobs: Jobs,
     response: Response,
 ) -> JobOut:
     """Queue a job (202), or get the queued or running job with the same kind and parameters
     (200). Parameters are checked before anything is stored (422)."""
-    kind = registry.get(body.kind)
+    kind = jobs.registry.get(body.kind)
     if not kind.submittable:
         raise InvalidInput(
             f"job kind {body.kind!r} is started by the service, not submitted directly",
@@ -85,22 +69,16 @@ def submit_job(
         )
     if not principal.can(kind.role):
         raise Forbidden(f"job kind {body.kind!r} needs the {kind.role} role")
-    job, created = store.submit(
-        session,
-        operator_id=principal.operator_id,
-        kind=body.kind,
-        parameters=body.parameters,
-        registry=registry,
+    job, created = jobs.submit(
+        session, operator_id=principal.operator_id, kind=body.kind, parameters=body.parameters
     )
-    if created:
-        store.dispatch_after_commit(session, dispatcher.dispatch, job.id)
-    else:
+    if not created:
         response.status_code = status.HTTP_200_OK
     return JobOut.model_validate(job)
 
 
 @router.get("/jobs/kinds", response_model=list[JobKindOut])
-def list_job_kinds(_principal: CurrentPrincipal, registry: Registry) -> list[JobKindOut]:
+def list_job_kinds(_principal: CurrentPrincipal, jobs: Jobs) -> list[JobKindOut]:
     """The registered job kinds with the JSON schema of their parameters."""
     return [
         JobKindOut(
@@ -110,7 +88,7 @@ def list_job_kinds(_principal: CurrentPrincipal, registry: Registry) -> list[Job
             submittable=kind.submittable,
             parameters_schema=kind.parameters.model_json_schema(),
         )
-        for kind in registry
+        for kind in jobs.registry
     ]
 
 
@@ -138,7 +116,7 @@ def list_schedules(session: DbSession, principal: Admin) -> list[ScheduleOut]:
 
 @router.post("/schedules", response_model=ScheduleOut, status_code=status.HTTP_201_CREATED)
 def create_schedule(
-    body: ScheduleCreate, session: DbSession, principal: Admin, registry: Registry
+    body: ScheduleCreate, session: DbSession, principal: Admin, jobs: Jobs
 ) -> ScheduleOut:
     """Submit a job of ``kind`` every ``interval_seconds``, the first at ``first_run_at``."""
     schedule = schedule_service.create_schedule(
@@ -149,7 +127,7 @@ def create_schedule(
         interval_seconds=body.interval_seconds,
         first_run_at=body.first_run_at,
         enabled=body.enabled,
-        registry=registry,
+        registry=jobs.registry,
     )
     return ScheduleOut.model_validate(schedule)
 
@@ -169,14 +147,14 @@ def update_schedule(
     body: ScheduleUpdate,
     session: DbSession,
     principal: Admin,
-    registry: Registry,
+    jobs: Jobs,
 ) -> ScheduleOut:
     """Change parameters, interval, next run or enabled; fields left out stay as they are."""
     schedule = schedule_service.update_schedule(
         session,
         operator_id=principal.operator_id,
         schedule_id=schedule_id,
-        registry=registry,
+        registry=jobs.registry,
         parameters=body.parameters,
         interval_seconds=body.interval_seconds,
         enabled=body.enabled,

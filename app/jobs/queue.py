@@ -1,0 +1,67 @@
+"""What routes and services use to start a job: submit, then dispatch once committed.
+
+In a route::
+
+    from app.jobs.queue import Jobs
+
+    @router.post("/uploads", ...)
+    def upload(..., session: DbSession, principal: Analyst, jobs: Jobs) -> ...:
+        ...
+        job, created = jobs.submit(
+            session, operator_id=principal.operator_id, kind="estimate_upload",
+            parameters={"upload_id": upload.id},
+        )
+
+The job is queued in the caller's transaction and handed to the runner (in-process threads or
+Celery) only after that transaction commits, so a worker never looks for a row it cannot see.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Annotated, Any
+
+from fastapi import Depends, Request
+from sqlalchemy.orm import Session
+
+from app.jobs import store
+from app.jobs.dispatch import Dispatcher
+from app.jobs.registry import JobRegistry
+from app.models.jobs import Job
+
+
+@dataclass(frozen=True)
+class JobQueue:
+    registry: JobRegistry
+    dispatcher: Dispatcher
+
+    def submit(
+        self,
+        session: Session,
+        *,
+        operator_id: int,
+        kind: str,
+        parameters: dict[str, Any] | None = None,
+        schedule_id: int | None = None,
+    ) -> tuple[Job, bool]:
+        """Queue a job (or get the same active one); ``(job, created)``. See ``store.submit``."""
+        job, created = store.submit(
+            session,
+            operator_id=operator_id,
+            kind=kind,
+            parameters=parameters,
+            registry=self.registry,
+            schedule_id=schedule_id,
+        )
+        if created:
+            store.dispatch_after_commit(session, self.dispatcher.dispatch, job.id)
+        return job, created
+
+
+def get_job_queue(request: Request) -> JobQueue:
+    """The app's registry and dispatcher (the dispatcher is the runner once it started)."""
+    state = request.app.state
+    return JobQueue(registry=state.job_registry, dispatcher=state.job_dispatcher)
+
+
+Jobs = Annotated[JobQueue, Depends(get_job_queue)]
