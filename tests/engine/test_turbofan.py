@@ -66,3 +66,18 @@ def test_fuel_and_deterioration_move_spools_the_textbook_way(trims):
     worn = evaluate(trims.x, trims.u, trims.env, health_vector({"hpt_eff": -2.0}),
                     guess=trims.inner)
     assert np.all(worn.xdot[:, 1] < 0)  # less HPT work decelerates the core
+
+
+def test_chord_iteration_with_kept_jacobian_equals_newton(trims):
+    first = evaluate(trims.x, trims.u, trims.env, None, guess=trims.inner, with_jacobian=True)
+    assert first.jacobian_inv.shape == (3, 5, 5)
+    x = trims.x * 1.004
+    newton = evaluate(x, trims.u, trims.env, None, guess=trims.inner)
+    chord = evaluate(x, trims.u, trims.env, None, guess=trims.inner,
+                     jacobian_inv=first.jacobian_inv)
+    assert np.allclose(chord.xdot, newton.xdot, rtol=1e-7, atol=1e-7)
+    assert np.allclose(chord.sensors, newton.sensors, rtol=1e-9)
+    # A useless Jacobian makes the chord iteration fail; Newton takes over.
+    junk = np.broadcast_to(1e-6 * np.eye(5), (3, 5, 5))
+    rescued = evaluate(x, trims.u, trims.env, None, guess=trims.inner, jacobian_inv=junk)
+    assert np.allclose(rescued.sensors, newton.sensors, rtol=1e-9)
