@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -33,7 +34,7 @@ import numpy as np
 import scipy.optimize
 
 from estimation import isolation
-from estimation.errors import DimensionError, UnobservableDesignError
+from estimation.errors import ConvergenceWarning, DimensionError, UnobservableDesignError
 from estimation.kalman import steady_state_gain
 from estimation.model import LinearModel
 from estimation.reduced import ReducedModel, reduced_model
@@ -384,6 +385,7 @@ def gradient_search(
         raise UnobservableDesignError("the starting tuners are not observable")
     best_V, best_f = V0.copy(), f0
     iterations = evaluations = 0
+    hit_limit = False
     if m == p:
         return SearchResult(best_V, best_f, f0, 0, 1)
     for _ in range(restarts):
@@ -398,6 +400,7 @@ def gradient_search(
         )
         iterations += int(res.nit)
         evaluations += fun.count
+        hit_limit = res.status == 1  # scipy: maximum number of iterations reached
         V_new = base + res.x.reshape(m, p - m) @ comp
         f_new = float(objective(V_new[None])[0])
         evaluations += 1
@@ -407,6 +410,13 @@ def gradient_search(
         best_V, best_f = V_new, f_new
         if improved <= 1e-9 * abs(best_f):
             break
+    if hit_limit:
+        warnings.warn(
+            f"tuner search stopped at its iteration limit ({max_iter} per pass) while still "
+            f"improving: objective {best_f:.6g} from {f0:.6g}; raise max_iter for more",
+            ConvergenceWarning,
+            stacklevel=2,
+        )
     if best_f == f0:
         return SearchResult(V0.copy(), f0, f0, iterations, evaluations)
     # Report V* with orthonormal rows: same filter, well-conditioned numbers.

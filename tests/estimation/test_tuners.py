@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from estimation import tuners
-from estimation.errors import UnobservableDesignError
+from estimation.errors import ConvergenceWarning, UnobservableDesignError
 from estimation.theory import error_problem
 from tests.estimation.models import random_model, reference_model, reference_noise
 
@@ -46,9 +46,10 @@ def test_optimal_on_aux_objective_never_worse_than_its_starts():
     model = reference_model()
     Q, Qh, Ph = _noise(model)
     w = np.array([1.0, 0.5, 0.5, 0.5, 0.0])  # thrust and margins
-    opt = tuners.optimal_tuners(
-        model, 3, Q, Qh, Ph, health_weights=np.zeros(10), aux_weights=w, max_iter=15
-    )
+    with pytest.warns(ConvergenceWarning, match="iteration limit"):
+        opt = tuners.optimal_tuners(
+            model, 3, Q, Qh, Ph, health_weights=np.zeros(10), aux_weights=w, max_iter=15
+        )
     sub = tuners.subset_tuners(model, 3, Q, Qh, Ph, health_weights=np.zeros(10), aux_weights=w)
     svd_V = tuners.svd_vstar(model, 3, aux=["Fn", "SmFan", "SmLPC", "SmHPC"])
     f_svd = _objective(model, svd_V, Q, Qh, Ph, health_weights=np.zeros(10), aux_weights=w)
