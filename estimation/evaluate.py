@@ -426,6 +426,9 @@ def isolation_experiment(
             x_hat[k] = h_full @ mean.T + (z @ spread.T if noise else 0.0)
     else:
         raise ExperimentError(f"start must be 'healthy' or 'steady', got {start!r}")
+    # Bound the per-block arrays (steps x engines x states) to a few tens of MB.
+    widest = max(d.reduced.A.shape[0] for d in filters.values())
+    block = max(1, min(block, int(4e6 // (E * widest))))
     done = 0
     while done < n_steps:
         nb = min(block, n_steps - done)

@@ -72,7 +72,7 @@ def test_steady_start_delay_matches_monte_carlo():
     rng = np.random.default_rng(14)
     m, lam = 3, 4.0
     design = det.design_cusum(m, 100.0)
-    n_runs, warm, after = 3000, 300, 60
+    n_runs, warm, after = 2000, 200, 60
     d = np.zeros(m)
     d[0] = np.sqrt(lam)
     noise = rng.standard_normal((n_runs, warm + after, m))
