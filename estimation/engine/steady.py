@@ -106,8 +106,8 @@ def _solve(
     return sol.x, sol.converged
 
 
-@lru_cache(maxsize=4)
-def _sea_level_line(design_id: int) -> tuple[np.ndarray, np.ndarray]:
+@lru_cache(maxsize=1)
+def _sea_level_line() -> tuple[np.ndarray, np.ndarray]:
     """Converged sea-level static points from take-off down to idle (by continuation).
 
     Returns corrected fan speed over design [K] and corrected unknowns [K, 7]:
@@ -135,7 +135,7 @@ def _sea_level_line(design_id: int) -> tuple[np.ndarray, np.ndarray]:
 
 def _guess(nrf_rel: np.ndarray, env: np.ndarray, d: EngineDesign) -> np.ndarray:
     """Corrected-parameter guess [B, 7] (power mode layout) from the sea-level line."""
-    grid, line = _sea_level_line(id(d))
+    grid, line = _sea_level_line()
     fc = flight_condition(env[:, 0], env[:, 1], env[:, 2])
     g = np.stack([np.interp(nrf_rel, grid, line[:, j]) for j in range(7)], axis=1)
     g[:, 5] *= np.sqrt(fc.theta)
@@ -185,7 +185,7 @@ def steady_state(
             raise EnvelopeError("fuel flow must be positive")
         target = given * LBM
         # Guess: the power-mode guess whose corrected fuel flow is nearest.
-        grid, line = _sea_level_line(id(d))
+        grid, line = _sea_level_line()
         fc = flight_condition(env2[:, 0], env2[:, 1], env2[:, 2])
         wfc = target / (fc.delta * np.sqrt(fc.theta)) / d.wf
         nrf_rel = np.interp(wfc, line[:, 6], grid)
