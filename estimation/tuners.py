@@ -542,22 +542,23 @@ def fault_problem(
 
 
 def misclassification_sum(
-    errs_K: np.ndarray,
-    errs_Phi: np.ndarray,
-    errs_P_hat: np.ndarray,
+    K: np.ndarray,
+    Phi: np.ndarray,
+    P_hat: np.ndarray,
     faults: FaultProblem,
     n_states: int,
 ) -> np.ndarray:
     """Sum over fault pairs of PMC_{b|a} (seed 002 eq. 24-26) for a stack of designs [b].
 
+    K [b, n, ny], Phi [b, n, n], P_hat [b, n, n] as in ``theory.BatchedErrors``;
     H = [0 I_m] Gamma K G_y,full S, P_q = [0 I_m] P_hat [0 I_m]^T per design.
     """
-    b, n, _ = errs_Phi.shape
+    b, n, _ = Phi.shape
     out = np.full(b, np.nan)
     with np.errstate(all="ignore"):
-        X = np.linalg.solve(np.eye(n) - errs_Phi, errs_K @ faults.Gy_full)
+        X = np.linalg.solve(np.eye(n) - Phi, K @ faults.Gy_full)
     H = X[:, n_states:, :] @ faults.S
-    Pq = errs_P_hat[:, n_states:, n_states:]
+    Pq = P_hat[:, n_states:, n_states:]
     for i in range(b):
         if not (np.all(np.isfinite(H[i])) and np.all(np.isfinite(Pq[i]))):
             continue
@@ -612,8 +613,9 @@ def diagnostic_tuners(
     )
 
 
-def diagnostic_objective_terms(design: TunerDesign, faults: Sequence[isolation.Fault] | None = None
-                               ) -> np.ndarray:
+def diagnostic_objective_terms(
+    design: TunerDesign, faults: Sequence[isolation.Fault] | None = None
+) -> np.ndarray:
     """PMC matrix [n_faults, n_faults] (rows true fault) of a finished design."""
     fp = fault_problem(design.model, faults)
     nx = design.model.n_states
