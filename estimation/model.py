@@ -421,10 +421,10 @@ class LinearModel:
             dt = float(d["dt"])
         except (TypeError, ValueError):
             raise ModelFormatError(f"'dt' must be a number, found {d['dt']!r}") from None
+        kwargs: dict[str, Any] = {**groups, **mats}
         return cls(
             dt=dt,
-            **groups,
-            **mats,
+            **kwargs,
             trim=d["trim"],
             sensor_noise_std=d["sensor_noise_std"],
             operating_condition=cond,

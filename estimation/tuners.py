@@ -23,6 +23,7 @@ evaluated in one batched call (``theory.batched_errors``).
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 import warnings
@@ -680,7 +681,7 @@ def sensor_selection(
             out.append(SensorSuite(sensors, m, fs, math.nan, None))
         else:
             res = gradient_search(
-                lambda V, pr=problem: _evaluate(pr, V), cands[0].vstar, max_iter=max_iter
+                functools.partial(_evaluate, problem), cands[0].vstar, max_iter=max_iter
             )
             out.append(SensorSuite(sensors, m, fs, res.objective, res.vstar))
         if progress is not None:
