@@ -163,9 +163,13 @@ def linear_model_at(
             trims[n] = float(v)
     cond = {
         "alt_ft": float(trim.env[0]), "mach": float(trim.env[1]), "dtamb_K": float(trim.env[2]),
-        "power_pct": float(trim.power), "jacobian_step_pct": cm.step,
-        "jacobian_step_check": cm.step_check,
+        "jacobian_step_pct": cm.step, "jacobian_step_check": cm.step_check,
     }
+    # A point trimmed for a fuel flow has no power setting; JSON has no NaN.
+    if np.isfinite(trim.power):
+        cond["power_pct"] = float(trim.power)
+    else:
+        cond["wf_pps"] = float(trim.u[0])
     return LinearModel(
         dt=dt,
         states=tuple(Signal(n, u) for n, u in zip(STATE_NAMES, STATE_UNITS, strict=True)),

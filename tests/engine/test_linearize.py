@@ -100,3 +100,10 @@ def test_json_round_trip():
     for name in ("A", "B", "C", "D", "L", "M", "F", "G", "N"):
         assert np.array_equal(getattr(back, name), getattr(m, name))
     assert back.trim == m.trim and back.health_names == list(HEALTH_NAMES)
+
+
+def test_model_at_a_fuel_flow_trim_is_strict_json():
+    trim = steady_state(np.array([5000.0, 0.3, 0.0]), wf=3.0)
+    m = linear_model_at(trim)
+    text = json.dumps(m.to_dict(), allow_nan=False)
+    assert json.loads(text)["operating_condition"]["wf_pps"] == 3.0
