@@ -90,6 +90,16 @@ def test_tuner_invisible_to_sensors_refused_even_when_scipy_returns():
     V = np.eye(4)[:2]
     red = reduced_model(model, V, np.eye(2) * 1e-4, np.eye(4) * 1e-2)
     assert unobservable_modes(red.A, red.C)  # the PBH test sees it
+    # The trap: scipy (1.17) returns a solution here without raising, and its gain does
+    # not stabilise the filter.
+    try:
+        P = scipy.linalg.solve_discrete_are(red.A.T, red.C.T, red.Q, model.R)
+    except (np.linalg.LinAlgError, ValueError):
+        P = None
+    if P is not None:
+        K = np.linalg.solve(red.C @ P @ red.C.T + model.R, red.C @ P).T
+        closed = (np.eye(len(K)) - K @ red.C) @ red.A
+        assert np.max(np.abs(np.linalg.eigvals(closed))) > 1 - 1e-9
     with pytest.raises(UnobservableDesignError, match="cannot observe"):
         steady_state_gain(red.A, red.C, red.Q, model.R)
 
