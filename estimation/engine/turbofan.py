@@ -64,6 +64,8 @@ ENV_NAMES = ("alt", "mach", "dtamb")
 ENV_UNITS = ("ft", "-", "K")
 INNER_NAMES = ("beta_fan", "beta_lpc", "beta_hpc", "pr_hpt_rel", "pr_lpt_rel")
 INNER_DESIGN = np.array([0.5, 0.5, 0.5, 1.0, 1.0])
+RESIDUAL_NAMES = ("bypass nozzle flow", "HPC inlet flow", "HPT flow", "LPT flow",
+                  "core nozzle flow")
 _RPM2 = (np.pi / 30.0) ** 2
 
 
@@ -293,10 +295,13 @@ def solve_inner(
     sol = newton(fun, z0, tol=tol, max_iter=40)
     if not sol.converged.all():
         bad = np.flatnonzero(~sol.converged)
-        worst = np.max(np.abs(sol.residual[bad]), axis=1)
+        i = int(bad[0])
+        k = int(np.argmax(np.abs(sol.residual[i])))
+        betas = ", ".join(f"{n} {v:.2f}" for n, v in zip(INNER_NAMES, sol.x[i], strict=True))
         raise EngineConvergenceError(
-            f"gas-path balance did not converge for engines {bad[:10].tolist()} "
-            f"(max residual {worst.max():.2e}, relative flow mismatch)"
+            f"gas-path balance did not converge for engines {bad[:10].tolist()}; engine {i}: "
+            f"{RESIDUAL_NAMES[k]} mismatch {sol.residual[i, k]:+.2e} of design flow at "
+            f"{betas} (a compressor beta above 1 lies past its stall line)"
         )
     return sol.x
 
