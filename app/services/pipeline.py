@@ -35,7 +35,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from scipy import stats
-from sqlalchemy import delete, insert, or_, select
+from sqlalchemy import and_, delete, func, insert, or_, select
 from sqlalchemy.orm import Session
 
 from app.models import Engine, EngineModel, EstimatorDesign, MaintenanceAction, Snapshot
@@ -705,11 +705,14 @@ def estimate_engines(
     affected: Mapping[int, datetime | None],
     progress: Callable[[float, str], None] | None = None,
     design_id: int | None = None,
+    commit: Callable[[], None] | None = None,
 ) -> dict[str, Any]:
     """Bring every affected engine's estimates up to date.
 
     affected: engine id -> earliest recorded_at of its new records (None: just continue).
-    Engines of one design run batched; each is written in the caller's transaction.
+    Engines of one design run batched, 64 at a time; ``commit`` (a job's) is called after
+    each batch so finished engines survive a restart, else all stays in the caller's
+    transaction.
     Returns counts per outcome.
     """
     engines = session.scalars(
@@ -764,6 +767,8 @@ def estimate_engines(
                 summary["events"] += len(out.events)
                 summary["engines"] += 1
             done += len(batch)
+            if commit is not None:
+                commit()
             if progress is not None:
                 progress(done / total, f"estimated {done} of {total} engines")
     return summary
@@ -813,3 +818,52 @@ def _store(
     fs.updated_at = utcnow()
     session.flush()
 
+
+
+def pending_work(
+    session: Session, operator_id: int, engine_ids: Sequence[int] | None = None
+) -> dict[int, datetime]:
+    """Engines with snapshots that have no estimate under their type's active design, and the
+    earliest such snapshot of each: what the pipeline has still to do (or redo)."""
+    active = (
+        select(EstimatorDesign.id, EstimatorDesign.engine_type_id)
+        .where(EstimatorDesign.operator_id == operator_id, EstimatorDesign.active.is_(True))
+        .subquery()
+    )
+    query = (
+        select(Snapshot.engine_id, func.min(Snapshot.recorded_at))
+        .join(Engine, Engine.id == Snapshot.engine_id)
+        .join(active, active.c.engine_type_id == Engine.engine_type_id)
+        .outerjoin(
+            Estimate,
+            and_(Estimate.snapshot_id == Snapshot.id, Estimate.design_id == active.c.id),
+        )
+        .where(Snapshot.operator_id == operator_id, Estimate.id.is_(None))
+        .group_by(Snapshot.engine_id)
+    )
+    if engine_ids is not None:
+        query = query.where(Snapshot.engine_id.in_(list(engine_ids)))
+    return {int(e): t for e, t in session.execute(query).all()}
+
+
+def catch_up(
+    session: Session,
+    operator_id: int,
+    progress: Callable[[float, str], None] | None = None,
+    commit: Callable[[], None] | None = None,
+    max_passes: int = 10,
+) -> dict[str, Any]:
+    """Estimate until no snapshot of the operator lacks an estimate (records that arrive
+    meanwhile are picked up by the next pass). Idempotent: a second call finds nothing."""
+    totals: dict[str, Any] = {"engines": 0, "records": 0, "events": 0, "reruns": 0, "passes": 0}
+    for _ in range(max_passes):
+        work = pending_work(session, operator_id)
+        if not work:
+            break
+        result = estimate_engines(session, operator_id, work, progress, commit=commit)
+        totals["passes"] += 1
+        for key in ("engines", "records", "events", "reruns"):
+            totals[key] += result[key]
+        if result["records"] == 0:
+            break  # nothing could be estimated (no ready design): stop rather than spin
+    return totals

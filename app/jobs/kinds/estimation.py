@@ -1,0 +1,59 @@
+"""Estimation kinds: bring engines' estimates up to date after uploads, and the scheduled
+fleet-wide diagnostic run."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict
+from sqlalchemy.orm import Session
+
+from app.jobs import store
+from app.jobs.registry import Progress, registry
+from app.services import diagnostics, pipeline
+
+# The default schedule of the fleet-wide diagnostic job (seconds): once a day.
+FLEET_DIAGNOSTICS_INTERVAL = 24 * 3600
+
+
+class EstimateEngines(BaseModel):
+    """No parameters: the job finds every snapshot without an estimate and estimates it."""
+
+    model_config = ConfigDict(extra="forbid")
+
+
+@registry.job(
+    "estimate_engines",
+    parameters=EstimateEngines,
+    description="Run the snapshot filter, shift detection and isolation over new snapshots.",
+    role="analyst",
+    submittable=False,
+)
+def estimate_engines(
+    session: Session, parameters: EstimateEngines, progress: Progress, *, operator_id: int
+) -> dict[str, Any]:
+    return pipeline.catch_up(session, operator_id, progress=progress, commit=session.commit)
+
+
+class FleetDiagnostics(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+@registry.job(
+    "fleet_diagnostics",
+    parameters=FleetDiagnostics,
+    description="Summarise shift detection and fault isolation over every engine of the fleet.",
+    role="analyst",
+)
+def fleet_diagnostics(
+    session: Session, parameters: FleetDiagnostics, progress: Progress, *, operator_id: int
+) -> dict[str, Any]:
+    """Read-only summary; snapshots left unestimated get an estimation job queued."""
+    summary = diagnostics.fleet_diagnostics(session, operator_id, progress=progress)
+    if summary["n_engines_waiting"]:
+        job, _created = store.submit(
+            session, operator_id=operator_id, kind="estimate_engines", parameters={},
+            registry=registry,
+        )
+        summary["estimation_job_id"] = job.id
+    return summary
