@@ -12,6 +12,7 @@ import pyarrow.csv as pacsv
 from fastapi import APIRouter, Depends, Header, Query, Request, Response, status
 
 from app.errors import InvalidInput, NotFound, PayloadTooLarge, ServiceError
+from app.jobs import store
 from app.limits import BodyTooLarge
 from app.schemas.fleet import Page, PageParams
 from app.schemas.uploads import EngineSnapshots, SnapshotBatch, UploadDetail, UploadOut
@@ -142,6 +143,18 @@ def run_upload(
         raise
 
 
+def queue_estimation(request: Request, session: DbSession, principal: Principal,
+                     result: UploadResult) -> None:
+    """After a stored upload with new rows: queue the estimation job, dispatched on commit."""
+    if result.replayed or not result.upload.affected:
+        return
+    job, _created = store.submit(
+        session, operator_id=principal.operator_id, kind="estimate_engines", parameters={},
+        registry=request.app.state.job_registry,
+    )
+    store.dispatch_after_commit(session, request.app.state.job_dispatcher.dispatch, job.id)
+
+
 def upload_out(result: UploadResult, response: Response) -> UploadOut:
     response.status_code = status.HTTP_200_OK if result.replayed else status.HTTP_201_CREATED
     out = UploadOut.model_validate(result.upload)
@@ -188,6 +201,7 @@ def _store_snapshots(
     },
 )
 def upload_snapshots(
+    request: Request,
     payload: Body,
     session: DbSession,
     principal: Analyst,
@@ -199,6 +213,7 @@ def upload_snapshots(
         raise UnsupportedMediaType("POST /api/v1/snapshots takes JSON; files go to /snapshots/file")
     payload.content_format = "json"
     result = _store_snapshots(session, principal, payload, idempotency_key, None)
+    queue_estimation(request, session, principal, result)
     return upload_out(result, response)
 
 
@@ -227,6 +242,7 @@ def upload_snapshots(
     },
 )
 def upload_snapshot_file(
+    request: Request,
     payload: Body,
     session: DbSession,
     principal: Analyst,
@@ -240,6 +256,7 @@ def upload_snapshot_file(
             "send text/csv or application/vnd.apache.parquet (raw body or a multipart file)"
         )
     result = _store_snapshots(session, principal, payload, idempotency_key, parse_mapping(columns))
+    queue_estimation(request, session, principal, result)
     return upload_out(result, response)
 
 
