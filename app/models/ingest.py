@@ -5,7 +5,8 @@ JSON document of sensor values: a 100,000-row COPY then writes plain numbers (no
 encoding on the way in, no JSON parsing on the way out), a trend query reads ten thousand rows
 of native floats through the ``(engine_id, recorded_at)`` index, and the database checks each
 value's type. NULL is a missing sensor. The unique key ``(engine_id, recorded_at)`` makes the
-same snapshot twice store nothing. Stream samples stay in Parquet files under
+same snapshot twice store nothing. An engine or aircraft with data cannot be deleted (the
+fleet service answers 409). Stream samples stay in Parquet files under
 ``data_dir/recordings``; the database holds their metadata and one row per received chunk.
 """
 
@@ -152,11 +153,15 @@ class Snapshot(Base):
     )
 
     id: Mapped[int] = mapped_column(BigId, primary_key=True)
-    operator_id: Mapped[int] = mapped_column(ForeignKey("operators.id", ondelete="CASCADE"))
-    engine_id: Mapped[int] = mapped_column(ForeignKey("engines.id", ondelete="CASCADE"))
-    aircraft_id: Mapped[int] = mapped_column(ForeignKey("aircraft.id", ondelete="CASCADE"))
+    # Only engine_id is a foreign key: PostgreSQL checks each one per COPYed row with a row
+    # lock on the referenced row, and four of them halve a bulk load. operator_id,
+    # aircraft_id and upload_id are written by the ingest service from the resolved
+    # installation and the upload it creates in the same transaction.
+    operator_id: Mapped[int]
+    engine_id: Mapped[int] = mapped_column(ForeignKey("engines.id"))
+    aircraft_id: Mapped[int]
     position: Mapped[int] = mapped_column(SmallInteger)
-    upload_id: Mapped[int] = mapped_column(ForeignKey("uploads.id", ondelete="CASCADE"))
+    upload_id: Mapped[int]
     recorded_at: Mapped[datetime] = mapped_column(UTCDateTime())
     phase: Mapped[str] = mapped_column(String(8))
     flight_id: Mapped[str | None] = mapped_column(String(64), default=None)
@@ -210,8 +215,8 @@ class StreamRecording(Base):
 
     id: Mapped[int] = mapped_column(primary_key=True)
     operator_id: Mapped[int] = mapped_column(ForeignKey("operators.id", ondelete="CASCADE"))
-    engine_id: Mapped[int] = mapped_column(ForeignKey("engines.id", ondelete="CASCADE"))
-    aircraft_id: Mapped[int] = mapped_column(ForeignKey("aircraft.id", ondelete="CASCADE"))
+    engine_id: Mapped[int] = mapped_column(ForeignKey("engines.id"))
+    aircraft_id: Mapped[int] = mapped_column(ForeignKey("aircraft.id"))
     position: Mapped[int] = mapped_column(SmallInteger)
     flight_id: Mapped[str | None] = mapped_column(String(64), default=None)
     started_at: Mapped[datetime] = mapped_column(UTCDateTime())

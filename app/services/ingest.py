@@ -514,7 +514,7 @@ def engine_snapshots(
             Snapshot.flight_id,
             *[getattr(Snapshot, s.column) for s in SIGNALS],
         )
-        .join(Aircraft, Aircraft.id == Snapshot.aircraft_id)
+        .outerjoin(Aircraft, Aircraft.id == Snapshot.aircraft_id)
         .where(Snapshot.engine_id == engine.id)
         .order_by(Snapshot.recorded_at)
         .limit(limit)

@@ -1,7 +1,8 @@
 """uploads, snapshots and stream recordings
 
 Snapshots keep one DOUBLE PRECISION column per signal (fast COPY loads and trend reads);
-the unique (engine_id, recorded_at) key makes a snapshot sent twice store nothing.
+the unique (engine_id, recorded_at) key makes a snapshot sent twice store nothing. Only
+engine_id is a foreign key on snapshots: each one costs a row-locking check per COPYed row.
 
 Revision ID: 0003
 Revises: 0004
@@ -39,8 +40,8 @@ def upgrade() -> None:
     sa.Column('closed_at', sa.DateTime(timezone=True), nullable=True),
     sa.CheckConstraint("status IN ('open', 'closed')", name=op.f('ck_stream_recordings_status')),
     sa.CheckConstraint('dt_s > 0', name=op.f('ck_stream_recordings_dt')),
-    sa.ForeignKeyConstraint(['aircraft_id'], ['aircraft.id'], name=op.f('fk_stream_recordings_aircraft_id_aircraft'), ondelete='CASCADE'),
-    sa.ForeignKeyConstraint(['engine_id'], ['engines.id'], name=op.f('fk_stream_recordings_engine_id_engines'), ondelete='CASCADE'),
+    sa.ForeignKeyConstraint(['aircraft_id'], ['aircraft.id'], name=op.f('fk_stream_recordings_aircraft_id_aircraft')),
+    sa.ForeignKeyConstraint(['engine_id'], ['engines.id'], name=op.f('fk_stream_recordings_engine_id_engines')),
     sa.ForeignKeyConstraint(['operator_id'], ['operators.id'], name=op.f('fk_stream_recordings_operator_id_operators'), ondelete='CASCADE'),
     sa.PrimaryKeyConstraint('id', name=op.f('pk_stream_recordings')),
     sa.UniqueConstraint('engine_id', 'started_at', name=op.f('uq_stream_recordings_engine_id_started_at'))
@@ -108,10 +109,7 @@ def upgrade() -> None:
     sa.Column('p15', sa.Double(), nullable=True),
     sa.CheckConstraint("phase IN ('takeoff', 'climb', 'cruise')", name=op.f('ck_snapshots_phase')),
     sa.CheckConstraint('position BETWEEN 1 AND 4', name=op.f('ck_snapshots_position')),
-    sa.ForeignKeyConstraint(['aircraft_id'], ['aircraft.id'], name=op.f('fk_snapshots_aircraft_id_aircraft'), ondelete='CASCADE'),
-    sa.ForeignKeyConstraint(['engine_id'], ['engines.id'], name=op.f('fk_snapshots_engine_id_engines'), ondelete='CASCADE'),
-    sa.ForeignKeyConstraint(['operator_id'], ['operators.id'], name=op.f('fk_snapshots_operator_id_operators'), ondelete='CASCADE'),
-    sa.ForeignKeyConstraint(['upload_id'], ['uploads.id'], name=op.f('fk_snapshots_upload_id_uploads'), ondelete='CASCADE'),
+    sa.ForeignKeyConstraint(['engine_id'], ['engines.id'], name=op.f('fk_snapshots_engine_id_engines')),
     sa.PrimaryKeyConstraint('id', name=op.f('pk_snapshots')),
     sa.UniqueConstraint('engine_id', 'recorded_at', name=op.f('uq_snapshots_engine_id_recorded_at'))
     )
