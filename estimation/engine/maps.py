@@ -5,7 +5,7 @@ speed) and map coordinate beta (0 choke side, 1 on the stall line, 0.5 design):
 
     Wc  = Wc_d n^aw (1 + kw (beta_d - beta))            corrected flow [kg/s]
     PR  = 1 + (PR_d - 1) n^ap (1 + kp (beta - beta_d))   total pressure ratio
-    eta = eta_d (1 - cn (n - 1)^2 - cb (beta - beta_d)^2)
+    eta = eta_d (1 - cn (n - 1)^2 - cb db^2 / (1 + (db / 0.8)^2)),  db = beta - beta_d
 
 so along a speed line flow falls and pressure ratio rises towards stall, and
 both rise with speed. The stall line is beta = 1; eliminating n gives the stall
@@ -68,7 +68,11 @@ def compressor(
     wc = m.wc_design * n_rel**m.flow_exp * (1.0 - m.flow_slope * db) * flow_scale
     pr = 1.0 + (m.pr_design - 1.0) * n_rel**m.pr_exp * (1.0 + m.pr_slope * db)
     dn = n_rel - 1.0
-    eff = m.eff_design * (1.0 - m.eff_speed * dn * dn - m.eff_beta * db * db) * eff_scale
+    # Efficiency falls as a parabola near design and levels off far from it
+    # (deep choke or past the stall line), so that the gas path still has a
+    # solution when a transient drives a compressor off its working range.
+    pen = m.eff_beta * db * db / (1.0 + (db / 0.8) ** 2)
+    eff = m.eff_design * (1.0 - m.eff_speed * dn * dn - pen) * eff_scale
     return wc, pr, eff
 
 
