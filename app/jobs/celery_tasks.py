@@ -16,7 +16,7 @@ from typing import Any
 from celery.signals import worker_ready
 
 from app.jobs.celery_app import make_celery
-from app.jobs.dispatch import CeleryDispatch
+from app.jobs.dispatch import CELERY_QUEUE, CeleryDispatch
 from app.jobs.registry import JobRegistry, load_kinds
 from app.jobs.runner import (
     SessionFactory,
@@ -65,13 +65,15 @@ def configure(factory: SessionFactory, registry: JobRegistry) -> None:
     _context = WorkerContext(factory=factory, registry=registry)
 
 
-@celery.task(name="fleethealth.run_job")
-def run_job(job_id: int) -> str:
+@celery.task(name="fleethealth.run_job", bind=True)
+def run_job(self: Any, job_id: int) -> str:
     context = worker_context()
     claim = claim_job(context.factory, job_id, worker=worker_name("celery"))
     if claim is None:
         return "not queued"
-    return execute(context.factory, claim, context.registry)
+    # Jobs this job queues go to the queue this worker took it from.
+    queue = (self.request.delivery_info or {}).get("routing_key") or CELERY_QUEUE
+    return execute(context.factory, claim, context.registry, dispatcher=CeleryDispatch(queue))
 
 
 @celery.task(name="fleethealth.tick")

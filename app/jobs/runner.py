@@ -20,12 +20,13 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
 
-from sqlalchemy import select, update
+from sqlalchemy import event, select, update
 from sqlalchemy.exc import OperationalError
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db import transaction
 from app.errors import ServiceError
+from app.jobs.dispatch import Dispatcher
 from app.jobs.registry import JobCancelled, JobRegistry, load_kinds
 from app.models.base import utcnow
 from app.models.jobs import Job
@@ -217,6 +218,7 @@ def execute(
     *,
     throttle_seconds: float = PROGRESS_THROTTLE_SECONDS,
     heartbeat_seconds: float | None = HEARTBEAT_SECONDS,
+    dispatcher: Dispatcher | None = None,
 ) -> str:
     """Run a claimed job to its end and return its final status.
 
@@ -224,7 +226,8 @@ def execute(
     that same transaction, so the work and the record of it commit together. An exception rolls
     the work back and records the error; ``JobCancelled`` rolls back and leaves 'cancelled'.
     ``heartbeat_seconds=None`` runs without a heartbeat thread (synchronous tests, whose
-    session factory shares one connection).
+    session factory shares one connection). Jobs the function queues (``store.submit`` on its
+    session) go to ``dispatcher`` once the session commits them.
     """
     with transaction(factory) as session:
         job = session.get(Job, claim.job_id)
@@ -239,6 +242,8 @@ def execute(
     progress = ProgressReporter(factory, claim, throttle_seconds=throttle_seconds)
     heartbeat = Heartbeat(factory, claim, heartbeat_seconds) if heartbeat_seconds else None
     session = factory()
+    if dispatcher is not None:
+        _dispatch_queued_jobs(session, dispatcher)
     try:
         try:
             result = kind.function(session, parameters, progress, operator_id=operator_id)
@@ -251,30 +256,59 @@ def execute(
             session.rollback()
             log.exception("job %s (%s) failed", claim.job_id, kind_name)
             return _record_failure(factory, claim, f"{type(exc).__name__}: {exc}")
-        now = utcnow()
-        done = session.execute(
-            update(Job)
-            .where(*_owned(claim))
-            .values(
-                status="succeeded",
-                progress=1.0,
-                message=progress.message if progress.message != "running" else "done",
-                result=result,
-                finished_at=now,
-                heartbeat_at=now,
-            ),
-            execution_options={"synchronize_session": False},
-        )
-        if done.rowcount == 0:  # type: ignore[attr-defined]
-            # Cancelled (or requeued as stale) after the last progress report: undo the work.
+        try:
+            now = utcnow()
+            done = session.execute(
+                update(Job)
+                .where(*_owned(claim))
+                .values(
+                    status="succeeded",
+                    progress=1.0,
+                    message=progress.message if progress.message != "running" else "done",
+                    result=result,
+                    finished_at=now,
+                    heartbeat_at=now,
+                ),
+                execution_options={"synchronize_session": False},
+            )
+            if done.rowcount == 0:  # type: ignore[attr-defined]
+                # Cancelled (or requeued as stale) after the last progress report: undo it all.
+                session.rollback()
+                return _status(factory, claim.job_id)
+            session.commit()
+        except Exception as exc:  # e.g. the commit broke a constraint: the work is not stored
             session.rollback()
-            return _status(factory, claim.job_id)
-        session.commit()
+            log.exception("job %s (%s) could not commit", claim.job_id, kind_name)
+            return _record_failure(factory, claim, f"{type(exc).__name__}: {exc}")
         return "succeeded"
     finally:
         session.close()
         if heartbeat is not None:
             heartbeat.stop()
+
+
+def _dispatch_queued_jobs(session: Session, dispatcher: Dispatcher) -> None:
+    """Hand every job queued in ``session`` to ``dispatcher`` when (and if) it commits."""
+    queued: list[int] = []
+
+    def collect(_session: Session, instance: object) -> None:
+        if isinstance(instance, Job):
+            queued.append(instance.id)
+
+    def send(committed: Session) -> None:
+        if committed.in_nested_transaction():  # a savepoint: not visible to workers yet
+            return
+        ids = list(queued)
+        queued.clear()
+        for job_id in ids:
+            dispatcher.dispatch(job_id)
+
+    def forget(_session: Session) -> None:
+        queued.clear()
+
+    event.listen(session, "pending_to_persistent", collect)
+    event.listen(session, "after_commit", send)
+    event.listen(session, "after_rollback", forget)
 
 
 def _json_result(kind: str, result: object) -> dict[str, Any]:
@@ -372,8 +406,9 @@ def run_pending(
 class Runner:
     """The embedded default's job runner: ``workers`` threads claiming queued jobs.
 
-    On start it requeues jobs a previous process left running. ``dispatch(job_id)`` wakes an
-    idle worker at once; otherwise workers look for queued jobs every ``poll_seconds``.
+    On start, and then every ``stale_after / 2`` from an idle worker, it requeues jobs whose
+    worker stopped beating (a previous process, killed). ``dispatch(job_id)`` wakes an idle
+    worker at once; otherwise workers look for queued jobs every ``poll_seconds``.
     """
 
     def __init__(
@@ -399,9 +434,12 @@ class Runner:
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
+        self._sweep_lock = threading.Lock()
+        self._last_sweep = time.monotonic()
 
     def start(self) -> None:
         requeue_stale(self._factory, stale_after=self._stale_after)
+        self._last_sweep = time.monotonic()
         for number in range(self._workers):
             thread = threading.Thread(target=self._work, name=f"job-worker-{number}", daemon=True)
             thread.start()
@@ -420,6 +458,15 @@ class Runner:
             thread.join(timeout=max(0.0, deadline - time.monotonic()))
         self._threads.clear()
 
+    def _sweep_if_due(self) -> None:
+        """Requeue stale jobs now and then (a process restarted sooner than ``stale_after``
+        finds its old jobs still fresh at start)."""
+        with self._sweep_lock:
+            if time.monotonic() - self._last_sweep < self._stale_after.total_seconds() / 2:
+                return
+            self._last_sweep = time.monotonic()
+        requeue_stale(self._factory, stale_after=self._stale_after)
+
     def _work(self) -> None:
         worker = worker_name("inprocess")
         while not self._stop.is_set():
@@ -432,8 +479,10 @@ class Runner:
                         self._registry,
                         throttle_seconds=self._throttle,
                         heartbeat_seconds=self._heartbeat,
+                        dispatcher=self,
                     )
                     continue
+                self._sweep_if_due()
             except Exception:  # a database hiccup must not kill the worker thread
                 log.exception("job worker %s: claiming or running a job failed", worker)
             # Leave the event set while stopping so every other worker thread sees it too.

@@ -122,9 +122,24 @@ def cancel(session: Session, *, operator_id: int, job_id: int) -> Job:
 
 
 def dispatch_after_commit(session: Session, dispatch: Callable[[int], None], job_id: int) -> None:
-    """Call ``dispatch(job_id)`` once the session commits, so a worker can see the row."""
+    """Call ``dispatch(job_id)`` once the session commits, so a worker can see the row.
 
-    def after_commit(_session: Session) -> None:
+    Savepoint commits (``begin_nested``, which ``submit`` itself uses) do not count: the row
+    is visible to other connections only when the outermost transaction commits.
+    """
+
+    settled = False  # listeners cannot be removed while the event runs them: a flag instead
+
+    def after_commit(committed: Session) -> None:
+        nonlocal settled
+        if settled or committed.in_nested_transaction():
+            return
+        settled = True
         dispatch(job_id)
 
-    event.listen(session, "after_commit", after_commit, once=True)
+    def forget(_session: Session) -> None:
+        nonlocal settled
+        settled = True
+
+    event.listen(session, "after_commit", after_commit)
+    event.listen(session, "after_rollback", forget)

@@ -6,6 +6,7 @@ the threaded tests use a fresh database that really commits, with the runner's r
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterator
 from datetime import timedelta
 from pathlib import Path
@@ -385,6 +386,114 @@ def test_cancel_over_the_api_and_conflict_when_finished(
     assert job_row(session_factory, finished).status == "succeeded"
 
 
+def test_work_that_breaks_a_constraint_at_commit_fails_and_stores_nothing(
+    session_factory: sessionmaker[Session], session: Session
+) -> None:
+    operator, _key = make_operator(session, "Constraint Air")
+    session.commit()
+    registry = JobRegistry()
+
+    @registry.job("duplicate", parameters=AddParameters, description="adds a duplicate name")
+    def duplicate(
+        job_session: Session, parameters: AddParameters, progress: object, *, operator_id: int
+    ) -> dict[str, object]:
+        job_session.add(Operator(name="unique side effect"))
+        job_session.add(Operator(name="Constraint Air"))  # flushed with the result: refused
+        return {"added": 2}
+
+    job_id = _submit(session_factory, registry, operator.id, "duplicate", a=1)
+    run_pending(session_factory, registry)
+    row = job_row(session_factory, job_id)
+    assert row.status == "failed" and (row.error or "").startswith("IntegrityError")
+    assert row.result is None
+    assert not operator_exists(session_factory, "unique side effect")
+
+
+class RecordingDispatch:
+    def __init__(self) -> None:
+        self.job_ids: list[int] = []
+
+    def dispatch(self, job_id: int) -> None:
+        self.job_ids.append(job_id)
+
+
+@pytest.mark.parametrize("fails", [False, True])
+def test_jobs_a_job_queues_are_dispatched_when_it_commits(
+    session_factory: sessionmaker[Session], session: Session, fails: bool
+) -> None:
+    operator, _key = make_operator(session, f"Chain Air {fails}")
+    session.commit()
+    registry = make_registry()
+
+    @registry.job("chain", parameters=AddParameters, description="queues an add job")
+    def chain(
+        job_session: Session, parameters: AddParameters, progress: object, *, operator_id: int
+    ) -> dict[str, object]:
+        follow_up, _ = store.submit(
+            job_session,
+            operator_id=operator_id,
+            kind="add",
+            parameters={"a": parameters.a},
+            registry=registry,
+        )
+        if fails:
+            raise RuntimeError("failed after queueing")
+        return {"follow_up": follow_up.id}
+
+    job_id = _submit(session_factory, registry, operator.id, "chain", a=11)
+    claim = claim_next(session_factory, worker="test")
+    assert claim is not None
+    sent = RecordingDispatch()
+    status = execute(session_factory, claim, registry, heartbeat_seconds=None, dispatcher=sent)
+    queued = session.scalars(
+        select(Job.id).where(Job.operator_id == operator.id, Job.kind == "add")
+    ).all()
+    if fails:
+        assert (status, sent.job_ids, queued) == ("failed", [], [])
+    else:
+        result = job_row(session_factory, job_id).result
+        assert status == "succeeded" and result == {"follow_up": queued[0]}
+        assert sent.job_ids == list(queued) and len(queued) == 1
+
+
+def test_dispatch_waits_for_the_outermost_commit_and_happens_once(
+    session_factory: sessionmaker[Session], session: Session, registry: JobRegistry
+) -> None:
+    operator, _key = make_operator(session, "Dispatch Air")
+    session.commit()
+    sent = RecordingDispatch()
+    with session_factory() as request_session:
+        job, _ = store.submit(
+            request_session,
+            operator_id=operator.id,
+            kind="add",
+            parameters={"a": 1},
+            registry=registry,
+        )
+        store.dispatch_after_commit(request_session, sent.dispatch, job.id)
+        with request_session.begin_nested():  # a savepoint commit: workers cannot see it yet
+            request_session.add(Operator(name="Dispatch Air savepoint"))
+        assert sent.job_ids == []
+        request_session.commit()
+        assert sent.job_ids == [job.id]
+        request_session.add(Operator(name="Dispatch Air later"))
+        request_session.commit()
+        assert sent.job_ids == [job.id]
+
+    with session_factory() as rolled_back:
+        other, _ = store.submit(
+            rolled_back,
+            operator_id=operator.id,
+            kind="add",
+            parameters={"a": 2},
+            registry=registry,
+        )
+        store.dispatch_after_commit(rolled_back, sent.dispatch, other.id)
+        rolled_back.rollback()
+        rolled_back.commit()
+    assert sent.job_ids == [job.id]
+
+
 # --- restart --------------------------------------------------------------------------------
 
 
@@ -627,6 +736,33 @@ def test_runner_threads_stop_a_cancelled_running_job(
         assert not operator_exists(factory, "spun by the job: last chunk")
     finally:
         runner.stop()
+
+
+def test_concurrent_claims_take_every_job_exactly_once(
+    live: tuple[str, sessionmaker[Session]],
+) -> None:
+    _url, factory = live
+    registry = make_registry()
+    with transaction(factory) as session:
+        operator, _key = make_operator(session, "Claim Race Air")
+        operator_id = operator.id
+    submitted = [_submit(factory, registry, operator_id, "add", a=n) for n in range(40)]
+    claims: list[list[int]] = [[] for _ in range(4)]
+    start = threading.Barrier(len(claims))
+
+    def take(mine: list[int]) -> None:
+        start.wait()
+        while (claim := claim_next(factory, worker=f"racer {id(mine)}")) is not None:
+            mine.append(claim.job_id)
+
+    threads = [threading.Thread(target=take, args=(mine,)) for mine in claims]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=60)
+    taken = [job_id for mine in claims for job_id in mine]
+    assert sorted(taken) == sorted(submitted)  # all taken, none twice
+    assert {job_row(factory, job_id).attempts for job_id in submitted} == {1}
 
 
 def test_runner_start_requeues_what_a_stopped_process_left_running(
