@@ -6,7 +6,12 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query, Response, status
 
-from app.schemas.designs import EngineModelContent, EngineModelImport, EngineModelOut
+from app.schemas.designs import (
+    BuiltinModelCreate,
+    EngineModelContent,
+    EngineModelImport,
+    EngineModelOut,
+)
 from app.schemas.fleet import Deleted, Page, PageParams
 from app.security import Analyst, CurrentPrincipal, DbSession
 from app.services import models_designs
@@ -50,6 +55,25 @@ def import_engine_model(
         engine_type_id=body.engine_type_id,
         name=body.name,
         content=body.model,
+    )
+    if not created:
+        response.status_code = status.HTTP_200_OK
+    return EngineModelOut.model_validate(row)
+
+
+@router.post(
+    "/builtin",
+    response_model=EngineModelOut,
+    status_code=status.HTTP_201_CREATED,
+    responses={200: {"model": EngineModelOut, "description": "identical version exists"}},
+)
+def build_builtin_model(
+    body: BuiltinModelCreate, response: Response, session: DbSession, principal: Analyst
+) -> EngineModelOut:
+    """Linearise the built-in engine at the operating condition and store the model as the
+    next version of ``name`` (201; an identical stored version answers 200)."""
+    row, created = models_designs.build_builtin_model(
+        session, operator_id=principal.operator_id, **body.model_dump()
     )
     if not created:
         response.status_code = status.HTTP_200_OK

@@ -22,6 +22,17 @@ class EngineModelImport(StrictInput):
     )
 
 
+class BuiltinModelCreate(StrictInput):
+    """The built-in two-spool engine linearised at one operating condition."""
+
+    engine_type_id: int
+    name: str = Name
+    alt_ft: float = Field(ge=-2000, le=60000, description="altitude, ft")
+    mach: float = Field(ge=0, le=1, description="flight Mach number")
+    power_pct: float = Field(gt=0, le=110, description="power setting, % of take-off power")
+    dtamb_k: float = Field(0.0, ge=-60, le=60, description="ambient offset from ISA, K")
+
+
 class EngineModelOut(Row):
     id: int
     engine_type_id: int

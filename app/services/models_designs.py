@@ -23,6 +23,8 @@ from app.models import EngineModel, EngineType, EstimatorDesign
 from app.models.base import utcnow
 from app.services.fleet import delete_or_conflict, owned, paginate, referenced
 from estimation.design import run_design as run_spec
+from estimation.engine.errors import EngineConvergenceError
+from estimation.engine.linearize import linearize
 from estimation.model import MODEL_FORMAT, LinearModel
 
 # ------------------------------------------------------------------------ engine models
@@ -129,6 +131,34 @@ def register_builtin_model(
         name=name,
         model=model,
         source="builtin",
+    )
+
+
+def build_builtin_model(
+    session: Session,
+    *,
+    operator_id: int,
+    engine_type_id: int,
+    name: str,
+    alt_ft: float,
+    mach: float,
+    power_pct: float,
+    dtamb_k: float = 0.0,
+) -> tuple[EngineModel, bool]:
+    """Linearise the built-in engine at an operating condition and store it (source builtin).
+
+    A condition outside the envelope, or one where the engine has no steady state, is a 422.
+    """
+    referenced(session, EngineType, operator_id, engine_type_id, "engine_type_id", "engine type")
+    try:
+        model = linearize(alt_ft, mach, power_pct, dtamb_k)
+    except (ValueError, EngineConvergenceError) as exc:
+        reason = str(exc)
+        raise InvalidInput(
+            f"operating condition: {reason}", details=[{"location": ["body"], "reason": reason}]
+        ) from None
+    return register_builtin_model(
+        session, operator_id=operator_id, engine_type_id=engine_type_id, name=name, model=model
     )
 
 

@@ -165,3 +165,34 @@ def test_a_model_used_by_a_design_cannot_be_deleted(
         for m in getattr(route, "methods", ())
     }
     assert methods <= {"GET", "POST", "DELETE"}
+
+
+def test_builtin_model_is_the_core_linearisation_at_the_condition(
+    client: TestClient, session: Session, tenant: Tenant
+) -> None:
+    from estimation.engine.linearize import linearize
+
+    body = {
+        "engine_type_id": tenant.ids["type"],
+        "name": "builtin takeoff",
+        "alt_ft": 0.0,
+        "mach": 0.0,
+        "power_pct": 100.0,
+    }
+    response = client.post(f"{API}/builtin", json=body, headers=tenant.headers())
+    assert response.status_code == 201
+    out = response.json()
+    assert out["source"] == "builtin"
+    stored = client.get(f"{API}/{out['id']}/content", headers=tenant.headers()).json()["model"]
+    direct = linearize(0.0, 0.0, 100.0)
+    np.testing.assert_allclose(stored["matrices"]["A"], direct.A, rtol=1e-12)
+    np.testing.assert_allclose(stored["matrices"]["M"], direct.M, rtol=1e-12)
+    assert out["sensor_names"] == direct.sensor_names
+    again = client.post(f"{API}/builtin", json=body, headers=tenant.headers())
+    assert again.status_code == 200 and again.json()["id"] == out["id"]
+
+    for change, field in (({"mach": 1.5}, "mach"), ({"power_pct": "full"}, "power_pct")):
+        bad = client.post(f"{API}/builtin", json={**body, **change}, headers=tenant.headers())
+        assert bad.status_code == 422
+        assert error_of(bad)["details"][0]["location"][-1] == field
+    assert _stored(session, tenant) == 1
