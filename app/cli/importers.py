@@ -1,0 +1,256 @@
+"""Importers that load foreign data through the REST API, like any other client.
+
+``fleethealth import-cmapss PATH`` reads NASA C-MAPSS ``train_FD001.txt`` (columns in
+``shared/data/cmapss/SOURCE.md``): each unit becomes an engine (ESN ``FD001-007``) installed on
+its own tail (``CM007``, position 1), each cycle one take-off snapshot, one day apart from a
+fixed start (UTC). The three settings are the operating condition (altitude in kft -> alt_ft,
+Mach, TRA 100 -> power_pct 100); the sensors that exist in the built-in engine keep their
+C-MAPSS units, declared in the CSV header (T24, T30, T50 degR; P15, P30 psia; Nf, Nc rpm).
+C-MAPSS's Ps30 (~47.5 "psia") and phi (fuel flow / Ps30) are not on the scale of P30 and are
+left out, as are T2/P2 (the inlet follows from the operating condition) and the derived
+columns (epr, NRf, NRc, BPR, farB, htBleed, demands, bleeds W31/W32).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from typing import Annotated, Any
+
+import httpx
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+import typer
+
+CMAPSS_COLUMNS = (
+    "unit", "cycle", "setting1", "setting2", "setting3",
+    "T2", "T24", "T30", "T50", "P2", "P15", "P30", "Nf", "Nc", "epr", "Ps30", "phi",
+    "NRf", "NRc", "BPR", "farB", "htBleed", "Nf_dmd", "PCNfR_dmd", "W31", "W32",
+)  # fmt: skip
+# C-MAPSS column -> upload column with its unit (the built-in engine's names).
+CMAPSS_SENSORS = {
+    "T24": "T24[degR]",
+    "T30": "T30[degR]",
+    "T50": "T50[degR]",
+    "P15": "P15[psia]",
+    "P30": "P30[psia]",
+    "Nf": "Nf[rpm]",
+    "Nc": "Nc[rpm]",
+}
+CMAPSS_START = datetime(2020, 1, 1, tzinfo=UTC)
+ENGINE_TYPE = "CMAPSS-FD001"
+_RANKINE = 1.8
+_T_SL = 288.15
+_LAPSE = 0.0065  # K/m, ISA troposphere
+_FT = 0.3048
+
+
+class CmapssImportError(RuntimeError):
+    """The server refused a step of the import; the message carries its answer."""
+
+
+@dataclass(frozen=True)
+class ImportSummary:
+    units: int
+    snapshots: int
+    stored: int
+    duplicates: int
+    uploads: list[int]
+
+
+def read_cmapss(path: Path) -> np.ndarray:
+    """The file as a [rows, 26] float array in ``CMAPSS_COLUMNS`` order."""
+    data = np.loadtxt(path, dtype=float, ndmin=2)
+    if data.shape[1] != len(CMAPSS_COLUMNS):
+        raise CmapssImportError(
+            f"{path}: expected {len(CMAPSS_COLUMNS)} columns of C-MAPSS data, got {data.shape[1]}"
+        )
+    return data
+
+
+def select_units(data: np.ndarray, units: int | None) -> tuple[np.ndarray, list[int]]:
+    """The rows of the first ``units`` unit numbers (all: None) and those unit numbers."""
+    unit_ids = sorted({int(u) for u in data[:, 0]})
+    if units is not None:
+        unit_ids = unit_ids[:units]
+        data = data[np.isin(data[:, 0].astype(int), unit_ids)]
+    return data, unit_ids
+
+
+def tail_of(unit: int) -> str:
+    return f"CM{unit:03d}"
+
+
+def esn_of(unit: int) -> str:
+    return f"FD001-{unit:03d}"
+
+
+def cmapss_snapshots(data: np.ndarray, start: datetime = CMAPSS_START) -> pa.Table:
+    """Rows of the C-MAPSS array as upload columns (UPLOAD.md), sensors in C-MAPSS units."""
+    col = {name: data[:, i] for i, name in enumerate(CMAPSS_COLUMNS)}
+    units = col["unit"].astype(np.int64)
+    cycles = col["cycle"].astype(np.int64)
+    alt_ft = col["setting1"] * 1000.0
+    # FD001's Mach setting scatters around 0 by +-0.0009; a negative Mach is noise, not flight.
+    mach = np.clip(col["setting2"], 0.0, None)
+    # dTamb from the inlet: T2 is total temperature, T_amb = T2 / (1 + 0.2 M^2), against ISA.
+    t_amb = col["T2"] / _RANKINE / (1.0 + 0.2 * mach**2)
+    t_isa = _T_SL - _LAPSE * np.minimum(alt_ft * _FT, 11000.0)
+    times = np.datetime64(start.replace(tzinfo=None), "us") + (cycles - 1) * np.timedelta64(1, "D")
+    columns: dict[str, Any] = {
+        "recorded_at": pa.array(times, pa.timestamp("us", tz="UTC")),
+        "tail": pa.array([tail_of(u) for u in units]),
+        "position": pa.array(np.ones(len(units), dtype=np.int64)),
+        "phase": pa.array(["takeoff"] * len(units)),
+        "flight_id": pa.array(
+            [f"{esn_of(u)}-C{c:04d}" for u, c in zip(units, cycles, strict=True)]
+        ),
+        "alt_ft": alt_ft,
+        "mach": mach,
+        "dtamb_k": np.round(t_amb - t_isa, 6),
+        "power_pct": col["setting3"],
+    }
+    for source, target in CMAPSS_SENSORS.items():
+        columns[target] = col[source]
+    return pa.table(columns)
+
+
+def _check(response: httpx.Response, what: str) -> dict[str, Any]:
+    if response.status_code >= 400:
+        raise CmapssImportError(f"{what}: HTTP {response.status_code}: {response.text[:500]}")
+    result: dict[str, Any] = response.json()
+    return result
+
+
+def _find_one(client: httpx.Client, path: str, **params: Any) -> dict[str, Any] | None:
+    page = _check(client.get(path, params=params), f"GET {path}")
+    items = page["items"]
+    return items[0] if items else None
+
+
+def ensure_engine_type(client: httpx.Client, name: str = ENGINE_TYPE) -> int:
+    offset = 0
+    while True:
+        page = _check(
+            client.get("/api/v1/engine-types", params={"limit": 100, "offset": offset}),
+            "list engine types",
+        )
+        for item in page["items"]:
+            if item["name"] == name:
+                return int(item["id"])
+        offset += len(page["items"])
+        if not page["items"] or offset >= page["total"]:
+            break
+    created = _check(
+        client.post(
+            "/api/v1/engine-types",
+            json={"name": name, "description": "NASA C-MAPSS FD001 engines (imported)"},
+        ),
+        "create engine type",
+    )
+    return int(created["id"])
+
+
+def ensure_unit(client: httpx.Client, unit: int, engine_type_id: int, start: datetime) -> int:
+    """Aircraft, engine and installation of one C-MAPSS unit (created once); the engine id."""
+    tail, esn = tail_of(unit), esn_of(unit)
+    aircraft = _find_one(client, "/api/v1/aircraft", tail=tail) or _check(
+        client.post("/api/v1/aircraft", json={"tail": tail, "engine_positions": 1}),
+        f"create aircraft {tail}",
+    )
+    engine = _find_one(client, "/api/v1/engines", esn=esn) or _check(
+        client.post("/api/v1/engines", json={"esn": esn, "engine_type_id": engine_type_id}),
+        f"create engine {esn}",
+    )
+    installed = _find_one(client, f"/api/v1/engines/{engine['id']}/installations")
+    if installed is None:
+        _check(
+            client.post(
+                "/api/v1/installations",
+                json={
+                    "engine_id": engine["id"],
+                    "aircraft_id": aircraft["id"],
+                    "position": 1,
+                    "installed_at": (start - timedelta(days=1)).isoformat(),
+                },
+            ),
+            f"install {esn} on {tail}",
+        )
+    return int(engine["id"])
+
+
+def import_cmapss(
+    path: Path,
+    client: httpx.Client,
+    *,
+    units: int | None = None,
+    batch_rows: int = 5000,
+    start: datetime = CMAPSS_START,
+    progress: Callable[[int], None] | None = None,
+) -> ImportSummary:
+    """Create the fleet and upload the snapshots of the first ``units`` units (all: None).
+
+    Each batch carries an Idempotency-Key derived from the file and the batch, so running
+    the import again stores nothing new. ``progress`` is called with the rows of each batch.
+    """
+    data, unit_ids = select_units(read_cmapss(path), units)
+    engine_type_id = ensure_engine_type(client)
+    for unit in unit_ids:
+        ensure_unit(client, unit, engine_type_id, start)
+    table = cmapss_snapshots(data, start)
+    file_digest = hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+    stored = duplicates = 0
+    uploads: list[int] = []
+    for index, offset in enumerate(range(0, table.num_rows, batch_rows)):
+        batch = table.slice(offset, batch_rows)
+        sink = io.BytesIO()
+        pacsv.write_csv(batch, sink)
+        key = f"cmapss:{file_digest}:{start.date()}:{len(unit_ids)}:{batch_rows}:{index}"
+        result = _check(
+            client.post(
+                "/api/v1/snapshots/file",
+                content=sink.getvalue(),
+                headers={"Content-Type": "text/csv", "Idempotency-Key": key},
+            ),
+            f"upload batch {index + 1}",
+        )
+        uploads.append(int(result["id"]))
+        if result["replayed"]:  # this batch was uploaded before: nothing new stored now
+            duplicates += int(result["rows_received"])
+        else:
+            stored += int(result["rows_stored"])
+            duplicates += int(result["rows_duplicate"])
+        if progress is not None:
+            progress(batch.num_rows)
+    return ImportSummary(len(unit_ids), table.num_rows, stored, duplicates, uploads)
+
+
+def import_cmapss_command(
+    path: Annotated[
+        Path, typer.Argument(exists=True, dir_okay=False, help="C-MAPSS train_FD001.txt")
+    ],
+    url: str = typer.Option("http://127.0.0.1:8000", help="fleethealth server URL."),
+    api_key: str = typer.Option(..., envvar="FLEETHEALTH_API_KEY", help="An analyst key."),
+    units: int | None = typer.Option(None, min=1, help="Import only the first N units."),
+    batch_rows: int = typer.Option(5000, min=1, help="Snapshots per upload request."),
+) -> None:
+    """Upload NASA C-MAPSS FD001 through the REST API: one engine and tail per unit."""
+    total = select_units(read_cmapss(path), units)[0].shape[0]
+    with httpx.Client(base_url=url, headers={"X-API-Key": api_key}, timeout=300) as client:
+        with typer.progressbar(length=total, label="uploading snapshots") as bar:
+            summary = import_cmapss(
+                path, client, units=units, batch_rows=batch_rows, progress=bar.update
+            )
+    typer.echo(
+        f"{summary.units} engines, {summary.snapshots} snapshots: {summary.stored} stored, "
+        f"{summary.duplicates} already there ({len(summary.uploads)} uploads)"
+    )
+
+
+def register(app: typer.Typer) -> None:
+    app.command("import-cmapss")(import_cmapss_command)
