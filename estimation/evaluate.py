@@ -19,6 +19,8 @@ reports progress as a fraction done through ``progress``.
 
 from __future__ import annotations
 
+import itertools
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
@@ -542,13 +544,22 @@ def sensor_table(
     progress: Progress | None = None,
 ) -> list[SensorTableRow]:
     """Seed 003's table: for each suite size, the best suite (base plus optional
-    sensors) with best-subset tuners and with optimal tuners (m = min(sensors, p))."""
+    sensors) with best-subset tuners and with optimal tuners (m = min(sensors, p)).
 
-    def tick(i: int, n: int) -> None:
+    Suites are designed one at a time (``tuners.sensor_selection`` on each), so
+    a suite whose design fails numerically is left out with a warning instead
+    of ending the table.
+    """
+    subsets = [c for r in range(len(optional) + 1) for c in itertools.combinations(optional, r)]
+    suites = []
+    for i, extra in enumerate(subsets):
+        sensors = list(base) + list(extra)
+        try:
+            suites += sensor_selection(model, sensors, [], Q, Qh, Ph, max_iter=max_iter)
+        except np.linalg.LinAlgError as exc:
+            warnings.warn(f"sensor suite {sensors} left out: {exc}", stacklevel=2)
         if progress is not None:
-            progress(i / n)
-
-    suites = sensor_selection(model, base, optional, Q, Qh, Ph, max_iter=max_iter, progress=tick)
+            progress((i + 1) / len(subsets))
     by_subset = best_suites(suites, "subset")
     by_optimal = best_suites(suites, "optimal")
     rows = []
