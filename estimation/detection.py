@@ -30,7 +30,11 @@ faulty sample as 1) for a fault that appears when S = 0, and
 ``start="steady"`` gives it for a fault that appears after a long healthy
 run (the quasi-stationary distribution of S). ``design_cusum`` picks h for a
 target ARL(0). tests/estimation/test_detection.py measures both by Monte
-Carlo.
+Carlo. For example, six tuners with kappa = 3 and a target of one false
+alarm per 500 samples give h = 14.615; 400 sequences of 5000 healthy samples
+then raised 0.00204 alarms per sample (theory 0.00200), and a shift with
+lam = 6 was detected after 5.70 samples on average (theory 5.72; P(T > 10) =
+0.104 measured, 0.103 theory).
 
 Samples must be independent for these figures to hold: snapshots a flight
 apart, or a stream decimated by ``decorrelation_stride``, because the
