@@ -11,15 +11,15 @@ from typing import Any
 
 import pytest
 from pydantic import BaseModel, ConfigDict
-from sqlalchemy import Connection, Engine, select
+from sqlalchemy import Connection, Engine, delete, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db import make_engine, make_sessionmaker, transaction
 from app.jobs.registry import JobRegistry, Progress
 from app.migrate import upgrade
-from app.models import Job, Operator
+from app.models import ApiKey, Job, JobSchedule, Operator
 from app.services import tenancy
-from tests.conftest import _backend_use, fresh_database_url
+from tests.conftest import BACKENDS, _backend_use, fresh_database_url
 
 
 @pytest.fixture
@@ -154,3 +154,23 @@ def live_database(backend: str, tmp_path: Path) -> Iterator[tuple[str, sessionma
     finally:
         engine.dispose()
         urls.close()
+
+
+Live = tuple[str, sessionmaker[Session]]
+
+
+@pytest.fixture(scope="module", params=BACKENDS)
+def live_module(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[Live]:
+    """One really-committing database per backend for a test module (made once: it is slow)."""
+    yield from live_database(request.param, tmp_path_factory.mktemp(f"live-{request.param}"))
+
+
+@pytest.fixture
+def live(live_module: Live) -> Iterator[Live]:
+    """The module's live database, emptied of the rows job tests make after each test."""
+    yield live_module
+    with transaction(live_module[1]) as session:
+        for table in (Job, JobSchedule, ApiKey, Operator):
+            session.execute(delete(table))

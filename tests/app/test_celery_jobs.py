@@ -25,10 +25,11 @@ from app.jobs.dispatch import CeleryDispatch
 from app.jobs.registry import load_kinds
 from app.models import Job
 from app.models.base import utcnow
-from tests.app.jobs_support import job_row, live_database, make_operator, wait_until
-from tests.conftest import BACKENDS
+from tests.app.jobs_support import job_row, live, live_module, make_operator, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
+
+__all__ = ["live", "live_module"]  # fixtures from jobs_support
 
 
 def redis_unavailable_reason(url: str) -> str | None:
@@ -50,13 +51,6 @@ def redis_url() -> str:
             pytest.fail(f"CI must run the Celery tests, but {reason}")
         pytest.skip(reason)
     return url
-
-
-@pytest.fixture(params=BACKENDS)
-def live(
-    request: pytest.FixtureRequest, tmp_path: Path
-) -> Iterator[tuple[str, sessionmaker[Session]]]:
-    yield from live_database(request.param, tmp_path)
 
 
 @pytest.fixture

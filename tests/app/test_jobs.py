@@ -40,15 +40,16 @@ from tests.app.jobs_support import (
     add_key,
     connection,
     job_row,
-    live_database,
+    live,
+    live_module,
     make_operator,
     make_registry,
     operator_exists,
     wait_until,
 )
-from tests.conftest import BACKENDS
 
-__all__ = ["connection"]  # the isolating connection fixture replaces the shared one here
+# Fixtures from jobs_support: the isolating connection replaces the shared one here.
+__all__ = ["connection", "live", "live_module"]
 
 
 @pytest.fixture
@@ -655,13 +656,6 @@ def test_purge_finished_jobs_deletes_only_old_finished_jobs_of_the_operator(
 
 
 # --- real threads on a database that commits ------------------------------------------------
-
-
-@pytest.fixture(params=BACKENDS)
-def live(
-    request: pytest.FixtureRequest, tmp_path: Path
-) -> Iterator[tuple[str, sessionmaker[Session]]]:
-    yield from live_database(request.param, tmp_path)
 
 
 def test_runner_threads_show_progress_while_running_and_run_jobs_side_by_side(

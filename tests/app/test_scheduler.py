@@ -5,7 +5,6 @@ from __future__ import annotations
 import threading
 from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
-from pathlib import Path
 
 import pytest
 from fastapi import FastAPI
@@ -23,13 +22,14 @@ from tests.app.jobs_support import (
     add_key,
     connection,
     job_row,
-    live_database,
+    live,
+    live_module,
     make_operator,
     make_registry,
 )
-from tests.conftest import BACKENDS
 
-__all__ = ["connection"]  # the isolating connection fixture replaces the shared one here
+# Fixtures from jobs_support: the isolating connection replaces the shared one here.
+__all__ = ["connection", "live", "live_module"]
 
 T0 = datetime(2026, 3, 1, 6, 0, tzinfo=UTC)
 
@@ -223,13 +223,6 @@ def test_schedules_api_is_for_admins_of_their_own_operator(
 
     assert jobs_client.delete(url, headers=mine).status_code == 200
     assert jobs_client.get(url, headers=mine).status_code == 404
-
-
-@pytest.fixture(params=BACKENDS)
-def live(
-    request: pytest.FixtureRequest, tmp_path: Path
-) -> Iterator[tuple[str, sessionmaker[Session]]]:
-    yield from live_database(request.param, tmp_path)
 
 
 class RecordingDispatch:
