@@ -136,3 +136,10 @@ class ChunkOut(BaseModel):
     n_samples: int
     upload_id: int | None
     replayed: bool = False
+
+
+class StreamUploadOut(BaseModel):
+    """A whole-flight file: its upload and the closed recording it made."""
+
+    upload: UploadOut
+    recording: RecordingOut
