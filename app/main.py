@@ -32,6 +32,7 @@ from app.routers import (
     keys,
     maintenance,
     me,
+    streams,
     trends,
     uploads,
 )
@@ -98,6 +99,7 @@ def create_app(
     app.include_router(keys.router)
     app.include_router(maintenance.router)
     app.include_router(uploads.router)
+    app.include_router(streams.router)
     app.include_router(jobs_router.router)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
     return app
