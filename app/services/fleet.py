@@ -512,32 +512,55 @@ def resolve_engines(
 ) -> np.ndarray:
     """Engine id of each (tail, position, time) record, NO_ENGINE (-1) where none was installed.
 
+    tails, positions, times: [n]; times as datetime64 (UTC) or tz-aware datetimes.
+    See ``resolve_engines_coded`` for the matching.
+    """
+    tail_list = tails.tolist() if isinstance(tails, np.ndarray) else list(tails)
+    codes: dict[str, int] = {}
+    # Tail codes by a dict: far faster than np.unique on strings for 10^5 records.
+    tail_codes = np.fromiter(
+        (codes.setdefault(str(tail), len(codes)) for tail in tail_list),
+        dtype=np.int64,
+        count=len(tail_list),
+    )
+    return resolve_engines_coded(session, operator_id, list(codes), tail_codes, positions, times)
+
+
+def resolve_engines_coded(
+    session: Session,
+    operator_id: int,
+    tail_names: Sequence[str],
+    tail_codes: np.ndarray,
+    positions: Sequence[int] | np.ndarray,
+    times: Sequence[datetime] | np.ndarray,
+) -> np.ndarray:
+    """``resolve_engines`` for dictionary-encoded tails: record i has tail
+    ``tail_names[tail_codes[i]]`` (a negative code: no tail, unresolved).
+
     One query per chunk of distinct tails fetches their installations; the records are then
-    matched all at once: installations and records are keyed by (tail, position, time rank)
+    matched all at once. Installations and records get a key (tail, position) * span + time,
     and each record takes the last installation starting at or before it
     (``np.searchsorted``), kept when the record falls before that installation's removal.
-    tails, positions, times: [n]; times as datetime64 (UTC) or tz-aware datetimes.
+    Installation starts outside the records' time range are clipped to just outside it (ties
+    broken by the true start), which keeps the key within int64 for any realistic fleet; if
+    not, dense time ranks replace the times.
+    tail_codes, positions, times: [n].
     """
-    tail_list = [str(tail) for tail in (tails.tolist() if isinstance(tails, np.ndarray) else tails)]
+    codes = np.asarray(tail_codes, dtype=np.int64)
     pos = np.asarray(positions, dtype=np.int64)
     t = epoch_microseconds(times)
-    n = len(tail_list)
-    if pos.shape != (n,) or t.shape != (n,):
+    n = codes.shape[0]
+    if codes.ndim != 1 or pos.shape != (n,) or t.shape != (n,):
         raise ValueError(
-            f"tails, positions and times must have the same length; got {n}, "
-            f"{pos.shape[0] if pos.ndim else 0} and {t.shape[0]}"
+            "tails, positions and times must be vectors of one length; got shapes "
+            f"{codes.shape}, {pos.shape} and {t.shape}"
         )
     result = np.full(n, NO_ENGINE, dtype=np.int64)
-    if n == 0:
+    names = [str(name) for name in tail_names]
+    if n == 0 or not names:
         return result
-    # Tail codes by a dict: far faster than np.unique on strings for 10^5 records.
-    codes: dict[str, int] = {}
-    tail_code = np.fromiter(
-        (codes.setdefault(tail, len(codes)) for tail in tail_list), dtype=np.int64, count=n
-    )
 
     rows: list[Any] = []
-    names = list(codes)
     for start in range(0, len(names), _TAIL_CHUNK):
         rows.extend(
             session.execute(
@@ -558,7 +581,8 @@ def resolve_engines(
     if not rows:
         return result
 
-    inst_tail = np.array([codes[r[0]] for r in rows], dtype=np.int64)
+    name_code = {name: i for i, name in enumerate(names)}
+    inst_tail = np.array([name_code[r[0]] for r in rows], dtype=np.int64)
     inst_pos = np.array([r[1] for r in rows], dtype=np.int64)
     inst_start = epoch_microseconds([r[2] for r in rows])
     inst_end = np.array(
@@ -566,21 +590,27 @@ def resolve_engines(
     )
     inst_engine = np.array([r[4] for r in rows], dtype=np.int64)
 
-    # Dense time ranks over both sets keep the compound key small: key * n_ranks + rank.
-    ranks = np.unique(np.concatenate([inst_start, t]))
-    n_ranks = np.int64(ranks.shape[0])
     slots = np.int64(MAX_POSITIONS + 1)
-    valid = (pos >= 1) & (pos <= MAX_POSITIONS)
-    rec_key = (tail_code.astype(np.int64) * slots + np.where(valid, pos, 0)) * n_ranks
-    rec_key += np.searchsorted(ranks, t)
-    inst_key = (inst_tail.astype(np.int64) * slots + inst_pos) * n_ranks
-    inst_key += np.searchsorted(ranks, inst_start)
-
-    order = np.argsort(inst_key, kind="stable")
-    inst_key, inst_end, inst_engine = inst_key[order], inst_end[order], inst_engine[order]
-    inst_group = inst_key // n_ranks
+    valid = (pos >= 1) & (pos <= MAX_POSITIONS) & (codes >= 0) & (codes < len(names))
+    rec_group = np.where(valid, codes * slots + pos, -1)
+    inst_group = inst_tail * slots + inst_pos
+    t_min, t_max = int(t.min()), int(t.max())
+    span = t_max - t_min + 3
+    if len(names) * int(slots) * span < 2**62:
+        rec_time = t - t_min + 1
+        inst_time = np.clip(inst_start, t_min - 1, t_max + 1) - t_min + 1
+    else:  # a very long time range: dense ranks keep the keys small
+        ranks = np.unique(np.concatenate([inst_start, t]))
+        span = ranks.shape[0] + 1
+        rec_time = np.searchsorted(ranks, t)
+        inst_time = np.searchsorted(ranks, inst_start)
+    rec_key = rec_group * span + rec_time
+    inst_key = inst_group * span + inst_time
+    order = np.lexsort((inst_start, inst_key))
+    inst_key, inst_group = inst_key[order], inst_group[order]
+    inst_end, inst_engine = inst_end[order], inst_engine[order]
     idx = np.searchsorted(inst_key, rec_key, side="right") - 1
     safe = np.clip(idx, 0, None)
-    hit = valid & (idx >= 0) & (inst_group[safe] == rec_key // n_ranks) & (t < inst_end[safe])
+    hit = valid & (idx >= 0) & (inst_group[safe] == rec_group) & (t < inst_end[safe])
     result[hit] = inst_engine[safe[hit]]
     return result

@@ -278,6 +278,16 @@ def test_vectorised_resolution_equals_brute_force_and_the_scalar_query(
     assert np.array_equal(
         fleet.resolve_engines(session, tenant.operator_id, tails, positions, as_datetime64), got
     )
+    names = sorted(set(tails))
+    coded = fleet.resolve_engines_coded(
+        session,
+        tenant.operator_id,
+        names + ["unused"],
+        np.array([names.index(tail) for tail in tails]),
+        positions,
+        times,
+    )
+    assert np.array_equal(coded, got)
     for k, (tail, position, t) in enumerate(zip(tails, positions, times, strict=True)):
         covering = [
             r.engine_id
@@ -289,6 +299,41 @@ def test_vectorised_resolution_equals_brute_force_and_the_scalar_query(
     for k in range(0, len(tails), 37):
         engine = fleet.resolve_engine(session, tenant.operator_id, tails[k], positions[k], times[k])
         assert (engine.id if engine else fleet.NO_ENGINE) == got[k]
+
+
+def test_resolution_over_millennia_uses_time_ranks(session: Session, tenant: Tenant) -> None:
+    """Records spanning thousands of years overflow the time key; ranks must give the same."""
+    et = fleet.create_engine_type(session, operator_id=tenant.operator_id, name="TF")
+    ac = fleet.create_aircraft(session, operator_id=tenant.operator_id, tail="OLD")
+    engines = [
+        fleet.create_engine(
+            session, operator_id=tenant.operator_id, esn=f"O{i}", engine_type_id=et.id
+        )
+        for i in range(3)
+    ]
+    starts = [T0.replace(year=y) for y in (5, 2000, 9000)]
+    for engine, start, end in zip(engines, starts, [*starts[1:], None], strict=True):
+        fleet.install(
+            session,
+            operator_id=tenant.operator_id,
+            engine_id=engine.id,
+            aircraft_id=ac.id,
+            position=1,
+            installed_at=start,
+            removed_at=end,
+        )
+    times = [T0.replace(year=y) for y in (1, 5, 1999, 2000, 8999, 9000, 9999)]
+    expected = [fleet.NO_ENGINE] + [e.id for e in engines for _ in (0, 1)]
+    got = fleet.resolve_engines(session, tenant.operator_id, ["OLD"] * 7, [1] * 7, times)
+    assert got.tolist() == expected
+    # With 20 tail names (19 unknown) the time key would pass 2^62: the ranks path runs.
+    names = ["OLD"] + [f"NONE{i}" for i in range(19)]
+    span_us = (times[-1] - times[0]).total_seconds() * 1e6
+    assert len(names) * 5 * span_us > 2**62
+    ranked = fleet.resolve_engines_coded(
+        session, tenant.operator_id, names, np.zeros(7, dtype=np.int64), [1] * 7, times
+    )
+    assert ranked.tolist() == expected
 
 
 def test_resolution_is_per_operator(session: Session, tenant: Tenant) -> None:
