@@ -100,3 +100,18 @@ def test_evaluate_rejects_missing_and_bad_files(tmp_path):
     res = CliRunner().invoke(_app(), ["evaluate", str(bad)])
     assert res.exit_code != 0
     assert "format must be" in _text(res.output)
+
+
+def test_evaluate_with_progress_bar_forced(design_file, tmp_path):
+    """The progress bar path (on by default on a terminal) runs and changes no result."""
+    outs = []
+    for flag in ("--progress", "--no-progress"):
+        out = tmp_path / f"{flag}.json"
+        res = CliRunner().invoke(
+            _app(), ["evaluate", str(design_file), "--monte-carlo", "10", "--duration", "3",
+                     "--window", "1", "--faults", "--fault-duration", "3", flag, "--out", str(out)],
+        )
+        assert res.exit_code == 0, res.output
+        outs.append(json.loads(out.read_text()))
+    assert outs[0]["monte_carlo"] == outs[1]["monte_carlo"]
+    assert outs[0]["confusion"] == outs[1]["confusion"]
