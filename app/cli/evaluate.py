@@ -24,6 +24,11 @@ RESULT_FORMAT = "fleethealth.evaluation/1"
 cli = typer.Typer(help="Monte Carlo evaluation of estimator designs.")
 
 
+def register(app: typer.Typer) -> None:
+    """Mount ``evaluate`` on the ``fleethealth`` app (same as ``app.add_typer(cli)``)."""
+    app.add_typer(cli)
+
+
 def _load_json(path: Path, what: str) -> Any:
     try:
         return json.loads(path.read_text())

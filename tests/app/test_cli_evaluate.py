@@ -7,7 +7,7 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from app.cli.evaluate import cli
+from app.cli.evaluate import register
 from estimation import evaluate as ev
 from estimation.design import design_from_result, run_design
 from tests.estimation.models import HEALTH_10, reference_model, reference_noise
@@ -21,7 +21,7 @@ def _app() -> typer.Typer:
     def version() -> None:  # a second command so the app is a group
         pass
 
-    app.add_typer(cli)
+    register(app)
     return app
 
 
