@@ -52,26 +52,32 @@ class ControllerGains(NamedTuple):
     mode. So the integral gain is scheduled: ki at idle corrected fan speed,
     rising linearly to ki_takeoff * min(delta2, 1)^1.5 at take-off corrected
     speed (never below ki). The defaults, chosen on 6 % power steps at sea
-    level and 35,000 ft, settle within 1 % in 2-4 s with 5-19 % overshoot, and
-    a slam from idle to take-off in about 4 s. accel_ratio, decel_ratio: the
+    level and 35,000 ft, settle within 1 % in 2-7 s with at most 18 %
+    overshoot, a slam from idle to take-off in about 4.5 s. accel_ratio, decel_ratio: the
     acceleration and deceleration schedules as multiples of the sea-level
-    steady RU line at the same corrected core speed.
+    steady RU line at the same corrected core speed. sensor_tau [s]: time
+    constant of the first-order filter on the sensed signals (sensor noise
+    would otherwise reach the fuel command multiplied by kp; 0 disables it).
     """
 
-    kp: float = 4.0
-    ki: float = 1.5
-    ki_takeoff: float = 8.0
+    kp: float = 3.0
+    ki: float = 1.2
+    ki_takeoff: float = 5.0
     accel_ratio: float = 1.45
     decel_ratio: float = 0.55
+    sensor_tau: float = 0.05
 
 
 DEFAULT_GAINS = ControllerGains()
 
 
 class ControllerState(NamedTuple):
-    """integrator [B]: the PI integrator in RU / RU_design (equals RU at rest)."""
+    """integrator [B]: the PI integrator in RU / RU_design (equals RU at rest);
+    sensed [B, 4]: the low-passed Nf, Nc [rpm], T24 [degR], Ps30 [psia] the laws use.
+    """
 
     integrator: np.ndarray
+    sensed: np.ndarray
 
 
 class ControlOutput(NamedTuple):
@@ -133,11 +139,14 @@ def corrected_core_speed(
     return nc / np.sqrt(t24_degr / RANKINE / d.t24) / d.nc
 
 
-def initial_state(wf: np.ndarray, ps30: np.ndarray, design: EngineDesign | None = None
-                  ) -> ControllerState:
-    """Integrator that holds a steady operating point: RU = Wf / Ps30 (pps, psia)."""
+def initial_state(
+    wf: np.ndarray, nf: np.ndarray, nc: np.ndarray, t24: np.ndarray, ps30: np.ndarray,
+    design: EngineDesign | None = None,
+) -> ControllerState:
+    """State that holds a steady operating point: RU = Wf / Ps30 (pps, psia), filters at rest."""
     ru_d = design_ratio_units(design)
-    return ControllerState(np.asarray(wf, dtype=float) / np.asarray(ps30, dtype=float) / ru_d)
+    sensed = np.stack([np.asarray(v, dtype=float) for v in (nf, nc, t24, ps30)], axis=-1)
+    return ControllerState(np.asarray(wf, dtype=float) / sensed[..., 3] / ru_d, sensed)
 
 
 def control_step(
@@ -158,8 +167,9 @@ def control_step(
 
     power_pct: power setting [%]; mach, theta2 = T2 / 288.15 K and
     delta2 = P2 / 101325 Pa: flight condition (from the aircraft); nf, nc
-    [rpm], t24 [degR], ps30 [psia]: measured sensors. Returns the next state
-    and the commands.
+    [rpm], t24 [degR], ps30 [psia]: measured sensors, low-passed with
+    time constant ``gains.sensor_tau`` before use. Returns the next state and
+    the commands.
 
         e   = (NRf_dem(p, M) - Nf / sqrt(theta2)) / NRf_design
         RU  = clip(I + kp e, RU_min(NRc), RU_max(NRc))
@@ -168,6 +178,11 @@ def control_step(
     """
     d = design or engine_design()
     ru_d = design_ratio_units(d)
+    # First-order sensor filters: s <- s + dt / (tau + dt) (m - s).
+    alpha = dt / (gains.sensor_tau + dt)
+    raw = np.stack([nf, nc, t24, ps30], axis=-1)
+    sensed = state.sensed + alpha * (raw - state.sensed)
+    nf, nc, t24, ps30 = sensed[..., 0], sensed[..., 1], sensed[..., 2], sensed[..., 3]
     demand = demanded_corrected_fan_speed(power_pct, d.nf, mach)
     error = (demand - nf / np.sqrt(theta2)) / d.nf
     nrc = corrected_core_speed(nc, t24, d)
@@ -182,4 +197,4 @@ def control_step(
     # Back-calculation: on a limit the integrator follows the limited output.
     integ = np.where(limited != 0, ru / ru_d - gains.kp * error, integ)
     u = np.stack([ru * ps30, vsv_schedule(nrc), vbv_schedule(nrc)], axis=-1)
-    return ControllerState(integ), ControlOutput(u, ru, ru_min, ru_max, limited, error, nrc)
+    return ControllerState(integ, sensed), ControlOutput(u, ru, ru_min, ru_max, limited, error, nrc)

@@ -1,0 +1,559 @@
+"""The fleet simulator: aircraft, engines, deterioration, faults, swaps, washes, data.
+
+Pure: the caller passes a ``np.random.Generator`` and gets arrays and records
+back (files are written by ``app.services.simulate_io``). Three layers:
+
+1. ``plan_fleet``: the fleet's history, cheap bookkeeping over flights. N
+   aircraft with P engine positions fly F flights each, in rounds (every
+   aircraft flies its j-th flight in round j). Every engine (installed or
+   spare) has a serial number (ESN) and carries
+   - manufacturing scatter: N(0, scatter_std) in the ten turbomachinery health
+     parameters, fixed for life;
+   - deterioration that grows with cycles (one cycle per flight), at per-engine
+     rates (the mean rates times a lognormal multiplier per parameter), with
+     the sign convention of ``health.py``: efficiencies and compressor flow
+     capacities fall, turbine flow capacities rise; HPC and HPT dominate
+     (about 3-4 % in 5,000 cycles, fan, LPC and LPT about 1-1.5 %);
+   - compressor fouling on the fan, LPC and HPC that a water wash recovers in
+     part (every ``wash_interval`` cycles, with scatter);
+   - actuator biases of Wf, VSV and VBV, fixed per engine;
+   - occasional abrupt faults from the seed 002 Table 3 library
+     (``estimation.isolation.SEED_002_FAULTS``), scaled by U(0.75, 1.5);
+     a faulted engine is removed within a few flights and returns from the
+     shop with the fault repaired and part of its deterioration restored;
+   - removals for other reasons and exchanges between aircraft, so engines
+     move between tails and positions (swaps happen between rounds, and no
+     position ever holds two engines at once).
+2. ``fleet_snapshots``: take-off, climb and cruise snapshots of every flight,
+   solved by the steady-state solver for all installed engines and phases of
+   a round in one batched call, plus sensor noise (the engine's standard
+   deviations, seed 001 Table 2).
+3. ``stream_flights``: whole flights (the 2500 s profile of ``flight.py``)
+   simulated in closed loop by ``transient.simulate``, all engines of a round
+   in one batch, yielded flight by flight (a fleet's streams do not fit in
+   memory at once).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+
+from estimation.engine.flight import (
+    SNAPSHOT_PHASES,
+    FlightParameters,
+    flight_profile,
+    random_parameters,
+    snapshot_points,
+)
+from estimation.engine.health import HEALTH_NAMES, N_HEALTH, health_vector
+from estimation.engine.sensors import noise_std
+from estimation.engine.steady import steady_state
+from estimation.engine.transient import DT_DEFAULT, simulate
+from estimation.isolation import SEED_002_FAULTS, Fault
+
+N_TURBO = 10
+EPOCH_2026 = 1767225600.0  # 2026-01-01T00:00:00Z in seconds since 1970 (UTC)
+
+# Mean deterioration rates, percent per 1000 cycles, in HEALTH_NAMES[:10] order
+# (fan, LPC, HPC, HPT, LPT: efficiency, flow). Negative efficiency and
+# compressor flow, positive turbine flow: the sign convention of health.py.
+DETERIORATION_RATES = np.array(
+    [-0.20, -0.25, -0.25, -0.30, -0.60, -0.75, -0.75, 0.45, -0.25, 0.20]
+)
+# Recoverable compressor fouling, percent per 1000 cycles (fan, LPC, HPC only).
+FOULING_RATES = np.array([-0.30, -0.30, -0.25, -0.25, -0.35, -0.35, 0.0, 0.0, 0.0, 0.0])
+
+
+@dataclass(frozen=True)
+class FleetConfig:
+    """What the fleet looks like; rates are per engine cycle (one flight).
+
+    n_aircraft, n_flights (per aircraft), positions (engines per aircraft,
+    1..4); spares: spare engines at the start; flights_per_day: the round
+    spacing (24 h / flights_per_day); start_epoch_s: first round, seconds
+    since 1970 UTC; initial_cycles_max: engines start with U(0, max) cycles;
+    rate_spread: sigma of the lognormal per-engine rate multiplier;
+    scatter_std [%]: manufacturing scatter; bias_std [%] (Wf, VSV, VBV);
+    wash_interval [cycles] and wash_recovery (fraction of fouling removed);
+    fault_rate, removal_rate, exchange_rate: per engine and flight;
+    faulted_removal: probability per flight that a faulted engine is pulled;
+    shop_rounds: rounds an engine spends in the shop; shop_restore: fraction
+    of permanent deterioration a shop visit restores; noise: add sensor noise.
+    """
+
+    n_aircraft: int = 4
+    n_flights: int = 10
+    positions: int = 2
+    spares: int | None = None
+    flights_per_day: float = 4.0
+    start_epoch_s: float = EPOCH_2026
+    initial_cycles_max: float = 12000.0
+    rate_spread: float = 0.3
+    scatter_std: float = 0.4
+    bias_std: tuple[float, float, float] = (0.5, 1.0, 2.0)
+    wash_interval: float = 500.0
+    wash_recovery: float = 0.8
+    fault_rate: float = 1.0 / 1500.0
+    removal_rate: float = 1.0 / 1200.0
+    exchange_rate: float = 1.0 / 2000.0
+    faulted_removal: float = 0.3
+    shop_rounds: int = 12
+    shop_restore: float = 0.6
+    noise: bool = True
+    faults: tuple[Fault, ...] = field(default=SEED_002_FAULTS)
+
+    def __post_init__(self) -> None:
+        if self.n_aircraft < 1 or self.n_flights < 1:
+            raise ValueError("a fleet needs at least one aircraft and one flight")
+        if not 1 <= self.positions <= 4:
+            raise ValueError(f"positions must be 1..4, got {self.positions}")
+        if self.flights_per_day <= 0 or self.flights_per_day > 12:
+            raise ValueError("flights_per_day must lie in (0, 12] (flights may not overlap)")
+
+    @property
+    def n_spares(self) -> int:
+        if self.spares is not None:
+            return self.spares
+        return max(2, int(np.ceil(0.15 * self.n_aircraft * self.positions)))
+
+
+class Installation(NamedTuple):
+    """An engine on a tail and position from installed_at until removed_at (s UTC; None: still)."""
+
+    esn: str
+    tail: str
+    position: int
+    installed_at: float
+    removed_at: float | None
+
+
+class FaultEvent(NamedTuple):
+    """An abrupt fault: from the flight ``flight_id`` on, health shifted by ``shifts`` [%]."""
+
+    esn: str
+    flight_id: str
+    tail: str
+    position: int
+    occurred_at: float
+    fault: str
+    scale: float
+    shifts: dict[str, float]
+
+
+class SwapEvent(NamedTuple):
+    """At ``at``: ``esn_off`` leaves tail/position, ``esn_on`` takes it; reason in words."""
+
+    at: float
+    tail: str
+    position: int
+    esn_off: str
+    esn_on: str
+    reason: str
+
+
+class WashEvent(NamedTuple):
+    """A water wash of ``esn`` at ``at``; recovered: health recovered [%] (10 turbomachinery)."""
+
+    esn: str
+    at: float
+    recovered: dict[str, float]
+
+
+class FlightRecord(NamedTuple):
+    """One aircraft flight: id, tail, start time [s UTC], round index, its parameters."""
+
+    flight_id: str
+    tail: str
+    round: int
+    started_at: float
+    params: FlightParameters
+
+
+class FleetPlan(NamedTuple):
+    """The simulated fleet's history (the ground truth) and what the data is made of.
+
+    esns [E]; tails [N]; flights: per round, one FlightRecord per aircraft
+    (flights[j][a]); installed [F, N, P]: index into esns of the engine on each
+    tail and position during round j; health [F, E, 13]: true health of every
+    engine during round j (percent, HEALTH_NAMES order); installations, faults,
+    swaps, washes: event records.
+    """
+
+    config: FleetConfig
+    esns: tuple[str, ...]
+    tails: tuple[str, ...]
+    flights: tuple[tuple[FlightRecord, ...], ...]
+    installed: np.ndarray
+    health: np.ndarray
+    installations: tuple[Installation, ...]
+    faults: tuple[FaultEvent, ...]
+    swaps: tuple[SwapEvent, ...]
+    washes: tuple[WashEvent, ...]
+
+    @property
+    def health_names(self) -> tuple[str, ...]:
+        return HEALTH_NAMES
+
+
+def _tail_name(a: int) -> str:
+    return f"N{101 + a}FH"
+
+
+def _esn_name(e: int) -> str:
+    return f"ESN{880001 + e}"
+
+
+class _Engines:
+    """Mutable per-engine state of the planner (arrays over all E engines)."""
+
+    def __init__(self, n: int, cfg: FleetConfig, rng: np.random.Generator) -> None:
+        mult = np.exp(rng.normal(0.0, cfg.rate_spread, (n, N_TURBO)))
+        self.rate = DETERIORATION_RATES * mult / 1000.0  # % per cycle
+        self.foul_rate = FOULING_RATES * mult / 1000.0
+        self.scatter = rng.normal(0.0, cfg.scatter_std, (n, N_TURBO))
+        self.bias = rng.normal(0.0, 1.0, (n, 3)) * np.array(cfg.bias_std)
+        age = rng.uniform(0.0, cfg.initial_cycles_max, n)
+        since_wash = rng.uniform(0.0, cfg.wash_interval, n)
+        self.perm = self.rate * age[:, None]
+        self.foul = self.foul_rate * since_wash[:, None]
+        self.fault = np.zeros((n, N_HEALTH))
+        self.faulted = np.zeros(n, dtype=bool)
+        self.next_wash = cfg.wash_interval * rng.uniform(0.8, 1.2, n) - since_wash
+        self.shop_until = np.full(n, -1)
+
+    def health(self) -> np.ndarray:
+        h = np.zeros((self.rate.shape[0], N_HEALTH))
+        h[:, :N_TURBO] = self.scatter + self.perm + self.foul
+        h[:, N_TURBO:] = self.bias
+        return h + self.fault
+
+
+def plan_fleet(config: FleetConfig, rng: np.random.Generator) -> FleetPlan:
+    """The fleet's history over ``config.n_flights`` rounds (deterministic for the rng state)."""
+    cfg = config
+    n_air, n_pos, n_rounds = cfg.n_aircraft, cfg.positions, cfg.n_flights
+    n_eng = n_air * n_pos + cfg.n_spares
+    esns = tuple(_esn_name(e) for e in range(n_eng))
+    tails = tuple(_tail_name(a) for a in range(n_air))
+    eng = _Engines(n_eng, cfg, rng)
+    spacing = 86400.0 / cfg.flights_per_day
+    on_wing = np.arange(n_air * n_pos).reshape(n_air, n_pos)
+    pool = list(range(n_air * n_pos, n_eng))  # spares available
+    installed_at = np.full((n_air, n_pos), cfg.start_epoch_s - 86400.0)
+    installations: list[Installation] = []
+    faults: list[FaultEvent] = []
+    swaps: list[SwapEvent] = []
+    washes: list[WashEvent] = []
+    flights: list[tuple[FlightRecord, ...]] = []
+    installed = np.zeros((n_rounds, n_air, n_pos), dtype=np.int64)
+    health = np.zeros((n_rounds, n_eng, N_HEALTH))
+    fault_h = [health_vector(f.shifts) for f in cfg.faults]
+
+    def swap(a: int, p: int, new: int, at: float, reason: str) -> None:
+        old = int(on_wing[a, p])
+        installations.append(Installation(esns[old], tails[a], p + 1,
+                                          float(installed_at[a, p]), at))
+        swaps.append(SwapEvent(at, tails[a], p + 1, esns[old], esns[new], reason))
+        on_wing[a, p] = new
+        installed_at[a, p] = at
+
+    for j in range(n_rounds):
+        round_start = cfg.start_epoch_s + j * spacing
+        # Engines back from the shop join the spare pool.
+        for e in np.flatnonzero(eng.shop_until == j):
+            pool.append(int(e))
+        params = random_parameters(n_air, rng)
+        starts = round_start + rng.uniform(0.0, 0.25 * spacing, n_air)
+        records = []
+        for a in range(n_air):
+            fp = FlightParameters(*(np.asarray(v)[a:a + 1] for v in params))
+            records.append(FlightRecord(f"{tails[a]}-{j + 1:05d}", tails[a], j,
+                                        float(np.round(starts[a])), fp))
+        flights.append(tuple(records))
+        flying = on_wing.ravel()
+        # Abrupt faults strike at the start of a flight.
+        hit = rng.random(flying.size) < cfg.fault_rate
+        for k in np.flatnonzero(hit):
+            e = int(flying[k])
+            a, p = divmod(int(k), n_pos)
+            i = int(rng.integers(len(cfg.faults)))
+            scale = float(rng.uniform(0.75, 1.5))
+            eng.fault[e] += scale * fault_h[i]
+            eng.faulted[e] = True
+            shifts = {n: float(scale * v) for n, v in cfg.faults[i].shifts.items()}
+            faults.append(FaultEvent(esns[e], records[a].flight_id, tails[a], p + 1,
+                                     records[a].started_at, cfg.faults[i].name, scale, shifts))
+        installed[j] = on_wing
+        health[j] = eng.health()
+        # One cycle of deterioration and fouling for every engine that flew.
+        eng.perm[flying] += eng.rate[flying]
+        eng.foul[flying] += eng.foul_rate[flying]
+        eng.next_wash[flying] -= 1.0
+        # Between rounds: washes, removals, exchanges (all at one instant).
+        at = round_start + 0.75 * spacing
+        for e in flying[eng.next_wash[flying] <= 0.0]:
+            rec = eng.foul[e] * cfg.wash_recovery
+            eng.foul[e] -= rec
+            eng.next_wash[e] = cfg.wash_interval * rng.uniform(0.8, 1.2)
+            washes.append(WashEvent(esns[e], at, {
+                HEALTH_NAMES[i]: float(-rec[i]) for i in range(N_TURBO) if rec[i] != 0.0
+            }))
+        if j == n_rounds - 1:
+            break
+        for a in range(n_air):
+            for p in range(n_pos):
+                e = int(on_wing[a, p])
+                pulled = eng.faulted[e] and rng.random() < cfg.faulted_removal
+                if not pulled and rng.random() >= cfg.removal_rate:
+                    continue
+                if not pool:
+                    continue
+                new = pool.pop(int(rng.integers(len(pool))))
+                swap(a, p, new, at, "fault removal" if pulled else "scheduled removal")
+                eng.shop_until[e] = j + 1 + cfg.shop_rounds
+                if pulled:
+                    eng.fault[e] = 0.0
+                    eng.faulted[e] = False
+                eng.perm[e] *= 1.0 - cfg.shop_restore
+        if n_air > 1:
+            n_exchanges = rng.binomial(n_air * n_pos, cfg.exchange_rate)
+            for _ in range(n_exchanges):
+                a1, a2 = rng.choice(n_air, 2, replace=False)
+                p1, p2 = rng.integers(n_pos), rng.integers(n_pos)
+                e1, e2 = int(on_wing[a1, p1]), int(on_wing[a2, p2])
+                if installed_at[a1, p1] == at or installed_at[a2, p2] == at:
+                    continue  # an engine moves at most once per instant
+                swap(int(a1), int(p1), e2, at, f"exchange with {tails[a2]}")
+                # The second leg: e2's old position; its installation record
+                # ends now and e1 takes it.
+                installations.append(Installation(esns[e2], tails[a2], int(p2) + 1,
+                                                  float(installed_at[a2, p2]), at))
+                swaps.append(SwapEvent(at, tails[a2], int(p2) + 1, esns[e2], esns[e1],
+                                       f"exchange with {tails[a1]}"))
+                on_wing[a2, p2] = e1
+                installed_at[a2, p2] = at
+    for a in range(n_air):
+        for p in range(n_pos):
+            installations.append(Installation(esns[int(on_wing[a, p])], tails[a], p + 1,
+                                              float(installed_at[a, p]), None))
+    return FleetPlan(cfg, esns, tails, tuple(flights), installed, health,
+                     tuple(installations), tuple(faults), tuple(swaps), tuple(washes))
+
+
+class Snapshots(NamedTuple):
+    """Snapshot records, columnar, one row per engine, flight and phase ([n] arrays).
+
+    recorded_at [s UTC]; tail, phase, flight_id (str arrays); position (1..P);
+    esn (ground truth: never part of an upload); alt_ft, mach, dtamb_k,
+    power_pct: operating condition; actuators [n, 3] (Wf pps as measured, VSV
+    and VBV % commanded); sensors [n, 12] as measured (SENSOR_NAMES order);
+    sensors_true [n, 12] without noise.
+    """
+
+    recorded_at: np.ndarray
+    tail: np.ndarray
+    position: np.ndarray
+    phase: np.ndarray
+    flight_id: np.ndarray
+    esn: np.ndarray
+    alt_ft: np.ndarray
+    mach: np.ndarray
+    dtamb_k: np.ndarray
+    power_pct: np.ndarray
+    actuators: np.ndarray
+    sensors: np.ndarray
+    sensors_true: np.ndarray
+
+
+def engine_noise_std() -> np.ndarray:
+    """The engine's sensor noise standard deviations [12] in sensor units.
+
+    Percent of the sea-level static take-off trim (seed 001 Table 2).
+    """
+    return noise_std(steady_state(np.zeros(3), power=100.0).sensors)
+
+
+def _round_conditions(plan: FleetPlan, j: int) -> FlightParameters:
+    recs = plan.flights[j]
+    return FlightParameters(*(np.concatenate([np.asarray(r.params[i]) for r in recs])
+                              for i in range(len(FlightParameters._fields))))
+
+
+def fleet_snapshots(
+    plan: FleetPlan,
+    rng: np.random.Generator,
+    on_round: Callable[[int], None] | None = None,
+) -> Snapshots:
+    """Take-off, climb and cruise snapshots of every flight of the plan.
+
+    Per round, one batched steady-state solve over all installed engines and
+    the three phases; noise N(0, engine_noise_std()) on the sensors when the
+    plan's config says so. ``on_round(j)`` is called after each round (progress).
+    """
+    cfg = plan.config
+    n_air, n_pos = cfg.n_aircraft, cfg.positions
+    std = engine_noise_std()
+    cols: dict[str, list[np.ndarray]] = {k: [] for k in Snapshots._fields}
+    esns = np.asarray(plan.esns, dtype=object)
+    tails = np.asarray(plan.tails, dtype=object)
+    for j in range(cfg.n_flights):
+        prof = flight_profile(_round_conditions(plan, j))
+        points = snapshot_points(prof)
+        eng = plan.installed[j].ravel()  # [N P]
+        air = np.repeat(np.arange(n_air), n_pos)
+        starts = np.array([r.started_at for r in plan.flights[j]])
+        fids = np.asarray([r.flight_id for r in plan.flights[j]], dtype=object)
+        h = plan.health[j, eng]
+        env, power, rows = [], [], []
+        for pt in points:
+            c = pt.condition
+            env.append(np.stack([c.alt_ft[air], c.mach[air], c.dtamb_k[air]], axis=1))
+            power.append(c.power_pct[air])
+            rows.append(air)
+        env_a, power_a = np.concatenate(env), np.concatenate(power)
+        ss = steady_state(env_a, power=power_a, health=np.tile(h, (len(points), 1)))
+        y = ss.sensors
+        ym = y + rng.standard_normal(y.shape) * std if cfg.noise else y.copy()
+        n = eng.size
+        for k, pt in enumerate(points):
+            sl = slice(k * n, (k + 1) * n)
+            cols["recorded_at"].append(starts[air] + pt.time_s)
+            cols["tail"].append(tails[air])
+            cols["position"].append(np.tile(np.arange(1, n_pos + 1), n_air))
+            cols["phase"].append(np.full(n, pt.phase, dtype=object))
+            cols["flight_id"].append(fids[air])
+            cols["esn"].append(esns[eng])
+            cols["alt_ft"].append(env_a[sl, 0])
+            cols["mach"].append(env_a[sl, 1])
+            cols["dtamb_k"].append(env_a[sl, 2])
+            cols["power_pct"].append(power_a[sl])
+            act = ss.u[sl].copy()
+            act[:, 0] = ym[sl, -1]  # the Wf sensor (fuel flow command, measured)
+            cols["actuators"].append(act)
+            cols["sensors"].append(ym[sl])
+            cols["sensors_true"].append(y[sl])
+        if on_round is not None:
+            on_round(j)
+    return Snapshots(*(np.concatenate(cols[k]) for k in Snapshots._fields))
+
+
+class StreamFlight(NamedTuple):
+    """One engine's whole-flight recording at a fixed rate.
+
+    tail, position, flight_id, esn (ground truth), started_at [s UTC]; time_s
+    [T] from the start; alt_ft, mach, dtamb_k, power_pct [T]; actuators [T, 3]
+    (Wf as measured, VSV, VBV commanded); sensors [T, 12] measured; health [13]
+    true during the flight.
+    """
+
+    tail: str
+    position: int
+    flight_id: str
+    esn: str
+    started_at: float
+    time_s: np.ndarray
+    alt_ft: np.ndarray
+    mach: np.ndarray
+    dtamb_k: np.ndarray
+    power_pct: np.ndarray
+    actuators: np.ndarray
+    sensors: np.ndarray
+    health: np.ndarray
+
+
+def stream_step(rate_hz: float | None) -> tuple[float, int]:
+    """Integration step [s] and record interval [steps] for an output rate.
+
+    The step is the largest that is at most 15 ms and divides the output
+    interval 1/rate exactly; None or rates above 66.7 Hz record every step
+    (of 15 ms, or 1/rate when faster).
+    """
+    if rate_hz is None:
+        return DT_DEFAULT, 1
+    if rate_hz <= 0:
+        raise ValueError(f"rate_hz must be positive, got {rate_hz}")
+    interval = 1.0 / rate_hz
+    if interval <= DT_DEFAULT:
+        return interval, 1
+    every = int(np.ceil(interval / DT_DEFAULT - 1e-9))
+    return interval / every, every
+
+
+def stream_flights(
+    plan: FleetPlan,
+    rng: np.random.Generator,
+    rate_hz: float | None = None,
+    duration_s: float | None = None,
+    rounds: Sequence[int] | None = None,
+) -> Iterator[StreamFlight]:
+    """Whole flights of every installed engine, round by round (a generator).
+
+    All engines of a round are simulated in one batch (``transient.simulate``)
+    from rest at ground idle; duration_s shortens the 2500 s flight (tests).
+    """
+    cfg = plan.config
+    n_air, n_pos = cfg.n_aircraft, cfg.positions
+    std = engine_noise_std() if cfg.noise else None
+    dt, every = stream_step(rate_hz)
+    for j in range(cfg.n_flights) if rounds is None else rounds:
+        params = _round_conditions(plan, j)
+        air = np.repeat(np.arange(n_air), n_pos)
+        prof = flight_profile(FlightParameters(*(np.asarray(v)[air] for v in params)))
+        eng = plan.installed[j].ravel()
+        h = plan.health[j, eng]
+        t_end = prof.duration_s if duration_s is None else min(duration_s, prof.duration_s)
+        res = simulate(prof, t_end, health=h, dt=dt, record_every=every, noise_std=std,
+                       rng=rng if std is not None else None)
+        for k in range(eng.size):
+            a, p = divmod(k, n_pos)
+            rec = plan.flights[j][a]
+            act = res.u[:, k].copy()
+            act[:, 0] = res.measured[:, k, -1]
+            yield StreamFlight(
+                rec.tail, p + 1, rec.flight_id, plan.esns[eng[k]], rec.started_at,
+                res.time_s, res.condition.alt_ft[:, k], res.condition.mach[:, k],
+                res.condition.dtamb_k[:, k], res.condition.power_pct[:, k], act,
+                res.measured[:, k], h[k],
+            )
+
+
+class FleetResult(NamedTuple):
+    """plan (ground truth) and the data: snapshots (snapshot mode) or streams (stream mode)."""
+
+    plan: FleetPlan
+    snapshots: Snapshots | None
+    streams: Iterator[StreamFlight] | None
+
+
+def simulate_fleet(
+    config: FleetConfig,
+    rng: np.random.Generator,
+    mode: str = "snapshot",
+    rate_hz: float | None = None,
+    duration_s: float | None = None,
+) -> FleetResult:
+    """Plan the fleet, then its snapshots or (lazily) its stream flights.
+
+    The plan, the snapshot noise and the stream noise draw from three
+    generators spawned from ``rng``, so the fleet's history is the same in
+    both modes for one seed.
+    """
+    if mode not in ("snapshot", "stream"):
+        raise ValueError(f"mode must be 'snapshot' or 'stream', got {mode!r}")
+    plan_rng, snap_rng, stream_rng = rng.spawn(3)
+    plan = plan_fleet(config, plan_rng)
+    if mode == "snapshot":
+        return FleetResult(plan, fleet_snapshots(plan, snap_rng), None)
+    return FleetResult(plan, None, stream_flights(plan, stream_rng, rate_hz, duration_s))
+
+
+__all__ = [
+    "DETERIORATION_RATES", "FOULING_RATES", "FaultEvent", "FleetConfig", "FleetPlan",
+    "FleetResult", "FlightRecord", "Installation", "SNAPSHOT_PHASES", "Snapshots",
+    "StreamFlight", "SwapEvent", "WashEvent", "engine_noise_std", "fleet_snapshots",
+    "plan_fleet", "simulate_fleet", "stream_flights", "stream_step",
+]
