@@ -18,12 +18,11 @@ from typing import NamedTuple
 import numpy as np
 import scipy.linalg
 
-from estimation.errors import ConvergenceWarning, DimensionError, UnobservableDesignError
+from estimation.errors import DimensionError, UnobservableDesignError
 from estimation.model import check_shape
 from estimation.reduced import ReducedModel
 
 __all__ = [
-    "ConvergenceWarning",
     "SteadyStateGain",
     "StreamEstimate",
     "steady_state_gain",
