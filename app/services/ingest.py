@@ -17,15 +17,18 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import sqlite3
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import numpy as np
+import psycopg
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pacsv
+from sqlalchemy import exc as sa_exc
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -44,6 +47,8 @@ from app.services.ingest_parse import (
 )
 
 COPY_BATCH_ROWS = 20_000
+# Unique violations surface from SQLAlchemy, or from the drivers under COPY / executemany.
+INTEGRITY_ERRORS = (sa_exc.IntegrityError, psycopg.IntegrityError, sqlite3.IntegrityError)
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 _US = timedelta(microseconds=1)
 
@@ -231,13 +236,21 @@ def ingest_snapshots(
         + (f" ({duplicates} were stored already)" if duplicates else ""),
         errors=[],
     )
-    session.add(upload)
-    session.flush()
-    affected = summarise(session, fresh)
-    upload.affected = [a.as_json() for a in affected]
-    if fresh.num_rows:
-        insert_snapshots(session, fresh, operator_id=operator_id, upload_id=upload.id)
-    session.flush()
+    try:
+        session.add(upload)
+        session.flush()
+        affected = summarise(session, fresh)
+        upload.affected = [a.as_json() for a in affected]
+        if fresh.num_rows:
+            insert_snapshots(session, fresh, operator_id=operator_id, upload_id=upload.id)
+        session.flush()
+    except INTEGRITY_ERRORS as exc:
+        # A concurrent upload stored some of these rows (or took the key) first.
+        raise Conflict(
+            "another upload stored some of these snapshots or used this Idempotency-Key at "
+            "the same time; nothing was stored, send it again",
+            details=[{"reason": str(exc).splitlines()[0][:300]}],
+        ) from None
     estimation_hook(session, operator_id=operator_id, upload_id=upload.id, affected=affected)
     return UploadResult(upload, replayed=False)
 
