@@ -198,6 +198,7 @@ def snapshot_filter(
     q_end = np.empty((E, m))
     P_end = np.empty((E, m, m))
     QqE = Qq[:, :, None]
+    W_diag = (Vp[:, :, None] * Vp[:, None, :]).reshape(p, m * m)
     H_all = [np.asarray(gain_at(j), float) for j in range(S)] if callable(gains) else None
     for c0 in range(0, E, block):
         c1 = min(E, c0 + block)
@@ -249,9 +250,9 @@ def snapshot_filter(
             q_res[c0:c1, j] = q.T
             if P_res is not None:
                 P_res[c0:c1, j] = P.transpose(2, 0, 1)
-            # diag(V*^+ P V*^+T): [p, Bn]
-            VP = (Vp @ P.reshape(m, m * Bn)).reshape(p, m, Bn)
-            h_std[c0:c1, j] = np.sqrt(np.maximum(np.einsum("pme,pm->pe", VP, Vp), 0.0)).T
+            # diag(V*^+ P V*^+T) = W vec(P), W[p, (a, b)] = Vp[p, a] Vp[p, b]: one GEMM
+            h_var = W_diag @ P.reshape(m * m, Bn)
+            h_std[c0:c1, j] = np.sqrt(np.maximum(h_var, 0.0)).T
         q_end[c0:c1] = q.T
         P_end[c0:c1] = P.transpose(2, 0, 1)
     if S == 0:
