@@ -31,6 +31,7 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -51,6 +52,7 @@ from app.models.ingest import ACTUATORS, OPERATING_CONDITION, SENSORS, SignalSpe
 from app.services import units
 from estimation import isolation
 from estimation.detection import CusumDesign, design_cusum
+from estimation.engine.schedule import EngineSchedule
 from estimation.model import LinearModel
 from estimation.snapshot import SnapshotState, snapshot_deviation, snapshot_filter
 
@@ -61,12 +63,30 @@ N_BASE = 30  # records averaged into the baseline
 GAP = 15  # the baseline ends this many records before the alarm (the fault's onset)
 N_CONFIRM = 80  # records between an alarm and its isolation (the filter settles)
 N_AVG = 20  # records averaged for the isolated change
+WARMUP = 150  # records after a start, maintenance or event before the detector arms
+S_MEAN_RATE = 1.0 / 200.0  # memory of the in-control mean of the detector statistic
+S_MEAN_CAP = 30.0  # samples above this many times m count as this much
+CUSUM_REFERENCE = 2.0  # CUSUM allowance per sample, in units of m (robust to model error)
 ARL0 = 20_000.0  # mean records between false alarms of the CUSUM (theory, independent samples)
 ISOLATION_LEVEL = 0.999  # WSSR quantile below which the best fault explains the change
+MAGNITUDE_RANGE = (0.5, 3.0)  # fitted fault magnitudes that count as that fault (x nominal)
+SHIFT_LEVEL = 1e-6  # an unexplained change must be this improbable under no change
 # Filter settings: tuner random walk per flight (percent), fleet spread at start (percent).
 WALK_STD = 0.05
 FLEET_STD = 1.5
+START_STD = 5.0
 NEW_FLIGHT_S = 3600.0  # records further apart than this are different flights
+# Sensor model error (percent of trim) added in quadrature to the sensor noise: trims and gains
+# interpolated between schedule nodes are off by about this much.
+MODEL_ERROR = 0.2
+# The pipeline's schedule grid: denser than the engine's default where snapshots are taken
+# (take-off, climb, cruise), so interpolated trims stay well inside the sensor noise.
+SCHEDULE_AXES = {
+    "alt": (0.0, 2500.0, 5000.0, 10000.0, 15000.0, 20000.0, 25000.0, 30000.0, 35000.0,
+            37500.0, 40000.0),
+    "mach": (0.0, 0.15, 0.3, 0.45, 0.6, 0.7, 0.75, 0.8, 0.85),
+    "power": (0.0, 20.0, 40.0, 55.0, 65.0, 75.0, 85.0, 92.5, 100.0),
+}
 CHECKPOINT_EVERY = 256
 CHUNK = 512  # records per engine per filter call (bounds the scheduled-gain arrays)
 
@@ -177,6 +197,7 @@ class SnapshotEstimator:
     schedule: Schedule
     cusum: CusumDesign
     wssr_threshold: float
+    shift_threshold: float
 
     @property
     def m(self) -> int:
@@ -186,7 +207,7 @@ class SnapshotEstimator:
 @functools.lru_cache(maxsize=32)
 def cusum_for(m: int) -> CusumDesign:
     """The CUSUM for m tuners at the pipeline's false-alarm rate (its design takes seconds)."""
-    return design_cusum(m, arl0=ARL0)
+    return design_cusum(m, arl0=ARL0, reference=CUSUM_REFERENCE * m)
 
 
 def build_estimator(
@@ -210,7 +231,9 @@ def build_estimator(
         raise PipelineError(f"design {design_id}: V* has {p} columns, the model {model.n_health}")
     Vp = np.linalg.solve(vstar @ vstar.T, vstar).T  # V*^+ (seed 002 eq. 5)
     walk = np.eye(p) * WALK_STD**2
+    # Engines join the service deteriorated: start from at least START_STD per parameter.
     Ph = _covariance(_find(result, "Ph"), p, FLEET_STD)
+    Ph = Ph + np.diag(np.maximum(START_STD**2 - np.diag(Ph), 0.0))
     Qq = vstar @ walk @ vstar.T
     P0 = vstar @ Ph @ vstar.T
 
@@ -221,13 +244,15 @@ def build_estimator(
     G_u, _ = model.steady_state_input_gains()
     names = list(model.health_names) + [f"{s.name.lower()}_bias" for s in model.inputs]
     G_full = np.concatenate([G_y, G_u], axis=1)
-    faults_doc = _find(result, "faults")
+    faults_doc = result.get("faults")
+    if isinstance(faults_doc, Mapping):
+        faults_doc = faults_doc.get("library")
     library = isolation.faults_from_list(faults_doc if isinstance(faults_doc, list) else None)
     known = {n.lower() for n in names}
     library = tuple(f for f in library if all(k.lower() in known for k in f.shifts))
     S = isolation.signature_matrix(library, names)
     Hd = G_y @ Vp
-    Rinv = 1.0 / model.sensor_noise_std**2
+    Rinv = 1.0 / (model.sensor_noise_std**2 + MODEL_ERROR**2)
     normal = Hd.T @ (Rinv[:, None] * Hd)
     H = np.linalg.solve(normal, Hd.T @ (Rinv[:, None] * (G_full @ S)))
     usable = np.sum(H**2, axis=0) > 1e-12
@@ -269,38 +294,86 @@ def build_estimator(
         Vp=Vp,
         Qq=0.5 * (Qq + Qq.T),
         P0=0.5 * (P0 + P0.T),
-        noise_std=np.asarray(model.sensor_noise_std, float),
+        noise_std=np.sqrt(np.asarray(model.sensor_noise_std, float) ** 2 + MODEL_ERROR**2),
         H=H,
         fault_shifts=tuple(dict(f.shifts) for f in library),
         schedule=schedule or single_point_schedule(model),
         cusum=cusum_for(m),
         wssr_threshold=float(stats.chi2.ppf(ISOLATION_LEVEL, max(m - 1, 1))),
+        shift_threshold=float(stats.chi2.isf(SHIFT_LEVEL, m)),
     )
 
 
 def estimator_for_design(session: Session, design: EstimatorDesign) -> SnapshotEstimator:
-    """The estimator of a stored design: its document and its engine model's schedule."""
+    """The estimator of a stored design: the design's model (sensors and health selected) and,
+    for the built-in engine, its operating-condition schedule."""
     if design.status != "ready" or design.result is None:
         raise PipelineError(f"design {design.id} is not ready")
     row = session.get(EngineModel, design.engine_model_id)
     if row is None:
         raise PipelineError(f"design {design.id}: engine model {design.engine_model_id} missing")
-    content = row.content
-    model_doc = content.get("model", content) if isinstance(content, Mapping) else content
-    schedule = _builtin_schedule(content)
-    model = LinearModel.from_dict(model_doc)
+    embedded = design.result.get("model")
+    model = LinearModel.from_dict(embedded if isinstance(embedded, Mapping) else row.content)
+    schedule = None
+    if row.source == "builtin":
+        schedule = engine_schedule_for(model, builtin_schedule())
     return build_estimator(design.id, model, design.result, schedule)
 
 
-def _builtin_schedule(content: Any) -> Schedule | None:
-    """The built-in engine's operating-condition schedule when the model document has one."""
-    if not isinstance(content, Mapping) or "schedule" not in content:
-        return None
-    try:
-        from app.services.engine_schedule import schedule_from_document  # type: ignore
-    except ImportError:
-        return None
-    return schedule_from_document(content)  # type: ignore[no-any-return]
+def builtin_schedule() -> EngineSchedule:
+    """The built-in engine's schedule from the data directory's cache (built on first use)."""
+    from app.config import get_settings
+
+    return _cached_schedule(str(get_settings().data_dir.resolve() / "cache"))
+
+
+@functools.lru_cache(maxsize=2)
+def _cached_schedule(cache_dir: str) -> EngineSchedule:
+    from app.engine_cache import engine_schedule
+
+    return engine_schedule(Path(cache_dir), axes=SCHEDULE_AXES)
+
+
+def engine_schedule_for(model: LinearModel, sched: EngineSchedule) -> Schedule:
+    """Gains and trims of ``model``'s signals at each record's operating condition, from the
+    built-in engine's schedule (corrected-parameter trims, MATH.md section 8)."""
+    tmpl = sched.template
+    yi = [tmpl.sensor_names.index(n) for n in model.sensor_names]
+    ui = [tmpl.input_names.index(n) for n in model.input_names]
+    zi = [tmpl.aux_names.index(n) for n in model.aux_names]
+    hi = [tmpl.health_names.index(n) for n in model.health_names]
+    units_of = {s.name: s.unit for s in (*tmpl.sensors, *tmpl.inputs)}
+
+    def convert(names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+        a, b = np.ones(len(names)), np.zeros(len(names))
+        for k, name in enumerate(names):
+            spec = SNAPSHOT_SIGNALS.get(name)
+            if spec is None or units_of[name] in (spec.unit, ""):
+                continue
+            try:
+                a[k], b[k] = units.affine(
+                    spec.quantity, units_of[name], spec.unit, reference=spec.percent_reference
+                )
+            except units.UnknownUnitError:
+                a[k], b[k] = np.nan, np.nan
+        return a, b
+
+    ya, yb = convert(model.sensor_names)
+    ua, ub = convert(model.input_names)
+
+    def schedule(conditions: np.ndarray) -> ScheduledGains:
+        # Snapshot columns are (alt, mach, dtamb, power); the schedule's axes (alt, mach,
+        # power, dtamb).
+        c = np.asarray(conditions, float)[:, [0, 1, 3, 2]]
+        trims = sched.trims_at(c)
+        y_trim = np.stack([trims[n] for n in model.sensor_names], axis=1) * ya + yb
+        u_trim = np.stack([trims[n] for n in model.input_names], axis=1) * ua + ub
+        Gy = sched.interpolate("Gy", c)[:, yi][:, :, hi]
+        Guy = sched.interpolate("Guy", c)[:, yi][:, :, ui]
+        Gz = sched.interpolate("Gz", c)[:, zi][:, :, hi]
+        return ScheduledGains(y_trim, u_trim, Gy, Guy, Gz)
+
+    return schedule
 
 
 # ---------------------------------------------------------------------------- detection
@@ -325,16 +398,23 @@ class Detector:
     history: list[list[float]]
     S: float
     pending: dict[str, Any] | None
+    s_mean: float | None = None
+    s_count: int = 0
+    warm: int = 0
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> Detector:
-        return cls([list(map(float, q)) for q in d["history"]], float(d["S"]), d.get("pending"))
+        s_mean = d.get("s_mean")
+        return cls([list(map(float, q)) for q in d["history"]], float(d["S"]), d.get("pending"),
+                   None if s_mean is None else float(s_mean), int(d.get("s_count", 0)),
+                   int(d.get("warm", 0)))
 
     def to_dict(self) -> dict[str, Any]:
-        return {"history": [list(q) for q in self.history], "S": self.S, "pending": self.pending}
+        return {"history": [list(q) for q in self.history], "S": self.S, "pending": self.pending,
+                "s_mean": self.s_mean, "s_count": self.s_count, "warm": self.warm}
 
     def reset(self) -> None:
-        self.history, self.S, self.pending = [], 0.0, None
+        self.history, self.S, self.pending, self.warm = [], 0.0, None, 0
 
     def baseline(self) -> np.ndarray | None:
         if len(self.history) < N_BASE + GAP:
@@ -390,9 +470,19 @@ def detect_step(
     """One record through the detector: WSSR per fault against the baseline (NaN without one),
     and the event when an alarm's isolation is due."""
     nan = np.full(est.H.shape[1], np.nan)
+    early: EventDraft | None = None
     if reset:
+        if det.pending is not None and det.history:
+            # The engine left service (or was maintained) before the alarm's isolation was
+            # due: isolate on the records there are.
+            pending = det.pending
+            recent = det.history[-min(N_AVG, len(det.history)) :]
+            change = np.mean(np.asarray(recent), axis=0) - np.asarray(pending["baseline"])
+            wssr, f = wssr_all(change, P, est.H)
+            early = _event(est, pending, change, wssr, f, P)
         det.reset()
     base_before = det.baseline()
+    det.warm += 1
     det.history.append(q.tolist())
     if len(det.history) > N_BASE + GAP:
         del det.history[0]
@@ -404,29 +494,54 @@ def detect_step(
             return wssr_all(q - base, P, est.H)[0], None
         change = np.mean(np.asarray(det.history[-N_AVG:]), axis=0) - base
         wssr, f = wssr_all(change, P, est.H)
-        draft = _event(est, pending, change, wssr, f)
+        draft = _event(est, pending, change, wssr, f, P)
         det.reset()
         return wssr, draft
     s = tuner_update_statistic(q, q_prev, P, P_prior)
-    det.S = max(0.0, det.S + s - est.m - est.cusum.reference)
-    if det.S > est.cusum.threshold and base_before is not None:
+    # The statistic's in-control mean is m for a perfect model; model error (interpolated
+    # trims, nonlinearity) makes it larger. Its running in-control mean rescales it, so the
+    # CUSUM responds to a change against the engine's own normal, not to a steady mismatch.
+    m = est.m
+    if det.s_mean is None:
+        det.s_mean = float(m)
+    scaled = s * m / max(det.s_mean, m)
+    if det.S == 0.0:
+        # A running mean that starts as a plain average (fast) and keeps S_MEAN_RATE memory;
+        # capped samples so a real change does not teach the detector to ignore it.
+        det.s_count += 1
+        rate = max(1.0 / det.s_count, S_MEAN_RATE)
+        det.s_mean += (min(s, S_MEAN_CAP * m) - det.s_mean) * rate
+    if base_before is None or det.warm < WARMUP:
+        det.S = 0.0  # no baseline yet (start-up, or after a reset): nothing to compare with
+        return nan, early
+    det.S = max(0.0, det.S + scaled - m - est.cusum.reference)
+    if det.S > est.cusum.threshold:
         det.pending = {"seq": seq, "epoch": epoch, "statistic": det.S, "wait": N_CONFIRM,
                        "baseline": base_before.tolist()}
         det.S = 0.0
-    elif det.S > est.cusum.threshold:
-        det.S = 0.0  # an alarm before a baseline exists (start-up): nothing to compare with
-    if base_before is None:
-        return nan, None
-    return wssr_all(q - base_before, P, est.H)[0], None
+    return wssr_all(q - base_before, P, est.H)[0], early
 
 
 def _event(
     est: SnapshotEstimator, pending: Mapping[str, Any], change: np.ndarray, wssr: np.ndarray,
-    f: np.ndarray,
-) -> EventDraft:
+    f: np.ndarray, P: np.ndarray,
+) -> EventDraft | None:
+    """The event of an alarm, or None when the change is too small to matter.
+
+    Isolated when the smallest WSSR is consistent with its fault and the fitted magnitude is
+    a plausible fault (MAGNITUDE_RANGE times the library's nominal shift); an unexplained
+    shift when the change is still large (its Mahalanobis distance under P exceeds
+    ``est.shift_threshold``); otherwise the alarm is dropped (model error, not a fault).
+    """
     names = est.layout.faults
     best = int(np.argmin(wssr)) if len(names) else None
-    isolated = best is not None and wssr[best] <= est.wssr_threshold
+    lo, hi = MAGNITUDE_RANGE
+    isolated = (
+        best is not None and wssr[best] <= est.wssr_threshold and lo <= f[best] <= hi
+    )
+    distance = float(change @ np.linalg.solve(P, change))
+    if not isolated and distance < est.shift_threshold:
+        return None
     h_change = est.Vp @ change
     fault_shift = {}
     if isolated and best is not None:
@@ -445,6 +560,7 @@ def _event(
             "fault": fault_shift,
             "wssr_threshold": est.wssr_threshold,
             "nearest": names[best] if best is not None else None,
+            "distance": distance,
         },
     )
 

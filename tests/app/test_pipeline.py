@@ -188,3 +188,20 @@ def test_maintenance_action_restarts_the_baseline(session: Session) -> None:
     # Unannounced, the recovery is a shift; after the recorded shop visit it is the new normal.
     assert [e[0] >= 600 for e in _events(session, without.id)] == [True]
     assert _events(session, with_action.id) == []
+
+
+def test_catch_up_estimates_exactly_the_snapshots_without_estimates(session: Session) -> None:
+    fleet = _fleet_with_design(session)
+    aircraft = add_aircraft(session, fleet, "F-CU")
+    times, y = _records(seed=31)
+    engine = add_engine(session, fleet, "CU1")
+    _store(session, fleet, engine.id, aircraft.id, times, y, range(0, 200))
+    assert pipeline.pending_work(session, fleet.operator_id) == {engine.id: times[0]}
+    first = pipeline.catch_up(session, fleet.operator_id)
+    assert first["records"] == 200 and pipeline.pending_work(session, fleet.operator_id) == {}
+    _store(session, fleet, engine.id, aircraft.id, times, y, range(200, 260))
+    assert pipeline.pending_work(session, fleet.operator_id) == {engine.id: times[200]}
+    second = pipeline.catch_up(session, fleet.operator_id)
+    assert second["records"] == 60 and second["reruns"] == 0
+    assert pipeline.catch_up(session, fleet.operator_id)["records"] == 0
+    assert [r[0] for r in _rows(session, engine.id)] == list(range(260))
