@@ -82,12 +82,12 @@ class UploadRejected(InvalidInput):
         self.truncated = truncated
 
 
-class _Full(Exception):
+class ErrorLimitReached(Exception):
     """Enough errors collected: stop checking."""
 
 
 class ErrorLog:
-    """Collects row errors up to ``limit``; raises ``_Full`` internally once reached."""
+    """Collects row errors up to ``limit``; raises ``ErrorLimitReached`` internally once reached."""
 
     def __init__(self, limit: int = MAX_ERRORS) -> None:
         self.limit = limit
@@ -98,7 +98,7 @@ class ErrorLog:
     def add(self, row: int | None, column: str | None, reason: str) -> None:
         if len(self.errors) >= self.limit:
             self.truncated = True
-            raise _Full
+            raise ErrorLimitReached
         self.errors.append(RowError(row, column, reason))
         self.cells.add((row, column))
 
@@ -535,7 +535,7 @@ def _finish(
     parsed: ParsedTable | None = None
     try:
         parsed = _build(raw, specs, kind=kind, log=log)
-    except _Full:
+    except ErrorLimitReached:
         pass
     log.raise_if_any()
     assert parsed is not None
@@ -562,7 +562,7 @@ def parse_csv(
         specs = resolve_columns(
             headers, allowed=_allowed(kind), required=_required(kind), mapping=mapping, log=log
         )
-    except _Full:
+    except ErrorLimitReached:
         pass
     log.raise_if_any()
     if len(set(headers)) != len(headers):
@@ -632,7 +632,7 @@ def parse_parquet(
             mapping=mapping,
             log=log,
         )
-    except _Full:
+    except ErrorLimitReached:
         pass
     log.raise_if_any()
     if table.num_rows == 0:
@@ -694,7 +694,7 @@ def parse_json(body: bytes, *, kind: str = "snapshots") -> ParsedTable:
         )
         log.raise_if_any()
         raw = {s.target: _json_column(records, s, log) for s in specs}
-    except _Full:
+    except ErrorLimitReached:
         log.raise_if_any()
     return _finish(raw, specs, kind, log)
 
