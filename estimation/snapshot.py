@@ -19,7 +19,9 @@ Arrays are engine-major: dy [n_engines, n_snapshots, ny].
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -135,6 +137,7 @@ def snapshot_filter(
     walk_scale: np.ndarray | float = 1.0,
     block: int = 1024,
     keep_covariance: bool = False,
+    workers: int | None = None,
 ) -> SnapshotResult:
     """Time-varying tuner filter over snapshots, batched over engines (MATH.md section 8).
 
@@ -151,6 +154,8 @@ def snapshot_filter(
                 steady state, and for padding rows whose dy are all NaN)
 
     block     : engines processed together (cache-sized; any value gives the same result)
+    workers   : threads over engine blocks (default: the CPU count, at most 8); any
+                value gives the same result
     keep_covariance: store P per snapshot (P in the result is None otherwise; the
                 final P is always in ``state``)
 
@@ -168,6 +173,8 @@ def snapshot_filter(
     if state.q_hat.shape[1] != m:
         raise DimensionError(f"state has {state.q_hat.shape[1]} tuners but V* has {m} rows")
     Vp = np.linalg.solve(V @ V.T, V).T  # V*^+ [p, m]
+    if workers is None:
+        workers = min(8, os.cpu_count() or 1)
     Qq = np.asarray(Qq, float)
     if Qq.shape != (m, m):
         raise DimensionError(
@@ -178,15 +185,27 @@ def snapshot_filter(
     if callable(gains):
         gain_at = gains
     else:
-        G_all = np.asarray(gains, float)
-        if G_all.shape[-2:] != (ny, p):
+        G_arr = np.asarray(gains, float)
+        if G_arr.shape[-2:] != (ny, p):
             raise DimensionError(
-                f"gains must end in ({ny}, {p}) (sensors, health), found {G_all.shape}"
+                f"gains must end in ({ny}, {p}) (sensors, health), found {G_arr.shape}"
             )
-        G_all = np.broadcast_to(G_all, (E, S, ny, p))
+        if G_arr.ndim == 2:  # one operating condition throughout
 
-        def gain_at(j: int) -> np.ndarray:
-            return G_all[:, j]
+            def gain_at(j: int) -> np.ndarray:
+                return G_arr
+
+        elif G_arr.ndim == 3:  # [S, ny, p]: per snapshot, the same for every engine
+            G_arr = np.broadcast_to(G_arr, (S, ny, p))
+
+            def gain_at(j: int) -> np.ndarray:
+                return G_arr[j]
+
+        else:
+            G_all = np.broadcast_to(G_arr, (E, S, ny, p))
+
+            def gain_at(j: int) -> np.ndarray:
+                return G_all[:, j]
 
     # Tuner-major working layout per block of engines (q [m, B], P [m, m, B]): every
     # operation is a contiguous elementwise sweep over engines, and a block stays in
@@ -199,20 +218,21 @@ def snapshot_filter(
     P_end = np.empty((E, m, m))
     QqE = Qq[:, :, None]
     W_diag = (Vp[:, :, None] * Vp[:, None, :]).reshape(p, m * m)
-    H_all = [np.asarray(gain_at(j), float) for j in range(S)] if callable(gains) else None
-    for c0 in range(0, E, block):
-        c1 = min(E, c0 + block)
+    G_steps = [np.asarray(gain_at(j), float) for j in range(S)]
+    for j, G in enumerate(G_steps):
+        if G.shape[-2:] != (ny, p):
+            raise DimensionError(
+                f"gains at snapshot {j}: expected (..., {ny}, {p}), found {G.shape}"
+            )
+
+    def run_block(c0: int, c1: int) -> None:
         Bn = c1 - c0
         q = state.q_hat[c0:c1].T.copy(order="C")  # always a copy: the state is not mutated
         P = state.P[c0:c1].transpose(1, 2, 0).copy(order="C")
         Ph = np.empty((m, Bn))
         tmp = np.empty((m, m, Bn))
         for j in range(S):
-            G = H_all[j] if H_all is not None else gain_at(j)
-            if G.shape[-2:] != (ny, p):
-                raise DimensionError(
-                    f"gains at snapshot {j}: expected (..., {ny}, {p}), found {G.shape}"
-                )
+            G = G_steps[j]
             shared = G.ndim == 2  # one operating condition for every engine at this step
             if not shared:
                 G = np.broadcast_to(G, (E, ny, p))[c0:c1]
@@ -255,6 +275,18 @@ def snapshot_filter(
             h_std[c0:c1, j] = np.sqrt(np.maximum(h_var, 0.0)).T
         q_end[c0:c1] = q.T
         P_end[c0:c1] = P.transpose(2, 0, 1)
+
+    # Blocks are independent and write disjoint rows, so they may run on threads
+    # (numpy releases the GIL inside its loops); the result does not depend on it.
+    bounds = [(c0, min(E, c0 + block)) for c0 in range(0, E, block)]
+    n_workers = max(1, min(workers, len(bounds)))
+    if n_workers == 1:
+        for c0, c1 in bounds:
+            run_block(c0, c1)
+    else:
+        with ThreadPoolExecutor(max_workers=n_workers) as pool:
+            for future in [pool.submit(run_block, c0, c1) for c0, c1 in bounds]:
+                future.result()
     if S == 0:
         q_end, P_end = state.q_hat.copy(), state.P.copy()
     return SnapshotResult(

@@ -132,3 +132,17 @@ def test_one_operating_condition_for_all_engines_equals_per_engine_gains():
     np.testing.assert_allclose(a.q_hat, b.q_hat, rtol=1e-12, atol=1e-13)
     np.testing.assert_allclose(a.h_std, b.h_std, rtol=1e-12)
     np.testing.assert_allclose(a.innovation, b.innovation, rtol=1e-12, atol=1e-13)
+
+
+def test_threads_and_per_snapshot_shared_gains_do_not_change_the_result():
+    V, G, dy, std, scale, Qq, P0 = _case(5)
+    per_step = G[0]  # [S, ny, p]: one operating condition per snapshot for the whole fleet
+    start = SnapshotState.initial(E, P0)
+    one = snapshot_filter(start, dy, per_step, V, Qq, std, walk_scale=scale, block=2, workers=1)
+    many = snapshot_filter(start, dy, per_step, V, Qq, std, walk_scale=scale, block=2, workers=3)
+    np.testing.assert_array_equal(one.q_hat, many.q_hat)
+    np.testing.assert_array_equal(one.state.P, many.state.P)
+    full = snapshot_filter(
+        start, dy, np.broadcast_to(per_step, G.shape).copy(), V, Qq, std, walk_scale=scale
+    )
+    np.testing.assert_allclose(one.q_hat, full.q_hat, rtol=1e-12, atol=1e-13)
