@@ -70,10 +70,30 @@ def referenced(
     return row
 
 
+def savepoints_hold(session: Session) -> bool:
+    """Whether a SAVEPOINT nests inside the session's transaction.
+
+    Not on a pysqlite connection in its default (legacy) transaction mode: there no BEGIN is
+    sent before the first write, so an outermost SAVEPOINT opens the transaction and its
+    RELEASE commits it, work of the request included.
+    """
+    connection = session.connection()
+    if connection.dialect.name != "sqlite":
+        return True
+    return getattr(connection.connection.dbapi_connection, "isolation_level", "") is None
+
+
 def flush_or_conflict(session: Session, message: str) -> None:
-    """Flush inside a savepoint; a uniqueness, reference or exclusion violation becomes 409."""
+    """Flush; a uniqueness, reference or exclusion violation becomes 409.
+
+    Inside a savepoint where savepoints hold (the session stays usable after the 409);
+    elsewhere the failed flush leaves the request's transaction to be rolled back.
+    """
     try:
-        with session.begin_nested():
+        if savepoints_hold(session):
+            with session.begin_nested():
+                session.flush()
+        else:
             session.flush()
     except IntegrityError as exc:
         raise Conflict(message, details=[{"reason": str(exc.orig).splitlines()[0]}]) from None
@@ -82,7 +102,11 @@ def flush_or_conflict(session: Session, message: str) -> None:
 def delete_or_conflict(session: Session, row: Base, message: str) -> None:
     """Delete ``row``; if other rows still refer to it, 409 and nothing changes."""
     try:
-        with session.begin_nested():
+        if savepoints_hold(session):
+            with session.begin_nested():
+                session.delete(row)
+                session.flush()
+        else:
             session.delete(row)
             session.flush()
     except IntegrityError:

@@ -342,13 +342,20 @@ def example(
     return None
 
 
+# A raw body for routes that read files (CSV or Parquet) rather than JSON.
+RAW_CSV = b"time_s,alt_ft\n0,0\n"
+
+
 @dataclass
 class Request:
     method: str
     url: str
     params: dict[str, Any]
-    json: Any
-    names_foreign: bool  # the body names another operator's objects
+    json: Any = None
+    content: bytes | None = None
+    content_type: str | None = None
+    files: dict[str, Any] | None = None
+    names_foreign: bool = False  # the body names another operator's objects
 
 
 def synthesise(op: Operation, ids: dict[str, int], components: dict[str, Any]) -> Request:
@@ -362,12 +369,20 @@ def synthesise(op: Operation, ids: dict[str, int], components: dict[str, Any]) -
         name = parameter["name"]
         if parameter.get("required") or name in ids:
             params[name] = example(parameter.get("schema", {}), name, ids, components)
-    body, names_foreign = None, False
+    request = Request(op.method, url, params)
     content = op.spec.get("requestBody", {}).get("content", {})
     if "application/json" in content:
-        body = example(content["application/json"].get("schema", {}), "", ids, components)
-        names_foreign = _mentions_ids(body, ids)
-    return Request(op.method, url, params, body, names_foreign)
+        request.json = example(content["application/json"].get("schema", {}), "", ids, components)
+        request.names_foreign = _mentions_ids(request.json, ids)
+    elif "multipart/form-data" in content:
+        request.files = {"file": ("walker.csv", RAW_CSV, "text/csv")}
+    elif content:
+        request.content_type = next(iter(content))
+        request.content = RAW_CSV if request.content_type == "text/csv" else b""
+    elif op.method in {"POST", "PUT", "PATCH"}:
+        # An undeclared body: the route reads the raw request, a file upload here.
+        request.content, request.content_type = RAW_CSV, "text/csv"
+    return request
 
 
 def _mentions_ids(body: Any, ids: dict[str, int]) -> bool:
@@ -380,8 +395,16 @@ def _mentions_ids(body: Any, ids: dict[str, int]) -> bool:
 
 def send(client: TestClient, request: Request, key: str | None) -> Any:
     headers = {"X-API-Key": key} if key else {}
+    if request.content_type:
+        headers["content-type"] = request.content_type
     return client.request(
-        request.method, request.url, params=request.params, json=request.json, headers=headers
+        request.method,
+        request.url,
+        params=request.params,
+        json=request.json,
+        content=request.content,
+        files=request.files,
+        headers=headers,
     )
 
 
