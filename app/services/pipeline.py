@@ -79,14 +79,6 @@ NEW_FLIGHT_S = 3600.0  # records further apart than this are different flights
 # Sensor model error (percent of trim) added in quadrature to the sensor noise: trims and gains
 # interpolated between schedule nodes are off by about this much.
 MODEL_ERROR = 0.2
-# The pipeline's schedule grid: denser than the engine's default where snapshots are taken
-# (take-off, climb, cruise), so interpolated trims stay well inside the sensor noise.
-SCHEDULE_AXES = {
-    "alt": (0.0, 2500.0, 5000.0, 10000.0, 15000.0, 20000.0, 25000.0, 30000.0, 35000.0,
-            37500.0, 40000.0),
-    "mach": (0.0, 0.15, 0.3, 0.45, 0.6, 0.7, 0.75, 0.8, 0.85),
-    "power": (0.0, 20.0, 40.0, 55.0, 65.0, 75.0, 85.0, 92.5, 100.0),
-}
 CHECKPOINT_EVERY = 256
 CHUNK = 512  # records per engine per filter call (bounds the scheduled-gain arrays)
 
@@ -331,7 +323,7 @@ def builtin_schedule() -> EngineSchedule:
 def _cached_schedule(cache_dir: str) -> EngineSchedule:
     from app.engine_cache import engine_schedule
 
-    return engine_schedule(Path(cache_dir), axes=SCHEDULE_AXES)
+    return engine_schedule(Path(cache_dir))
 
 
 def engine_schedule_for(model: LinearModel, sched: EngineSchedule) -> Schedule:

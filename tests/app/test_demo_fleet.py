@@ -1,0 +1,73 @@
+"""The demo fleet (small): seeded once through the ingest path and estimated; a second start
+reuses it. Counts are checked against the simulator's plan."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session, sessionmaker
+
+from app.models import Engine, EngineType, Installation, Snapshot
+from app.models.estimates import Estimate
+from app.models.jobs import JobSchedule
+from app.services import demo_fleet, fleet_status, pipeline
+from app.services.demo import ensure_demo_operator
+from estimation.engine.schedule import EngineSchedule, build_schedule
+
+SMALL = demo_fleet.DemoSize(aircraft=2, flights=40, fault_rate=0.0)
+
+
+@pytest.fixture(scope="module")
+def coarse_schedule() -> EngineSchedule:
+    # Two nodes per axis keep the test fast; the service uses the full default grid.
+    return build_schedule({"alt": (0.0, 40000.0), "mach": (0.0, 0.85), "power": (40.0, 100.0)})
+
+
+def test_demo_fleet_is_seeded_once_and_estimated(
+    session_factory: sessionmaker[Session], session: Session, tmp_path: Path,
+    coarse_schedule: EngineSchedule, monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(pipeline, "builtin_schedule", lambda: coarse_schedule)
+    with session_factory() as s:
+        ensure_demo_operator(s, tmp_path)
+        s.commit()
+    messages: list[str] = []
+    first = demo_fleet.ensure_demo_fleet(session_factory, SMALL, echo=messages.append)
+    operator_id = session.scalar(
+        select(EngineType.operator_id).where(EngineType.name == demo_fleet.ENGINE_TYPE)
+    )
+    assert operator_id is not None
+    engines = session.scalar(
+        select(func.count()).select_from(Engine).where(Engine.operator_id == operator_id)
+    )
+    snapshots = session.scalar(
+        select(func.count()).select_from(Snapshot).where(Snapshot.operator_id == operator_id)
+    )
+    # Two snapshots (take-off, cruise) per installed engine and flight: 2 aircraft x 2 positions.
+    assert snapshots == first["snapshots"] == SMALL.aircraft * 2 * SMALL.flights * 2
+    assert engines == first["engines"]
+    estimates = session.scalar(
+        select(func.count()).select_from(Estimate).where(Estimate.operator_id == operator_id)
+    )
+    assert estimates == snapshots
+    assert pipeline.pending_work(session, operator_id) == {}
+    status = fleet_status.fleet_status(session, operator_id)
+    installed = session.scalar(
+        select(func.count()).select_from(Installation).where(
+            Installation.operator_id == operator_id, Installation.removed_at.is_(None)
+        )
+    )
+    assert sum(e["tail"] is not None for e in status["engines"]) == installed
+    assert all(e["health"] is not None for e in status["engines"] if e["n_records"])
+    assert session.scalar(
+        select(JobSchedule.kind).where(JobSchedule.operator_id == operator_id)
+    ) == "fleet_diagnostics"
+    assert any("demo fleet ready" in m for m in messages)
+
+    again = demo_fleet.ensure_demo_fleet(session_factory, SMALL, echo=messages.append)
+    assert again == first
+    assert session.scalar(
+        select(func.count()).select_from(Estimate).where(Estimate.operator_id == operator_id)
+    ) == estimates
