@@ -65,6 +65,9 @@ def serve(
     if demo:
         with transaction(make_sessionmaker(engine)) as session:
             key = ensure_demo_operator(session, settings.data_dir)
+        from app.services.demo_fleet import ensure_demo_fleet
+
+        ensure_demo_fleet(make_sessionmaker(engine), echo=typer.echo)
     base = f"http://{host}:{port}"
     typer.echo(f"fleethealth dashboard: {base}/")
     typer.echo(f"API documentation:     {base}/docs")
