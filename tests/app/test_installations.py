@@ -391,3 +391,28 @@ def test_database_refuses_overlaps_on_postgresql(session: Session, tenant: Tenan
                 )
             )
             session.flush()
+
+
+def test_moving_an_installation_to_a_taken_position_is_refused(
+    client: TestClient, session: Session, tenant: Tenant
+) -> None:
+    _setup(client, tenant)
+    first = _install(client, tenant, "E0", "T0", 1, T0, T0 + 10 * DAY).json()  # type: ignore[attr-defined]
+    _install(client, tenant, "E1", "T0", 2, T0 + 5 * DAY)
+    url = f"{API}/installations/{first['id']}"
+    taken = client.patch(url, json={"position": 2}, headers=tenant.headers())
+    assert taken.status_code == 409 and error_of(taken)["details"][0]["esn"] == "E1"
+    beyond = client.patch(url, json={"position": 3}, headers=tenant.headers())
+    assert (
+        beyond.status_code == 422 and error_of(beyond)["details"][0]["location"][-1] == "position"
+    )
+    # Ending before E1 arrived frees position 2 for the whole period.
+    moved = client.patch(
+        url,
+        json={"position": 2, "removed_at": (T0 + 5 * DAY).isoformat()},
+        headers=tenant.headers(),
+    )
+    assert moved.status_code == 200
+    engine = fleet.resolve_engine(session, tenant.operator_id, "N0FH", 2, T0 + DAY)
+    assert engine is not None and engine.id == tenant.ids["E0"]
+    assert fleet.resolve_engine(session, tenant.operator_id, "N0FH", 1, T0 + DAY) is None
