@@ -128,3 +128,16 @@ def test_flight_profile_is_followed() -> None:
     # After the throttle moves to take-off power, the fan reaches the take-off point.
     ss = steady_state(np.array([0.0, 0.25, 0.0]), power=100.0)
     np.testing.assert_allclose(res.x[-1, 0, 0], ss.x[0], rtol=5e-3)
+
+
+def test_one_pass_gas_path_matches_the_converged_solution() -> None:
+    p0, p1 = np.array([40.0, 60.0, 50.0]), np.array([55.0, 80.0, 65.0])
+    one = simulate(_hold(p0, 0.3, p1), 3.0, health=HEALTH, record_every=4)
+    full = simulate(_hold(p0, 0.3, p1), 3.0, health=HEALTH, record_every=4,
+                    gas_path_solution="converged")
+    swing = np.ptp(full.x, axis=0)
+    assert np.all(np.abs(one.x - full.x).max(axis=0) <= 1e-3 * swing + 1e-9)
+    # Sensors within a tenth of the smallest noise (0.25 % of trim).
+    np.testing.assert_allclose(one.sensors, full.sensors, rtol=2.5e-4)
+    with pytest.raises(ValueError, match="gas_path_solution"):
+        simulate(_hold(p0), 0.1, gas_path_solution="exact")
