@@ -14,7 +14,7 @@ import os
 import socket
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import datetime, timedelta
@@ -341,13 +341,16 @@ def requeue_stale(
     stale_after: timedelta = STALE_AFTER,
     max_attempts: int = MAX_ATTEMPTS,
     now: datetime | None = None,
+    alive: Collection[int] = (),
 ) -> list[int]:
     """Requeue running jobs whose worker stopped beating; fail those out of attempts.
 
-    Returns the ids requeued (a Celery deployment sends them to the workers again).
+    ``alive``: jobs the caller knows are running (its own threads), whatever their heartbeat
+    says (on SQLite a job's open write transaction blocks its heartbeats). Returns the ids
+    requeued (a Celery deployment sends them to the workers again).
     """
     cutoff = (now or utcnow()) - stale_after
-    stale = (Job.status == "running", Job.heartbeat_at < cutoff)
+    stale = (Job.status == "running", Job.heartbeat_at < cutoff, Job.id.not_in(list(alive)))
     with transaction(factory) as session:
         session.execute(
             update(Job)
@@ -434,8 +437,9 @@ class Runner:
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
-        self._sweep_lock = threading.Lock()
+        self._lock = threading.Lock()
         self._last_sweep = time.monotonic()
+        self._running: set[int] = set()
 
     def start(self) -> None:
         requeue_stale(self._factory, stale_after=self._stale_after)
@@ -461,11 +465,12 @@ class Runner:
     def _sweep_if_due(self) -> None:
         """Requeue stale jobs now and then (a process restarted sooner than ``stale_after``
         finds its old jobs still fresh at start)."""
-        with self._sweep_lock:
+        with self._lock:
             if time.monotonic() - self._last_sweep < self._stale_after.total_seconds() / 2:
                 return
             self._last_sweep = time.monotonic()
-        requeue_stale(self._factory, stale_after=self._stale_after)
+            alive = set(self._running)
+        requeue_stale(self._factory, stale_after=self._stale_after, alive=alive)
 
     def _work(self) -> None:
         worker = worker_name("inprocess")
@@ -473,14 +478,20 @@ class Runner:
             try:
                 claim = claim_next(self._factory, worker=worker)
                 if claim is not None:
-                    execute(
-                        self._factory,
-                        claim,
-                        self._registry,
-                        throttle_seconds=self._throttle,
-                        heartbeat_seconds=self._heartbeat,
-                        dispatcher=self,
-                    )
+                    with self._lock:
+                        self._running.add(claim.job_id)
+                    try:
+                        execute(
+                            self._factory,
+                            claim,
+                            self._registry,
+                            throttle_seconds=self._throttle,
+                            heartbeat_seconds=self._heartbeat,
+                            dispatcher=self,
+                        )
+                    finally:
+                        with self._lock:
+                            self._running.discard(claim.job_id)
                     continue
                 self._sweep_if_due()
             except Exception:  # a database hiccup must not kill the worker thread

@@ -37,6 +37,7 @@ from app.models.base import utcnow
 from tests.app.jobs_support import (
     AddParameters,
     Gates,
+    Live,
     add_key,
     connection,
     job_row,
@@ -781,6 +782,61 @@ def test_runner_start_requeues_what_a_stopped_process_left_running(
         runner.stop()
     row = job_row(factory, job_id)
     assert row.attempts == 2 and row.result == {"sum": 5 + 6, "operator_id": operator_id}
+
+
+def test_the_runner_sweep_requeues_dead_workers_jobs_but_not_its_own(live: Live) -> None:
+    # Heartbeats off and a tiny stale time: the runner's own waiting job looks stale too, as a
+    # job holding SQLite's write lock does. Only the dead worker's job may be requeued.
+    _url, factory = live
+    gates = Gates()
+    registry = make_registry(gates)
+    with transaction(factory) as session:
+        operator, _key = make_operator(session, "Sweep Air")
+        operator_id = operator.id
+    runner = Runner(
+        factory,
+        registry,
+        workers=2,
+        poll_seconds=0.02,
+        heartbeat_seconds=1000,
+        stale_after=timedelta(seconds=0.2),
+    )
+    runner.start()
+    try:
+        own = _submit(factory, registry, operator_id, "wait", name="waited for the sweep")
+        runner.dispatch(own)
+        assert gates.started.wait(20)
+        # Once the runner's own job looks stale, any sweep that requeues the dead worker's job
+        # below would requeue it too, were it not known to be alive.
+        wait_until(
+            lambda: (
+                utcnow() - (job_row(factory, own).heartbeat_at or utcnow()) > timedelta(seconds=0.5)
+            ),
+            "the runner's own job to look stale",
+        )
+        # A job another process claimed before it died.
+        parameters = AddParameters(a=30, b=12)
+        with transaction(factory) as session:
+            row = Job(
+                operator_id=operator_id,
+                kind="add",
+                parameters=parameters.model_dump(),
+                checksum=parameters_checksum("add", parameters),
+                status="running",
+                attempts=1,
+                heartbeat_at=utcnow() - timedelta(hours=1),
+            )
+            session.add(row)
+            session.flush()
+            dead = row.id
+        wait_until(lambda: job_row(factory, dead).status == "succeeded", "the dead worker's job")
+        assert job_row(factory, dead).attempts == 2
+        gates.release.set()
+        wait_until(lambda: job_row(factory, own).status == "succeeded", "the runner's own job")
+        assert job_row(factory, own).attempts == 1
+    finally:
+        gates.release.set()
+        runner.stop()
 
 
 def test_the_app_runs_jobs_in_process_when_background_jobs_are_on(
