@@ -29,8 +29,9 @@ back (files are written by ``app.services.simulate_io``). Three layers:
    a round in one batched call, plus sensor noise (the engine's standard
    deviations, seed 001 Table 2).
 3. ``stream_flights``: whole flights (the 2500 s profile of ``flight.py``)
-   simulated in closed loop by ``transient.simulate``, all engines of a round
-   in one batch, yielded flight by flight (a fleet's streams do not fit in
+   simulated in closed loop by ``transient.simulate``, engine-flights of all
+   rounds batched together (the plan fixes every flight's health in
+   advance), yielded flight by flight (a fleet's streams do not fit in
    memory at once).
 """
 
@@ -43,6 +44,7 @@ from typing import NamedTuple
 import numpy as np
 
 from estimation.engine.flight import (
+    DURATION_S,
     SNAPSHOT_PHASES,
     FlightParameters,
     flight_profile,
@@ -489,28 +491,37 @@ def stream_flights(
     rate_hz: float | None = None,
     duration_s: float | None = None,
     rounds: Sequence[int] | None = None,
+    max_batch: int = 256,
+    memory_bytes: float = 1.0e9,
 ) -> Iterator[StreamFlight]:
-    """Whole flights of every installed engine, round by round (a generator).
+    """Whole flights of every installed engine, in round, aircraft, position order (a generator).
 
-    All engines of a round are simulated in one batch (``transient.simulate``)
-    from rest at ground idle; duration_s shortens the 2500 s flight (tests).
+    The plan fixes every engine's health for every flight in advance, so
+    flights of different rounds are independent: all of them are simulated
+    together in batches (``transient.simulate``, from rest at ground idle) of
+    at most ``max_batch`` engine-flights and about ``memory_bytes`` of
+    recorded samples. duration_s shortens the 2500 s flight (tests, demos).
     """
     cfg = plan.config
-    n_air, n_pos = cfg.n_aircraft, cfg.positions
+    n_pos = cfg.positions
     std = engine_noise_std() if cfg.noise else None
     dt, every = stream_step(rate_hz)
-    for j in range(cfg.n_flights) if rounds is None else rounds:
-        params = _round_conditions(plan, j)
-        air = np.repeat(np.arange(n_air), n_pos)
-        prof = flight_profile(FlightParameters(*(np.asarray(v)[air] for v in params)))
-        eng = plan.installed[j].ravel()
-        h = plan.health[j, eng]
-        t_end = prof.duration_s if duration_s is None else min(duration_s, prof.duration_s)
-        res = simulate(prof, t_end, health=h, dt=dt, record_every=every, noise_std=std,
-                       rng=rng if std is not None else None)
-        for k in range(eng.size):
-            a, p = divmod(k, n_pos)
-            rec = plan.flights[j][a]
+    t_end = DURATION_S if duration_s is None else min(duration_s, DURATION_S)
+    samples = int(np.floor(t_end / dt + 1e-9)) // every + 1
+    per_row = samples * 8.0 * 48  # float64 recorded values per engine and sample
+    chunk = int(max(1, min(max_batch, memory_bytes // per_row)))
+    rows = [(j, a, p) for j in (range(cfg.n_flights) if rounds is None else rounds)
+            for a in range(cfg.n_aircraft) for p in range(n_pos)]
+    for start in range(0, len(rows), chunk):
+        part = rows[start:start + chunk]
+        recs = [plan.flights[j][a] for j, a, _ in part]
+        eng = np.array([plan.installed[j, a, p] for j, a, p in part])
+        h = np.stack([plan.health[j, e] for (j, _a, _p), e in zip(part, eng, strict=True)])
+        params = FlightParameters(*(np.concatenate([np.asarray(r.params[i]) for r in recs])
+                                    for i in range(len(FlightParameters._fields))))
+        res = simulate(flight_profile(params), t_end, health=h, dt=dt, record_every=every,
+                       noise_std=std, rng=rng if std is not None else None)
+        for k, ((_j, _a, p), rec) in enumerate(zip(part, recs, strict=True)):
             act = res.u[:, k].copy()
             act[:, 0] = res.measured[:, k, -1]
             yield StreamFlight(

@@ -224,3 +224,16 @@ def test_stream_flights_follow_the_profile_from_rest() -> None:
                           health=fl.health)
         np.testing.assert_allclose(fl.sensors, np.broadcast_to(ss.sensors, fl.sensors.shape),
                                    rtol=1e-6)
+
+
+def test_stream_batches_do_not_change_the_flights() -> None:
+    cfg = FleetConfig(n_aircraft=2, n_flights=2, positions=2, noise=False)
+    plan = plan_fleet(cfg, np.random.default_rng(12))
+    together = list(stream_flights(plan, np.random.default_rng(1), rate_hz=2.0, duration_s=2.0))
+    apart = list(stream_flights(plan, np.random.default_rng(1), rate_hz=2.0, duration_s=2.0,
+                                max_batch=3))
+    assert [f.flight_id for f in together] == [r.flight_id for rnd in plan.flights
+                                               for r in rnd for _ in range(2)]
+    for a, b in zip(together, apart, strict=True):
+        assert (a.flight_id, a.position, a.esn) == (b.flight_id, b.position, b.esn)
+        np.testing.assert_allclose(a.sensors, b.sensors, rtol=1e-9)
