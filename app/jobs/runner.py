@@ -319,7 +319,12 @@ def _json_result(kind: str, result: object) -> dict[str, Any]:
     return loaded
 
 
+MAX_ERROR_CHARS = 4000
+
+
 def _record_failure(factory: SessionFactory, claim: Claim, error: str) -> str:
+    if len(error) > MAX_ERROR_CHARS:  # database errors quote whole statements and parameters
+        error = error[: MAX_ERROR_CHARS - 15] + " ... (cut off)"
     with transaction(factory) as session:
         session.execute(
             update(Job)
