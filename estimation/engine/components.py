@@ -16,6 +16,7 @@ from estimation.engine.atmosphere import P_SL, T_SL
 from estimation.engine.gas import (
     LHV,
     R_GAS,
+    Real,
     coefficients,
     enthalpy_ab,
     isentropic_temperature_ab,
@@ -25,18 +26,18 @@ from estimation.engine.gas import (
 _A_AIR, _B_AIR = coefficients(0.0)
 
 
-def corrected_flow(w: np.ndarray, t: np.ndarray, p: np.ndarray) -> np.ndarray:
+def corrected_flow(w: Real, t: Real, p: Real) -> np.ndarray:
     """Wc = W sqrt(T / 288.15) / (P / 101325)."""
     return w * np.sqrt(t / T_SL) / (p / P_SL)
 
 
-def physical_flow(wc: np.ndarray, t: np.ndarray, p: np.ndarray) -> np.ndarray:
+def physical_flow(wc: Real, t: Real, p: Real) -> np.ndarray:
     """W from corrected flow: W = Wc (P / 101325) / sqrt(T / 288.15)."""
     return wc * (p / P_SL) / np.sqrt(t / T_SL)
 
 
 def compression(
-    t_in: np.ndarray, pr: np.ndarray, eff: np.ndarray
+    t_in: Real, pr: Real, eff: Real
 ) -> tuple[np.ndarray, np.ndarray]:
     """Exit temperature [K] and specific work [J/kg] of a compression by pr at efficiency eff."""
     a, b = _A_AIR, _B_AIR
@@ -46,7 +47,7 @@ def compression(
 
 
 def expansion(
-    t_in: np.ndarray, pr: np.ndarray, eff: np.ndarray, far: np.ndarray
+    t_in: Real, pr: Real, eff: Real, far: Real
 ) -> tuple[np.ndarray, np.ndarray]:
     """Exit temperature [K] and specific work [J/kg] of an expansion by pr (= p_in/p_out > 1)."""
     a, b = coefficients(far)
@@ -56,17 +57,17 @@ def expansion(
 
 
 def burner(
-    t3: np.ndarray, w3: np.ndarray, wf: np.ndarray, eff: float
+    t3: Real, w3: Real, wf: Real, eff: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Burner exit temperature [K] and fuel-air ratio: (1+far) h4 = h3 + far eff LHV."""
     far = wf / w3
     h4 = (enthalpy_ab(t3, _A_AIR, _B_AIR) + far * eff * LHV) / (1.0 + far)
     a, b = coefficients(far)
-    return temperature_from_enthalpy_ab(h4, a, b), far
+    return temperature_from_enthalpy_ab(h4, a, b), np.asarray(far)
 
 
 def nozzle(
-    pt: np.ndarray, tt: np.ndarray, p_amb: np.ndarray, area: float, far: np.ndarray | float
+    pt: Real, tt: Real, p_amb: Real, area: float, far: Real | float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Flow [kg/s] and gross thrust [N] of a convergent nozzle of throat ``area`` [m^2].
 
@@ -91,13 +92,13 @@ def nozzle(
     return w, w * v + area * (ps - p_amb)
 
 
-def static_pressure(pt: np.ndarray, tt: np.ndarray, w: np.ndarray, area: float) -> np.ndarray:
+def static_pressure(pt: Real, tt: Real, w: Real, area: float) -> np.ndarray:
     """Static pressure of a low-Mach duct flow: Ps = Pt - W^2 R T / (2 A^2 Pt)."""
-    return pt - w * w * R_GAS * tt / (2.0 * area * area * pt)
+    return np.asarray(pt - w * w * R_GAS * tt / (2.0 * area * area * pt))
 
 
 def bleed_valve(
-    position: np.ndarray, pt: np.ndarray, tt: np.ndarray, p_amb: np.ndarray, k: float
+    position: Real, pt: Real, tt: Real, p_amb: Real, k: float
 ) -> np.ndarray:
     """Overboard bleed flow [kg/s] of a valve open ``position`` percent.
 

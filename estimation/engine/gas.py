@@ -21,6 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
+# Gas-path functions take scalars (the design point) or arrays (a batch of engines).
+Real = np.ndarray | float
+
 R_GAS = 287.05  # J/(kg K)
 LHV = 43.0e6  # J/kg, lower heating value of Jet-A
 
@@ -28,7 +31,7 @@ _A0, _A1 = 952.0, 452.0
 _B0, _B1 = 0.176, 1.62
 
 
-def _coefficients(far: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+def _coefficients(far: Real | float) -> tuple[np.ndarray, np.ndarray]:
     """cp = a + b T coefficients; air (far = 0.0, a Python float) skips the arithmetic."""
     if isinstance(far, float) and far == 0.0:
         return _A0, _B0  # type: ignore[return-value]
@@ -36,23 +39,23 @@ def _coefficients(far: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
     return _A0 + _A1 * fa, _B0 + _B1 * fa  # type: ignore[return-value]
 
 
-def coefficients(far: np.ndarray | float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def coefficients(far: Real | float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """(a, b) of cp = a + b T at fuel-air ratio far, for the ``*_ab`` functions below."""
     return _coefficients(far)
 
 
-def enthalpy_ab(t: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def enthalpy_ab(t: Real, a: Real, b: Real) -> np.ndarray:
     """h = a T + b T^2 / 2 with given coefficients (the hot path of the cycle)."""
-    return t * (a + 0.5 * b * t)
+    return np.asarray(t * (a + 0.5 * b * t))
 
 
-def temperature_from_enthalpy_ab(h: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def temperature_from_enthalpy_ab(h: Real, a: Real, b: Real) -> np.ndarray:
     """Inverse of ``enthalpy_ab``."""
     return 2.0 * h / (a + np.sqrt(a * a + 2.0 * b * h))
 
 
 def isentropic_temperature_ab(
-    t1: np.ndarray, pressure_ratio: np.ndarray, a: np.ndarray, b: np.ndarray
+    t1: Real, pressure_ratio: Real, a: Real, b: Real
 ) -> np.ndarray:
     """``isentropic_temperature`` with given coefficients."""
     target = a * np.log(t1) + b * t1 + R_GAS * np.log(pressure_ratio)
@@ -62,39 +65,39 @@ def isentropic_temperature_ab(
     return t
 
 
-def cp(t: np.ndarray, far: np.ndarray | float = 0.0) -> np.ndarray:
+def cp(t: Real, far: Real | float = 0.0) -> np.ndarray:
     """Specific heat at constant pressure [J/(kg K)] at temperature t [K]."""
     a, b = _coefficients(far)
     return a + b * t
 
 
-def gamma(t: np.ndarray, far: np.ndarray | float = 0.0) -> np.ndarray:
+def gamma(t: Real, far: Real | float = 0.0) -> np.ndarray:
     """Ratio of specific heats cp / (cp - R)."""
     c = cp(t, far)
     return c / (c - R_GAS)
 
 
-def enthalpy(t: np.ndarray, far: np.ndarray | float = 0.0) -> np.ndarray:
+def enthalpy(t: Real, far: Real | float = 0.0) -> np.ndarray:
     """Specific enthalpy [J/kg] above 0 K: h = a T + b T^2 / 2."""
     a, b = _coefficients(far)
     return t * (a + 0.5 * b * t)
 
 
-def temperature_from_enthalpy(h: np.ndarray, far: np.ndarray | float = 0.0) -> np.ndarray:
+def temperature_from_enthalpy(h: Real, far: Real | float = 0.0) -> np.ndarray:
     """Invert h(T): the positive root of b/2 T^2 + a T - h = 0."""
     a, b = _coefficients(far)
     # Written as 2h / (a + sqrt(a^2 + 2bh)) to avoid cancellation.
     return 2.0 * h / (a + np.sqrt(a * a + 2.0 * b * h))
 
 
-def entropy_function(t: np.ndarray, far: np.ndarray | float = 0.0) -> np.ndarray:
+def entropy_function(t: Real, far: Real | float = 0.0) -> np.ndarray:
     """phi(T) = integral of cp/T dT = a ln T + b T [J/(kg K)]."""
     a, b = _coefficients(far)
     return a * np.log(t) + b * t
 
 
 def isentropic_temperature(
-    t1: np.ndarray, pressure_ratio: np.ndarray, far: np.ndarray | float = 0.0
+    t1: Real, pressure_ratio: Real, far: Real | float = 0.0
 ) -> np.ndarray:
     """Temperature after an isentropic change from t1 by p2/p1 = pressure_ratio.
 
