@@ -21,6 +21,7 @@ from app.limits import BodyLimitMiddleware
 from app.log import configure_logging, install_request_logging
 from app.routers import (
     aircraft,
+    assets,
     designs,
     engine_models,
     engine_types,
@@ -101,5 +102,6 @@ def create_app(
     app.include_router(uploads.router)
     app.include_router(streams.router)
     app.include_router(jobs_router.router)
+    app.include_router(assets.router)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
     return app
