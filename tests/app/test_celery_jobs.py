@@ -218,3 +218,35 @@ def test_beat_sends_the_tick_and_the_tick_submits_requeues_and_resends(
     assert (outcome["requeued"], outcome["resent"]) == ([stale_id], [lost_id])
     assert sorted(sent) == sorted([stale_id, lost_id, *scheduled])
     assert job_row(factory, stale_id).status == "queued"
+
+
+def test_an_app_set_to_celery_sends_jobs_to_the_broker_and_runs_none_itself(
+    live: tuple[str, sessionmaker[Session]], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from fastapi.testclient import TestClient
+
+    from app.config import Settings
+    from app.main import create_app
+    from tests.app.jobs_support import make_registry
+
+    url, factory = live
+    with transaction(factory) as session:
+        _operator, key = make_operator(session, "Celery App Air", role="analyst")
+    sent: list[int] = []
+    monkeypatch.setattr(CeleryDispatch, "dispatch", lambda self, job_id: sent.append(job_id))
+    settings = Settings(
+        data_dir=tmp_path / "data", database_url=url, log_json=False, job_runner="celery"
+    )
+    app = create_app(settings, background_jobs=True)
+    app.state.job_registry = make_registry()
+    with TestClient(app) as client:
+        assert isinstance(app.state.job_dispatcher, CeleryDispatch)
+        response = client.post(
+            "/api/v1/jobs",
+            json={"kind": "add", "parameters": {"a": 1}},
+            headers={"X-API-Key": key},
+        )
+        assert response.status_code == 202
+    job_id = response.json()["id"]
+    assert sent == [job_id]
+    assert job_row(factory, job_id).status == "queued"  # no runner in the API process
