@@ -4,11 +4,12 @@ from __future__ import annotations
 
 from typing import Literal
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Response
 
 from app.schemas.estimates import FleetDeterioration, FleetStatus
 from app.security import CurrentPrincipal, DbSession
 from app.services import fleet_status as service
+from app.services.trends import to_json
 
 router = APIRouter(prefix="/api/v1/fleet", tags=["fleet status"])
 
@@ -17,7 +18,10 @@ router = APIRouter(prefix="/api/v1/fleet", tags=["fleet status"])
 def fleet_status(session: DbSession, principal: CurrentPrincipal) -> object:
     """Every engine with its current tail and position, type, last data, latest health summary
     and open events."""
-    return service.fleet_status(session, principal.operator_id)
+    return Response(
+        to_json(service.fleet_status(session, principal.operator_id)),
+        media_type="application/json",
+    )
 
 
 @router.get("/deterioration", response_model=FleetDeterioration)

@@ -53,7 +53,7 @@ def engine_trend(
     )
     if format == "csv":
         return _csv(trends.engine_trend_csv(trend), f"trend-{trend['esn']}.csv")
-    return trend
+    return Response(trends.to_json(trend), media_type="application/json")
 
 
 @router.get(
@@ -74,4 +74,4 @@ def aircraft_trend(
     )
     if format == "csv":
         return _csv(trends.aircraft_trend_csv(trend), f"trend-{trend['tail']}.csv")
-    return trend
+    return Response(trends.to_json(trend), media_type="application/json")

@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
-from sqlalchemy import select
+from sqlalchemy import Float, cast, func, select
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidInput, NotFound
@@ -32,7 +33,7 @@ GROUPS = (
     ("wssr", "wssr", None, "faults", "WSSR per fault hypothesis"),
 )
 DEFAULT_UNITS = {"tuners": "%", "health": "%", "aux": "%", "sensors": "%", "faults": "1"}
-DEFAULT_MAX_POINTS = 2000
+DEFAULT_MAX_POINTS = 1000
 
 
 @dataclass(frozen=True)
@@ -50,8 +51,29 @@ class TrendData:
     values: np.ndarray
 
 
-def _epoch(t: datetime) -> float:
-    return t.timestamp()
+def epoch_seconds(session: Session) -> Any:
+    """recorded_at as seconds since 1970 computed by the database: no datetime object per row."""
+    if session.get_bind().dialect.name == "sqlite":
+        # SQLite keeps UTC text; julianday keeps the fraction of a second.
+        return (func.julianday(Estimate.recorded_at) - 2440587.5) * 86400.0
+    return cast(func.extract("epoch", Estimate.recorded_at), Float)
+
+
+def to_json(document: Any) -> bytes:
+    """JSON bytes of a trend or status dict (timestamps as ISO 8601 UTC).
+
+    Routes send these bytes directly: the dicts are built to the response models' shape, and
+    validating half a million floats again would cost more than building them.
+    """
+    return json.dumps(document, default=_json_default, separators=(",", ":")).encode()
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, datetime):
+        return value.astimezone(UTC).isoformat().replace("+00:00", "Z")
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"cannot encode {type(value).__name__} as JSON")
 
 
 def _iso(epoch: float) -> str:
@@ -109,7 +131,7 @@ def load_trend_data(
         return None
     layout = EstimateLayout.from_dict(layout_doc)
     query = (
-        select(Estimate.recorded_at, Estimate.seq, Estimate.phase, Estimate.packed)
+        select(epoch_seconds(session), Estimate.seq, Estimate.phase, Estimate.packed)
         .where(Estimate.engine_id == engine_id, Estimate.design_id == design_id)
         .order_by(Estimate.seq)
     )
@@ -123,7 +145,7 @@ def load_trend_data(
     recorded, seq, phase, blobs = zip(*rows, strict=True)
     return TrendData(
         layout=layout,
-        epoch=np.fromiter((_epoch(t) for t in recorded), float, len(rows)),
+        epoch=np.asarray(recorded, dtype=float),
         seq=np.asarray(seq, dtype=np.int64),
         phase=list(phase),
         values=layout.unpack(list(blobs)),
@@ -168,7 +190,7 @@ def _series_columns(
 
 def _clean(column: np.ndarray) -> list[float | None]:
     """JSON numbers; a missing value (NaN: sensor not reported) becomes null."""
-    rounded = np.round(column, 6)
+    rounded = np.round(column, 4)
     if not np.isnan(rounded).any():
         return rounded.tolist()
     return [None if np.isnan(v) else v for v in rounded.tolist()]

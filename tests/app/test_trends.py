@@ -145,10 +145,10 @@ def test_full_resolution_trend_returns_the_stored_numbers(session: Session) -> N
     s = LAYOUT.slices()
     for j, name in enumerate(LAYOUT.health):
         series = _series(trend, "health", name)
-        np.testing.assert_allclose(series["value"], stored[:, s["h"]][:, j], atol=1e-6)
-        np.testing.assert_allclose(series["sigma"], stored[:, s["h_sigma"]][:, j], atol=1e-6)
+        np.testing.assert_allclose(series["value"], stored[:, s["h"]][:, j], atol=6e-5)
+        np.testing.assert_allclose(series["sigma"], stored[:, s["h_sigma"]][:, j], atol=6e-5)
     np.testing.assert_allclose(
-        _series(trend, "wssr", "HPC")["value"], stored[:, s["wssr"]][:, 1], atol=1e-6
+        _series(trend, "wssr", "HPC")["value"], stored[:, s["wssr"]][:, 1], atol=6e-5
     )
     parsed = [datetime.fromisoformat(t.replace("Z", "+00:00")) for t in trend["time"]]
     assert parsed == times
@@ -177,9 +177,9 @@ def test_time_range_and_decimation_match_a_direct_recomputation(session: Session
     edges = [int(np.floor(k * 800 / 64)) for k in range(64)] + [800]
     for k in range(64):
         chunk = inside[edges[k] : edges[k + 1], col]
-        assert abs(series["value"][k] - chunk.mean()) < 1e-5
-        assert abs(series["min"][k] - chunk.min()) < 1e-6
-        assert abs(series["max"][k] - chunk.max()) < 1e-6
+        assert abs(series["value"][k] - chunk.mean()) < 1e-4
+        assert abs(series["min"][k] - chunk.min()) < 6e-5
+        assert abs(series["max"][k] - chunk.max()) < 6e-5
     assert trend["seq"][0] == np.mean(np.arange(100, 100 + edges[1]))
 
 
