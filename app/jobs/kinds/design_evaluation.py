@@ -1,0 +1,40 @@
+"""``evaluate_design``: Monte Carlo check of an estimator design (theory next to Monte Carlo,
+confusion matrices), with progress for the dashboard."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+from sqlalchemy.orm import Session
+
+from app.jobs.registry import Progress, registry
+from app.services import design_evaluation
+
+
+class EvaluateDesign(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    design_id: int
+    n_cases: int = Field(200, ge=2, le=5000, description="Monte Carlo cases of the SSEE run")
+    duration_s: float = Field(30.0, gt=0, le=600, description="seconds per SSEE case")
+    window_s: float = Field(10.0, gt=0, le=600, description="error window at the end, s")
+    fault_duration_s: float = Field(300.0, gt=0, le=3600, description="seconds per fault case")
+    seed: int = Field(0, ge=0)
+
+
+@registry.job(
+    design_evaluation.JOB_KIND,
+    parameters=EvaluateDesign,
+    description="Monte Carlo SSEE next to the design's theory, and WSSR confusion matrices.",
+    role="analyst",
+)
+def evaluate_design(
+    session: Session, parameters: EvaluateDesign, progress: Progress, *, operator_id: int
+) -> dict[str, Any]:
+    return design_evaluation.evaluate_design(
+        session, operator_id=operator_id, design_id=parameters.design_id,
+        n_cases=parameters.n_cases, duration_s=parameters.duration_s,
+        window_s=parameters.window_s, fault_duration_s=parameters.fault_duration_s,
+        seed=parameters.seed, progress=progress,
+    )
