@@ -22,6 +22,7 @@ from app.log import configure_logging, install_request_logging
 from app.routers import (
     aircraft,
     assets,
+    design_evaluation,
     designs,
     engine_models,
     engine_types,
@@ -93,6 +94,7 @@ def create_app(
     app.include_router(events.router)
     app.include_router(aircraft.router)
     app.include_router(designs.router)
+    app.include_router(design_evaluation.router)
     app.include_router(engine_models.router)
     app.include_router(engine_types.router)
     app.include_router(engines.router)
