@@ -389,58 +389,61 @@ def fleet_snapshots(
     plan: FleetPlan,
     rng: np.random.Generator,
     on_round: Callable[[int], None] | None = None,
+    max_rows: int = 4096,
 ) -> Snapshots:
     """Take-off, climb and cruise snapshots of every flight of the plan.
 
-    Per round, one batched steady-state solve over all installed engines and
-    the three phases; noise N(0, engine_noise_std()) on the sensors when the
-    plan's config says so. ``on_round(j)`` is called after each round (progress).
+    Rows are laid out round by round (phase, then aircraft and position);
+    batched steady-state solves of whole rounds, at most about ``max_rows``
+    engine-points per solve; then noise N(0, engine_noise_std()) on the
+    sensors of all rows in one draw when the plan's config says so (the
+    result does not depend on max_rows). ``on_round(j)`` reports progress.
     """
     cfg = plan.config
     n_air, n_pos = cfg.n_aircraft, cfg.positions
-    std = engine_noise_std()
-    cols: dict[str, list[np.ndarray]] = {k: [] for k in Snapshots._fields}
+    n = n_air * n_pos
+    air = np.repeat(np.arange(n_air), n_pos)
     esns = np.asarray(plan.esns, dtype=object)
     tails = np.asarray(plan.tails, dtype=object)
+    cols: dict[str, list[np.ndarray]] = {k: [] for k in Snapshots._fields}
+    health = []
     for j in range(cfg.n_flights):
-        prof = flight_profile(_round_conditions(plan, j))
-        points = snapshot_points(prof)
+        points = snapshot_points(flight_profile(_round_conditions(plan, j)))
         eng = plan.installed[j].ravel()  # [N P]
-        air = np.repeat(np.arange(n_air), n_pos)
         starts = np.array([r.started_at for r in plan.flights[j]])
         fids = np.asarray([r.flight_id for r in plan.flights[j]], dtype=object)
-        h = plan.health[j, eng]
-        env, power, rows = [], [], []
         for pt in points:
             c = pt.condition
-            env.append(np.stack([c.alt_ft[air], c.mach[air], c.dtamb_k[air]], axis=1))
-            power.append(c.power_pct[air])
-            rows.append(air)
-        env_a, power_a = np.concatenate(env), np.concatenate(power)
-        ss = steady_state(env_a, power=power_a, health=np.tile(h, (len(points), 1)))
-        y = ss.sensors
-        ym = y + rng.standard_normal(y.shape) * std if cfg.noise else y.copy()
-        n = eng.size
-        for k, pt in enumerate(points):
-            sl = slice(k * n, (k + 1) * n)
             cols["recorded_at"].append(starts[air] + pt.time_s)
             cols["tail"].append(tails[air])
             cols["position"].append(np.tile(np.arange(1, n_pos + 1), n_air))
             cols["phase"].append(np.full(n, pt.phase, dtype=object))
             cols["flight_id"].append(fids[air])
             cols["esn"].append(esns[eng])
-            cols["alt_ft"].append(env_a[sl, 0])
-            cols["mach"].append(env_a[sl, 1])
-            cols["dtamb_k"].append(env_a[sl, 2])
-            cols["power_pct"].append(power_a[sl])
-            act = ss.u[sl].copy()
-            act[:, 0] = ym[sl, -1]  # the Wf sensor (fuel flow command, measured)
-            cols["actuators"].append(act)
-            cols["sensors"].append(ym[sl])
-            cols["sensors_true"].append(y[sl])
+            cols["alt_ft"].append(c.alt_ft[air])
+            cols["mach"].append(c.mach[air])
+            cols["dtamb_k"].append(c.dtamb_k[air])
+            cols["power_pct"].append(c.power_pct[air])
+            health.append(plan.health[j, eng])
+    meta = {k: np.concatenate(v) for k, v in cols.items() if v}
+    h = np.concatenate(health)
+    env = np.stack([meta["alt_ft"], meta["mach"], meta["dtamb_k"]], axis=1)
+    per_round = 3 * n
+    rounds_per_solve = max(1, max_rows // per_round)
+    y = np.empty((env.shape[0], 12))
+    u = np.empty((env.shape[0], 3))
+    for j0 in range(0, cfg.n_flights, rounds_per_solve):
+        j1 = min(cfg.n_flights, j0 + rounds_per_solve)
+        sl = slice(j0 * per_round, j1 * per_round)
+        ss = steady_state(env[sl], power=meta["power_pct"][sl], health=h[sl])
+        y[sl], u[sl] = ss.sensors, ss.u
         if on_round is not None:
-            on_round(j)
-    return Snapshots(*(np.concatenate(cols[k]) for k in Snapshots._fields))
+            for j in range(j0, j1):
+                on_round(j)
+    ym = y + rng.standard_normal(y.shape) * engine_noise_std() if cfg.noise else y.copy()
+    u[:, 0] = ym[:, -1]  # the Wf sensor (fuel flow command, measured)
+    meta.update(actuators=u, sensors=ym, sensors_true=y)
+    return Snapshots(*(meta[k] for k in Snapshots._fields))
 
 
 class StreamFlight(NamedTuple):

@@ -237,3 +237,14 @@ def test_stream_batches_do_not_change_the_flights() -> None:
     for a, b in zip(together, apart, strict=True):
         assert (a.flight_id, a.position, a.esn) == (b.flight_id, b.position, b.esn)
         np.testing.assert_allclose(a.sensors, b.sensors, rtol=1e-9)
+
+
+def test_snapshot_solve_batches_do_not_change_the_snapshots() -> None:
+    cfg = FleetConfig(n_aircraft=2, n_flights=5)
+    plan = plan_fleet(cfg, np.random.default_rng(13))
+    big = fleet_snapshots(plan, np.random.default_rng(1))
+    rounds = []
+    small = fleet_snapshots(plan, np.random.default_rng(1), on_round=rounds.append, max_rows=12)
+    assert rounds == list(range(5))
+    np.testing.assert_allclose(small.sensors, big.sensors, rtol=1e-9)
+    np.testing.assert_array_equal(small.flight_id, big.flight_id)
