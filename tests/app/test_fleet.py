@@ -217,3 +217,26 @@ def test_update_refuses_null_for_required_fields(client: TestClient, tenant: Ten
     assert response.status_code == 422
     assert error_of(response)["details"][0]["location"] == ["body", "tail"]
     assert client.get(f"{API}/aircraft/{ac['id']}", headers=tenant.headers()).json()["tail"] == "N1"
+
+
+def test_engine_updates_check_references_and_uniqueness(
+    client: TestClient, session: Session, tenant: Tenant
+) -> None:
+    et = post(client, tenant, f"{API}/engine-types", {"name": "TF-2S"})
+    e1 = post(client, tenant, f"{API}/engines", {"esn": "E1", "engine_type_id": et["id"]})
+    post(client, tenant, f"{API}/engines", {"esn": "E2", "engine_type_id": et["id"]})
+    other = make_tenant(session, "South Air")
+    foreign_type = post(client, other, f"{API}/engine-types", {"name": "TF-3S"})
+    url = f"{API}/engines/{e1['id']}"
+    bad_type = client.patch(
+        url, json={"engine_type_id": foreign_type["id"]}, headers=tenant.headers()
+    )
+    assert bad_type.status_code == 422
+    assert error_of(bad_type)["details"][0]["location"] == ["body", "engine_type_id"]
+    taken = client.patch(url, json={"esn": "E2"}, headers=tenant.headers())
+    assert taken.status_code == 409
+    session.expire_all()
+    stored = session.get(Engine, e1["id"])
+    assert stored is not None and (stored.esn, stored.engine_type_id) == ("E1", et["id"])
+    renamed = client.patch(url, json={"esn": "E1-R"}, headers=tenant.headers())
+    assert renamed.json() == {**e1, "esn": "E1-R"}
