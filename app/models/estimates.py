@@ -221,12 +221,16 @@ class EstimateLayout:
         return sum(len(self.names(group)) for _block, group in BLOCKS)
 
     def slices(self) -> dict[str, slice]:
+        cached = self.__dict__.get("_slices")
+        if cached is not None:
+            return dict(cached)
         out, start = {}, 0
         for block, group in BLOCKS:
             n = len(self.names(group))
             out[block] = slice(start, start + n)
             start += n
-        return out
+        self.__dict__["_slices"] = out  # frozen dataclass: cache through __dict__
+        return dict(out)
 
     def pack(self, rows: np.ndarray) -> list[bytes]:
         """(n, width) numbers -> n blobs."""

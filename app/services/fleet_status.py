@@ -49,8 +49,8 @@ def health_summary(
         "worst_health_value": None if worst is None else round(float(h[worst]), 4),
         "worst_health_sigma": None if worst is None else round(float(h_sigma[worst]), 4),
         "thrust_deficit": None if k is None else round(float(-z[k]), 4),
-        "health": {n: round(float(v), 4) for n, v in zip(layout.health, h, strict=True)},
-        "aux": {n: round(float(v), 4) for n, v in zip(layout.aux, z, strict=True)},
+        "health": dict(zip(layout.health, np.round(h, 4).tolist(), strict=True)),
+        "aux": dict(zip(layout.aux, np.round(z, 4).tolist(), strict=True)),
     }
 
 
@@ -114,7 +114,7 @@ def fleet_status(session: Session, operator_id: int) -> dict[str, Any]:
         by_engine[state_row.engine_id][state_row.design_id] = state_row
     counts = open_event_counts(session, operator_id)
     newest_events = latest_open_events(session, operator_id)
-    layouts: dict[str, EstimateLayout] = {}
+    layouts: dict[int, EstimateLayout] = {}
 
     out = []
     for engine_id, esn, type_id, type_name in engines:
@@ -126,10 +126,10 @@ def fleet_status(session: Session, operator_id: int) -> dict[str, Any]:
                                                       r.last_recorded_at, r.design_id))
         summary = layout = values = None
         if row is not None and row.packed is not None:
-            key = repr(row.layout)
-            if key not in layouts:
-                layouts[key] = EstimateLayout.from_dict(row.layout)
-            layout = layouts[key]
+            # One layout per design: decode it once.
+            if row.design_id not in layouts:
+                layouts[row.design_id] = EstimateLayout.from_dict(row.layout)
+            layout = layouts[row.design_id]
             values = layout.unpack([row.packed])[0]
             summary = health_summary(layout, values, row.recorded_at, row.seq)
         n_open = counts.get(engine_id, 0)
