@@ -1,0 +1,94 @@
+// Fleet status: every engine with its state, sortable and filterable; fleet-average deterioration.
+import { api } from "./api.js";
+import { $, badge, fmtNum, fmtTime, h, showError, sortableTable, startPage } from "./ui.js";
+import { axisTitle, layout, plot, styleFor, unitOf } from "./plots.js";
+
+const STATE_RANK = { alert: 3, watch: 2, normal: 1, no_data: 0 };
+let engines = [];
+
+function columns() {
+  return [
+    { key: "esn", label: "ESN", cell: (e) => h("a", { href: `/engine.html?id=${e.engine_id}` }, e.esn) },
+    { key: "tail", label: "Tail", value: (e) => e.tail, cell: (e) => e.tail || h("span", { class: "muted" }, "not installed") },
+    { key: "position", label: "Pos.", numeric: true },
+    { key: "engine_type", label: "Engine type" },
+    { key: "last_data", label: "Last data", cell: (e) => fmtTime(e.last_data) },
+    { key: "state", label: "State", value: (e) => STATE_RANK[e.state], cell: (e) => badge(e.state) },
+    { key: "worst", label: "Largest health change [%]", value: (e) => (e.health ? Math.abs(e.health.worst_health_value ?? 0) : null),
+      cell: (e) => (e.health && e.health.worst_health ? `${e.health.worst_health} ${fmtNum(e.health.worst_health_value)} ± ${fmtNum(e.health.worst_health_sigma)}` : "–") },
+    { key: "thrust", label: "Thrust deficit [%]", numeric: true, value: (e) => e.health?.thrust_deficit ?? null, cell: (e) => fmtNum(e.health?.thrust_deficit) },
+    { key: "n_records", label: "Records", numeric: true },
+    { key: "open_events", label: "Open events", numeric: true,
+      cell: (e) => (e.latest_event ? h("span", {}, `${e.open_events} `, h("a", { href: `/events.html?id=${e.latest_event.id}` },
+        `${e.latest_event.fault || e.latest_event.kind} ${fmtTime(e.latest_event.detected_at).slice(0, 10)}`)) : String(e.open_events)) },
+  ];
+}
+
+function drawTable() {
+  const text = $("#filter").value.trim().toLowerCase();
+  const state = $("#state").value;
+  const open = $("#open").value;
+  const rows = engines.filter((e) => (!state || e.state === state) && (!open || e.open_events > 0) &&
+    (!text || [e.esn, e.tail, e.engine_type, e.health?.worst_health, e.state].some((v) => v && String(v).toLowerCase().includes(text))));
+  $("#count").textContent = `${rows.length} of ${engines.length} engines`;
+  $("#table").replaceChildren(rows.length ? sortableTable(columns(), rows, { sortKey: "state", descending: true, rowClass: (e) => `state-${e.state}` })
+    : h("p", { class: "muted" }, engines.length ? "No engine matches the filter." : "No engines yet: add engines and upload snapshots."));
+}
+
+async function loadStatus() {
+  const status = await api("/api/v1/fleet/status");
+  engines = status.engines;
+  const by = (s) => engines.filter((e) => e.state === s).length;
+  $("#summary").replaceChildren(
+    h("div", { class: "card" }, h("div", { class: "muted" }, "Engines"), h("div", { class: "big" }, status.n_engines)),
+    h("div", { class: "card" }, h("div", { class: "muted" }, "Open events"), h("div", { class: "big" }, status.n_open_events)),
+    h("div", { class: "card" }, h("div", { class: "muted" }, "Alert / watch"), h("div", { class: "big" }, `${by("alert")} / ${by("watch")}`)),
+    h("div", { class: "card" }, h("div", { class: "muted" }, "Operator"), h("div", { class: "big" }, status.operator)));
+  drawTable();
+}
+
+async function loadDeterioration() {
+  const div = $("#deterioration");
+  const message = $("#deterioration-message");
+  message.replaceChildren();
+  try {
+    const data = await api("/api/v1/fleet/deterioration", { query: { bucket: $("#bucket").value } });
+    const which = $("#which").value;
+    const traces = [];
+    const multi = data.groups.length > 1;
+    let units = [];
+    data.groups.forEach((g, gi) => {
+      const series = g[which];
+      units = units.concat(series.map((s) => s.unit));
+      series.forEach((s, i) => {
+        const style = styleFor(s.name, i);
+        traces.push({
+          x: g.time, y: s.mean, type: "scatter", mode: "lines+markers",
+          name: multi ? `${s.name} (${g.engine_type})` : s.name,
+          line: { color: style.color, dash: gi ? "dot" : style.dash, width: 1.8 },
+          error_y: { type: "data", array: s.sigma, visible: true, thickness: 1, width: 3, color: style.color },
+          customdata: g.n_engines, hovertemplate: `%{y:.3f} ${s.unit} (%{customdata} engines)`,
+        });
+      });
+    });
+    if (!traces.length) message.append(h("p", { class: "muted" }, "No estimates yet."));
+    const label = which === "health" ? "Fleet-average health parameter change" : "Fleet-average thrust and margin change";
+    await plot(div, traces, layout({
+      xaxis: { title: { text: "Date (UTC)" }, type: "date" },
+      yaxis: { title: { text: axisTitle(label, unitOf(units.map((unit) => ({ unit })))) } },
+    }));
+  } catch (err) {
+    showError(message, err, "Fleet-average deterioration");
+  }
+}
+
+async function main() {
+  await startPage("fleet");
+  for (const id of ["filter", "state", "open"]) $(`#${id}`).addEventListener("input", drawTable);
+  for (const id of ["bucket", "which"]) $(`#${id}`).addEventListener("change", loadDeterioration);
+  try { await loadStatus(); } catch (err) { showError($("#message"), err, "Fleet status"); }
+  await loadDeterioration();
+  document.body.dataset.ready = "true";
+}
+
+main();

@@ -1,0 +1,107 @@
+// Plot helpers on the plotly.js bundle served at /vendor/plotly.min.js (global Plotly).
+// Colours: Okabe & Ito's colour-blind-safe palette (yellow left out: unreadable on white).
+
+export const PALETTE = ["#0072B2", "#E69F00", "#009E73", "#D55E00", "#56B4E9", "#CC79A7", "#000000", "#999999"];
+export const DASHES = ["solid", "dash", "dot", "dashdot"];
+// Health parameters come in pairs per module: one colour per module, efficiency solid, flow dashed.
+const MODULES = ["fan", "lpc", "hpc", "hpt", "lpt"];
+export const MARKER_COLOURS = { installation: "#555555", maintenance: "#009E73", event: "#D55E00" };
+
+export function styleFor(name, index) {
+  const module = MODULES.indexOf(String(name).split("_")[0].toLowerCase());
+  if (module >= 0) {
+    return { color: PALETTE[module], dash: String(name).endsWith("flow") ? "dash" : "solid" };
+  }
+  return { color: PALETTE[index % PALETTE.length], dash: DASHES[Math.floor(index / PALETTE.length) % DASHES.length] };
+}
+
+export function rgba(hex, alpha) {
+  const n = parseInt(hex.slice(1), 16);
+  return `rgba(${(n >> 16) & 255},${(n >> 8) & 255},${n & 255},${alpha})`;
+}
+
+// Axis title with its unit: "Health parameter change [%]".
+export function axisTitle(label, unit) {
+  const u = unit === "1" ? "dimensionless" : unit;
+  return u ? `${label} [${u}]` : label;
+}
+
+export function unitOf(series) {
+  const units = [...new Set(series.map((s) => s.unit))];
+  return units.join(", ");
+}
+
+export function layout(extra = {}) {
+  const big = window.matchMedia("(min-width: 1900px)").matches;
+  return {
+    font: { family: "system-ui, -apple-system, Segoe UI, Roboto, sans-serif", size: big ? 16 : 12, color: "#1d2733" },
+    margin: { l: 70, r: 20, t: 40, b: 55 },
+    paper_bgcolor: "#ffffff",
+    plot_bgcolor: "#ffffff",
+    hovermode: "x unified",
+    legend: { orientation: "h", y: -0.2 },
+    ...extra,
+    xaxis: { gridcolor: "#e3e8ee", zerolinecolor: "#c5ced8", automargin: true, ...(extra.xaxis || {}) },
+    yaxis: { gridcolor: "#e3e8ee", zerolinecolor: "#c5ced8", automargin: true, ...(extra.yaxis || {}) },
+  };
+}
+
+export const CONFIG = { responsive: true, displaylogo: false, modeBarButtonsToRemove: ["lasso2d", "select2d"] };
+
+export function plot(div, traces, lay) {
+  return Plotly.react(div, traces, lay, CONFIG);
+}
+
+// A line with its 1-sigma band: a filled band trace (legend-grouped, no hover) and the line.
+export function lineWithBand(x, series, index, { band = true } = {}) {
+  const style = styleFor(series.name, index);
+  const traces = [];
+  if (band && series.sigma) {
+    const upper = series.value.map((v, i) => (v === null || series.sigma[i] === null ? null : v + series.sigma[i]));
+    const lower = series.value.map((v, i) => (v === null || series.sigma[i] === null ? null : v - series.sigma[i]));
+    traces.push({
+      x: x.concat([...x].reverse()), y: upper.concat([...lower].reverse()),
+      type: "scatter", mode: "lines", fill: "toself", fillcolor: rgba(style.color, 0.15),
+      line: { width: 0 }, hoverinfo: "skip", showlegend: false, legendgroup: series.name,
+      name: `${series.name} ±1σ`, meta: { role: "band" },
+    });
+  }
+  traces.push({
+    x, y: series.value, type: "scatter", mode: "lines", name: series.name, legendgroup: series.name,
+    line: { color: style.color, dash: style.dash, width: 1.6 },
+    hovertemplate: `%{y:.3f} ${series.unit}`, meta: { role: "line" },
+  });
+  return traces;
+}
+
+// Vertical marker lines (installation changes, maintenance, events) across the plot height.
+export function markerShapes(markers) {
+  return markers.map((m) => ({
+    type: "line", xref: "x", yref: "paper", x0: m.x, x1: m.x, y0: 0, y1: 1,
+    line: { color: MARKER_COLOURS[m.kind], width: m.kind === "event" ? 2 : 1.2, dash: m.kind === "maintenance" ? "dot" : m.kind === "installation" ? "dash" : "solid" },
+  }));
+}
+
+export function markerAnnotations(markers) {
+  return markers.map((m, i) => ({
+    x: m.x, xref: "x", y: 1, yref: "paper", yanchor: "bottom", text: m.short, hovertext: m.label,
+    showarrow: false, font: { size: 10, color: MARKER_COLOURS[m.kind] }, yshift: (i % 2) * 11,
+  }));
+}
+
+// Zooming one plot zooms the others on the same x axis.
+export function syncZoom(divs) {
+  let busy = false;
+  for (const div of divs) {
+    div.on("plotly_relayout", (ev) => {
+      if (busy) return;
+      const range = ev["xaxis.range[0]"] !== undefined ? [ev["xaxis.range[0]"], ev["xaxis.range[1]"]]
+        : ev["xaxis.range"] ? ev["xaxis.range"] : null;
+      const auto = ev["xaxis.autorange"];
+      if (!range && !auto) return;
+      busy = true;
+      const update = range ? { "xaxis.range": range } : { "xaxis.autorange": true };
+      Promise.all(divs.filter((d) => d !== div).map((d) => Plotly.relayout(d, update))).finally(() => { busy = false; });
+    });
+  }
+}

@@ -1,0 +1,172 @@
+"""Browser tests: Playwright driving the system Chromium against a real uvicorn server.
+
+The server runs in a thread of the test process on a free port of 127.0.0.1, on a SQLite file
+migrated with Alembic and seeded through the services (``seed.py``). Chromium is the system
+package (Playwright's own browser download does not work here): without it the tests skip
+with the reason, except under CI (``CI`` set), where a missing Chromium is a failure.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+SCREENSHOTS = Path(__file__).resolve().parents[2] / "test-artifacts" / "screenshots"
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--no-first-run",
+]
+LAPTOP = {"width": 1440, "height": 900}
+
+
+def chromium_path() -> str | None:
+    configured = os.environ.get("FLEETHEALTH_CHROMIUM")
+    if configured:
+        return configured if Path(configured).exists() else None
+    if Path("/usr/bin/chromium").exists():
+        return "/usr/bin/chromium"
+    return shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+def _unavailable(reason: str) -> None:
+    if os.environ.get("CI"):
+        pytest.fail(f"browser tests cannot run under CI: {reason}")
+    pytest.skip(reason)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@dataclass
+class Server:
+    base_url: str
+    seeded: Any
+    factory: Any
+
+
+@pytest.fixture(scope="session")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+    import uvicorn
+
+    from app.config import Settings
+    from app.db import make_engine, make_sessionmaker
+    from app.main import create_app
+    from app.migrate import upgrade
+    from app.services import pipeline
+    from estimation.engine.schedule import build_schedule
+    from tests.browser.seed import seed
+
+    data_dir = tmp_path_factory.mktemp("browser-data")
+    url = f"sqlite:///{data_dir / 'fleethealth.sqlite3'}"
+    upgrade(url)
+    schedule = build_schedule()
+    patch = pytest.MonkeyPatch()
+    patch.setattr(pipeline, "builtin_schedule", lambda: schedule)
+    engine = make_engine(url)
+    factory = make_sessionmaker(engine)
+    seeded = seed(factory)
+    settings = Settings(data_dir=data_dir, database_url=url, log_json=False, log_level="WARNING")
+    app = create_app(settings, engine)
+    port = _free_port()
+    config = uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", lifespan="on")
+    uv = uvicorn.Server(config)
+    thread = threading.Thread(target=uv.run, name="uvicorn", daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 20
+    while not uv.started:
+        if time.monotonic() > deadline or not thread.is_alive():
+            raise RuntimeError("uvicorn did not start")
+        time.sleep(0.05)
+    yield Server(f"http://127.0.0.1:{port}", seeded, factory)
+    uv.should_exit = True
+    thread.join(timeout=10)
+    patch.undo()
+
+
+@pytest.fixture(scope="session")
+def browser() -> Iterator[Any]:
+    executable = chromium_path()
+    if executable is None:
+        _unavailable(
+            "Chromium is not installed (apt-get install chromium, or set FLEETHEALTH_CHROMIUM)"
+        )
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        _unavailable("the playwright python package is not installed")
+    with sync_playwright() as pw:
+        try:
+            chromium = pw.chromium.launch(executable_path=executable, args=CHROMIUM_ARGS)
+        except Exception as exc:  # noqa: BLE001 - any launch failure is reported as the reason
+            _unavailable(f"Chromium at {executable} did not start: {exc}")
+        yield chromium
+        chromium.close()
+
+
+@dataclass
+class Console:
+    """Console errors and uncaught page errors seen while a test ran."""
+
+    errors: list[str] = field(default_factory=list)
+
+    def unexpected(self, *allowed: str) -> list[str]:
+        return [e for e in self.errors if not any(a in e for a in allowed)]
+
+
+@pytest.fixture
+def console() -> Console:
+    return Console()
+
+
+@pytest.fixture
+def page(browser: Any, server: Server, console: Console) -> Iterator[Any]:
+    context = browser.new_context(viewport=LAPTOP, base_url=server.base_url)
+    pg = context.new_page()
+    pg.on("console", lambda m: console.errors.append(f"console: {m.text} @ {m.location.get('url')}")
+          if m.type == "error" else None)
+    pg.on("pageerror", lambda e: console.errors.append(f"pageerror: {e}"))
+    pg.set_default_timeout(15_000)
+    yield pg
+    context.close()
+
+
+def sign_in(page: Any, key: str, then: str = "/") -> None:
+    """Sign in through the sign-in form and wait for the page ``then`` to be ready."""
+    page.goto(f"/signin.html?next={then}")
+    page.fill("#key", key)
+    page.click("button[type=submit]")
+    page.wait_for_url(f"**{then}")
+    page.wait_for_selector("body[data-ready=true]")
+
+
+def screenshot(page: Any, name: str) -> Path:
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    path = SCREENSHOTS / f"{name}.png"
+    page.screenshot(path=str(path), full_page=True)
+    return path
+
+
+def traces(page: Any, selector: str) -> list[dict[str, Any]]:
+    """Name, type and point count of every trace of the plotly plot at ``selector``."""
+    result: list[dict[str, Any]] = page.evaluate(
+        """(sel) => (document.querySelector(sel).data || []).map((t) => ({
+            name: t.name, type: t.type || 'scatter', role: t.meta && t.meta.role,
+            n: (t.y || t.z || t.x || []).length }))""",
+        selector,
+    )
+    return result

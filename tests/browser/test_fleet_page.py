@@ -1,0 +1,53 @@
+"""Sign-in and the fleet status page in a real browser."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+
+from tests.browser.conftest import Console, Server, screenshot, sign_in, traces
+
+pytestmark = pytest.mark.browser
+
+
+def test_wrong_key_is_refused_with_the_api_message(page: Any, console: Console) -> None:
+    page.goto("/")
+    page.wait_for_url("**/signin.html**")  # no key yet: the dashboard sends you to sign in
+    page.fill("#key", "fh_wrong_key")
+    page.click("button[type=submit]")
+    error = page.wait_for_selector(".error")
+    assert "Sign-in failed" in error.inner_text() and "401" in error.inner_text()
+    assert page.evaluate("sessionStorage.getItem('fleethealth.apiKey')") is None
+    screenshot(page, "signin-wrong-key")
+    # The browser logs the refused request itself; nothing else may fail.
+    assert console.unexpected("401") == []
+
+
+def test_fleet_status_lists_every_engine_and_plots_deterioration(
+    page: Any, server: Server, console: Console
+) -> None:
+    sign_in(page, server.seeded.key, "/")
+    rows = page.locator("#table tbody tr")
+    esns = sorted(server.seeded.engine_ids)
+    assert rows.count() == len(esns)
+    assert sorted(page.locator("#table tbody tr td:first-child").all_inner_texts()) == esns
+    # Sorting by ESN puts them in order; filtering by one ESN leaves one row.
+    page.click("th[data-key=esn]")
+    assert page.locator("#table tbody tr td:first-child").all_inner_texts() == esns
+    page.fill("#filter", esns[-1])
+    assert page.locator("#table tbody tr").count() == 1
+    page.fill("#filter", "")
+    # One deterioration trace per health parameter of the design, with units on the y axis.
+    plotted = traces(page, "#deterioration")
+    names = {t["name"] for t in plotted}
+    assert {"fan_eff", "hpc_eff", "hpc_flow", "lpt_flow"} <= names
+    assert len(plotted) == 10
+    title = page.evaluate("document.querySelector('#deterioration').layout.yaxis.title.text")
+    assert "[%]" in title
+    screenshot(page, "fleet-status")
+    page.select_option("#which", "aux")
+    page.wait_for_function(
+        "document.querySelector('#deterioration').data.some((t) => t.name === 'Fn')"
+    )
+    assert console.unexpected() == []
