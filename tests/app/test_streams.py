@@ -17,7 +17,13 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.models import StreamChunk, StreamRecording
-from tests.app.fleet_fixture import SWAP_AT, T0, Fleet, make_fleet
+from tests.app.fleet_fixture import (  # isolated_connection overrides conftest's
+    SWAP_AT,
+    T0,
+    Fleet,
+    isolated_connection,  # noqa: F401
+    make_fleet,
+)
 
 DT = 0.05  # 20 Hz
 CSV = {"Content-Type": "text/csv"}

@@ -18,12 +18,13 @@ from sqlalchemy.orm import Session, sessionmaker
 from app.config import Settings
 from app.main import create_app
 from app.models import Snapshot, Upload
-from tests.app.fleet_fixture import (
+from tests.app.fleet_fixture import (  # isolated_connection overrides conftest's
     SWAP_AT,
     T0,
     Fleet,
     counts,
     csv_bytes,
+    isolated_connection,  # noqa: F401
     json_body,
     make_fleet,
     parquet_bytes,
