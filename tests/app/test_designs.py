@@ -15,7 +15,13 @@ from sqlalchemy.orm import Session
 from app.models import EngineModel, EstimatorDesign
 from app.services import models_designs
 from estimation import tuners
-from tests.app.fleetkit import Tenant, error_of, make_tenant, post
+from tests.app.fleetkit import (  # noqa: F401 (connection: fixture)
+    Tenant,
+    connection,
+    error_of,
+    make_tenant,
+    post,
+)
 from tests.estimation.models import reference_model
 
 API = "/api/v1"

@@ -15,7 +15,13 @@ from sqlalchemy.orm import Session
 from app.models import EngineModel
 from app.services import models_designs
 from estimation.model import LinearModel
-from tests.app.fleetkit import Tenant, error_of, make_tenant, post
+from tests.app.fleetkit import (  # noqa: F401 (connection: fixture)
+    Tenant,
+    connection,
+    error_of,
+    make_tenant,
+    post,
+)
 from tests.estimation.models import random_model, reference_model
 
 API = "/api/v1/engine-models"

@@ -8,7 +8,14 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.models import Aircraft, Engine, EngineType
-from tests.app.fleetkit import T0, Tenant, error_of, make_tenant, post
+from tests.app.fleetkit import (  # noqa: F401 (connection: fixture)
+    T0,
+    Tenant,
+    connection,
+    error_of,
+    make_tenant,
+    post,
+)
 
 API = "/api/v1"
 

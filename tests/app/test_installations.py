@@ -14,7 +14,14 @@ from sqlalchemy.orm import Session
 from app.errors import Conflict
 from app.models import Installation
 from app.services import fleet
-from tests.app.fleetkit import T0, Tenant, error_of, make_tenant, post
+from tests.app.fleetkit import (  # noqa: F401 (connection: fixture)
+    T0,
+    Tenant,
+    connection,
+    error_of,
+    make_tenant,
+    post,
+)
 
 API = "/api/v1"
 DAY = timedelta(days=1)

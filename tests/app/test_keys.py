@@ -9,7 +9,12 @@ from sqlalchemy.orm import Session
 
 from app.models import ApiKey
 from app.services.tenancy import digest
-from tests.app.fleetkit import Tenant, error_of, make_tenant
+from tests.app.fleetkit import (  # noqa: F401 (connection: fixture)
+    Tenant,
+    connection,
+    error_of,
+    make_tenant,
+)
 
 API = "/api/v1/keys"
 

@@ -12,7 +12,14 @@ from sqlalchemy.orm import Session
 
 from app.models import MaintenanceAction
 from app.services import maintenance
-from tests.app.fleetkit import T0, Tenant, error_of, make_tenant, post
+from tests.app.fleetkit import (  # noqa: F401 (connection: fixture)
+    T0,
+    Tenant,
+    connection,
+    error_of,
+    make_tenant,
+    post,
+)
 
 API = "/api/v1/maintenance-actions"
 KINDS = ("water_wash", "module_change", "shop_visit")
