@@ -17,8 +17,11 @@ and the three actuators are:
 - VSV and VBV: the nominal schedules of ``actuators.py`` on measured corrected
   core speed NRc = Nc / sqrt(T24 / T24_design), relative to take-off.
 
-Discrete time, one sample of the sensors per step, everything vectorised over
-a batch of B engines (arrays [B]). Internally the controller works in
+Discrete time, one sample of the sensors per step, low-passed (50 ms) before
+use, everything vectorised over a batch of B engines (arrays [B]). The power
+setting is the demand; a power lever angle maps onto it linearly between the
+idle and take-off stops (``power_from_pla``; the flight profiles give power
+directly). Internally the controller works in
 normalised units: speeds over the design (take-off) speeds, RU over the design
 point's RU.
 """
@@ -40,6 +43,7 @@ from estimation.engine.design import EngineDesign, engine_design
 from estimation.engine.steady import steady_state
 
 DELTA_EXP = 1.5
+PLA_IDLE_DEG, PLA_TAKEOFF_DEG = 20.0, 80.0  # throttle stops [deg]
 
 
 class ControllerGains(NamedTuple):
@@ -96,6 +100,12 @@ class ControlOutput(NamedTuple):
     limited: np.ndarray
     error: np.ndarray
     nrc_rel: np.ndarray
+
+
+def power_from_pla(pla_deg: np.ndarray | float) -> np.ndarray:
+    """Power setting [%] of a power lever angle [deg]: 0 at the idle stop, 100 at take-off."""
+    pla = np.asarray(pla_deg, dtype=float)
+    return np.clip(100.0 * (pla - PLA_IDLE_DEG) / (PLA_TAKEOFF_DEG - PLA_IDLE_DEG), 0.0, 100.0)
 
 
 def design_ratio_units(design: EngineDesign | None = None) -> float:

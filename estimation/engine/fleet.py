@@ -389,7 +389,7 @@ def fleet_snapshots(
     plan: FleetPlan,
     rng: np.random.Generator,
     on_round: Callable[[int], None] | None = None,
-    max_rows: int = 4096,
+    max_rows: int = 2048,
 ) -> Snapshots:
     """Take-off, climb and cruise snapshots of every flight of the plan.
 

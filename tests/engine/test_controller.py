@@ -12,6 +12,7 @@ from estimation.engine.controller import (
     control_step,
     corrected_core_speed,
     initial_state,
+    power_from_pla,
     ratio_unit_limits,
 )
 from estimation.engine.design import engine_design
@@ -139,3 +140,9 @@ def test_slam_and_chop_ride_the_limits_without_overshoot() -> None:
     assert res.x[:, 0, 0].max() <= 1.02 * d.nf
     ss = steady_state(np.zeros((2, 3)), power=p1)
     np.testing.assert_allclose(res.x[-1, :, 0], ss.x[:, 0], rtol=2e-3)
+
+
+def test_power_lever_angle_maps_onto_the_power_setting() -> None:
+    pla = np.array([0.0, 20.0, 35.0, 50.0, 80.0, 90.0])
+    expect = np.interp(pla, [20.0, 80.0], [0.0, 100.0])
+    np.testing.assert_allclose(power_from_pla(pla), expect, rtol=1e-14)
