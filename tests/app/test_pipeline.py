@@ -205,3 +205,27 @@ def test_catch_up_estimates_exactly_the_snapshots_without_estimates(session: Ses
     assert second["records"] == 60 and second["reruns"] == 0
     assert pipeline.catch_up(session, fleet.operator_id)["records"] == 0
     assert [r[0] for r in _rows(session, engine.id)] == list(range(260))
+
+
+def test_fleet_diagnostics_summarises_and_queues_estimation(session: Session) -> None:
+    from app.jobs.kinds.estimation import FleetDiagnostics, fleet_diagnostics
+    from app.models.jobs import Job
+
+    fleet = _fleet_with_design(session)
+    aircraft = add_aircraft(session, fleet, "F-DX")
+    times, y = _records(seed=41, fault="HPC", at=450)
+    engine = add_engine(session, fleet, "DX1")
+    _store(session, fleet, engine.id, aircraft.id, times, y, range(0, 800))
+    pipeline.catch_up(session, fleet.operator_id)
+    summary = fleet_diagnostics(session, FleetDiagnostics(), lambda *a: None,
+                                operator_id=fleet.operator_id)
+    events = _events(session, engine.id)
+    assert summary["n_engines"] == 1 and summary["n_engines_waiting"] == 0
+    assert summary["n_open_events"] == len(events) == 1
+    assert "estimation_job_id" not in summary
+    _store(session, fleet, engine.id, aircraft.id, times, y, range(800, N))
+    summary = fleet_diagnostics(session, FleetDiagnostics(), lambda *a: None,
+                                operator_id=fleet.operator_id)
+    assert summary["engines"][0]["snapshots_waiting"] is True
+    job = session.get(Job, summary["estimation_job_id"])
+    assert job is not None and job.kind == "estimate_engines" and job.status == "queued"
