@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Query, status
+from fastapi import APIRouter, Query, Response, status
 
+from app.jobs.queue import Jobs
 from app.schemas.designs import DesignCreate, DesignDetail, DesignOut
 from app.schemas.fleet import Page, PageParams
 from app.security import Analyst, CurrentPrincipal, DbSession
@@ -36,9 +37,25 @@ def list_designs(
     return Page.of([DesignOut.model_validate(r) for r in rows], total, page)
 
 
-@router.post("/designs", response_model=DesignDetail, status_code=status.HTTP_201_CREATED)
-def create_design(body: DesignCreate, session: DbSession, principal: Analyst) -> DesignDetail:
-    """Run the estimation core's design step on the engine model and store the result."""
+@router.post(
+    "/designs",
+    response_model=DesignDetail,
+    status_code=status.HTTP_201_CREATED,
+    responses={202: {"model": DesignDetail, "description": "pending, made by a job"}},
+)
+def create_design(
+    body: DesignCreate,
+    response: Response,
+    session: DbSession,
+    principal: Analyst,
+    jobs: Jobs,
+    background: Annotated[
+        bool, Query(description="make the design in a create_design job (202, pending)")
+    ] = False,
+) -> DesignDetail:
+    """Run the estimation core's design step on the engine model and store the result (201);
+    with ``background=true`` the spec is checked, the design stored pending and a
+    ``create_design`` job queued (202; follow it at /api/v1/jobs/{job_id})."""
     design = models_designs.create_design(
         session,
         operator_id=principal.operator_id,
@@ -46,8 +63,18 @@ def create_design(body: DesignCreate, session: DbSession, principal: Analyst) ->
         name=body.name,
         spec=body.spec,
     )
-    design = models_designs.run_design(session, design, models_designs.design_step)
-    return DesignDetail.model_validate(design)
+    if not background:
+        design = models_designs.run_design(session, design, models_designs.design_step)
+        return DesignDetail.model_validate(design)
+    models_designs.check_spec(session, design)
+    job, _created = jobs.submit(
+        session,
+        operator_id=principal.operator_id,
+        kind=models_designs.DESIGN_JOB,
+        parameters={"design_id": design.id},
+    )
+    response.status_code = status.HTTP_202_ACCEPTED
+    return DesignDetail.model_validate(design).model_copy(update={"job_id": job.id})
 
 
 @router.get("/designs/{design_id}", response_model=DesignDetail)

@@ -83,3 +83,6 @@ class DesignOut(Row):
 
 class DesignDetail(DesignOut):
     result: dict[str, Any] | None
+    job_id: int | None = Field(
+        None, description="the create_design job making a design created in the background"
+    )

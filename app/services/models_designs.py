@@ -22,6 +22,7 @@ from app.errors import Conflict, InvalidInput
 from app.models import EngineModel, EngineType, EstimatorDesign
 from app.models.base import utcnow
 from app.services.fleet import delete_or_conflict, owned, paginate, referenced
+from estimation.design import parse_spec
 from estimation.design import run_design as run_spec
 from estimation.engine.errors import EngineConvergenceError
 from estimation.engine.linearize import linearize
@@ -200,6 +201,9 @@ def delete_engine_model(session: Session, *, operator_id: int, engine_model_id: 
 
 # ----------------------------------------------------------------------------- designs
 
+# The job kind that makes a design created in the background.
+DESIGN_JOB = "create_design"
+
 # The estimation core's design step: (model, spec) -> fleethealth.design/1 dict.
 DesignStep = Callable[[LinearModel, Mapping[str, Any]], Mapping[str, Any]]
 
@@ -224,6 +228,41 @@ def create_design(
     session.add(row)
     session.flush()
     return row
+
+
+def check_spec(session: Session, design: EstimatorDesign) -> None:
+    """Validate the design's spec against its model now (fast), or 422 naming the key."""
+    model = load_linear_model(
+        get_engine_model(
+            session, operator_id=design.operator_id, engine_model_id=design.engine_model_id
+        )
+    )
+    try:
+        parse_spec(design.spec, model)
+    except (ValueError, KeyError, TypeError) as exc:
+        reason = str(exc) if str(exc) else type(exc).__name__
+        raise InvalidInput(
+            f"spec: {reason}", details=[{"location": ["body", "spec"], "reason": reason}]
+        ) from None
+
+
+def run_pending_design(
+    session: Session,
+    *,
+    operator_id: int,
+    design_id: int,
+    step: DesignStep | None = None,
+) -> EstimatorDesign:
+    """Design a pending design (the ``create_design`` job); a ready or failed one is left as
+    it is, so running twice changes nothing. A spec the design step refuses marks the design
+    failed with the reason."""
+    design = get_design(session, operator_id=operator_id, design_id=design_id)
+    if design.status != "pending":
+        return design
+    try:
+        return run_design(session, design, step or design_step)
+    except InvalidInput as exc:
+        return fail_design(session, design, exc.message)
 
 
 def complete_design(

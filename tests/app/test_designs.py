@@ -166,3 +166,45 @@ def test_database_allows_one_active_design_per_engine_type(
     with pytest.raises(IntegrityError), session.begin_nested():
         rows[1].active = True  # type: ignore[union-attr]
         session.flush()
+
+
+def test_background_design_is_made_by_a_job(
+    client: TestClient, session: Session, session_factory: Any, tenant: Tenant
+) -> None:
+    from app.jobs.runner import run_pending
+
+    body = {"engine_model_id": tenant.ids["model"], "name": "bg", "spec": SPEC}
+    queued = client.post(
+        f"{API}/designs", params={"background": True}, json=body, headers=tenant.headers()
+    )
+    assert queued.status_code == 202
+    pending = queued.json()
+    assert pending["status"] == "pending" and pending["result"] is None and pending["job_id"]
+    assert pending["job_id"] in run_pending(session_factory)
+
+    done = client.get(f"{API}/designs/{pending['id']}", headers=tenant.headers()).json()
+    direct = _design(client, tenant, name="now").json()  # the same spec, made in the request
+    assert done["status"] == "ready"
+    assert done["ssee_health"] == pytest.approx(direct["ssee_health"], rel=1e-12)
+    job = client.get(f"/api/v1/jobs/{pending['job_id']}", headers=tenant.headers()).json()
+    assert job["status"] == "succeeded" and job["result"]["status"] == "ready"
+
+    # A spec that parses but cannot be designed (8 tuners from 6 sensors) fails the design.
+    body = {"engine_model_id": tenant.ids["model"], "name": "bad", "spec": {**SPEC, "tuners": 8}}
+    queued = client.post(
+        f"{API}/designs", params={"background": True}, json=body, headers=tenant.headers()
+    ).json()
+    run_pending(session_factory)
+    failed = client.get(f"{API}/designs/{queued['id']}", headers=tenant.headers()).json()
+    assert failed["status"] == "failed" and "sensors" in failed["failure"]
+
+
+def test_background_design_checks_the_spec_first(
+    client: TestClient, session: Session, tenant: Tenant
+) -> None:
+    body = {"engine_model_id": tenant.ids["model"], "name": "bg", "spec": {**SPEC, "tuners": 11}}
+    response = client.post(
+        f"{API}/designs", params={"background": True}, json=body, headers=tenant.headers()
+    )
+    assert response.status_code == 422 and "tuners" in error_of(response)["message"]
+    assert _designs(session, tenant) == 0
