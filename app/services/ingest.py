@@ -45,6 +45,7 @@ from app.services.ingest_parse import (
     UploadRejected,
     parse_body,
 )
+from app.services.pgcopy import HEADER, TRAILER, binary_copy_rows
 
 COPY_BATCH_ROWS = 20_000
 # Unique violations surface from SQLAlchemy, or from the drivers under COPY / executemany.
@@ -441,9 +442,36 @@ def insert_snapshots(session: Session, rows: pa.Table, *, operator_id: int, uplo
     table = snapshot_table(rows, operator_id=operator_id, upload_id=upload_id)
     connection = session.connection()
     if connection.dialect.name == "postgresql":
-        copy_rows(connection.connection.driver_connection, "snapshots", table)
+        copy_binary(connection.connection.driver_connection, "snapshots", table, SNAPSHOT_PG_TYPES)
     else:
         executemany_rows(connection.connection.driver_connection, "snapshots", table)
+
+
+# PostgreSQL types of SNAPSHOT_COLUMNS, for binary COPY.
+SNAPSHOT_PG_TYPES = {
+    "operator_id": "int4",
+    "engine_id": "int4",
+    "aircraft_id": "int4",
+    "position": "int2",
+    "upload_id": "int4",
+    "recorded_at": "timestamptz",
+    "phase": "text",
+    "flight_id": "text",
+    **{s.column: "float8" for s in SIGNALS},
+}
+
+
+def copy_binary(
+    driver_connection: Any, table_name: str, table: pa.Table, pg_types: Mapping[str, str]
+) -> None:
+    """Binary COPY of ``table`` through psycopg 3 (the server parses no text)."""
+    names = ", ".join(table.column_names)
+    with driver_connection.cursor() as cursor:
+        with cursor.copy(f"COPY {table_name} ({names}) FROM STDIN (FORMAT binary)") as copy:
+            copy.write(HEADER)
+            for batch in table.to_batches(max_chunksize=COPY_BATCH_ROWS):
+                copy.write(binary_copy_rows(pa.Table.from_batches([batch]), pg_types))
+            copy.write(TRAILER)
 
 
 def copy_rows(driver_connection: Any, table_name: str, table: pa.Table) -> None:
