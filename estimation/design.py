@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from estimation import isolation, tuners
+from estimation import isolation, theory, tuners
 from estimation.errors import DesignSpecError, UnknownSignalError
 from estimation.model import MODEL_FORMAT, LinearModel
 from estimation.reduced import covariance
@@ -83,7 +83,7 @@ def parse_spec(spec: Mapping[str, Any], model: LinearModel) -> dict[str, Any]:
     Keys of the result: design_model (sensors and health selected), source_model
     (sensors selected, every health parameter), method, m, Q, Qh, Ph,
     health_weights, aux_weights, vstar (or None), faults (or None = default
-    library), lam, svd_aux, svd_row_weights, max_iter.
+    library), lam, svd_aux, svd_row_weights, max_iter, variance.
     """
     if not isinstance(spec, Mapping):
         raise DesignSpecError("a design spec must be a JSON object")
@@ -148,6 +148,11 @@ def parse_spec(spec: Mapping[str, Any], model: LinearModel) -> dict[str, Any]:
     max_iter = spec.get("max_iter", 200)
     if isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 1:
         raise DesignSpecError("'max_iter' must be a positive integer")
+    variance = spec.get("variance", theory.WITH_PROCESS_NOISE)
+    if variance not in theory.VARIANCE_MODES:
+        raise DesignSpecError(
+            f"'variance' must be one of {list(theory.VARIANCE_MODES)}, found {variance!r}"
+        )
     return {
         "design_model": design_model,
         "source_model": source,
@@ -164,25 +169,31 @@ def parse_spec(spec: Mapping[str, Any], model: LinearModel) -> dict[str, Any]:
         "svd_aux": svd_aux,
         "svd_row_weights": svd.get("row_weights"),
         "max_iter": max_iter,
+        "variance": variance,
     }
 
 
 def _design(s: dict[str, Any]) -> tuners.TunerDesign:
     model, m, Q, Qh, Ph = s["design_model"], s["m"], s["Q"], s["Qh"], s["Ph"]
-    wh, wz = s["health_weights"], s["aux_weights"]
+    wh, wz, var = s["health_weights"], s["aux_weights"], s["variance"]
     if s["vstar"] is not None:
-        return tuners.design_filter(model, s["vstar"], Q, Qh, Ph, "explicit", wh, wz)
+        return tuners.design_filter(
+            model, s["vstar"], Q, Qh, Ph, "explicit", wh, wz, variance=var
+        )
     method = s["method"]
     if method == "subset":
-        return tuners.subset_tuners(model, m, Q, Qh, Ph, wh, wz)
+        return tuners.subset_tuners(model, m, Q, Qh, Ph, wh, wz, variance=var)
     if method == "svd":
         return tuners.svd_tuners(
-            model, m, Q, Qh, Ph, s["svd_aux"], s["svd_row_weights"], wh, wz
+            model, m, Q, Qh, Ph, s["svd_aux"], s["svd_row_weights"], wh, wz, variance=var
         )
     if method == "optimal":
-        return tuners.optimal_tuners(model, m, Q, Qh, Ph, wh, wz, max_iter=s["max_iter"])
+        return tuners.optimal_tuners(
+            model, m, Q, Qh, Ph, wh, wz, max_iter=s["max_iter"], variance=var
+        )
     return tuners.diagnostic_tuners(
-        model, m, Q, Qh, Ph, s["lam"], s["faults"], wh, wz, max_iter=s["max_iter"]
+        model, m, Q, Qh, Ph, s["lam"], s["faults"], wh, wz, max_iter=s["max_iter"],
+        variance=var,
     )
 
 
@@ -234,6 +245,7 @@ def design_to_dict(
         "Gamma": design.Gamma.tolist(),
         "noise": {"Q": design.Q.tolist(), "Qh": design.Qh.tolist(), "Ph": design.Ph.tolist()},
         "objective": design.objective,
+        "variance": design.variance,
         "theory": design.theory.to_dict(),
         "model": model.to_dict(),
     }
@@ -295,6 +307,8 @@ def design_from_result(result: Mapping[str, Any]) -> tuners.TunerDesign:
         np.asarray(noise["Ph"], float),
         method=str(result.get("method", "explicit")),
         objective=float(result.get("objective", np.nan)),
+        # Results written before the key existed used the seeds' sensor-noise-only formula.
+        variance=str(result.get("variance", theory.SENSOR_NOISE_ONLY)),
     )
     stored = np.asarray(result["gain"], float)
     if stored.shape != design.gain.shape or not np.allclose(

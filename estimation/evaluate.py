@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimation import isolation
+from estimation import isolation, theory
 from estimation.kalman import filter_stream_states
 from estimation.model import LinearModel
 from estimation.tuners import (
@@ -169,10 +169,16 @@ def ssee_monte_carlo(
 
     start : "healthy" (seed 002: truth from x = 0 and filter from x_hat = 0;
             slow states, e.g. metal temperatures, may not have settled by the
-            window) or "steady" (truth at its steady state (I - A)^-1 L h,
-            filter at Gamma K G_y h plus a draw from N(0, P_hat): the
-            stationary regime the theory describes, exactly so without
-            process noise).
+            window) or "steady" (truth at its steady state (I - A)^-1 L h and
+            filter at Gamma K G_y h, plus a draw of the joint fluctuation
+            [x~; e] from its stationary covariance (``theory.joint_covariance``;
+            e ~ N(0, P_hat) alone without process noise): the stationary regime
+            the theory describes, exactly).
+
+    The theory columns are the design's analytic errors for the noise actually
+    simulated: variance with process noise when ``process_noise`` (the design's
+    figures when it was made ``WITH_PROCESS_NOISE``, the default), from sensor
+    noise only otherwise.
     """
     model = design.model
     dt = model.dt
@@ -190,7 +196,20 @@ def ssee_monte_carlo(
         raise ExperimentError(f"start must be 'healthy' or 'steady', got {start!r}")
     Gy, _ = model.steady_state_gains()
     mean_map = isolation.filter_steady_state_map(red.A, red.C, design.gain, Gy)
-    spread = _noise_std(design.P_hat, "P_hat")
+    mode = theory.WITH_PROCESS_NOISE if process_noise else theory.SENSOR_NOISE_ONLY
+    if mode == design.variance:
+        expected = design.theory
+    else:
+        expected = theory.analytic_errors(model, red, design.gain, design.Ph, mode).theory
+    n = red.A.shape[0]
+    joint = np.zeros((nx + n, nx + n))
+    if q_factor is not None:
+        joint = theory.joint_covariance(model, red, design.gain)
+    else:
+        joint[nx:, nx:] = theory.analytic_errors(
+            model, red, design.gain, design.Ph, theory.SENSOR_NOISE_ONLY
+        ).P_hat
+    spread = _noise_std(joint, "stationary covariance")
     per_case = np.empty((n_cases, p))
     done = 0
     while done < n_cases:
@@ -198,8 +217,14 @@ def ssee_monte_carlo(
         h = rng.standard_normal((E, p)) @ ph_factor.T
         x0, xh0 = np.zeros((E, nx)), None
         if start == "steady":
-            x0 = np.linalg.solve(np.eye(nx) - model.A, model.L @ h.T).T
-            xh0 = h @ mean_map.T + rng.standard_normal((E, spread.shape[0])) @ spread.T
+            # x_hat[-1] and x[0] = A x[-1] + L h + w[-1]: the joint state one step
+            # apart, as in the joint system (theory module docstring).
+            fluct = rng.standard_normal((E, nx + n)) @ spread.T
+            x_prev = np.linalg.solve(np.eye(nx) - model.A, model.L @ h.T).T + fluct[:, :nx]
+            x0 = x_prev @ model.A.T + h @ model.L.T
+            if q_factor is not None:
+                x0 += rng.standard_normal((E, nx)) @ q_factor.T
+            xh0 = h @ mean_map.T + fluct[:, nx:]
         y, _ = _simulate_block(
             model.A, model.C, h @ model.L.T, h @ model.M.T, x0, n_steps,
             q_factor, model.sensor_noise_std, rng,
@@ -214,8 +239,8 @@ def ssee_monte_carlo(
         tuple(model.health_names),
         per_case.mean(axis=0),
         per_case.std(axis=0, ddof=1) / np.sqrt(n_cases),
-        np.array(design.theory.health_bias2),
-        np.array(design.theory.health_variance),
+        np.array(expected.health_bias2),
+        np.array(expected.health_variance),
         n_cases,
         n_steps * dt,
         n_win * dt,

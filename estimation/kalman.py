@@ -29,6 +29,7 @@ __all__ = [
     "unobservable_modes",
     "dare_doubling",
     "stein_doubling",
+    "solve_or_nan",
     "filter_stream",
     "filter_stream_states",
 ]
@@ -110,6 +111,31 @@ def steady_state_gain(
     return SteadyStateGain(K, P, 0.5 * (P_post + P_post.T), rho)
 
 
+def solve_or_nan(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Batched np.linalg.solve(a, b) (a [..., n, n], b [..., n, k]) that gives NaN for the
+    batch elements whose a is singular instead of raising for the whole batch.
+
+    LAPACK stops at an exactly singular pivot; a batch of candidate designs may hold
+    one (an unexcited, unobserved tuner leaves I - Phi singular), and that design
+    alone is infeasible. The whole batch is tried first; only on failure is it
+    solved element by element.
+    """
+    try:
+        return np.linalg.solve(a, b)
+    except np.linalg.LinAlgError:
+        pass
+    lead = np.broadcast_shapes(a.shape[:-2], b.shape[:-2])
+    a_b = np.broadcast_to(a, lead + a.shape[-2:])
+    b_b = np.broadcast_to(b, lead + b.shape[-2:])
+    out = np.full(lead + b.shape[-2:], np.nan)
+    for idx in np.ndindex(*lead):
+        try:
+            out[idx] = np.linalg.solve(a_b[idx], b_b[idx])
+        except np.linalg.LinAlgError:
+            continue
+    return out
+
+
 def _sym(X: np.ndarray) -> np.ndarray:
     return 0.5 * (X + np.swapaxes(X, -1, -2))
 
@@ -143,7 +169,7 @@ def dare_doubling(
     done = np.zeros(a.shape[:-2], dtype=bool)
     for _ in range(max_iter):
         igh = eye + g @ h
-        z = np.linalg.solve(igh, np.concatenate([a, g], axis=-1))
+        z = solve_or_nan(igh, np.concatenate([a, g], axis=-1))
         za, zg = z[..., :n], z[..., n:]
         a_t = np.swapaxes(a, -1, -2)
         h_new = _sym(h + a_t @ h @ za)

@@ -12,6 +12,26 @@ eq. 15-19; seed 003 "Analytical derivation of Kalman estimation error"):
     SSEE     = sum(bias^2) + sum(variance)
     P_q      = [0 I_m] P_hat [0 I_m]^T
 
+Process noise. The Lyapunov equation above (MATH.md section 3, seed 003's
+"Analytical derivation of Kalman estimation error"; seed 002 itself refers to
+Simon & Garg 2010 for it) counts sensor noise only, yet the plant of seed 002
+eq. 1 has process noise w ~ N(0, Q) as well. Here the project goes beyond the
+seeds: with x~ = x - x_ss the plant state's fluctuation and e = x_hat - x_hat_ss
+the estimate's, the filter x_hat[k] = Phi x_hat[k-1] + K y[k] and the plant give
+the joint linear system (u = 0, constant h)
+
+    [x~[k]]   [A      0  ] [x~[k-1]]   [I  ]            [0]
+    [e[k] ] = [K C A  Phi] [e[k-1] ] + [K C] w[k-1]  +  [K] v[k]
+
+whose stationary covariance Sigma solves the joint Lyapunov equation
+
+    Sigma = Acal Sigma Acal^T + Gcal Q Gcal^T + Kcal R Kcal^T
+
+and P_hat = Sigma_ee, the lower-right [n, n] block (exact when the plant's
+process noise is the design's Q). That is the default variance
+(``WITH_PROCESS_NOISE``); the seed formula stays available as
+``SENSOR_NOISE_ONLY``. With Q = 0 the two agree.
+
 ``analytic_errors`` evaluates one design with scipy's Lyapunov solver;
 ``batched_errors`` evaluates a stack of V* matrices at once (doubling solvers)
 for the tuner search. Tests compare the two.
@@ -25,9 +45,63 @@ from typing import NamedTuple
 import numpy as np
 import scipy.linalg
 
-from estimation.kalman import dare_doubling, stein_doubling
+from estimation.kalman import dare_doubling, solve_or_nan, stein_doubling
 from estimation.model import LinearModel
 from estimation.reduced import ReducedModel
+
+WITH_PROCESS_NOISE = "with_process_noise"
+"""Variance from sensor and state process noise (joint Lyapunov equation; the default)."""
+SENSOR_NOISE_ONLY = "sensor_noise_only"
+"""Variance from sensor noise only: P_hat = Phi P_hat Phi^T + K R K^T (MATH.md section 3)."""
+VARIANCE_MODES = (WITH_PROCESS_NOISE, SENSOR_NOISE_ONLY)
+
+
+def check_variance_mode(variance: str) -> str:
+    if variance not in VARIANCE_MODES:
+        raise ValueError(f"variance must be one of {VARIANCE_MODES}, got {variance!r}")
+    return variance
+
+
+def joint_system(
+    A: np.ndarray, C: np.ndarray, K: np.ndarray, Phi: np.ndarray, Q: np.ndarray, R: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Transition Acal and driving covariance Wcal of [x~; e], batched over leading axes.
+
+    A [nx, nx], C [ny, nx], Q [nx, nx] of the plant; R [ny, ny]; K [..., n, ny] and
+    Phi [..., n, n] of the filter. Returns Acal [..., nx + n, nx + n] and
+    Wcal = Gcal Q Gcal^T + Kcal R Kcal^T (see the module docstring).
+    """
+    nx = A.shape[0]
+    lead = Phi.shape[:-2]
+    n = Phi.shape[-1]
+    KC = K @ C  # [..., n, nx]
+    Acal = np.zeros(lead + (nx + n, nx + n))
+    Acal[..., :nx, :nx] = A
+    Acal[..., nx:, :nx] = KC @ A
+    Acal[..., nx:, nx:] = Phi
+    KCt = np.swapaxes(KC, -1, -2)
+    Wcal = np.zeros_like(Acal)
+    Wcal[..., :nx, :nx] = Q
+    Wcal[..., nx:, :nx] = KC @ Q
+    Wcal[..., :nx, nx:] = Q @ KCt
+    Wcal[..., nx:, nx:] = KC @ Q @ KCt + K @ R @ np.swapaxes(K, -1, -2)
+    return Acal, 0.5 * (Wcal + np.swapaxes(Wcal, -1, -2))
+
+
+def joint_covariance(
+    model: LinearModel, reduced: ReducedModel, K: np.ndarray, Q: np.ndarray | None = None
+) -> np.ndarray:
+    """Stationary covariance Sigma [nx + n, nx + n] of the plant fluctuation x~ and the
+    estimate fluctuation e (joint Lyapunov equation of the module docstring).
+
+    Q [nx, nx]: the plant's process noise (default the design's, reduced.Q[:nx, :nx]).
+    """
+    nx = reduced.n_states
+    Q = reduced.Q[:nx, :nx] if Q is None else np.asarray(Q, float)
+    Phi = (np.eye(reduced.A.shape[0]) - K @ reduced.C) @ reduced.A
+    Acal, Wcal = joint_system(np.asarray(model.A), np.asarray(model.C), K, Phi, Q, model.R)
+    S = scipy.linalg.solve_discrete_lyapunov(Acal, Wcal)
+    return 0.5 * (S + S.T)
 
 
 class Theory(NamedTuple):
@@ -90,21 +164,31 @@ class FilterErrors(NamedTuple):
 
 
 def analytic_errors(
-    model: LinearModel, reduced: ReducedModel, K: np.ndarray, Ph: np.ndarray
+    model: LinearModel,
+    reduced: ReducedModel,
+    K: np.ndarray,
+    Ph: np.ndarray,
+    variance: str = WITH_PROCESS_NOISE,
 ) -> FilterErrors:
     """Analytic bias^2, variance and P_q of one steady-state design (MATH.md section 3).
 
-    model gives G_y, G_z and R; reduced the matrices A_xq, C_xq, F_xq and V*^+;
-    K [n, ny] the gain; Ph [p, p] the fleet health covariance.
+    model gives G_y, G_z and R; reduced the matrices A_xq, C_xq, F_xq and V*^+ and the
+    design's process noise Q (reduced.Q[:nx, :nx]); K [n, ny] the gain; Ph [p, p] the
+    fleet health covariance. variance: ``WITH_PROCESS_NOISE`` (joint Lyapunov
+    equation, module docstring) or ``SENSOR_NOISE_ONLY`` (the seeds' formula).
     """
+    check_variance_mode(variance)
     n, nx = reduced.A.shape[0], reduced.n_states
     Gy, Gz = model.steady_state_gains()
     Phi = (np.eye(n) - K @ reduced.C) @ reduced.A
     I_Phi = np.eye(n) - Phi
     Gamma = np.linalg.solve(I_Phi, np.eye(n))
     X = np.linalg.solve(I_Phi, K @ Gy)  # x_hat_ss per unit h: Gamma K G_y (seed 002 eq. 18)
-    W = K @ model.R @ K.T
-    P_hat = scipy.linalg.solve_discrete_lyapunov(Phi, 0.5 * (W + W.T))
+    if variance == WITH_PROCESS_NOISE and np.any(reduced.Q[:nx, :nx]):
+        P_hat = joint_covariance(model, reduced, K)[nx:, nx:]
+    else:  # seed 003: P_hat = Phi P_hat Phi^T + K R K^T
+        W = K @ model.R @ K.T
+        P_hat = scipy.linalg.solve_discrete_lyapunov(Phi, 0.5 * (W + W.T))
     P_hat = 0.5 * (P_hat + P_hat.T)
     S_h = reduced.health_map()
     B_h = S_h @ X - np.eye(model.n_health)
@@ -126,8 +210,7 @@ class ErrorProblem(NamedTuple):
 
     Matrices of the model, G_y [ny, p], G_z [nz, p], noise Q [nx, nx], Qh [p, p],
     R [ny, ny], Ph [p, p], objective weights on the health parameters [p] and
-    aux outputs [nz]; optional fault influence data for the diagnostics-aware
-    objective: Gy_full [ny, p_full] and signatures S [p_full, n_faults].
+    aux outputs [nz]; variance: ``WITH_PROCESS_NOISE`` or ``SENSOR_NOISE_ONLY``.
     """
 
     A: np.ndarray
@@ -144,6 +227,7 @@ class ErrorProblem(NamedTuple):
     Ph: np.ndarray
     health_weights: np.ndarray
     aux_weights: np.ndarray
+    variance: str = WITH_PROCESS_NOISE
 
 
 def error_problem(
@@ -153,8 +237,10 @@ def error_problem(
     Ph: np.ndarray,
     health_weights: Sequence[float] | np.ndarray | None = None,
     aux_weights: Sequence[float] | np.ndarray | None = None,
+    variance: str = WITH_PROCESS_NOISE,
 ) -> ErrorProblem:
     """Precompute the V*-independent part; default objective: unweighted health SSEE."""
+    check_variance_mode(variance)
     Gy, Gz = model.steady_state_gains()
     wh = np.ones(model.n_health) if health_weights is None else np.asarray(health_weights, float)
     wz = np.zeros(model.n_aux) if aux_weights is None else np.asarray(aux_weights, float)
@@ -167,6 +253,7 @@ def error_problem(
         np.asarray(model.A), np.asarray(model.C), np.asarray(model.L), np.asarray(model.M),
         np.asarray(model.F), np.asarray(model.N), Gy, Gz,
         np.asarray(Q, float), np.asarray(Qh, float), model.R, np.asarray(Ph, float), wh, wz,
+        variance,
     )
 
 
@@ -201,7 +288,7 @@ def batched_errors(problem: ErrorProblem, V: np.ndarray) -> BatchedErrors:
     nx = problem.A.shape[0]
     n = nx + m
     with np.errstate(all="ignore"):
-        Vp = np.swapaxes(np.linalg.solve(V @ np.swapaxes(V, 1, 2), V), 1, 2)  # [b, p, m]
+        Vp = np.swapaxes(solve_or_nan(V @ np.swapaxes(V, 1, 2), V), 1, 2)  # [b, p, m]
         A = np.zeros((b, n, n))
         A[:, :nx, :nx] = problem.A
         A[:, :nx, nx:] = problem.L @ Vp
@@ -214,10 +301,14 @@ def batched_errors(problem: ErrorProblem, V: np.ndarray) -> BatchedErrors:
         P = dare_doubling(A, C, Qx, problem.R)
         Ct = np.swapaxes(C, 1, 2)
         S = C @ P @ Ct + problem.R
-        K = np.swapaxes(np.linalg.solve(S, C @ P), 1, 2)  # [b, n, ny]
+        K = np.swapaxes(solve_or_nan(S, C @ P), 1, 2)  # [b, n, ny]
         Phi = (np.eye(n) - K @ C) @ A
-        P_hat = stein_doubling(Phi, K @ problem.R @ np.swapaxes(K, 1, 2))
-        X = np.linalg.solve(np.eye(n) - Phi, K @ problem.Gy)  # Gamma K G_y
+        if problem.variance == WITH_PROCESS_NOISE and np.any(problem.Q):
+            Acal, Wcal = joint_system(problem.A, problem.C, K, Phi, problem.Q, problem.R)
+            P_hat = stein_doubling(Acal, Wcal)[:, nx:, nx:]
+        else:
+            P_hat = stein_doubling(Phi, K @ problem.R @ np.swapaxes(K, 1, 2))
+        X = solve_or_nan(np.eye(n) - Phi, K @ problem.Gy)  # Gamma K G_y
         B_h = Vp @ X[:, nx:, :] - np.eye(p)
         B_z = Fx @ X - problem.Gz
         bias2_h = np.einsum("bij,jk,bik->bi", B_h, problem.Ph, B_h)

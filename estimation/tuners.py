@@ -36,10 +36,11 @@ import scipy.optimize
 
 from estimation import isolation
 from estimation.errors import ConvergenceWarning, DimensionError, UnobservableDesignError
-from estimation.kalman import steady_state_gain
+from estimation.kalman import solve_or_nan, steady_state_gain
 from estimation.model import LinearModel
 from estimation.reduced import ReducedModel, reduced_model
 from estimation.theory import (
+    WITH_PROCESS_NOISE,
     ErrorProblem,
     Theory,
     analytic_errors,
@@ -61,6 +62,8 @@ class TunerDesign:
     Gamma    : (I - A_xq + K C_xq A_xq)^-1 [n, n]
     theory   : analytic bias^2 and variance (health and aux)
     Q, Qh, Ph: the noise the design used;  objective: value the method minimised
+    variance : how the theory's variance counts noise (``theory.WITH_PROCESS_NOISE``,
+               the default, or ``theory.SENSOR_NOISE_ONLY``, the seeds' formula)
     """
 
     model: LinearModel
@@ -77,6 +80,7 @@ class TunerDesign:
     Qh: np.ndarray
     Ph: np.ndarray
     objective: float
+    variance: str = WITH_PROCESS_NOISE
 
     @property
     def n_tuners(self) -> int:
@@ -101,9 +105,11 @@ def design_filter(
     health_weights: Sequence[float] | np.ndarray | None = None,
     aux_weights: Sequence[float] | np.ndarray | None = None,
     objective: float | None = None,
+    variance: str = WITH_PROCESS_NOISE,
 ) -> TunerDesign:
     """Steady-state filter for a given V* with its analytic errors (MATH.md sections 2-3).
 
+    variance: see ``theory.analytic_errors``.
     Raises UnobservableDesignError when the sensors cannot estimate the tuners.
     """
     vstar = np.asarray(vstar, float)
@@ -118,7 +124,7 @@ def design_filter(
         )
     red = reduced_model(model, vstar, Q, Qh)
     gain = steady_state_gain(red.A, red.C, red.Q, model.R)
-    errs = analytic_errors(model, red, gain.K, np.asarray(Ph, float))
+    errs = analytic_errors(model, red, gain.K, np.asarray(Ph, float), variance)
     if objective is None:
         wh = np.ones(model.n_health) if health_weights is None else np.asarray(health_weights)
         wz = np.zeros(model.n_aux) if aux_weights is None else np.asarray(aux_weights)
@@ -128,7 +134,7 @@ def design_filter(
     return TunerDesign(
         model, method, vstar, red, gain.K, gain.P_prior, errs.P_hat, errs.P_q, errs.Gamma,
         errs.theory, np.asarray(Q, float), np.asarray(Qh, float), np.asarray(Ph, float),
-        float(objective),
+        float(objective), variance,
     )
 
 
@@ -177,12 +183,16 @@ def subset_tuners(
     Ph: np.ndarray,
     health_weights: Sequence[float] | np.ndarray | None = None,
     aux_weights: Sequence[float] | np.ndarray | None = None,
+    *,
+    variance: str = WITH_PROCESS_NOISE,
 ) -> TunerDesign:
     """Best subset of m health parameters as tuners (conventional approach, seed 003)."""
     _check_tuner_count(model, m)
-    problem = error_problem(model, Q, Qh, Ph, health_weights, aux_weights)
+    problem = error_problem(model, Q, Qh, Ph, health_weights, aux_weights, variance)
     V, _ = best_subset(problem, model.n_health, m)
-    return design_filter(model, V, Q, Qh, Ph, "subset", health_weights, aux_weights)
+    return design_filter(
+        model, V, Q, Qh, Ph, "subset", health_weights, aux_weights, variance=variance
+    )
 
 
 def ols_select(A: np.ndarray, deltas: np.ndarray, m: int) -> np.ndarray:
@@ -294,11 +304,15 @@ def svd_tuners(
     row_weights: Sequence[float] | np.ndarray | None = None,
     health_weights: Sequence[float] | np.ndarray | None = None,
     aux_weights: Sequence[float] | np.ndarray | None = None,
+    *,
+    variance: str = WITH_PROCESS_NOISE,
 ) -> TunerDesign:
     """SVD tuners (seed 000 steps 1-6) with the steady-state filter for them."""
     _check_tuner_count(model, m)
     V = svd_vstar(model, m, aux, row_weights)
-    return design_filter(model, V, Q, Qh, Ph, "svd", health_weights, aux_weights)
+    return design_filter(
+        model, V, Q, Qh, Ph, "svd", health_weights, aux_weights, variance=variance
+    )
 
 
 # ----------------------------------------------------------------------- optimal
@@ -443,6 +457,8 @@ def optimal_tuners(
     start: np.ndarray | None = None,
     max_iter: int = 200,
     multi_start: bool = False,
+    *,
+    variance: str = WITH_PROCESS_NOISE,
 ) -> TunerDesign:
     """Optimal tuners (seed 003, Simon & Garg 2010): argmin over V* [m, p] of the analytic
     objective w_h . SSE_h + w_z . SSE_z (default: health SSEE).
@@ -453,7 +469,7 @@ def optimal_tuners(
     end point kept. Never returns a design worse than its start.
     """
     _check_tuner_count(model, m)
-    problem = error_problem(model, Q, Qh, Ph, health_weights, aux_weights)
+    problem = error_problem(model, Q, Qh, Ph, health_weights, aux_weights, variance)
     if start is not None:
         starts = [np.asarray(start, float)]
     else:
@@ -461,7 +477,8 @@ def optimal_tuners(
         starts = [c.vstar for c in (cands if multi_start else cands[:1])]
     result = search_from_starts(lambda V: _evaluate(problem, V), starts, max_iter)
     return design_filter(
-        model, result.vstar, Q, Qh, Ph, "optimal", health_weights, aux_weights
+        model, result.vstar, Q, Qh, Ph, "optimal", health_weights, aux_weights,
+        variance=variance,
     )
 
 
@@ -557,7 +574,7 @@ def misclassification_sum(
     b, n, _ = Phi.shape
     out = np.full(b, np.nan)
     with np.errstate(all="ignore"):
-        X = np.linalg.solve(np.eye(n) - Phi, K @ faults.Gy_full)
+        X = solve_or_nan(np.eye(n) - Phi, K @ faults.Gy_full)
     H = X[:, n_states:, :] @ faults.S
     Pq = P_hat[:, n_states:, n_states:]
     for i in range(b):
@@ -582,6 +599,8 @@ def diagnostic_tuners(
     aux_weights: Sequence[float] | np.ndarray | None = None,
     start: np.ndarray | None = None,
     max_iter: int = 200,
+    *,
+    variance: str = WITH_PROCESS_NOISE,
 ) -> TunerDesign:
     """Diagnostics-aware optimal tuners (seed 002 KF design 3): minimise
 
@@ -592,7 +611,7 @@ def diagnostic_tuners(
     enter through B, D (seed 002 eq. 13).
     """
     _check_tuner_count(model, m)
-    problem = error_problem(model, Q, Qh, Ph, health_weights, aux_weights)
+    problem = error_problem(model, Q, Qh, Ph, health_weights, aux_weights, variance)
     fp = fault_problem(model, faults)
 
     def objective(V: np.ndarray) -> np.ndarray:
@@ -603,14 +622,16 @@ def diagnostic_tuners(
             out[i : i + 256] = e.objective + lam * pmc
         return out
 
-    ssee_opt = optimal_tuners(model, m, Q, Qh, Ph, health_weights, aux_weights, max_iter=max_iter)
+    ssee_opt = optimal_tuners(
+        model, m, Q, Qh, Ph, health_weights, aux_weights, max_iter=max_iter, variance=variance
+    )
     starts = [ssee_opt.vstar] + ([np.asarray(start, float)] if start is not None else [])
     vals = objective(np.stack(starts))
     V0 = starts[int(np.nanargmin(vals))]
     result = gradient_search(objective, V0, max_iter=max_iter)
     return design_filter(
         model, result.vstar, Q, Qh, Ph, "diagnostic", health_weights, aux_weights,
-        objective=result.objective,
+        objective=result.objective, variance=variance,
     )
 
 
@@ -651,6 +672,8 @@ def sensor_selection(
     aux_weights: Sequence[float] | np.ndarray | None = None,
     max_iter: int = 200,
     progress: Callable[[int, int], None] | None = None,
+    *,
+    variance: str = WITH_PROCESS_NOISE,
 ) -> list[SensorSuite]:
     """Combined sensor and tuner selection (seed 003): every subset of ``optional``
     added to ``base``, each with its best-subset and optimal tuners.
@@ -670,7 +693,7 @@ def sensor_selection(
         sub = model.select_sensors(list(sensors))
         m = min(len(sensors), p) if n_tuners is None else n_tuners
         cands: list[Start] = []
-        problem = error_problem(sub, Q, Qh, Ph, health_weights, aux_weights)
+        problem = error_problem(sub, Q, Qh, Ph, health_weights, aux_weights, variance)
         if 1 <= m <= len(sensors):
             try:
                 cands = start_candidates(sub, problem, m)

@@ -123,3 +123,32 @@ def test_too_many_tuners_for_the_sensors_refused():
     spec = _spec(sensors=["Nf", "Nc", "T48"], tuners=4)
     with pytest.raises(UnobservableDesignError):
         run_design(spec, reference_model())
+
+
+def test_variance_key_selects_the_formula_and_survives_the_round_trip():
+    model = reference_model()
+    V = np.random.default_rng(3).standard_normal((4, 10))
+    results = {
+        v: json.loads(json.dumps(run_design(_spec(vstar=V.tolist(), variance=v), model)))
+        for v in ("with_process_noise", "sensor_noise_only")
+    }
+    for v, result in results.items():
+        assert result["variance"] == v
+        direct = design_filter(
+            model, V, np.eye(2) * 1e-4, np.eye(10) * 0.01, np.eye(10) * 4.0, variance=v
+        )
+        np.testing.assert_allclose(
+            result["theory"]["health"]["variance"], direct.theory.health_variance, rtol=1e-9
+        )
+        rebuilt = design_from_result(result)
+        assert rebuilt.variance == v
+        np.testing.assert_allclose(rebuilt.P_hat, result["P_hat"], rtol=1e-9, atol=1e-16)
+    joint = np.array(results["with_process_noise"]["theory"]["health"]["variance"])
+    seed = np.array(results["sensor_noise_only"]["theory"]["health"]["variance"])
+    assert np.all(joint > seed)  # process noise only adds variance
+    # Same gain either way: the variance formula does not change the filter.
+    np.testing.assert_allclose(
+        results["with_process_noise"]["gain"], results["sensor_noise_only"]["gain"], rtol=1e-12
+    )
+    with pytest.raises(DesignSpecError, match="variance"):
+        run_design(_spec(variance="both"), model)

@@ -202,12 +202,10 @@ def test_cruise_engine_model_ssee_and_isolation():
     d = tuners.optimal_tuners(
         design_model, 6, np.eye(nx) * 1e-4, np.eye(10) * 1e-4, np.eye(10) * 4.0
     )
-    # The analytic variance (MATH.md section 3) covers sensor noise only: per parameter
-    # the comparison holds without process noise; with it (metal-temperature states
-    # stir the small hpt_flow error by ~15 %) only the total stays within 5 %.
+    # Per parameter with and without process noise: the theory columns follow the noise
+    # simulated (joint Lyapunov with it, the seeds' sensor-only formula without).
     _check_ssee(ev.ssee_monte_carlo(d, 3000, rng=np.random.default_rng(30), process_noise=False))
-    with_w = ev.ssee_monte_carlo(d, 1000, rng=np.random.default_rng(32))
-    assert abs(with_w.ssee - with_w.ssee_theory) < 0.05 * with_w.ssee_theory
+    _check_ssee(ev.ssee_monte_carlo(d, 3000, rng=np.random.default_rng(32)))
     truth = model.select_sensors(sensors)
     exp = ev.isolation_experiment(
         d, rng=np.random.default_rng(31), truth=truth, duration=60.0, settle=40.0,

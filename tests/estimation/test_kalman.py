@@ -170,3 +170,19 @@ def test_noise_free_stream_settles_at_the_analytic_steady_state():
     n = red.A.shape[0]
     Gamma_K_Gy = np.linalg.solve(np.eye(n) - (np.eye(n) - gain.K @ red.C) @ red.A, gain.K @ Gy)
     np.testing.assert_allclose(est.x_hat[-1], h @ Gamma_K_Gy.T, rtol=1e-6, atol=1e-8)
+
+
+def test_solve_or_nan_gives_nan_only_for_singular_batch_elements():
+    from estimation.kalman import solve_or_nan
+
+    rng = np.random.default_rng(3)
+    a = rng.standard_normal((4, 3, 3))
+    a[2, :, 1] = 0.0  # exactly singular
+    b = rng.standard_normal((4, 3, 2))
+    out = solve_or_nan(a, b)
+    assert np.all(np.isnan(out[2]))
+    for i in (0, 1, 3):
+        np.testing.assert_allclose(a[i] @ out[i], b[i], atol=1e-10)
+    # Without a singular element it is np.linalg.solve itself.
+    good_a, good_b = a[[0, 1]], b[[0, 1]]
+    np.testing.assert_array_equal(solve_or_nan(good_a, good_b), np.linalg.solve(good_a, good_b))
