@@ -90,14 +90,23 @@ def tick() -> dict[str, list[int]]:
 
 @worker_ready.connect
 def _requeue_on_start(sender: Any = None, **_kwargs: Any) -> None:
-    """A worker starting after a crash sends the jobs the crashed worker left running again."""
+    """A worker starting after a crash sends the jobs the crashed worker left running again.
+
+    This runs in the pool's parent process: its engine is thrown away afterwards, so pool
+    processes forked later never inherit its connections.
+    """
+    from app.config import get_settings
+    from app.db import make_engine, make_sessionmaker
+
+    engine = make_engine(get_settings().resolved_database_url)
     try:
-        context = worker_context()
         queue = CeleryDispatch(_queue_of(sender))
-        for job_id in requeue_stale(context.factory):
+        for job_id in requeue_stale(make_sessionmaker(engine)):
             queue.dispatch(job_id)
     except Exception:  # the worker must start even if the database is not there yet
         log.exception("requeueing stale jobs at worker start failed")
+    finally:
+        engine.dispose()
 
 
 def _queue_of(sender: Any) -> str:

@@ -54,8 +54,27 @@ def redis_url() -> str:
 
 
 @pytest.fixture
+def left_running(live: tuple[str, sessionmaker[Session]]) -> int:
+    """A job a crashed worker left running an hour ago, there before the worker starts."""
+    _url, factory = live
+    registry = load_kinds()
+    with transaction(factory) as session:
+        operator, _key = make_operator(session, "Crashed Worker Air")
+        job, _ = store.submit(
+            session,
+            operator_id=operator.id,
+            kind="purge_finished_jobs",
+            parameters={"older_than_days": 365},
+            registry=registry,
+        )
+        job.status, job.attempts, job.worker = "running", 1, "celery:a crashed worker"
+        job.heartbeat_at = utcnow() - timedelta(hours=1)
+        return job.id
+
+
+@pytest.fixture
 def worker_queue(
-    live: tuple[str, sessionmaker[Session]], redis_url: str, tmp_path: Path
+    live: tuple[str, sessionmaker[Session]], redis_url: str, tmp_path: Path, left_running: int
 ) -> Iterator[str]:
     """``fleethealth worker`` on its own queue and the test database; stopped afterwards."""
     import redis
@@ -94,7 +113,7 @@ def worker_queue(
 
 
 def test_a_celery_worker_runs_a_job_to_completion(
-    live: tuple[str, sessionmaker[Session]], worker_queue: str
+    live: tuple[str, sessionmaker[Session]], worker_queue: str, left_running: int
 ) -> None:
     _url, factory = live
     registry = load_kinds()
@@ -138,7 +157,9 @@ def test_a_celery_worker_runs_a_job_to_completion(
     assert done.worker is not None and done.worker.startswith("celery:")
     assert done.message == f"deleted {expected} of {expected} finished jobs"
     with transaction(factory) as session:
-        left = session.scalars(select(Job.finished_at).where(Job.id != job_id)).all()
+        left = session.scalars(
+            select(Job.finished_at).where(Job.operator_id == operator_id, Job.id != job_id)
+        ).all()
     assert sorted(now - finished for finished in left if finished is not None) == [
         timedelta(days=days) for days in sorted(days_ago) if days <= 30
     ]
@@ -161,6 +182,13 @@ def test_a_celery_worker_runs_a_job_to_completion(
     )
     again = job_row(factory, job_id)
     assert (again.status, again.attempts, again.result) == ("succeeded", 1, done.result)
+
+    # The job the crashed worker left was requeued when this worker started, and run again.
+    wait_until(
+        lambda: job_row(factory, left_running).status == "succeeded", "the left job", timeout=60
+    )
+    rerun = job_row(factory, left_running)
+    assert rerun.attempts == 2 and rerun.worker != "celery:a crashed worker"
 
 
 def test_beat_sends_the_tick_and_the_tick_submits_requeues_and_resends(
