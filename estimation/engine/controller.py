@@ -28,7 +28,6 @@ point's RU.
 
 from __future__ import annotations
 
-from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
@@ -113,19 +112,24 @@ def design_ratio_units(design: EngineDesign | None = None) -> float:
     return float(_steady_ru_line(design)[1][-1])
 
 
-@lru_cache(maxsize=4)
-def _steady_ru_line_cached(design: EngineDesign) -> tuple[np.ndarray, np.ndarray]:
-    power = np.linspace(0.0, 100.0, 26)
-    ss = steady_state(np.zeros((power.size, 3)), power=power, design=design)
-    nrc = ss.stations["n_hpc"]
-    ru = ss.u[:, 0] / (ss.stations["ps30"] / PSI)
-    order = np.argsort(nrc)
-    return nrc[order], ru[order]
+# Keyed by the design object's identity (the design is kept in the value, so
+# the id is not reused): hashing the frozen design field by field on every
+# controller sample would cost more than the control law itself.
+_RU_LINES: dict[int, tuple[EngineDesign, np.ndarray, np.ndarray]] = {}
 
 
 def _steady_ru_line(design: EngineDesign | None) -> tuple[np.ndarray, np.ndarray]:
     """Sea-level static steady line: corrected core speed [-] and RU [pps/psia], sorted."""
-    return _steady_ru_line_cached(design or engine_design())
+    d = design or engine_design()
+    hit = _RU_LINES.get(id(d))
+    if hit is None:
+        power = np.linspace(0.0, 100.0, 26)
+        ss = steady_state(np.zeros((power.size, 3)), power=power, design=d)
+        nrc = ss.stations["n_hpc"]
+        ru = ss.u[:, 0] / (ss.stations["ps30"] / PSI)
+        order = np.argsort(nrc)
+        hit = _RU_LINES[id(d)] = (d, nrc[order], ru[order])
+    return hit[1], hit[2]
 
 
 def ratio_unit_limits(
