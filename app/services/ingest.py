@@ -360,12 +360,8 @@ def drop_stored(session: Session, rows: pa.Table) -> tuple[pa.Table, int]:
     for index, values in zip(matched, mine, strict=True):
         theirs = stored[keys[index]]
         upload_id, their_values = theirs[0], dict(zip(_COMPARED, theirs[1:], strict=True))
-        different = [
-            name
-            for name in _COMPARED
-            if values.get(name) != their_values[name]
-            and not (name not in present and their_values[name] is None)
-        ]
+        # A column the upload does not have says nothing; one it has must match (null too).
+        different = [name for name in present if values[name] != their_values[name]]
         if different and len(conflicts) < MAX_ERRORS:
             conflicts.append(
                 RowError(

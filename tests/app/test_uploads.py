@@ -178,6 +178,14 @@ def test_a_changed_value_for_a_stored_snapshot_is_a_conflict(
     details = response.json()["error"]["details"]
     assert [(d["row"], d["column"]) for d in details] == [(6, "T30")]
     assert counts(session, fleet_data.operator_id) == before
+    # Leaving out an optional column is not a change: the rows are the stored ones.
+    fewer = client.post(
+        "/api/v1/snapshots",
+        json=json_body(table.drop_columns(["flight_id", "T50"])),
+        headers=fleet_data.analyst,
+    )
+    assert fewer.status_code == 201 and fewer.json()["rows_duplicate"] == 8
+    assert counts(session, fleet_data.operator_id)[0] == before[0]
 
 
 def _bad_bodies(fleet_data: Fleet) -> Iterator[tuple[str, bytes, dict[str, str], tuple]]:
