@@ -41,7 +41,7 @@ GROUPS = (
     ("wssr", "wssr", None, "faults", "WSSR per fault hypothesis"),
 )
 DEFAULT_UNITS = {"tuners": "%", "health": "%", "aux": "%", "sensors": "%", "faults": "1"}
-DEFAULT_MAX_POINTS = 1000
+DEFAULT_MAX_POINTS = 500
 
 
 @dataclass(frozen=True)
