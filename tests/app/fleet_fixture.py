@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import io
 import uuid
-from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from typing import Any
@@ -13,33 +12,13 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
-import pytest
-from sqlalchemy import Connection, Engine, func, select
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.models import Snapshot, Upload
 from app.services import fleet, tenancy
-from tests.conftest import _backend_use
 
 T0 = datetime(2026, 3, 1, tzinfo=UTC)
-
-
-@pytest.fixture(name="connection")
-def isolated_connection(db_engine: Engine) -> Iterator[Connection]:
-    """conftest's ``connection``, with a real outer transaction on SQLite as well.
-
-    pysqlite opens no transaction for ``Connection.begin()``, so the first SAVEPOINT starts
-    one and releasing it (a test's commit) commits for good: later tests would see this
-    test's rows (and its queued jobs). An explicit BEGIN makes the final rollback undo all.
-    Test modules that commit import this fixture to override conftest's.
-    """
-    _backend_use[db_engine.dialect.name] += 1
-    with db_engine.connect() as connection:
-        outer = connection.begin()
-        if connection.dialect.name == "sqlite":
-            connection.exec_driver_sql("BEGIN")
-        yield connection
-        outer.rollback()
 
 
 SWAP_AT = T0 + timedelta(days=3)

@@ -3,37 +3,16 @@
 from __future__ import annotations
 
 import uuid
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
 
-import pytest
 from fastapi.testclient import TestClient
-from sqlalchemy import Connection, Engine
 from sqlalchemy.orm import Session
 
 from app.services import tenancy
-from tests.conftest import _backend_use
 
 T0 = datetime(2026, 1, 1, tzinfo=UTC)
-
-
-@pytest.fixture
-def connection(db_engine: Engine) -> Iterator[Connection]:
-    """The shared ``connection`` fixture with an explicit BEGIN on SQLite.
-
-    pysqlite sends no BEGIN for the outer transaction, so the first SAVEPOINT would open one of
-    its own and its RELEASE commit for good: a test's rows would outlive it. Test modules
-    import this fixture to shadow the shared one.
-    """
-    _backend_use[db_engine.dialect.name] += 1
-    with db_engine.connect() as connection:
-        outer = connection.begin()
-        if connection.dialect.name == "sqlite":
-            connection.exec_driver_sql("BEGIN")
-        yield connection
-        outer.rollback()
 
 
 @dataclass

@@ -24,19 +24,14 @@ from tests.conftest import BACKENDS, _backend_use, fresh_database_url
 
 @pytest.fixture
 def connection(db_engine: Engine) -> Iterator[Connection]:
-    """The shared ``connection`` fixture, with an explicit BEGIN on SQLite.
+    """The shared ``connection`` fixture, starting from no jobs and no schedules at all.
 
-    pysqlite does not emit BEGIN for the outer transaction, so the first SAVEPOINT opens a
-    transaction of its own and its RELEASE commits for good: rows of one test would be seen by
-    the next (and queued jobs run by it). Job tests count and run every queued job, so they
-    override the fixture with this one, and start from no jobs and no schedules at all (rows
-    other modules' tests left behind are deleted inside the rolled-back transaction).
+    Job tests count and run every queued job; rows that committing tests of other modules
+    left in a shared database are deleted inside the rolled-back transaction.
     """
     _backend_use[db_engine.dialect.name] += 1
     with db_engine.connect() as connection:
         outer = connection.begin()
-        if connection.dialect.name == "sqlite":
-            connection.exec_driver_sql("BEGIN")
         connection.execute(delete(Job.__table__))
         connection.execute(delete(JobSchedule.__table__))
         yield connection

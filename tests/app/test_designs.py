@@ -15,9 +15,8 @@ from sqlalchemy.orm import Session
 from app.models import EngineModel, EstimatorDesign
 from app.services import models_designs
 from estimation import tuners
-from tests.app.fleetkit import (  # noqa: F401 (connection: fixture)
+from tests.app.fleetkit import (
     Tenant,
-    connection,
     error_of,
     make_tenant,
     post,

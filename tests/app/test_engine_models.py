@@ -15,9 +15,8 @@ from sqlalchemy.orm import Session
 from app.models import EngineModel
 from app.services import models_designs
 from estimation.model import LinearModel
-from tests.app.fleetkit import (  # noqa: F401 (connection: fixture)
+from tests.app.fleetkit import (
     Tenant,
-    connection,
     error_of,
     make_tenant,
     post,

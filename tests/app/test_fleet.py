@@ -8,10 +8,9 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.models import Aircraft, Engine, EngineType
-from tests.app.fleetkit import (  # noqa: F401 (connection: fixture)
+from tests.app.fleetkit import (
     T0,
     Tenant,
-    connection,
     error_of,
     make_tenant,
     post,

@@ -13,7 +13,6 @@ from sqlalchemy.orm import Session
 from app.cli.importers import CMAPSS_START, esn_of, import_cmapss
 from app.models import Engine, Snapshot
 from app.services import tenancy
-from tests.app.fleet_fixture import isolated_connection  # noqa: F401 (overrides conftest's)
 
 FD001 = Path(__file__).resolve().parents[3] / "shared" / "data" / "cmapss" / "train_FD001.txt"
 UNITS = 3

@@ -14,10 +14,9 @@ from sqlalchemy.orm import Session
 from app.errors import Conflict
 from app.models import Installation
 from app.services import fleet
-from tests.app.fleetkit import (  # noqa: F401 (connection: fixture)
+from tests.app.fleetkit import (
     T0,
     Tenant,
-    connection,
     error_of,
     make_tenant,
     post,

@@ -9,9 +9,8 @@ from sqlalchemy.orm import Session
 
 from app.models import ApiKey
 from app.services.tenancy import digest
-from tests.app.fleetkit import (  # noqa: F401 (connection: fixture)
+from tests.app.fleetkit import (
     Tenant,
-    connection,
     error_of,
     make_tenant,
 )

@@ -12,10 +12,9 @@ from sqlalchemy.orm import Session
 
 from app.models import MaintenanceAction
 from app.services import maintenance
-from tests.app.fleetkit import (  # noqa: F401 (connection: fixture)
+from tests.app.fleetkit import (
     T0,
     Tenant,
-    connection,
     error_of,
     make_tenant,
     post,

@@ -17,11 +17,10 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.models import StreamChunk, StreamRecording
-from tests.app.fleet_fixture import (  # isolated_connection overrides conftest's
+from tests.app.fleet_fixture import (
     SWAP_AT,
     T0,
     Fleet,
-    isolated_connection,  # noqa: F401
     make_fleet,
 )
 

@@ -49,10 +49,9 @@ from starlette.routing import BaseRoute, Mount
 from app.models import Base
 from app.services import fleet, maintenance, models_designs
 from app.services.keys import create_key
-from tests.app.fleetkit import (  # noqa: F401 (connection: fixture)
+from tests.app.fleetkit import (
     T0,
     Tenant,
-    connection,
     make_tenant,
 )
 from tests.estimation.models import reference_model

@@ -18,13 +18,12 @@ from sqlalchemy.orm import Session, sessionmaker
 from app.config import Settings
 from app.main import create_app
 from app.models import Snapshot, Upload
-from tests.app.fleet_fixture import (  # isolated_connection overrides conftest's
+from tests.app.fleet_fixture import (
     SWAP_AT,
     T0,
     Fleet,
     counts,
     csv_bytes,
-    isolated_connection,  # noqa: F401
     json_body,
     make_fleet,
     parquet_bytes,
