@@ -290,7 +290,7 @@ def simulate(
     n_steps = int(np.floor(t_end / dt + 1e-9))
     n_rec = n_steps // record_every + 1
     ny = ys.shape[1]
-    rec_t = np.arange(n_rec) * record_every * dt
+    rec_t = np.round(np.arange(n_rec) * (record_every * dt), 9)  # clean decimal times
     rec_x = np.empty((n_rec, b, 4))
     rec_u = np.empty((n_rec, b, 3))
     rec_y = np.empty((n_rec, b, ny))
