@@ -70,6 +70,34 @@ DETERIORATION_RATES = np.array(
 FOULING_RATES = np.array([-0.30, -0.30, -0.25, -0.25, -0.35, -0.35, 0.0, 0.0, 0.0, 0.0])
 
 
+# Deterioration direction of each turbomachinery health parameter (health.py).
+DETERIORATION_SIGN = np.sign(DETERIORATION_RATES)
+
+
+def seed001_degradations(n: int, rng: np.random.Generator) -> np.ndarray:
+    """Seed 001 Evaluation 2: all ten health parameters shifted by U(1, 5) % [n, 13].
+
+    "The deviation values are uniformly distributed over the range from 1 to
+    5 percent"; each in its deterioration direction (efficiencies and
+    compressor flows down, turbine flows up). Actuator biases are zero.
+    """
+    h = np.zeros((n, N_HEALTH))
+    h[:, :N_TURBO] = rng.uniform(1.0, 5.0, (n, N_TURBO)) * DETERIORATION_SIGN
+    return h
+
+
+def seed001_actuator_biases(n: int, rng: np.random.Generator) -> np.ndarray:
+    """Seed 001 Evaluation 3: healthy engines with Wf, VSV, VBV biases U(-10, 10) % [n, 13].
+
+    The seed's biases are percent of the ground-idle command, held as offsets;
+    here a bias is percent of the current command (health.py), which equals
+    the seed's at ground idle and scales with the command elsewhere.
+    """
+    h = np.zeros((n, N_HEALTH))
+    h[:, N_TURBO:] = rng.uniform(-10.0, 10.0, (n, 3))
+    return h
+
+
 @dataclass(frozen=True)
 class FleetConfig:
     """What the fleet looks like; rates are per engine cycle (one flight).
@@ -566,8 +594,10 @@ def simulate_fleet(
 
 
 __all__ = [
-    "DETERIORATION_RATES", "FOULING_RATES", "FaultEvent", "FleetConfig", "FleetPlan",
+    "DETERIORATION_RATES", "DETERIORATION_SIGN", "FOULING_RATES", "FaultEvent", "FleetConfig",
+    "FleetPlan",
     "FleetResult", "FlightRecord", "Installation", "SNAPSHOT_PHASES", "Snapshots",
     "StreamFlight", "SwapEvent", "WashEvent", "engine_noise_std", "fleet_snapshots",
-    "plan_fleet", "simulate_fleet", "stream_flights", "stream_step",
+    "plan_fleet", "seed001_actuator_biases", "seed001_degradations", "simulate_fleet",
+    "stream_flights", "stream_step",
 ]

@@ -14,6 +14,8 @@ from estimation.engine.fleet import (
     engine_noise_std,
     fleet_snapshots,
     plan_fleet,
+    seed001_actuator_biases,
+    seed001_degradations,
     simulate_fleet,
     stream_flights,
     stream_step,
@@ -248,3 +250,23 @@ def test_snapshot_solve_batches_do_not_change_the_snapshots() -> None:
     assert rounds == list(range(5))
     np.testing.assert_allclose(small.sensors, big.sensors, rtol=1e-9)
     np.testing.assert_array_equal(small.flight_id, big.flight_id)
+
+
+def test_seed001_evaluation_cases() -> None:
+    rng = np.random.default_rng(0)
+    deg = seed001_degradations(100, rng)
+    mag = np.abs(deg[:, :10])
+    assert mag.min() >= 1.0 and mag.max() <= 5.0 and np.all(deg[:, 10:] == 0.0)
+    # Efficiencies and compressor flows fall, turbine flows rise (seed 002 Table 3 signs).
+    hpt = health_vector(next(f for f in SEED_002_FAULTS if f.name == "HPT").shifts)
+    assert np.all(np.sign(deg[:, 6:8]) == np.sign(hpt[6:8]))
+    assert np.all(deg[:, [0, 1, 2, 3, 4, 5, 6, 8]] < 0) and np.all(deg[:, [7, 9]] > 0)
+    bias = seed001_actuator_biases(200, rng)
+    assert np.all(bias[:, :10] == 0.0) and np.abs(bias[:, 10:]).max() <= 10.0
+    assert bias[:, 10:].min() < -8.0 and bias[:, 10:].max() > 8.0
+    # The engine runs at both kinds of case (steady state at ground idle and cruise).
+    env = np.array([[0.0, 0.0, 0.0], [35000.0, 0.84, 0.0]])
+    for cases in (deg[:5], bias[:5]):
+        ss = steady_state(np.tile(env, (5, 1)), power=np.tile([0.0, 80.0], 5),
+                          health=np.repeat(cases, 2, axis=0))
+        assert np.all(np.isfinite(ss.sensors))
