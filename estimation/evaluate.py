@@ -571,20 +571,32 @@ def sensor_table(
     """Seed 003's table: for each suite size, the best suite (base plus optional
     sensors) with best-subset tuners and with optimal tuners (m = min(sensors, p)).
 
-    Suites are designed one at a time (``tuners.sensor_selection`` on each), so
-    a suite whose design fails numerically is left out with a warning instead
-    of ending the table.
+    All suites go through one ``tuners.sensor_selection`` call, so each suite's
+    search may start from the optimum of a neighbouring suite; a suite whose
+    tuners the sensors cannot observe (redundant sensors) is NaN there and drops
+    out of the table. Should a suite still fail numerically, the suites are
+    designed one at a time and the failing one is left out with a warning.
     """
-    subsets = [c for r in range(len(optional) + 1) for c in itertools.combinations(optional, r)]
-    suites = []
-    for i, extra in enumerate(subsets):
-        sensors = list(base) + list(extra)
-        try:
-            suites += sensor_selection(model, sensors, [], Q, Qh, Ph, max_iter=max_iter)
-        except np.linalg.LinAlgError as exc:
-            warnings.warn(f"sensor suite {sensors} left out: {exc}", stacklevel=2)
+    def tick(done: int, total: int) -> None:
         if progress is not None:
-            progress((i + 1) / len(subsets))
+            progress(done / total)
+
+    try:
+        suites = sensor_selection(
+            model, base, optional, Q, Qh, Ph, max_iter=max_iter, progress=tick
+        )
+    except np.linalg.LinAlgError:
+        subsets = [
+            c for r in range(len(optional) + 1) for c in itertools.combinations(optional, r)
+        ]
+        suites = []
+        for i, extra in enumerate(subsets):
+            sensors = list(base) + list(extra)
+            try:
+                suites += sensor_selection(model, sensors, [], Q, Qh, Ph, max_iter=max_iter)
+            except np.linalg.LinAlgError as exc:
+                warnings.warn(f"sensor suite {sensors} left out: {exc}", stacklevel=2)
+            tick(i + 1, len(subsets))
     by_subset = best_suites(suites, "subset")
     by_optimal = best_suites(suites, "optimal")
     rows = []

@@ -281,7 +281,10 @@ def batched_errors(problem: ErrorProblem, V: np.ndarray) -> BatchedErrors:
     """Analytic errors for a stack of tuner matrices V [b, m, p] (MATH.md section 3).
 
     One batched doubling DARE and Stein solve for the whole stack; no Python
-    loop over designs.
+    loop over designs. Designs whose tuners the sensors cannot observe in steady
+    state (G_y V*^+ [ny, m] rank deficient: the PBH test at the tuners' eigenvalue
+    1, which ``kalman.steady_state_gain`` refuses) are NaN and left out of the
+    solves, where they would only slow the doubling of the whole stack.
     """
     V = np.asarray(V, float)
     b, m, p = V.shape
@@ -289,6 +292,15 @@ def batched_errors(problem: ErrorProblem, V: np.ndarray) -> BatchedErrors:
     n = nx + m
     with np.errstate(all="ignore"):
         Vp = np.swapaxes(solve_or_nan(V @ np.swapaxes(V, 1, 2), V), 1, 2)  # [b, p, m]
+    ok = np.all(np.isfinite(Vp), axis=(1, 2))
+    if m > problem.Gy.shape[0]:
+        ok[:] = False
+    elif np.any(ok):
+        s = np.linalg.svd(problem.Gy @ Vp[ok], compute_uv=False)
+        ok[ok] = s[:, -1] > UNOBSERVABLE_RTOL * s[:, 0]
+    if not np.all(ok):
+        return _scatter(batched_errors(problem, V[ok]) if np.any(ok) else None, ok, m, problem)
+    with np.errstate(all="ignore"):
         A = np.zeros((b, n, n))
         A[:, :nx, :nx] = problem.A
         A[:, :nx, nx:] = problem.L @ Vp
@@ -318,3 +330,25 @@ def batched_errors(problem: ErrorProblem, V: np.ndarray) -> BatchedErrors:
         obj = (bias2_h + var_h) @ problem.health_weights + (bias2_z + var_z) @ problem.aux_weights
     obj = np.where(np.isfinite(obj), obj, np.nan)
     return BatchedErrors(bias2_h, var_h, bias2_z, var_z, obj, K, Phi, P_hat, Vp)
+
+
+UNOBSERVABLE_RTOL = 1e-9
+"""sigma_min / sigma_max of G_y V*^+ at or below which the tuners count as unobservable."""
+
+
+def _scatter(
+    part: BatchedErrors | None, ok: np.ndarray, m: int, problem: ErrorProblem
+) -> BatchedErrors:
+    """Results of the feasible designs ``part`` placed at ``ok`` in a NaN-filled stack."""
+    b = ok.shape[0]
+    nx, ny = problem.A.shape[0], problem.C.shape[0]
+    p, nz = problem.Gy.shape[1], problem.Gz.shape[0]
+    n = nx + m
+    shapes = ((p,), (p,), (nz,), (nz,), (), (n, ny), (n, n), (n, n), (p, m))
+    fields = []
+    for i, shape in enumerate(shapes):
+        full = np.full((b,) + shape, np.nan)
+        if part is not None:
+            full[ok] = part[i]
+        fields.append(full)
+    return BatchedErrors(*fields)

@@ -682,9 +682,16 @@ def sensor_selection(
     table); a fixed n_tuners larger than a suite's sensors marks it NaN.
     Returns one SensorSuite per subset (2^len(optional)), in enumeration order;
     pick the best per size with ``best_suites``.
+
+    Each suite's search starts from the best, under that suite's objective, of its
+    best subset, its SVD tuners and the optimal V* already found for the other
+    suites with the same number of tuners (V* lives in health space, so it
+    carries over; neighbouring suites share most of their optimum). A start is
+    never worse than the suite's own subset and SVD tuners.
     """
     p = model.n_health
     out: list[SensorSuite] = []
+    found: dict[int, list[np.ndarray]] = {}  # optimal V* of earlier suites, by m
     subsets = [
         c for r in range(len(optional) + 1) for c in itertools.combinations(optional, r)
     ]
@@ -703,9 +710,15 @@ def sensor_selection(
         if not cands:
             out.append(SensorSuite(sensors, m, fs, math.nan, None))
         else:
-            res = gradient_search(
-                functools.partial(_evaluate, problem), cands[0].vstar, max_iter=max_iter
-            )
+            objective = functools.partial(_evaluate, problem)
+            V0 = cands[0].vstar
+            if found.get(m):
+                earlier = np.stack(found[m])
+                vals = objective(earlier)
+                if np.any(np.isfinite(vals)) and np.nanmin(vals) < cands[0].objective:
+                    V0 = earlier[int(np.nanargmin(vals))]
+            res = gradient_search(objective, V0, max_iter=max_iter)
+            found.setdefault(m, []).append(res.vstar)
             out.append(SensorSuite(sensors, m, fs, res.objective, res.vstar))
         if progress is not None:
             progress(i + 1, len(subsets))

@@ -223,3 +223,42 @@ def test_ols_tally_returns_the_most_selected_parameters():
     assert set(chosen) == set(np.argsort(-tally, kind="stable")[:4])
     d = tuners.design_filter(model, V, *_noise(model))
     assert np.isfinite(d.theory.ssee_health)
+
+
+def _with_redundant_sensor(model):
+    """The model plus a sensor that reads twice the first one: G_y loses rank."""
+    import dataclasses
+
+    from estimation.model import Signal
+
+    return dataclasses.replace(
+        model,
+        sensors=model.sensors + (Signal("Nf_twice", "%"),),
+        C=np.vstack([model.C, 2.0 * model.C[:1]]),
+        D=np.vstack([model.D, 2.0 * model.D[:1]]),
+        M=np.vstack([model.M, 2.0 * model.M[:1]]),
+        sensor_noise_std=np.append(model.sensor_noise_std, model.sensor_noise_std[0]),
+    )
+
+
+def test_suites_with_redundant_sensors_are_unobservable_not_fatal():
+    model = _with_redundant_sensor(reference_model(extra_sensors=1))
+    Q, Qh, Ph = _noise(model)
+    # As many tuners as sensors, one sensor redundant: the PBH test at the tuners'
+    # eigenvalue 1 fails; the direct design refuses it and the batch marks it NaN.
+    V = np.random.default_rng(2).standard_normal((model.n_sensors, model.n_health))
+    with pytest.raises(UnobservableDesignError):
+        tuners.design_filter(model, V, Q, Qh, Ph)
+    keep = model.sensor_names[:-1]
+    ok = np.random.default_rng(3).standard_normal((len(keep), model.n_health))
+    batch = tuners._evaluate(error_problem(model, Q, Qh, Ph), np.stack([V, V]))
+    assert np.all(np.isnan(batch))
+    base, optional = model.sensor_names[:5], model.sensor_names[5:]
+    suites = tuners.sensor_selection(model, base, optional, Q, Qh, Ph)
+    for s in suites:
+        redundant = "Nf_twice" in s.sensors
+        assert np.isnan(s.optimal_objective) == redundant, s.sensors
+    # The suites without it are designed as on the model without the sensor.
+    direct = tuners.optimal_tuners(model.select_sensors(keep), len(keep), Q, Qh, Ph, start=ok)
+    full = next(s for s in suites if s.sensors == tuple(keep))
+    assert full.optimal_objective <= direct.objective * (1 + 1e-6)
