@@ -28,8 +28,8 @@ import psycopg
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pacsv
+from sqlalchemy import DateTime, select, type_coerce
 from sqlalchemy import exc as sa_exc
-from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.errors import Conflict, ServiceError
@@ -544,7 +544,9 @@ def engine_snapshots(
     engine = fleet.get_engine(session, operator_id=operator_id, engine_id=engine_id)
     stmt = (
         select(
-            Snapshot.recorded_at,
+            # Plain DateTime: Arrow takes the driver's values in bulk (aware on PostgreSQL,
+            # naive UTC on SQLite) without a per-row Python conversion.
+            type_coerce(Snapshot.recorded_at, DateTime(timezone=True)),
             Aircraft.tail,
             Snapshot.position,
             Snapshot.phase,
@@ -560,7 +562,7 @@ def engine_snapshots(
         stmt = stmt.where(Snapshot.recorded_at >= start)
     if end is not None:
         stmt = stmt.where(Snapshot.recorded_at < end)
-    rows = session.execute(stmt).all()
+    rows = session.connection().execute(stmt).all()  # Core: no ORM row loading
     columns = list(zip(*rows, strict=True)) if rows else [() for _ in SNAPSHOT_OUTPUT]
     types = [pa.timestamp("us", tz="UTC"), pa.string(), pa.int16(), pa.string(), pa.string()]
     types += [pa.float64()] * len(SIGNALS)
