@@ -5,7 +5,7 @@ from __future__ import annotations
 import io
 import json
 from collections.abc import Iterator
-from datetime import timedelta
+from datetime import datetime, timedelta
 
 import numpy as np
 import pyarrow as pa
@@ -380,8 +380,8 @@ def test_engine_snapshots_as_json_and_csv(
     back = pacsv.read_csv(io.BytesIO(csv.content))
     np.testing.assert_array_equal(back["T30"].to_numpy(), [r["T30"] for r in window])
     limited = client.get(url, params={"limit": 3}, headers=fleet_data.viewer).json()
-    assert [s["recorded_at"] for s in limited["snapshots"]] == [
-        r["recorded_at"].isoformat().replace("+00:00", "Z") for r in mine.to_pylist()[:3]
+    assert [datetime.fromisoformat(s["recorded_at"]) for s in limited["snapshots"]] == [
+        r["recorded_at"] for r in mine.to_pylist()[:3]
     ]
     assert client.get(url, headers=fleet_data.other).status_code == 404
 
