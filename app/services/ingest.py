@@ -8,8 +8,8 @@ batch. Rows already stored under ``(engine_id, recorded_at)`` with the same valu
 with other values they are a 409. New rows go in by COPY on PostgreSQL and executemany on
 SQLite, inside the caller's transaction: the caller commits or rolls back everything.
 
-The estimation pipeline starts from ``estimation_hook``, called once per stored upload with
-every affected engine and the earliest new record of each.
+The estimation pipeline starts from ``UploadResult.affected`` (stored on the upload row):
+every engine with new rows and the earliest new ``recorded_at`` of each.
 """
 
 from __future__ import annotations
@@ -91,17 +91,6 @@ class UploadResult:
     @property
     def affected(self) -> list[AffectedEngine]:
         return [AffectedEngine.from_json(a) for a in self.upload.affected or []]
-
-
-def estimation_hook(
-    session: Session, *, operator_id: int, upload_id: int, affected: Sequence[AffectedEngine]
-) -> None:
-    """Called once per stored snapshot upload, inside its transaction, before the commit.
-
-    ``affected`` lists each engine with new rows and its earliest new ``recorded_at``: the
-    estimation pipeline continues (or re-runs) each engine from there. Nothing happens yet.
-    """
-    del session, operator_id, upload_id, affected
 
 
 # ------------------------------------------------------------------------- idempotency
@@ -252,7 +241,6 @@ def ingest_snapshots(
             "the same time; nothing was stored, send it again",
             details=[{"reason": str(exc).splitlines()[0][:300]}],
         ) from None
-    estimation_hook(session, operator_id=operator_id, upload_id=upload.id, affected=affected)
     return UploadResult(upload, replayed=False)
 
 
