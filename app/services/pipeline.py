@@ -29,7 +29,7 @@ import functools
 import logging
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -575,6 +575,7 @@ class EngineRun:
     y: np.ndarray  # [S, ny] stored units, NaN = missing
     u: np.ndarray  # [S, nu]
     maintenance: np.ndarray  # epochs of the engine's maintenance actions
+    redo: dict[float, Event] = field(default_factory=dict)  # events the run recomputes
 
 
 @dataclass
@@ -777,15 +778,10 @@ def _restart_point(
 def _delete_from(
     session: Session, engine_id: int, design_id: int, seq0: int, state: Mapping[str, Any]
 ) -> None:
-    """Remove what a re-run from ``seq0`` recomputes (an alarm pending at the restart point
-    is isolated again by the re-run, so its event goes too)."""
-    pending = (state.get("detector") or {}).get("pending")
-    same = (Event.engine_id == engine_id, Event.design_id == design_id)
-    if pending is not None:
-        session.execute(delete(Event).where(*same, or_(Event.seq >= seq0,
-                                                           Event.seq == int(pending["seq"]))))
-    else:
-        session.execute(delete(Event).where(*same, Event.seq >= seq0))
+    """Remove what a re-run from ``seq0`` recomputes. Events are not deleted here: the re-run
+    updates those it detects again (keeping their status and comments) and deletes the rest
+    (``_store``). An alarm pending at the restart point is isolated again by the re-run, so its
+    event is redone too."""
     session.execute(
         delete(Estimate).where(
             Estimate.engine_id == engine_id, Estimate.design_id == design_id, Estimate.seq >= seq0
@@ -798,6 +794,21 @@ def _delete_from(
             FilterCheckpoint.seq > seq0,
         )
     )
+
+
+def _events_to_redo(
+    session: Session, engine_id: int, design_id: int, seq0: int, state: Mapping[str, Any]
+) -> dict[float, Event]:
+    """Events a run from ``seq0`` (state ``state``) recomputes, by detection time (an alarm's
+    record keeps its time when a late record shifts the sequence numbers)."""
+    pending = (state.get("detector") or {}).get("pending")
+    which = Event.seq >= seq0
+    if pending is not None:
+        which = or_(which, Event.seq == int(pending["seq"]))
+    rows = session.scalars(
+        select(Event).where(Event.engine_id == engine_id, Event.design_id == design_id, which)
+    ).all()
+    return {e.detected_at.timestamp(): e for e in rows}
 
 
 def _maintenance_epochs(session: Session, engine_id: int) -> np.ndarray:
@@ -863,8 +874,9 @@ def estimate_engines(
             ids, epoch, phase, cond, y, u = _load_records(session, est, engine.id, after)
             if len(ids) == 0 and fs is not None and seq0 == fs.n_records:
                 continue
+            redo = _events_to_redo(session, engine.id, d_id, seq0, state)
             runs.append(EngineRun(engine.id, operator_id, seq0, state, ids, epoch, phase, cond,
-                                  y, u, _maintenance_epochs(session, engine.id)))
+                                  y, u, _maintenance_epochs(session, engine.id), redo))
             states.append(fs)
         for start in range(0, len(runs), 64):
             batch = runs[start : start + 64]
@@ -898,13 +910,33 @@ def _store(
                 for seq, epoch, snap, state in out.checkpoints
             ],
         )
+    redo = dict(run.redo)
+    fresh = []
     for draft in out.events:
+        detection = {
+            "detected_at": datetime.fromtimestamp(draft.epoch, UTC), "kind": draft.kind,
+            "fault": draft.fault, "magnitude": draft.magnitude, "statistic": draft.statistic,
+            "wssr": draft.wssr, "shift": draft.shift,
+        }
+        existing = redo.pop(draft.epoch, None)
+        if existing is not None:
+            # Detected again: keep what people did with it (status, comments).
+            for key, value in detection.items():
+                setattr(existing, key, value)
+            existing.seq = draft.seq
+        else:
+            fresh.append((draft.seq, detection))
+    pending = (out.state.get("detector") or {}).get("pending")
+    for epoch, stale in redo.items():
+        if pending is not None and float(pending["epoch"]) == epoch:
+            continue  # still awaiting its isolation: the next run redoes it
+        session.delete(stale)
+    session.flush()  # stale events go before new ones may take their sequence numbers
+    for seq, detection in fresh:
         session.add(
             Event(
                 operator_id=run.operator_id, engine_id=run.engine_id, design_id=est.design_id,
-                seq=draft.seq, detected_at=datetime.fromtimestamp(draft.epoch, UTC),
-                kind=draft.kind, fault=draft.fault, magnitude=draft.magnitude,
-                statistic=draft.statistic, wssr=draft.wssr, shift=draft.shift, status="open",
+                seq=seq, status="open", **detection,
             )
         )
     n_records = run.seq0 + len(run.epoch)

@@ -229,3 +229,30 @@ def test_fleet_diagnostics_summarises_and_queues_estimation(session: Session) ->
     assert summary["engines"][0]["snapshots_waiting"] is True
     job = session.get(Job, summary["estimation_job_id"])
     assert job is not None and job.kind == "estimate_engines" and job.status == "queued"
+
+
+def test_rerun_keeps_what_people_did_with_an_event(session: Session) -> None:
+    from app.models.estimates import EventComment
+
+    fleet = _fleet_with_design(session)
+    aircraft = add_aircraft(session, fleet, "F-ACK")
+    times, y = _records(seed=7, fault="HPC", at=500)
+    reference, engine = add_engine(session, fleet, "ACK0"), add_engine(session, fleet, "ACK1")
+    start = _store(session, fleet, reference.id, aircraft.id, times, y, range(N))
+    pipeline.estimate_engines(session, fleet.operator_id, {reference.id: start})
+    start = _store(session, fleet, engine.id, aircraft.id, times, y,
+                   [i for i in range(N) if i != 100])
+    pipeline.estimate_engines(session, fleet.operator_id, {engine.id: start})
+    event = session.scalars(select(Event).where(Event.engine_id == engine.id)).one()
+    event.status = "acknowledged"
+    session.add(EventComment(event_id=event.id, author="test", body="borescope booked"))
+    session.flush()
+
+    late = _store(session, fleet, engine.id, aircraft.id, times, y, [100])
+    assert pipeline.estimate_engines(session, fleet.operator_id, {engine.id: late})["reruns"] == 1
+    session.expire_all()
+    kept = session.scalars(select(Event).where(Event.engine_id == engine.id)).one()
+    assert kept.id == event.id and kept.status == "acknowledged"
+    assert [c.body for c in kept.comments] == ["borescope booked"]
+    assert _events(session, engine.id) == _events(session, reference.id)
+    assert _rows(session, engine.id) == _rows(session, reference.id)
