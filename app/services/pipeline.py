@@ -3,9 +3,12 @@
 After an upload commits, each affected engine's snapshot filter (``estimation.snapshot``,
 MATH.md section 8) continues from its stored state under the engine type's active design. A
 record older than the last processed one re-runs the engine from the newest checkpoint before
-it: estimates, events and checkpoints from there on are deleted and recomputed, so a re-run
-writes the same rows as an uninterrupted run (the arithmetic per record does not depend on
-how records are grouped into runs, and a state restored from JSON is bit-exact).
+it: estimates and checkpoints from there on are deleted and recomputed, so a re-run writes the
+same rows as an uninterrupted run (the arithmetic per record does not depend on how records are
+grouped into runs, and a state restored from JSON is bit-exact). Events detected again are
+updated in place (an acknowledgement and comments survive); events not detected again go.
+Checkpoints every ``CHECKPOINT_EVERY`` records bound a re-run: on the demo fleet (1460 records
+an engine) a late record near the end re-ran 180 records in 0.27 s against 3 s from the start.
 
 Per record the pipeline stores q_hat, h_hat = V*^+ q_hat and z_hat = G_z V*^+ q_hat with their
 1-sigma (from the filter covariance P), the innovation per sensor, and the WSSR of every
