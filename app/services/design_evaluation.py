@@ -10,6 +10,7 @@ so the latest succeeded job of a design is its evaluation.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -21,19 +22,40 @@ from app.models.jobs import Job
 from app.services.models_designs import get_design
 from estimation import evaluate as ev
 from estimation.design import design_from_result
-from estimation.isolation import faults_from_list
+from estimation.isolation import Fault, faults_from_list
 from estimation.model import LinearModel
+from estimation.tuners import TunerDesign
 
 EVALUATION_FORMAT = "fleethealth.evaluation/1"
 JOB_KIND = "evaluate_design"
 Progress = Callable[[float, str | None], None]
 
 
-def evaluate_design(
-    session: Session,
+@dataclass(frozen=True)
+class EvaluationInput:
+    """What the experiments need from a stored design (read before the long computation)."""
+
+    design_id: int
+    design: TunerDesign
+    truth: LinearModel | None
+    faults: tuple[Fault, ...] | None
+
+
+def evaluation_input(session: Session, *, operator_id: int, design_id: int) -> EvaluationInput:
+    """The design's rebuilt filter, truth model and fault library; 404 / 409 as the API says."""
+    design = get_design(session, operator_id=operator_id, design_id=design_id)
+    if design.status != "ready" or design.result is None:
+        raise Conflict(f"design {design.id} is {design.status}; only a ready design is evaluated")
+    result = design.result
+    truth = LinearModel.from_dict(result["source_model"]) if "source_model" in result else None
+    library = (result.get("faults") or {}).get("library")
+    faults = tuple(faults_from_list(library)) if library else None
+    return EvaluationInput(design.id, design_from_result(result), truth, faults)
+
+
+def run_evaluation(
+    data: EvaluationInput,
     *,
-    operator_id: int,
-    design_id: int,
     n_cases: int,
     duration_s: float,
     window_s: float,
@@ -41,19 +63,11 @@ def evaluate_design(
     seed: int,
     progress: Progress | None = None,
 ) -> dict[str, Any]:
-    """Run the SSEE and isolation experiments on a ready design; the evaluation dict.
+    """Run the SSEE and isolation experiments; the evaluation dict (no database access).
 
     The isolation experiment needs a fault library that fits the design's model; where it
     does not, ``confusion`` is absent and ``isolation_note`` says why.
     """
-    design = get_design(session, operator_id=operator_id, design_id=design_id)
-    if design.status != "ready" or design.result is None:
-        raise Conflict(f"design {design.id} is {design.status}; only a ready design is evaluated")
-    result = design.result
-    tuner_design = design_from_result(result)
-    truth = LinearModel.from_dict(result["source_model"]) if "source_model" in result else None
-    library = (result.get("faults") or {}).get("library")
-    faults = faults_from_list(library) if library else None
     rng = np.random.default_rng(seed)
 
     def stage(lo: float, hi: float, label: str) -> Callable[[float], None]:
@@ -64,18 +78,18 @@ def evaluate_design(
         return report
 
     mc = ev.ssee_monte_carlo(
-        tuner_design, n_cases, rng=rng, duration=duration_s, window=window_s,
+        data.design, n_cases, rng=rng, duration=duration_s, window=window_s,
         progress=stage(0.0, 0.5, f"SSEE Monte Carlo ({n_cases} cases)"),
     )
     out: dict[str, Any] = {
         "format": EVALUATION_FORMAT,
-        "design_id": design.id,
+        "design_id": data.design_id,
         "seed": seed,
         "monte_carlo": mc.to_dict(),
     }
     try:
         iso = ev.isolation_experiment(
-            tuner_design, faults, rng=rng, truth=truth, duration=fault_duration_s,
+            data.design, data.faults, rng=rng, truth=data.truth, duration=fault_duration_s,
             progress=stage(0.5, 1.0, f"isolation ({fault_duration_s:g} s per fault)"),
         )
     except ValueError as exc:

@@ -32,9 +32,14 @@ class EvaluateDesign(BaseModel):
 def evaluate_design(
     session: Session, parameters: EvaluateDesign, progress: Progress, *, operator_id: int
 ) -> dict[str, Any]:
-    return design_evaluation.evaluate_design(
-        session, operator_id=operator_id, design_id=parameters.design_id,
-        n_cases=parameters.n_cases, duration_s=parameters.duration_s,
+    data = design_evaluation.evaluation_input(
+        session, operator_id=operator_id, design_id=parameters.design_id
+    )
+    # End the read transaction before the long run: on SQLite a transaction that read before
+    # a progress report committed could not write the result afterwards.
+    session.commit()
+    return design_evaluation.run_evaluation(
+        data, n_cases=parameters.n_cases, duration_s=parameters.duration_s,
         window_s=parameters.window_s, fault_duration_s=parameters.fault_duration_s,
         seed=parameters.seed, progress=progress,
     )
