@@ -294,8 +294,7 @@ def plan_fleet(config: FleetConfig, rng: np.random.Generator) -> FleetPlan:
     for j in range(n_rounds):
         round_start = cfg.start_epoch_s + j * spacing
         # Engines back from the shop join the spare pool.
-        for e in np.flatnonzero(eng.shop_until == j):
-            pool.append(int(e))
+        pool.extend(int(back) for back in np.flatnonzero(eng.shop_until == j))
         params = random_parameters(n_air, rng)
         starts = round_start + rng.uniform(0.0, 0.25 * spacing, n_air)
         records = []
@@ -325,11 +324,11 @@ def plan_fleet(config: FleetConfig, rng: np.random.Generator) -> FleetPlan:
         eng.next_wash[flying] -= 1.0
         # Between rounds: washes, removals, exchanges (all at one instant).
         at = round_start + 0.75 * spacing
-        for e in flying[eng.next_wash[flying] <= 0.0]:
-            rec = eng.foul[e] * cfg.wash_recovery
-            eng.foul[e] -= rec
-            eng.next_wash[e] = cfg.wash_interval * rng.uniform(0.8, 1.2)
-            washes.append(WashEvent(esns[e], at, {
+        for washed in flying[eng.next_wash[flying] <= 0.0]:
+            rec = eng.foul[washed] * cfg.wash_recovery
+            eng.foul[washed] -= rec
+            eng.next_wash[washed] = cfg.wash_interval * rng.uniform(0.8, 1.2)
+            washes.append(WashEvent(esns[washed], at, {
                 HEALTH_NAMES[i]: float(-rec[i]) for i in range(N_TURBO) if rec[i] != 0.0
             }))
         if j == n_rounds - 1:
