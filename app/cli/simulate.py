@@ -53,10 +53,18 @@ def simulate(
         what = f"{snaps.recorded_at.size} snapshots"
     else:
         n_streams = aircraft * positions * flights
-        with typer.progressbar(length=n_streams, label="stream flights") as bar:
+        with typer.progressbar(length=1000, label="stream flights (simulated time)") as bar:
+            done = [0]
+
+            def advance(fraction: float) -> None:
+                step = int(1000 * fraction) - done[0]
+                if step > 0:
+                    bar.update(step)
+                    done[0] += step
+
             manifest = simulate_io.write_streams(
-                stream_flights(plan, stream_rng, rate_hz, stream_seconds), out, file_format,
-                on_flight=lambda _f: bar.update(1),
+                stream_flights(plan, stream_rng, rate_hz, stream_seconds, on_progress=advance),
+                out, file_format,
             )
         written.append(manifest)
         what = f"{n_streams} stream flights"

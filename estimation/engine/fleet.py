@@ -523,6 +523,7 @@ def stream_flights(
     rounds: Sequence[int] | None = None,
     max_batch: int = 256,
     memory_bytes: float = 1.0e9,
+    on_progress: Callable[[float], None] | None = None,
 ) -> Iterator[StreamFlight]:
     """Whole flights of every installed engine, in round, aircraft, position order (a generator).
 
@@ -531,6 +532,7 @@ def stream_flights(
     together in batches (``transient.simulate``, from rest at ground idle) of
     at most ``max_batch`` engine-flights and about ``memory_bytes`` of
     recorded samples. duration_s shortens the 2500 s flight (tests, demos).
+    on_progress(fraction) reports the fraction of all engine-flights simulated.
     """
     cfg = plan.config
     n_pos = cfg.positions
@@ -542,15 +544,22 @@ def stream_flights(
     chunk = int(max(1, min(max_batch, memory_bytes // per_row)))
     rows = [(j, a, p) for j in (range(cfg.n_flights) if rounds is None else rounds)
             for a in range(cfg.n_aircraft) for p in range(n_pos)]
+    n_rows = max(len(rows), 1)
     for start in range(0, len(rows), chunk):
         part = rows[start:start + chunk]
+
+        def progress(frac: float, start: int = start, size: int = len(part)) -> None:
+            if on_progress is not None:
+                on_progress((start + frac * size) / n_rows)
+
         recs = [plan.flights[j][a] for j, a, _ in part]
         eng = np.array([plan.installed[j, a, p] for j, a, p in part])
         h = np.stack([plan.health[j, e] for (j, _a, _p), e in zip(part, eng, strict=True)])
         params = FlightParameters(*(np.concatenate([np.asarray(r.params[i]) for r in recs])
                                     for i in range(len(FlightParameters._fields))))
         res = simulate(flight_profile(params), t_end, health=h, dt=dt, record_every=every,
-                       noise_std=std, rng=rng if std is not None else None)
+                       noise_std=std, rng=rng if std is not None else None,
+                       on_progress=progress)
         for k, ((_j, _a, p), rec) in enumerate(zip(part, recs, strict=True)):
             act = res.u[:, k].copy()
             act[:, 0] = res.measured[:, k, -1]

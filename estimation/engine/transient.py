@@ -243,6 +243,7 @@ def simulate(
     design: EngineDesign | None = None,
     x0: np.ndarray | None = None,
     gas_path_solution: str = "one_pass",
+    on_progress: Callable[[float], None] | None = None,
 ) -> TransientResult:
     """Simulate a batch of engines in closed loop from rest at the schedule's start.
 
@@ -259,6 +260,7 @@ def simulate(
     half the cost) evaluates it once per stage at the predicted unknowns and
     carries one chord correction to the next stage, so the mismatch is of the
     order of the prediction error in a transient and vanishes at rest.
+    on_progress(fraction) is called every 1000 steps and at the end.
     """
     if gas_path_solution not in ("converged", "one_pass"):
         raise ValueError(f"gas_path_solution must be 'converged' or 'one_pass', "
@@ -329,6 +331,8 @@ def simulate(
             rec_x[i], rec_u[i], rec_y[i], rec_m[i], rec_aux[i] = x, u, y, y + noise, aux
             rec_cond[:, i] = cond
             rec_lim[i] = out.limited
+        if on_progress is not None and (k % 1000 == 0 or k == n_steps):
+            on_progress(k / max(n_steps, 1))
         if k == n_steps:
             break
         k1 = np.stack([st["dnf"], st["dnc"], st["dtm_hpc"], st["dtm_hpt"]], axis=1)

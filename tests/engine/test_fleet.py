@@ -270,3 +270,13 @@ def test_seed001_evaluation_cases() -> None:
         ss = steady_state(np.tile(env, (5, 1)), power=np.tile([0.0, 80.0], 5),
                           health=np.repeat(cases, 2, axis=0))
         assert np.all(np.isfinite(ss.sensors))
+
+
+def test_stream_progress_reaches_the_end() -> None:
+    cfg = FleetConfig(n_aircraft=1, n_flights=2, positions=1, noise=False)
+    plan = plan_fleet(cfg, np.random.default_rng(2))
+    seen: list[float] = []
+    flights = list(stream_flights(plan, np.random.default_rng(3), rate_hz=1.0, duration_s=1.0,
+                                  max_batch=1, on_progress=seen.append))
+    assert len(flights) == 2
+    assert seen == sorted(seen) and seen[0] == 0.0 and seen[-1] == 1.0
