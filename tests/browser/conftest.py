@@ -81,7 +81,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     factory = make_sessionmaker(engine)
     seeded = seed(factory)
     settings = Settings(data_dir=data_dir, database_url=url, log_json=False, log_level="WARNING")
-    app = create_app(settings, engine)
+    app = create_app(settings, engine, background_jobs=True)
     port = _free_port()
     config = uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", lifespan="on")
     uv = uvicorn.Server(config)
@@ -133,16 +133,24 @@ def console() -> Console:
     return Console()
 
 
+@pytest.fixture(scope="session")
+def context(browser: Any, server: Server) -> Iterator[Any]:
+    """One browser context for the run: plotly.js is fetched and compiled once (HTTP and code
+    cache); each test's new tab still starts signed out (sessionStorage is per tab)."""
+    ctx = browser.new_context(viewport=LAPTOP, base_url=server.base_url)
+    yield ctx
+    ctx.close()
+
+
 @pytest.fixture
-def page(browser: Any, server: Server, console: Console) -> Iterator[Any]:
-    context = browser.new_context(viewport=LAPTOP, base_url=server.base_url)
+def page(context: Any, console: Console) -> Iterator[Any]:
     pg = context.new_page()
     pg.on("console", lambda m: console.errors.append(f"console: {m.text} @ {m.location.get('url')}")
           if m.type == "error" else None)
     pg.on("pageerror", lambda e: console.errors.append(f"pageerror: {e}"))
     pg.set_default_timeout(15_000)
     yield pg
-    context.close()
+    pg.close()
 
 
 def sign_in(page: Any, key: str, then: str = "/") -> None:

@@ -1,0 +1,235 @@
+// Estimator designs: analytic squared bias and variance (stacked bars) next to Monte Carlo,
+// confusion matrices and misclassification probabilities, two designs side by side; create a
+// design and watch its evaluation job.
+import { api } from "./api.js";
+import { $, badge, fmtNum, fmtTime, h, params, progressBar, showError, sortableTable, startPage } from "./ui.js";
+import { PALETTE, axisTitle, layout, plot } from "./plots.js";
+
+const VARIANTS = { wssr_q: "WSSR on tuner estimates", wssr_y: "WSSR on sensor estimates", max_h: "largest health change", wssr_q_diagnostic: "WSSR, diagnostics-aware design" };
+const EVALUATION = { n_cases: 100, duration_s: 20, window_s: 5, fault_duration_s: 60, seed: 0 };
+let designs = [];
+let models = [];
+const cache = new Map();
+
+function squared(unit) { return unit === "%" ? "%²" : `${unit}²`; }
+
+function unitsOf(result, group) {
+  const signals = (result.model && result.model.signals && result.model.signals[group]) || [];
+  const byName = Object.fromEntries(signals.map((s) => [s.name, s.unit]));
+  return (name) => byName[name] || "%";
+}
+
+async function details(id) {
+  if (!cache.has(id)) {
+    cache.set(id, Promise.all([api(`/api/v1/designs/${id}`), api(`/api/v1/designs/${id}/evaluation`)]));
+  }
+  return cache.get(id);
+}
+
+function errorBars(div, theory, unitOf, mc) {
+  const names = theory.names;
+  const traces = [
+    { x: names, y: theory.bias2, type: "bar", name: "squared bias (theory)", offsetgroup: "theory", marker: { color: PALETTE[0] },
+      hovertemplate: "%{x}: bias² %{y:.4f}<extra></extra>" },
+    { x: names, y: theory.variance, base: theory.bias2, type: "bar", name: "variance (theory)", offsetgroup: "theory", marker: { color: PALETTE[4] },
+      hovertemplate: "%{x}: variance %{y:.4f}<extra></extra>" },
+  ];
+  if (mc) {
+    traces.push({ x: mc.names, y: mc.squared_error, type: "bar", name: "Monte Carlo squared error", offsetgroup: "mc", marker: { color: PALETTE[1] },
+      error_y: { type: "data", array: mc.standard_error, visible: true, color: "#000000", thickness: 1 },
+      hovertemplate: "%{x}: %{y:.4f} ± %{error_y.array:.4f}<extra>Monte Carlo</extra>" });
+  }
+  const units = [...new Set(names.map((n) => squared(unitOf(n))))].join(", ");
+  return plot(div, traces, layout({
+    barmode: "group", hovermode: "closest",
+    xaxis: { title: { text: "Estimated parameter" } },
+    yaxis: { title: { text: axisTitle("Squared error", units) } },
+    legend: { orientation: "h", y: -0.35 }, margin: { l: 70, r: 20, t: 20, b: 110 },
+  }));
+}
+
+// A matrix as a heatmap with its values written in the cells.
+function matrixPlot(div, z, rows, cols, { title, unit, digits = 1, xTitle, yTitle }) {
+  const max = Math.max(...z.flat());
+  return plot(div, [{
+    z, x: cols, y: rows, type: "heatmap", colorscale: "Cividis", zmin: 0, zmax: max || 1,
+    colorbar: { title: { text: unit, side: "right" }, thickness: 12 },
+    hovertemplate: `true %{y}, isolated %{x}: %{z:.${digits}f} ${unit}<extra></extra>`, name: title,
+  }], layout({
+    hovermode: "closest",
+    xaxis: { title: { text: xTitle }, side: "bottom", gridcolor: "rgba(0,0,0,0)" },
+    yaxis: { title: { text: yTitle }, autorange: "reversed", gridcolor: "rgba(0,0,0,0)" },
+    annotations: z.flatMap((row, i) => row.map((v, j) => ({
+      x: cols[j], y: rows[i], text: v >= 10 ** -digits / 2 ? v.toFixed(digits) : "", showarrow: false,
+      font: { size: 10, color: v > 0.6 * max ? "#000000" : "#ffffff" },
+    }))),
+    margin: { l: 70, r: 20, t: 20, b: 60 },
+  }));
+}
+
+async function column(id, side) {
+  const card = h("section", { class: "card", id: `design-${side}` });
+  const [design, evaluation] = await details(id);
+  const result = design.result || {};
+  const theory = design.analytic_errors;
+  const mc = evaluation && evaluation.result.monte_carlo;
+  const conf = evaluation && evaluation.result.confusion;
+  card.append(h("h2", {}, `${side.toUpperCase()}: ${design.name} `, design.active ? badge("active", "ready") : null),
+    h("dl", { class: "kv" },
+      h("dt", {}, "Method"), h("dd", {}, `${result.method ?? design.spec.method} with ${(result.tuners || []).length} tuners`),
+      h("dt", {}, "Sensors"), h("dd", {}, (result.sensors || design.spec.sensors || []).join(", ")),
+      h("dt", {}, "SSEE (theory)"), h("dd", {}, `health ${fmtNum(design.ssee_health, 3)} %² · aux ${fmtNum(design.ssee_aux, 3)}`),
+      h("dt", {}, "Monte Carlo"), h("dd", {}, mc ? `${mc.n_cases} cases, SSEE ${fmtNum(mc.ssee_health, 3)} %² (theory ${fmtNum(mc.ssee_health_theory, 3)}), ${fmtTime(evaluation.finished_at)}`
+        : h("span", {}, "not evaluated yet ", h("button", { type: "button", class: "secondary", onclick: () => evaluate(design.id) }, "Run evaluation")))));
+  if (design.status !== "ready" || !theory) {
+    card.append(h("p", { class: "notice" }, `Design is ${design.status}${design.failure ? `: ${design.failure}` : ""}.`));
+    return card;
+  }
+  const health = h("div", { class: "plot", id: `health-${side}` });
+  const aux = h("div", { class: "plot", id: `aux-${side}` });
+  const confusion = h("div", { class: "plot tall", id: `confusion-${side}` });
+  const pmc = h("div", { class: "plot tall", id: `pmc-${side}` });
+  card.append(h("h3", {}, "Health parameters: squared bias + variance, theory next to Monte Carlo"), health,
+    h("h3", {}, "Auxiliary outputs (thrust, temperatures, stall margins): squared bias + variance"), aux);
+  const variant = $("#variant").value;
+  if (conf && conf[variant]) {
+    card.append(h("h3", {}, `Confusion matrix: ${VARIANTS[variant] || variant}, correct ${fmtNum(conf[variant].correct_rate, 1)} %`), confusion);
+  } else {
+    card.append(h("p", { class: "muted" }, evaluation ? (evaluation.result.isolation_note || "No confusion matrix for this variant.") : "Confusion matrix: run the evaluation."));
+  }
+  if (result.faults) card.append(h("h3", {}, `Misclassification probability (analytic), sum ${fmtNum(result.faults.pmc_sum, 3)}`), pmc);
+  // Plot after the card is in the document, so the plots size to it.
+  card.draw = () => Promise.all([
+    errorBars(health, theory.health, unitsOf(result, "health"), mc && mc.health),
+    errorBars(aux, theory.aux, unitsOf(result, "aux"), null),
+    conf && conf[variant] ? matrixPlot(confusion, conf[variant].percent, conf[variant].faults, conf[variant].faults,
+      { title: "confusion", unit: "%", xTitle: "Isolated fault", yTitle: "True fault" }) : null,
+    result.faults ? matrixPlot(pmc, result.faults.pmc, result.faults.names, result.faults.names,
+      { title: "misclassification probability", unit: "probability", digits: 3, xTitle: "Mistaken for", yTitle: "True fault" }) : null,
+  ]);
+  return card;
+}
+
+async function compare() {
+  const a = $("#a").value;
+  const b = $("#b").value;
+  history.replaceState(null, "", `/designs.html?a=${a}&b=${b}`);
+  const compareDiv = $("#compare");
+  const cards = [];
+  for (const [id, side] of [[a, "a"], [b, "b"]]) {
+    if (!id) continue;
+    try {
+      cards.push(await column(Number(id), side));
+    } catch (err) {
+      const card = h("section", { class: "card" });
+      showError(card, err, `Design ${id}`);
+      cards.push(card);
+    }
+  }
+  compareDiv.replaceChildren(...cards);
+  await Promise.all(cards.map((c) => c.draw && c.draw()));
+}
+
+async function watchJob(job, label) {
+  const box = $("#job");
+  for (;;) {
+    box.replaceChildren(h("p", {}, `${label}: job #${job.id} `, badge(job.status)), progressBar(job.progress, job.message));
+    if (["succeeded", "failed", "cancelled"].includes(job.status)) return job;
+    await new Promise((r) => setTimeout(r, 1000));
+    job = await api(`/api/v1/jobs/${job.id}`);
+  }
+}
+
+async function evaluate(designId) {
+  const message = $("#create-message");
+  message.replaceChildren();
+  try {
+    const job = await api("/api/v1/jobs", { method: "POST", body: { kind: "evaluate_design", parameters: { design_id: designId, ...EVALUATION } } });
+    const done = await watchJob(job, `Monte Carlo evaluation of design ${designId}`);
+    if (done.status !== "succeeded") showError(message, new Error(done.error || `evaluation ${done.status}`), "Evaluation");
+    cache.delete(designId);
+    await compare();
+  } catch (err) {
+    showError(message, err, "Evaluation");
+  }
+}
+
+function sensorChecks() {
+  const model = models.find((m) => String(m.id) === $("#model").value);
+  $("#sensors").replaceChildren(...(model ? model.sensor_names : []).map((s) =>
+    h("label", {}, h("input", { type: "checkbox", name: "sensor", value: s, checked: s !== "Wf" }), ` ${s}`)));
+}
+
+async function create(e) {
+  e.preventDefault();
+  const message = $("#create-message");
+  const button = $("#create-button");
+  message.replaceChildren();
+  const sensors = [...document.querySelectorAll("input[name=sensor]:checked")].map((x) => x.value);
+  const model = models.find((m) => String(m.id) === $("#model").value);
+  const healthNames = model.health_names.filter((n) => !n.endsWith("_bias"));
+  const spec = {
+    format: "fleethealth.design-spec/1", method: $("#method").value, tuners: Number($("#tuners").value),
+    sensors, health: healthNames, noise: { Q: 1e-4, Qh: 1e-4, Ph: 4.0 },
+  };
+  button.disabled = true;
+  $("#create-status").textContent = "designing…";
+  try {
+    const design = await api("/api/v1/designs", { method: "POST", body: { engine_model_id: model.id, name: $("#name").value.trim(), spec } });
+    $("#create-status").textContent = `design ${design.id} ${design.status}`;
+    await loadList(design.id);
+    await evaluate(design.id);
+  } catch (err) {
+    $("#create-status").textContent = "";
+    showError(message, err, "Design not created");
+  } finally {
+    button.disabled = false;
+  }
+}
+
+async function loadList(selectB) {
+  const page = await api("/api/v1/designs", { query: { limit: 200 } });
+  designs = page.items;
+  const p = params();
+  const a = $("#a").value || p.get("a") || String((designs.find((d) => d.active) || designs[0] || {}).id || "");
+  const b = selectB ? String(selectB) : $("#b").value || p.get("b") || String((designs.find((d) => String(d.id) !== a) || {}).id || "");
+  for (const [sel, value] of [["#a", a], ["#b", b]]) {
+    $(sel).replaceChildren(h("option", { value: "" }, "none"), ...designs.map((d) =>
+      h("option", { value: d.id, selected: String(d.id) === value }, `#${d.id} ${d.name}`)));
+  }
+  $("#list").replaceChildren(designs.length ? sortableTable([
+    { key: "id", label: "#", numeric: true },
+    { key: "name", label: "Name" },
+    { key: "method", label: "Method", value: (d) => d.spec.method },
+    { key: "tuners", label: "Tuners", numeric: true, value: (d) => d.spec.tuners },
+    { key: "status", label: "Status", cell: (d) => badge(d.status) },
+    { key: "active", label: "In service", cell: (d) => (d.active ? badge("active", "ready") : "") },
+    { key: "ssee_health", label: "SSEE health [%²]", numeric: true, cell: (d) => fmtNum(d.ssee_health, 3) },
+    { key: "ssee_aux", label: "SSEE aux", numeric: true, cell: (d) => fmtNum(d.ssee_aux, 3) },
+    { key: "created_at", label: "Created", cell: (d) => fmtTime(d.created_at) },
+  ], designs, { sortKey: "id", descending: true }) : h("p", { class: "muted" }, "No designs yet: create one below."));
+}
+
+async function main() {
+  const principal = await startPage("designs");
+  $("#variant").replaceChildren(...Object.entries(VARIANTS).map(([k, v]) => h("option", { value: k }, v)));
+  try {
+    await loadList();
+    models = (await api("/api/v1/engine-models", { query: { limit: 200 } })).items;
+    $("#model").replaceChildren(...models.map((m) => h("option", { value: m.id }, `${m.name} v${m.version}`)));
+    sensorChecks();
+  } catch (err) {
+    showError($("#message"), err, "Designs");
+  }
+  if (principal.role === "viewer") {
+    $("#create-button").disabled = true;
+    $("#create-message").append(h("p", { class: "notice" }, "Creating designs needs an analyst key."));
+  }
+  $("#model").addEventListener("change", sensorChecks);
+  $("#create").addEventListener("submit", create);
+  for (const id of ["a", "b", "variant"]) $(`#${id}`).addEventListener("change", compare);
+  await compare();
+  document.body.dataset.ready = "true";
+}
+
+main();

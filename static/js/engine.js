@@ -1,0 +1,188 @@
+// Engine trend: tuners, health parameters and thrust/margins with 1-sigma bands, residuals and
+// WSSR, against date or cycles, with installation, maintenance and event markers.
+import { api, apiText, download } from "./api.js";
+import { $, fmtTime, h, params, showError, startPage } from "./ui.js";
+import { axisTitle, layout, lineWithBand, markerAnnotations, markerShapes, plot, syncZoom, unitOf } from "./plots.js";
+
+const ORDER = ["health", "aux", "tuners", "residuals", "wssr"];
+const TITLES = {
+  health: "Health parameters",
+  aux: "Thrust deficit and stall-margin estimates",
+  tuners: "Tuners",
+  residuals: "Sensor residuals",
+  wssr: "WSSR per fault hypothesis",
+};
+// Short y-axis titles, so the unit stays visible on a narrow plot.
+const YLABELS = { health: "Health change", aux: "Thrust / margin change", tuners: "Tuner", residuals: "Residual", wssr: "WSSR" };
+let trend = null;
+
+function query() {
+  const q = { max_points: $("#max_points").value, design_id: $("#design").value || undefined };
+  if ($("#start").value) q.start = `${$("#start").value}T00:00:00Z`;
+  if ($("#end").value) q.end = `${$("#end").value}T23:59:59Z`;
+  return q;
+}
+
+// Time (ms) -> record number on the cycles axis, by the nearest record at or after it.
+function seqAt(ms) {
+  const times = trend.time.map((t) => Date.parse(t));
+  const i = times.findIndex((t) => t >= ms);
+  return i < 0 ? null : trend.seq[i];
+}
+
+function markers(axis) {
+  const first = Date.parse(trend.time[0]);
+  const last = Date.parse(trend.time[trend.time.length - 1]);
+  const inside = (iso) => { const t = Date.parse(iso); return t >= first && t <= last; };
+  const at = (iso, seq) => (axis === "date" ? iso : seq ?? seqAt(Date.parse(iso)));
+  const out = [];
+  for (const inst of trend.installations) {
+    if (inside(inst.installed_at)) out.push({ kind: "installation", x: at(inst.installed_at), short: `on ${inst.tail}`, label: `installed on ${inst.tail} position ${inst.position}, ${fmtTime(inst.installed_at)}` });
+    if (inst.removed_at && inside(inst.removed_at)) out.push({ kind: "installation", x: at(inst.removed_at), short: `off ${inst.tail}`, label: `removed from ${inst.tail} position ${inst.position}, ${fmtTime(inst.removed_at)}` });
+  }
+  for (const m of trend.maintenance) {
+    if (inside(m.performed_at)) out.push({ kind: "maintenance", x: at(m.performed_at), short: m.kind.replace("_", " "), label: `${m.kind}: ${m.notes}` });
+  }
+  for (const e of trend.events) {
+    out.push({ kind: "event", x: axis === "date" ? e.detected_at : e.seq, short: e.fault || e.kind, label: `event ${e.id}: ${e.fault || e.kind} (${e.status})` });
+  }
+  return out.filter((m) => m.x !== null && m.x !== undefined);
+}
+
+function draw() {
+  const axis = $("#axis").value;
+  const x = axis === "date" ? trend.time : trend.seq;
+  const marks = markers(axis);
+  const container = $("#plots");
+  container.className = "grid two";
+  container.replaceChildren();
+  const divs = [];
+  const groups = ORDER.map((k) => trend.groups.find((g) => g.key === k)).filter(Boolean);
+  for (const group of groups) {
+    const id = `plot-${group.key}`;
+    const div = h("div", { id, class: "plot" });
+    container.append(h("section", { class: "card" }, h("h2", {}, TITLES[group.key] || group.label), div));
+    const traces = group.series.flatMap((s, i) => lineWithBand(x, s, i, { band: !!s.sigma }));
+    // Event markers as points too: hovering one names the event.
+    const events = marks.filter((m) => m.kind === "event");
+    if (events.length) {
+      traces.push({
+        x: events.map((m) => m.x), y: events.map(() => 1), yaxis: "y2", type: "scatter", mode: "markers",
+        name: "events", marker: { symbol: "triangle-down", size: 12, color: "#D55E00" },
+        text: events.map((m) => m.label), hovertemplate: "%{text}<extra></extra>",
+      });
+    }
+    const lay = layout({
+      xaxis: { title: { text: axis === "date" ? "Date (UTC)" : "Cycles (record number)" }, type: axis === "date" ? "date" : "linear" },
+      yaxis: { title: { text: axisTitle(YLABELS[group.key] || group.label, unitOf(group.series)) } },
+      legend: { orientation: "v", x: 1.02, y: 1, font: { size: 11 } },
+      yaxis2: { overlaying: "y", range: [0, 1.05], visible: false, fixedrange: true },
+      shapes: markerShapes(marks),
+      annotations: markerAnnotations(marks.filter((m) => m.kind !== "event")),
+      margin: { l: 70, r: 20, t: 30, b: 50 },
+    });
+    divs.push(div);
+    plot(div, traces, lay);
+  }
+  syncZoom(divs);
+}
+
+function info() {
+  const t = trend;
+  $("#title").textContent = `Engine trend · ${t.esn}`;
+  $("#info").replaceChildren(
+    `${t.esn} · ${t.engine_type} · design ${t.design_name ?? "none"} · ${t.n_records} records`,
+    t.decimated ? ` shown as ${t.n_points} buckets (mean; min/max in the CSV)` : "",
+    t.n_records ? ` · ${fmtTime(t.time[0])} to ${fmtTime(t.time[t.time.length - 1])}` : "");
+  const hist = $("#history");
+  hist.hidden = false;
+  hist.replaceChildren(h("h2", {}, "History"), h("div", { class: "grid" },
+    h("div", {}, h("h3", {}, "Installations"), h("ul", {}, t.installations.map((i) =>
+      h("li", {}, `${i.tail} position ${i.position}: ${fmtTime(i.installed_at)} – ${i.removed_at ? fmtTime(i.removed_at) : "now"}`)))),
+    h("div", {}, h("h3", {}, "Maintenance actions"), t.maintenance.length ? h("ul", {}, t.maintenance.map((m) =>
+      h("li", {}, `${fmtTime(m.performed_at)}: ${m.kind.replace("_", " ")}${m.notes ? ` (${m.notes})` : ""}`))) : h("p", { class: "muted" }, "none")),
+    h("div", {}, h("h3", {}, "Events"), t.events.length ? h("ul", {}, t.events.map((e) =>
+      h("li", {}, h("a", { href: `/events.html?id=${e.id}` }, `${fmtTime(e.detected_at)}: ${e.fault || e.kind}`), ` · ${e.status}`))) : h("p", { class: "muted" }, "none"))));
+}
+
+async function load(engineId) {
+  const message = $("#message");
+  message.replaceChildren();
+  try {
+    trend = await api(`/api/v1/engines/${engineId}/trend`, { query: query() });
+  } catch (err) {
+    $("#plots").replaceChildren();
+    $("#history").hidden = true;
+    showError(message, err, `Engine ${engineId}`);
+    return;
+  }
+  info();
+  if (!trend.n_records) {
+    $("#plots").replaceChildren(h("p", { class: "notice" }, "No estimates for this engine in the chosen range."));
+    return;
+  }
+  draw();
+}
+
+// The shown data: the x range of the health plot (after zooming) as start/end of the CSV export.
+function shownRange() {
+  const div = $("#plot-health");
+  if (!div || !div.layout || !trend?.n_records) return {};
+  const [a, b] = div.layout.xaxis.range;
+  const times = trend.time.map((t) => Date.parse(t));
+  const xs = $("#axis").value === "date" ? times : trend.seq;
+  const lo = $("#axis").value === "date" ? Date.parse(a) : a;
+  const hi = $("#axis").value === "date" ? Date.parse(b) : b;
+  const inside = times.filter((_, i) => xs[i] >= lo && xs[i] <= hi);
+  if (!inside.length) return {};
+  return { start: new Date(Math.min(...inside) - 1000).toISOString(), end: new Date(Math.max(...inside) + 1000).toISOString() };
+}
+
+async function exportCsv(engineId) {
+  try {
+    const q = { ...query(), ...shownRange(), format: "csv" };
+    const text = await apiText(`/api/v1/engines/${engineId}/trend`, { query: q });
+    download(text, `trend-${trend ? trend.esn : engineId}.csv`);
+  } catch (err) {
+    showError($("#message"), err, "CSV export");
+  }
+}
+
+async function main() {
+  await startPage("engine");
+  const id = params().get("id");
+  let status;
+  try {
+    status = await api("/api/v1/fleet/status");
+  } catch (err) {
+    showError($("#message"), err, "Engines");
+    return;
+  }
+  const select = $("#engine");
+  select.replaceChildren(h("option", { value: "" }, "choose an engine…"), ...status.engines.map((e) =>
+    h("option", { value: e.engine_id, selected: String(e.engine_id) === id }, `${e.esn}${e.tail ? ` (${e.tail} #${e.position})` : ""}`)));
+  $("#controls").hidden = false;
+  select.addEventListener("change", () => { if (select.value) location.assign(`/engine.html?id=${select.value}`); });
+  if (!id) {
+    $("#message").append(h("p", { class: "notice" }, "Choose an engine to see its trend."));
+    document.body.dataset.ready = "true";
+    return;
+  }
+  try {
+    const engine = await api(`/api/v1/engines/${id}`);
+    const designs = await api("/api/v1/designs", { query: { engine_type_id: engine.engine_type_id, limit: 100 } });
+    $("#design").replaceChildren(h("option", { value: "" }, "active design"), ...designs.items.filter((d) => d.status === "ready")
+      .map((d) => h("option", { value: d.id }, `${d.name}${d.active ? " (active)" : ""}`)));
+  } catch (err) {
+    showError($("#message"), err, `Engine ${id}`);
+    document.body.dataset.ready = "true";
+    return;
+  }
+  $("#form").addEventListener("submit", (e) => { e.preventDefault(); load(id); });
+  $("#axis").addEventListener("change", () => { if (trend?.n_records) draw(); });
+  $("#export").addEventListener("click", () => exportCsv(id));
+  await load(id);
+  document.body.dataset.ready = "true";
+}
+
+main();

@@ -1,0 +1,169 @@
+// Event review: the detected shift, the WSSR of every fault hypothesis, the isolated fault and
+// its magnitude; acknowledge, comment, close. Without ?id= the list of events.
+import { api } from "./api.js";
+import { $, badge, fmtNum, fmtTime, h, params, showError, sortableTable, startPage } from "./ui.js";
+import { MARKER_COLOURS, PALETTE, axisTitle, layout, lineWithBand, markerShapes, plot, unitOf } from "./plots.js";
+
+const WINDOW_DAYS = 20;
+
+async function showList() {
+  const content = $("#content");
+  const status = params().get("status") ?? "open";
+  const filter = h("select", { id: "status" }, ["open", "acknowledged", "closed", ""].map((s) =>
+    h("option", { value: s, selected: s === status }, s || "all")));
+  filter.addEventListener("change", () => location.assign(`/events.html?status=${filter.value}`));
+  const page = await api("/api/v1/events", { query: { status: status || undefined, limit: 500 } });
+  const columns = [
+    { key: "id", label: "Event", numeric: true, cell: (e) => h("a", { href: `/events.html?id=${e.id}` }, `#${e.id}`) },
+    { key: "detected_at", label: "Detected", cell: (e) => fmtTime(e.detected_at) },
+    { key: "esn", label: "ESN", cell: (e) => h("a", { href: `/engine.html?id=${e.engine_id}` }, e.esn) },
+    { key: "tail", label: "Tail", cell: (e) => (e.tail ? `${e.tail} #${e.position}` : "–") },
+    { key: "kind", label: "Kind" },
+    { key: "fault", label: "Isolated fault", cell: (e) => e.fault || h("span", { class: "muted" }, "not isolated") },
+    { key: "magnitude", label: "Magnitude", numeric: true, cell: (e) => fmtNum(e.magnitude) },
+    { key: "status", label: "Status", cell: (e) => badge(e.status) },
+  ];
+  content.replaceChildren(h("section", { class: "card" },
+    h("div", { class: "toolbar" }, h("label", {}, "Status", filter), h("span", { class: "muted" }, `${page.total} events`)),
+    page.items.length ? h("div", { class: "table-wrap" }, sortableTable(columns, page.items, { sortKey: "detected_at", descending: true }))
+      : h("p", { class: "muted" }, "No events with this status.")));
+}
+
+function shiftPlot(div, event) {
+  const names = Object.keys(event.health_shift);
+  const traces = [{
+    x: names, y: names.map((n) => event.health_shift[n]), type: "bar", name: "detected h_hat shift",
+    marker: { color: PALETTE[0] }, hovertemplate: "%{x}: %{y:.3f} %<extra>detected</extra>",
+  }];
+  if (event.fault && Object.keys(event.fault_shift).length) {
+    traces.push({
+      x: names, y: names.map((n) => event.fault_shift[n] ?? 0), type: "bar",
+      name: `${event.fault} signature × ${fmtNum(event.magnitude)}`, marker: { color: PALETTE[1] },
+      hovertemplate: "%{x}: %{y:.3f} %<extra>isolated fault</extra>",
+    });
+  }
+  return plot(div, traces, layout({
+    barmode: "group", hovermode: "closest",
+    xaxis: { title: { text: "Health parameter" } },
+    yaxis: { title: { text: axisTitle("Shift against baseline", "%") } },
+  }));
+}
+
+function wssrPlot(div, event) {
+  const faults = Object.keys(event.wssr);
+  const values = faults.map((f) => event.wssr[f]);
+  // A log scale when the bars span decades, so small WSSRs and the threshold stay readable.
+  const all = event.wssr_threshold === null ? values : values.concat([event.wssr_threshold]);
+  const log = all.every((v) => v > 0) && Math.max(...all) / Math.min(...all) > 20;
+  const shapes = event.wssr_threshold === null ? [] : [{
+    type: "line", xref: "paper", x0: 0, x1: 1, yref: "y", y0: event.wssr_threshold, y1: event.wssr_threshold,
+    line: { color: "#000000", dash: "dash", width: 1.5 },
+  }];
+  return plot(div, [{
+    x: faults, y: values, type: "bar", name: "WSSR",
+    marker: { color: faults.map((f) => (f === event.fault ? MARKER_COLOURS.event : PALETTE[0])) },
+    text: values.map((v) => fmtNum(v, 1)), textposition: "outside", cliponaxis: false,
+    hovertemplate: "%{x}: WSSR %{y:.2f}<extra></extra>",
+  }], layout({
+    hovermode: "closest", shapes, showlegend: false,
+    annotations: event.wssr_threshold === null ? [] : [{ xref: "paper", x: 1, xanchor: "right", y: log ? Math.log10(event.wssr_threshold) : event.wssr_threshold, yref: "y", yanchor: "bottom",
+      text: `accept below ${fmtNum(event.wssr_threshold, 1)}`, showarrow: false, font: { size: 11 } }],
+    xaxis: { title: { text: "Fault hypothesis" } },
+    yaxis: { title: { text: axisTitle("WSSR", "1") + (log ? ", log scale" : "") }, type: log ? "log" : "linear" },
+  }));
+}
+
+async function windowPlot(div, event) {
+  const t = Date.parse(event.detected_at);
+  const day = 86400e3;
+  const trend = await api(`/api/v1/engines/${event.engine_id}/trend`, { query: {
+    design_id: event.design_id, start: new Date(t - WINDOW_DAYS * day).toISOString(),
+    end: new Date(t + WINDOW_DAYS * day).toISOString(), max_points: 1000 } });
+  const group = trend.groups.find((g) => g.key === "health");
+  if (!group || !trend.n_records) { div.replaceWith(h("p", { class: "muted" }, "No estimates around the event.")); return; }
+  const traces = group.series.flatMap((s, i) => lineWithBand(trend.time, s, i));
+  return plot(div, traces, layout({
+    xaxis: { title: { text: "Date (UTC)" }, type: "date" },
+    yaxis: { title: { text: axisTitle("Health change", unitOf(group.series)) } },
+    legend: { orientation: "v", x: 1.02, y: 1, font: { size: 11 } },
+    shapes: markerShapes([{ kind: "event", x: event.detected_at }]),
+  }));
+}
+
+function actions(event, principal, refresh) {
+  const canWrite = principal.role !== "viewer";
+  const text = h("textarea", { id: "comment", rows: 3, placeholder: "Comment (what was found, what was done)", style: "width:100%" });
+  const message = h("div");
+  const run = async (path, body) => {
+    message.replaceChildren();
+    try {
+      const updated = await api(`/api/v1/events/${event.id}/${path}`, { method: "POST", body });
+      text.value = "";
+      refresh(updated);
+    } catch (err) {
+      showError(message, err, "Not saved");
+    }
+  };
+  const comment = () => (text.value.trim() ? { comment: text.value.trim() } : undefined);
+  return h("section", { class: "card", id: "review" }, h("h2", {}, "Review"),
+    canWrite ? null : h("p", { class: "notice" }, "Your key is a viewer key: acknowledging and commenting need an analyst key."),
+    text, message,
+    h("div", { class: "toolbar", style: "margin-top:.5rem" },
+      h("button", { id: "ack", type: "button", disabled: !canWrite || event.status !== "open", onclick: () => run("ack", comment()) }, "Acknowledge"),
+      h("button", { id: "add-comment", type: "button", class: "secondary", disabled: !canWrite, onclick: () => {
+        if (!text.value.trim()) { showError(message, new Error("Write a comment first.")); return; }
+        run("comments", { body: text.value.trim() });
+      } }, "Add comment"),
+      h("button", { id: "close", type: "button", class: "secondary", disabled: !canWrite || event.status === "closed", onclick: () => run("close", comment()) }, "Close event")),
+    h("h3", {}, `Comments (${event.comments.length})`),
+    event.comments.length ? h("ul", { class: "comments", id: "comments" }, event.comments.map((c) =>
+      h("li", {}, h("div", { class: "muted" }, `${c.author} · ${fmtTime(c.created_at)}`), c.body))) : h("p", { class: "muted" }, "No comments yet."));
+}
+
+function statusLine(event) {
+  return [badge(event.status), event.acknowledged_at ? ` acknowledged ${fmtTime(event.acknowledged_at)}` : "",
+    event.closed_at ? ` · closed ${fmtTime(event.closed_at)}` : ""];
+}
+
+function showEvent(event, principal) {
+  $("#title").textContent = `Event #${event.id} · ${event.esn}`;
+  // After acknowledge/comment/close only the status and the review card change.
+  const refresh = (updated) => {
+    $("#status").replaceChildren(...statusLine(updated));
+    $("#review").replaceWith(actions(updated, principal, refresh));
+  };
+  const isolated = event.fault
+    ? `${event.fault}, magnitude ${fmtNum(event.magnitude)} × the library's nominal shift`
+    : "no fault hypothesis accepted (WSSR above the threshold for all)";
+  const shift = h("div", { id: "shift", class: "plot" });
+  const wssr = h("div", { id: "wssr", class: "plot" });
+  const around = h("div", { id: "around", class: "plot" });
+  $("#content").replaceChildren(
+    h("section", { class: "card" }, h("dl", { class: "kv" },
+      h("dt", {}, "Engine"), h("dd", {}, h("a", { href: `/engine.html?id=${event.engine_id}` }, event.esn), event.tail ? ` on ${event.tail} position ${event.position}` : ""),
+      h("dt", {}, "Detected"), h("dd", {}, `${fmtTime(event.detected_at)} (record ${event.seq})`),
+      h("dt", {}, "Kind"), h("dd", {}, event.kind.replace("_", " ")),
+      h("dt", {}, "Isolated fault"), h("dd", { id: "isolated" }, isolated),
+      h("dt", {}, "Detector statistic"), h("dd", {}, fmtNum(event.statistic, 2)),
+      h("dt", {}, "Status"), h("dd", { id: "status" }, ...statusLine(event)))),
+    h("div", { class: "grid" },
+      h("section", { class: "card" }, h("h2", {}, "Detected shift"), shift),
+      h("section", { class: "card" }, h("h2", {}, "WSSR of every fault hypothesis"), wssr)),
+    h("section", { class: "card" }, h("h2", {}, `Health parameters ±${WINDOW_DAYS} days around the detection`), around),
+    actions(event, principal, refresh));
+  return Promise.all([shiftPlot(shift, event), wssrPlot(wssr, event), windowPlot(around, event)]);
+}
+
+async function main() {
+  const principal = await startPage("events");
+  const id = params().get("id");
+  try {
+    if (id) await showEvent(await api(`/api/v1/events/${id}`), principal);
+    else await showList();
+  } catch (err) {
+    showError($("#message"), err, id ? `Event ${id}` : "Events");
+  }
+  document.body.dataset.ready = "true";
+}
+
+main();

@@ -1,0 +1,99 @@
+"""Estimator designs in the browser: stacked squared bias and variance with Monte Carlo beside
+them, confusion and misclassification heatmaps, two designs side by side, and a design created
+from the page with its evaluation job watched to the end."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+
+from tests.browser.conftest import Console, Server, screenshot, sign_in, traces
+
+pytestmark = pytest.mark.browser
+
+
+def _get(server: Server, path: str) -> Any:
+    response = httpx.get(f"{server.base_url}{path}", headers={"X-API-Key": server.seeded.key})
+    assert response.status_code == 200, response.text
+    return response.json()
+
+
+def _data(page: Any, selector: str) -> list[dict[str, Any]]:
+    result: list[dict[str, Any]] = page.evaluate(f"document.querySelector('{selector}').data")
+    return result
+
+
+def test_two_designs_side_by_side(page: Any, server: Server, console: Console) -> None:
+    a, b = server.seeded.design_ids
+    sign_in(page, server.seeded.key, f"/designs.html?a={a}&b={b}")
+    design = _get(server, f"/api/v1/designs/{a}")
+    evaluation = _get(server, f"/api/v1/designs/{a}/evaluation")
+    health = _data(page, "#health-a")
+    assert [t["name"] for t in health] == [
+        "squared bias (theory)", "variance (theory)", "Monte Carlo squared error"
+    ]
+    theory = design["analytic_errors"]["health"]
+    assert health[0]["y"] == pytest.approx(theory["bias2"])
+    assert health[1]["y"] == pytest.approx(theory["variance"])
+    assert health[1]["base"] == pytest.approx(theory["bias2"])  # stacked on the bias
+    monte_carlo = evaluation["result"]["monte_carlo"]["health"]
+    assert health[2]["y"] == pytest.approx(monte_carlo["squared_error"])
+    aux = _data(page, "#aux-a")
+    assert aux[0]["x"] == design["analytic_errors"]["aux"]["names"] and len(aux) == 2
+    confusion = _data(page, "#confusion-a")[0]
+    wssr_q = evaluation["result"]["confusion"]["wssr_q"]
+    assert confusion["type"] == "heatmap"
+    np.testing.assert_allclose(confusion["z"], wssr_q["percent"])
+    assert confusion["x"] == wssr_q["faults"]
+    cells = page.evaluate("document.querySelector('#confusion-a').layout.annotations.length")
+    assert cells == len(wssr_q["faults"]) ** 2  # percentages written in the cells
+    pmc = _data(page, "#pmc-a")[0]
+    np.testing.assert_allclose(pmc["z"], design["result"]["faults"]["pmc"])
+    # Design B has no evaluation yet: theory only, and a button to run one.
+    assert [t["name"] for t in traces(page, "#health-b")] == [
+        "squared bias (theory)", "variance (theory)"
+    ]
+    assert "Run evaluation" in page.inner_text("#design-b")
+    title = page.evaluate("document.querySelector('#health-a').layout.yaxis.title.text")
+    assert "%²" in title
+    screenshot(page, "designs-compare")
+    page.select_option("#variant", "max_h")
+    page.wait_for_function(
+        "document.querySelector('#design-a').innerText.includes('largest health change')"
+    )
+    page.wait_for_selector("#confusion-a .main-svg")
+    np.testing.assert_allclose(
+        _data(page, "#confusion-a")[0]["z"], evaluation["result"]["confusion"]["max_h"]["percent"]
+    )
+    assert console.unexpected() == []
+
+
+def test_create_a_design_and_watch_its_evaluation(
+    page: Any, server: Server, console: Console
+) -> None:
+    sign_in(page, server.seeded.key, "/designs.html")
+    page.fill("#name", "browser SVD m = 5")
+    page.select_option("#method", "svd")
+    page.fill("#tuners", "5")
+    page.click("#create-button")
+    page.wait_for_selector("#job .progress", timeout=60_000)
+    page.wait_for_selector("#job .badge.succeeded", timeout=90_000)
+    page.wait_for_selector("#design-b #confusion-b .main-svg", timeout=30_000)
+    created = [d for d in _get(server, "/api/v1/designs?limit=200")["items"]
+               if d["name"] == "browser SVD m = 5"]
+    assert len(created) == 1 and created[0]["spec"]["tuners"] == 5
+    assert page.input_value("#b") == str(created[0]["id"])
+    evaluation = _get(server, f"/api/v1/designs/{created[0]['id']}/evaluation")
+    assert evaluation is not None
+    assert [t["name"] for t in traces(page, "#health-b")][-1] == "Monte Carlo squared error"
+    screenshot(page, "designs-created")
+    # A bad spec (more tuners than health parameters) is refused with the API's reason.
+    page.fill("#name", "too many tuners")
+    page.fill("#tuners", "40")
+    page.click("#create-button")
+    error = page.wait_for_selector("#create-message .error")
+    assert "tuners" in error.inner_text() and "422" in error.inner_text()
+    assert console.unexpected("422") == []

@@ -1,0 +1,113 @@
+"""The engine trend page: every trend group plotted with its bands and units, markers on the time
+axis, cycles axis, zoom shared by the plots, CSV export of the shown data, tenant rule."""
+
+from __future__ import annotations
+
+import csv
+import io
+from typing import Any
+
+import httpx
+import pytest
+
+from tests.browser.conftest import Console, Server, screenshot, sign_in, traces
+
+pytestmark = pytest.mark.browser
+
+
+def _api_trend(server: Server, engine_id: int, **query: Any) -> Any:
+    response = httpx.get(
+        f"{server.base_url}/api/v1/engines/{engine_id}/trend",
+        params={"max_points": 1000, **query}, headers={"X-API-Key": server.seeded.key},
+    )
+    assert response.status_code == 200, response.text
+    return response.json() if query.get("format") != "csv" else response.text
+
+
+def test_trend_plots_every_group_with_bands_markers_and_units(
+    page: Any, server: Server, console: Console
+) -> None:
+    engine_id = server.seeded.engine_with_event
+    assert engine_id is not None, "the seeded fleet must have an event"
+    sign_in(page, server.seeded.key, f"/engine.html?id={engine_id}")
+    api = _api_trend(server, engine_id)
+    for group in api["groups"]:
+        plotted = traces(page, f"#plot-{group['key']}")
+        lines = [t for t in plotted if t["role"] == "line"]
+        bands = [t for t in plotted if t["role"] == "band"]
+        assert [t["name"] for t in lines] == [s["name"] for s in group["series"]]
+        assert all(t["n"] == api["n_points"] for t in lines)
+        with_sigma = [s for s in group["series"] if s["sigma"] is not None]
+        assert len(bands) == len(with_sigma)
+        assert [t["name"] for t in plotted if t["name"] == "events"] == ["events"]
+        title = page.evaluate(
+            f"document.querySelector('#plot-{group['key']}').layout.yaxis.title.text"
+        )
+        assert f"[{group['series'][0]['unit']}]" in title or "dimensionless" in title
+    # One solid vermilion line per event, at its detection time.
+    shapes = page.evaluate("document.querySelector('#plot-health').layout.shapes")
+    event_lines = [s for s in shapes if s["line"]["color"] == "#D55E00"]
+    assert sorted(s["x0"] for s in event_lines) == sorted(e["detected_at"] for e in api["events"])
+    screenshot(page, "engine-trend")
+
+    # Cycles axis: the record numbers.
+    page.select_option("#axis", "cycles")
+    page.wait_for_function("document.querySelector('#plot-health').layout.xaxis.type === 'linear'")
+    x = page.evaluate(
+        "document.querySelector('#plot-health').data.find((t) => t.meta.role === 'line').x"
+    )
+    assert x == api["seq"]
+    event_x = page.evaluate(
+        "document.querySelector('#plot-health').data.find((t) => t.name === 'events').x"
+    )
+    assert event_x == [e["seq"] for e in api["events"]]
+    page.select_option("#axis", "date")
+    page.wait_for_function("document.querySelector('#plot-health').layout.xaxis.type === 'date'")
+
+    # Zooming the health plot zooms the others; the export holds the zoomed records only.
+    first, last = api["time"][0], api["time"][len(api["time"]) // 3]
+    page.evaluate(
+        "([a, b]) => Plotly.relayout(document.querySelector('#plot-health'), "
+        "{'xaxis.range': [a, b]})", [first, last],
+    )
+    page.wait_for_function(
+        "(a) => String(document.querySelector('#plot-wssr').layout.xaxis.range[0]).startsWith(a)",
+        arg=first[:10],
+    )
+    with page.expect_download() as download_info:
+        page.click("#export")
+    exported = download_info.value.path().read_text()
+    rows = list(csv.DictReader(io.StringIO(exported)))
+    full = list(csv.DictReader(io.StringIO(_api_trend(server, engine_id, format="csv"))))
+    assert list(rows[0]) == list(full[0])  # the API's own CSV columns
+    assert 0 < len(rows) < len(full)
+    assert all(first[:10] <= r["recorded_at"][:10] <= last[:10] for r in rows)
+    assert console.unexpected() == []
+
+
+def test_maintenance_and_installation_changes_are_marked(
+    page: Any, server: Server, console: Console
+) -> None:
+    engine_id = min(server.seeded.engine_ids.values())  # the engine with the water wash
+    sign_in(page, server.seeded.key, f"/engine.html?id={engine_id}")
+    api = _api_trend(server, engine_id)
+    shapes = page.evaluate("document.querySelector('#plot-tuners').layout.shapes")
+    washes = [s for s in shapes if s["line"]["color"] == "#009E73"]
+    assert [s["x0"] for s in washes] == [
+        m["performed_at"] for m in api["maintenance"]
+        if api["time"][0] <= m["performed_at"] <= api["time"][-1]
+    ]
+    assert washes, "the seeded water wash lies inside the trend"
+    assert console.unexpected() == []
+
+
+def test_another_operators_engine_is_not_found(
+    page: Any, server: Server, console: Console
+) -> None:
+    sign_in(page, server.seeded.key, "/engine.html")
+    page.goto(f"/engine.html?id={server.seeded.other_engine_id}")
+    error = page.wait_for_selector(".error")
+    assert "not found" in error.inner_text() and "404" in error.inner_text()
+    assert page.locator(".js-plotly-plot").count() == 0
+    screenshot(page, "engine-other-operator")
+    assert console.unexpected("404") == []

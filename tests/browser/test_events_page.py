@@ -1,0 +1,74 @@
+"""Event review in the browser: the list, the detected shift, WSSR bars of every fault
+hypothesis, acknowledge with a comment; a viewer cannot write."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import httpx
+import pytest
+
+from tests.browser.conftest import Console, Server, screenshot, sign_in, traces
+
+pytestmark = pytest.mark.browser
+
+
+def _get(server: Server, path: str, **params: Any) -> Any:
+    response = httpx.get(
+        f"{server.base_url}{path}", params=params, headers={"X-API-Key": server.seeded.key}
+    )
+    assert response.status_code == 200, response.text
+    return response.json()
+
+
+def test_event_list_shows_every_event(page: Any, server: Server, console: Console) -> None:
+    sign_in(page, server.seeded.key, "/events.html?status=")
+    api = _get(server, "/api/v1/events")
+    assert api["total"] >= 1
+    ids = page.locator("table.data tbody tr td:first-child").all_inner_texts()
+    assert sorted(ids) == sorted(f"#{e['id']}" for e in api["items"])
+    screenshot(page, "events-list")
+    assert console.unexpected() == []
+
+
+def test_event_review_plots_shift_and_wssr_and_acknowledges(
+    page: Any, server: Server, console: Console
+) -> None:
+    event_id = server.seeded.event_id
+    assert event_id is not None
+    sign_in(page, server.seeded.key, f"/events.html?id={event_id}")
+    event = _get(server, f"/api/v1/events/{event_id}")
+    wssr = page.evaluate("document.querySelector('#wssr').data[0]")
+    assert wssr["type"] == "bar" and wssr["x"] == list(event["wssr"])
+    assert wssr["y"] == pytest.approx(list(event["wssr"].values()))
+    shift = traces(page, "#shift")
+    assert shift[0]["name"] == "detected h_hat shift"
+    assert shift[0]["n"] == len(event["health_shift"])
+    assert len(shift) == (2 if event["fault"] and event["fault_shift"] else 1)
+    around = [t["name"] for t in traces(page, "#around") if t["role"] == "line"]
+    assert around == list(event["health_shift"])
+    assert "[%]" in page.evaluate("document.querySelector('#shift').layout.yaxis.title.text")
+    screenshot(page, "event-review")
+
+    if event["status"] == "open":
+        page.fill("#comment", "borescope booked for the next night stop")
+        page.click("#ack")
+        page.wait_for_selector("#status .badge.acknowledged")
+        assert "borescope booked" in page.inner_text("#comments")
+        after = _get(server, f"/api/v1/events/{event_id}")
+        assert after["status"] == "acknowledged"
+        assert after["comments"][-1]["body"] == "borescope booked for the next night stop"
+    page.fill("#comment", "second look: shift confirmed")
+    page.click("#add-comment")
+    page.wait_for_function(
+        "document.querySelector('#comments').innerText.includes('second look')"
+    )
+    screenshot(page, "event-acknowledged")
+    assert console.unexpected() == []
+
+
+def test_a_viewer_cannot_acknowledge(page: Any, server: Server, console: Console) -> None:
+    sign_in(page, server.seeded.viewer_key, f"/events.html?id={server.seeded.event_id}")
+    assert page.locator("#ack").is_disabled() and page.locator("#add-comment").is_disabled()
+    assert "viewer key" in page.inner_text("main")
+    assert console.unexpected() == []
