@@ -95,3 +95,37 @@ def test_import_creates_one_engine_per_unit_and_one_snapshot_per_cycle(
         select(func.count()).select_from(Snapshot).where(Snapshot.operator_id == operator_id)
     )
     assert before == after == n
+
+
+@pytest.mark.skipif(not FD001.exists(), reason=f"no C-MAPSS file at {FD001}")
+def test_the_command_line_runs_the_import_with_a_progress_bar(
+    analyst_client: tuple[TestClient, int],
+    session: Session,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from typer.testing import CliRunner
+
+    from app.cli import app as cli
+    from app.cli import importers
+
+    client, operator_id = analyst_client
+    key = client.headers["X-API-Key"]
+    opened: list[dict] = []
+
+    def fake_client(**kwargs: object) -> TestClient:
+        # The command's own httpx.Client, pointed at the app under test.
+        opened.append(kwargs)
+        return client
+
+    monkeypatch.setattr(importers.httpx, "Client", fake_client)
+    result = CliRunner().invoke(
+        cli, ["import-cmapss", str(FD001), "--api-key", key, "--units", "1"]
+    )
+    assert result.exit_code == 0, result.output
+    n = len(read_by_hand(FD001, 1)[1])
+    assert f"1 engines, {n} snapshots: {n} stored" in result.output
+    assert opened[0]["headers"] == {"X-API-Key": key}
+    stored = session.scalar(
+        select(func.count()).select_from(Snapshot).where(Snapshot.operator_id == operator_id)
+    )
+    assert stored == n
