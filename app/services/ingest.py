@@ -15,7 +15,6 @@ every engine with new rows and the earliest new ``recorded_at`` of each.
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import sqlite3
 from collections.abc import Mapping
@@ -27,7 +26,6 @@ import numpy as np
 import psycopg
 import pyarrow as pa
 import pyarrow.compute as pc
-import pyarrow.csv as pacsv
 from sqlalchemy import DateTime, select, type_coerce
 from sqlalchemy import exc as sa_exc
 from sqlalchemy.orm import Session
@@ -456,18 +454,6 @@ def copy_binary(
             for batch in table.to_batches(max_chunksize=COPY_BATCH_ROWS):
                 copy.write(binary_copy_rows(pa.Table.from_batches([batch]), pg_types))
             copy.write(TRAILER)
-
-
-def copy_rows(driver_connection: Any, table_name: str, table: pa.Table) -> None:
-    """COPY ``table`` (columns named as the table's) through psycopg 3, CSV rendered by Arrow."""
-    names = ", ".join(table.column_names)
-    options = pacsv.WriteOptions(include_header=False)
-    with driver_connection.cursor() as cursor:
-        with cursor.copy(f"COPY {table_name} ({names}) FROM STDIN WITH (FORMAT csv)") as copy:
-            for batch in table.to_batches(max_chunksize=COPY_BATCH_ROWS):
-                sink = io.BytesIO()
-                pacsv.write_csv(batch, sink, options)
-                copy.write(sink.getbuffer())
 
 
 def executemany_rows(driver_connection: Any, table_name: str, table: pa.Table) -> None:
