@@ -319,3 +319,13 @@ def test_stream_time_axis_must_be_fixed_rate() -> None:
         parse_parquet, to_parquet(samples.set_column(0, "time_s", pa.array(t_bad))), kind="stream"
     )
     assert (details[0]["row"], details[0]["column"]) == (11, "time_s")
+
+
+def test_stored_signals_are_the_built_in_engines_sensors_in_its_units() -> None:
+    from app.models.ingest import ACTUATORS, SENSORS
+    from estimation.engine.sensors import SENSOR_NAMES, SENSOR_UNITS
+
+    stored = {s.name: s.unit for s in SENSORS + ACTUATORS}
+    engine = dict(zip(SENSOR_NAMES, SENSOR_UNITS, strict=True))
+    assert {name: stored[name] for name in engine} == engine
+    assert set(stored) - set(engine) == {"VSV", "VBV"}  # actuator positions, not sensors
