@@ -60,7 +60,7 @@ def upload_stream(
     columns: ColumnMapping = None,
 ) -> StreamUploadOut:
     """A whole-flight recording (CSV or Parquet with ``time_s``); metadata as query
-    parameters or, for simulator files, in the Parquet manifest."""
+    parameters or in the Parquet file's ``fleethealth.manifest`` metadata."""
     fmt = _file_format(payload.content_format)
     meta = {
         k: v
