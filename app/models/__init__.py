@@ -6,6 +6,7 @@ from app.models.estimates import Estimate, Event, EventComment, FilterCheckpoint
 from app.models.fleet import Aircraft, Engine, Installation, MaintenanceAction
 from app.models.ingest import Snapshot, StreamChunk, StreamRecording, Upload
 from app.models.jobs import Job, JobSchedule
+from app.models.stream_estimates import StreamEstimate, StreamFilterState
 from app.models.tenancy import ApiKey, Operator
 
 __all__ = [
@@ -28,6 +29,8 @@ __all__ = [
     "Operator",
     "Snapshot",
     "StreamChunk",
+    "StreamEstimate",
+    "StreamFilterState",
     "StreamRecording",
     "Upload",
 ]
