@@ -7,9 +7,9 @@ import logging
 import sys
 import time
 import uuid
-from collections.abc import Awaitable, Callable
 
-from fastapi import FastAPI, Request, Response
+from fastapi import FastAPI
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 _RESERVED = set(vars(logging.makeLogRecord({})))
 
@@ -39,25 +39,49 @@ def configure_logging(level: str = "INFO", as_json: bool = True) -> None:
     root.propagate = False
 
 
-def install_request_logging(app: FastAPI) -> None:
-    log = logging.getLogger("fleethealth.http")
+class RequestLogMiddleware:
+    """Log one line per HTTP request and echo its request id.
 
-    @app.middleware("http")
-    async def _log_request(
-        request: Request, call_next: Callable[[Request], Awaitable[Response]]
-    ) -> Response:
-        request_id = request.headers.get("x-request-id") or uuid.uuid4().hex
+    Plain ASGI rather than ``@app.middleware("http")``: that wrapper runs the app in a task
+    group, so an exception raised while the body is read (the body limit's) would reach the
+    route wrapped in an exception group.
+    """
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+        self.log = logging.getLogger("fleethealth.http")
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        headers = dict(scope.get("headers") or [])
+        request_id = headers.get(b"x-request-id", b"").decode("latin-1") or uuid.uuid4().hex
         started = time.perf_counter()
-        response = await call_next(request)
-        response.headers["x-request-id"] = request_id
-        log.info(
-            "request",
-            extra={
-                "request_id": request_id,
-                "method": request.method,
-                "path": request.url.path,
-                "status": response.status_code,
-                "duration_ms": round(1000 * (time.perf_counter() - started), 2),
-            },
-        )
-        return response
+        status = 500
+
+        async def send_with_id(message: Message) -> None:
+            nonlocal status
+            if message["type"] == "http.response.start":
+                status = message["status"]
+                extra = (b"x-request-id", request_id.encode())
+                message = {**message, "headers": [*message.get("headers", []), extra]}
+            await send(message)
+
+        try:
+            await self.app(scope, receive, send_with_id)
+        finally:
+            self.log.info(
+                "request",
+                extra={
+                    "request_id": request_id,
+                    "method": scope["method"],
+                    "path": scope["path"],
+                    "status": status,
+                    "duration_ms": round(1000 * (time.perf_counter() - started), 2),
+                },
+            )
+
+
+def install_request_logging(app: FastAPI) -> None:
+    app.add_middleware(RequestLogMiddleware)

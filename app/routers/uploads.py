@@ -52,13 +52,8 @@ async def read_payload(request: Request) -> Payload:
     """Read the body in the event loop (the route itself runs in the threadpool)."""
     try:
         return await _read_payload(request)
-    except BaseException as exc:
-        # The body limit trips inside request logging's task group, which wraps it in a group.
-        if isinstance(exc, BodyTooLarge) or (
-            isinstance(exc, BaseExceptionGroup) and exc.subgroup(BodyTooLarge) is not None
-        ):
-            raise PayloadTooLarge("request body exceeds the limit") from None
-        raise
+    except BodyTooLarge:
+        raise PayloadTooLarge("request body exceeds the limit") from None
 
 
 async def _read_payload(request: Request) -> Payload:

@@ -31,3 +31,10 @@ def test_dashboard_and_docs_are_served(client: TestClient) -> None:
     assert "fleethealth" in client.get("/").text
     assert client.get("/docs").status_code == 200
     assert client.get("/openapi.json").json()["info"]["title"] == "fleethealth"
+
+
+def test_every_response_carries_the_request_id(client: TestClient) -> None:
+    sent = client.get("/health", headers={"x-request-id": "trace-42"})
+    assert sent.headers["x-request-id"] == "trace-42"
+    minted = client.get("/health").headers["x-request-id"]
+    assert len(minted) == 32 and minted != "trace-42"
