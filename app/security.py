@@ -9,6 +9,7 @@ from fastapi import Depends, Request, Security
 from fastapi.security import APIKeyHeader
 from sqlalchemy.orm import Session
 
+from app.db import transaction
 from app.errors import Forbidden, Unauthorized
 from app.services.tenancy import Principal, authenticate
 
@@ -19,15 +20,8 @@ api_key_header = APIKeyHeader(
 
 def get_session(request: Request) -> Iterator[Session]:
     """A session per request, committed when the route returns without error."""
-    session = request.app.state.sessionmaker()
-    try:
+    with transaction(request.app.state.sessionmaker) as session:
         yield session
-        session.commit()
-    except BaseException:
-        session.rollback()
-        raise
-    finally:
-        session.close()
 
 
 DbSession = Annotated[Session, Depends(get_session)]
