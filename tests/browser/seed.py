@@ -45,6 +45,8 @@ class Seeded:
     engine_model_id: int = 0
     event_id: int | None = None
     engine_with_event: int | None = None
+    # Snapshots one day after the seeded ones, for an upload from the browser.
+    next_day: pa.Table | None = None
 
 
 def _designs(session: Session, operator_id: int, type_id: int) -> tuple[int, list[int]]:
@@ -124,6 +126,10 @@ def seed(factory: sessionmaker[Session]) -> Seeded:
                 kind="water_wash", performed_at=datetime.fromtimestamp(wash.at, UTC),
                 notes="scheduled water wash",
             )
+    last = pc.max(snaps["recorded_at"])
+    tail_rows = snaps.filter(pc.equal(snaps["recorded_at"], last))
+    shifted = pc.add(tail_rows["recorded_at"], pa.scalar(86400, pa.duration("s")))
+    out.next_day = tail_rows.set_column(0, "recorded_at", shifted.cast(snaps["recorded_at"].type))
     sink = io.BytesIO()
     pq.write_table(snaps, sink)
     with transaction(factory) as session:

@@ -1,0 +1,120 @@
+// Uploads and jobs: upload a file with a progress bar, the upload history with row-level errors,
+// and jobs with their progress (refreshed while any is queued or running).
+import { api, uploadFile } from "./api.js";
+import { $, badge, detailText, errorBox, fmtTime, h, progressBar, showError, sortableTable, startPage } from "./ui.js";
+
+const REFRESH_MS = 2000;
+let principal = null;
+let timer = null;
+
+function fileFormat(name) {
+  return /\.(parquet|pq)$/i.test(name) ? "Parquet" : "CSV";
+}
+
+async function upload(e) {
+  e.preventDefault();
+  const file = $("#file").files[0];
+  if (!file) return;
+  const button = $("#upload-button");
+  const bar = $("#upload-progress");
+  const result = $("#upload-result");
+  button.disabled = true;
+  result.replaceChildren();
+  bar.replaceChildren(progressBar(0, `sending ${file.name} (${fileFormat(file.name)}, ${(file.size / 1024).toFixed(1)} KiB)`));
+  try {
+    const out = await uploadFile("/api/v1/snapshots/file", file, {
+      onProgress: (f) => bar.replaceChildren(progressBar(f, f < 1 ? `sending ${file.name}` : "sent; validating and storing…")),
+    });
+    bar.replaceChildren(progressBar(1, `${file.name} stored`));
+    result.replaceChildren(h("div", { class: "notice", id: "upload-ok" },
+      out.replayed ? h("strong", {}, `Already uploaded as upload #${out.id}: nothing new stored.`) : [
+        h("strong", {}, `Upload #${out.id} stored. `),
+        `${out.rows_received} rows received, ${out.rows_stored} stored, ${out.rows_duplicate} already stored. `,
+        out.affected.length ? `Engines: ${out.affected.map((a) => `${a.esn} (${a.rows})`).join(", ")}; estimation queued.` : ""]));
+  } catch (err) {
+    const refused = progressBar(1, `${file.name} refused`);
+    refused.classList.add("refused");
+    bar.replaceChildren(refused);
+    result.replaceChildren(errorBox(err, "Upload refused, nothing stored"));
+  } finally {
+    button.disabled = false;
+    await Promise.all([loadUploads(), loadJobs()]);
+  }
+}
+
+async function showUpload(id) {
+  const detail = $("#upload-detail");
+  try {
+    const u = await api(`/api/v1/uploads/${id}`);
+    detail.replaceChildren(h("div", { class: "card", id: "upload-errors" }, h("h3", {}, `Upload #${u.id}: ${u.status}`),
+      h("p", {}, u.message || ""),
+      u.errors.length ? h("ul", {}, u.errors.map((e) => h("li", {}, detailText(e)))) : h("p", { class: "muted" }, "No errors."),
+      u.affected.length ? h("p", {}, `Engines: ${u.affected.map((a) => `${a.esn}: ${a.rows} rows, ${fmtTime(a.earliest)} – ${fmtTime(a.latest)}`).join("; ")}`) : null));
+  } catch (err) {
+    showError(detail, err, `Upload ${id}`);
+  }
+}
+
+async function loadUploads() {
+  try {
+    const page = await api("/api/v1/uploads", { query: { limit: 200, status: $("#upload-filter").value || undefined } });
+    $("#uploads").replaceChildren(page.items.length ? sortableTable([
+      { key: "id", label: "#", numeric: true, cell: (u) => h("a", { href: "#", onclick: (ev) => { ev.preventDefault(); showUpload(u.id); } }, `#${u.id}`) },
+      { key: "created_at", label: "When", cell: (u) => fmtTime(u.created_at) },
+      { key: "kind", label: "Kind" },
+      { key: "content_format", label: "Format" },
+      { key: "status", label: "Status", cell: (u) => badge(u.status) },
+      { key: "rows_received", label: "Rows", numeric: true },
+      { key: "rows_stored", label: "Stored", numeric: true },
+      { key: "rows_duplicate", label: "Duplicates", numeric: true },
+      { key: "bytes_received", label: "Bytes", numeric: true },
+      { key: "message", label: "Message", cell: (u) => u.message || "" },
+    ], page.items, { sortKey: "id", descending: true, rowClass: (u) => `upload-${u.status}` }) : h("p", { class: "muted" }, "No uploads yet."));
+  } catch (err) {
+    showError($("#uploads"), err, "Upload history");
+  }
+}
+
+async function cancel(id) {
+  try { await api(`/api/v1/jobs/${id}/cancel`, { method: "POST" }); } catch (err) { showError($("#message"), err, `Job ${id}`); }
+  await loadJobs();
+}
+
+async function loadJobs() {
+  clearTimeout(timer);
+  try {
+    const active = $("#job-filter").value === "active";
+    const list = await api("/api/v1/jobs", { query: { limit: 50, status: active ? ["queued", "running"] : undefined } });
+    const canCancel = principal.role !== "viewer";
+    $("#jobs").replaceChildren(list.items.length ? sortableTable([
+      { key: "id", label: "#", numeric: true },
+      { key: "kind", label: "Kind" },
+      { key: "status", label: "Status", cell: (j) => badge(j.status) },
+      { key: "progress", label: "Progress", cell: (j) => progressBar(j.progress, j.error || j.message) },
+      { key: "created_at", label: "Queued", cell: (j) => fmtTime(j.created_at) },
+      { key: "finished_at", label: "Finished", cell: (j) => fmtTime(j.finished_at) },
+      { key: "cancel", label: "", value: () => 0, cell: (j) => (canCancel && ["queued", "running"].includes(j.status)
+        ? h("button", { type: "button", class: "secondary", onclick: () => cancel(j.id) }, "Cancel") : "") },
+    ], list.items, { sortKey: "id", descending: true, rowClass: (j) => `job-${j.kind}` })
+      : h("p", { class: "muted" }, active ? "No job is queued or running." : "No jobs yet."));
+    $("#jobs-updated").textContent = `updated ${new Date().toISOString().slice(11, 19)} UTC`;
+    if (list.items.some((j) => j.status === "queued" || j.status === "running")) timer = setTimeout(loadJobs, REFRESH_MS);
+  } catch (err) {
+    showError($("#jobs"), err, "Jobs");
+  }
+}
+
+async function main() {
+  principal = await startPage("uploads");
+  if (principal.role === "viewer") {
+    $("#upload-button").disabled = true;
+    $("#upload-result").append(h("p", { class: "notice" }, "Uploading needs an analyst key."));
+  }
+  $("#upload").addEventListener("submit", upload);
+  $("#upload-filter").addEventListener("change", loadUploads);
+  $("#job-filter").addEventListener("change", loadJobs);
+  await Promise.all([loadUploads(), loadJobs()]);
+  document.body.dataset.ready = "true";
+}
+
+main();

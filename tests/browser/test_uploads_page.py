@@ -1,0 +1,71 @@
+"""Uploads and jobs in the browser: a file sent with upload progress is stored and its
+estimation job shows up with progress; a bad file is refused with row-level errors that the
+upload history keeps."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+
+from app.services.simulate_io import write_table
+from tests.browser.conftest import Console, Server, screenshot, sign_in
+
+pytestmark = pytest.mark.browser
+
+
+def _get(server: Server, path: str) -> Any:
+    response = httpx.get(f"{server.base_url}{path}", headers={"X-API-Key": server.seeded.key})
+    assert response.status_code == 200, response.text
+    return response.json()
+
+
+def test_upload_with_progress_then_refused_file_with_row_errors(
+    page: Any, server: Server, console: Console, tmp_path: Path
+) -> None:
+    table = server.seeded.next_day
+    assert table is not None and table.num_rows > 0
+    (good,) = write_table(table, tmp_path / "next-day", ["csv"])
+    sign_in(page, server.seeded.key, "/uploads.html")
+    # Record the progress bar's values as the XMLHttpRequest reports them.
+    page.evaluate(
+        """() => { window.progressSeen = [];
+        new MutationObserver(() => { const p = document.querySelector('#upload-progress .progress');
+          if (p) window.progressSeen.push(Number(p.getAttribute('aria-valuenow'))); })
+        .observe(document.querySelector('#upload-progress'), {childList: true, subtree: true}); }"""
+    )
+    page.set_input_files("#file", str(good))
+    page.click("#upload-button")
+    ok = page.wait_for_selector("#upload-ok")
+    assert f"{table.num_rows} stored" in ok.inner_text()
+    assert page.evaluate("window.progressSeen")[-1] == 100
+    uploads = _get(server, "/api/v1/uploads?limit=5")["items"]
+    assert uploads[0]["status"] == "stored" and uploads[0]["rows_stored"] == table.num_rows
+    # The estimation job the upload queued appears and runs to the end (list refreshes itself).
+    page.wait_for_selector("#jobs tr.job-estimate_engines .badge.succeeded", timeout=60_000)
+    screenshot(page, "uploads-stored")
+
+    # The same rows with a naive timestamp in the second row: refused, row and column named.
+    text = good.read_text().splitlines()
+    cells = text[2].split(",")
+    assert cells[0].endswith('Z"')
+    cells[0] = cells[0].replace('Z"', '"')
+    text[2] = ",".join(cells)
+    bad = tmp_path / "naive-time.csv"
+    bad.write_text("\n".join(text) + "\n")
+    page.set_input_files("#file", str(bad))
+    page.click("#upload-button")
+    error = page.wait_for_selector("#upload-result .error")
+    message = error.inner_text()
+    assert "nothing stored" in message and "422" in message
+    assert "row 2" in message and "recorded_at" in message
+    page.wait_for_selector("#uploads tr.upload-rejected")
+    page.click("#uploads tr.upload-rejected a")
+    errors = page.wait_for_selector("#upload-errors").inner_text()
+    assert "recorded_at" in errors
+    rejected = _get(server, "/api/v1/uploads?status=rejected")["items"]
+    assert len(rejected) == 1 and rejected[0]["rows_stored"] == 0
+    screenshot(page, "uploads-rejected")
+    assert console.unexpected("422") == []
