@@ -57,6 +57,7 @@ function draw() {
   container.className = "grid two";
   container.replaceChildren();
   const divs = [];
+  const pending = [];
   const groups = ORDER.map((k) => trend.groups.find((g) => g.key === k)).filter(Boolean);
   for (const group of groups) {
     const id = `plot-${group.key}`;
@@ -82,8 +83,10 @@ function draw() {
       margin: { l: 70, r: 20, t: 30, b: 50 },
     });
     divs.push(div);
-    plot(div, traces, lay);
+    pending.push([div, traces, lay]);
   }
+  // Plot once every card is in the grid, so each plot takes its card's final width.
+  for (const [div, traces, lay] of pending) plot(div, traces, lay);
   syncZoom(divs);
 }
 
