@@ -225,7 +225,17 @@ def snapshot_filter(
                 f"gains at snapshot {j}: expected (..., {ny}, {p}), found {G.shape}"
             )
 
+    shared_all = all(G.ndim == 2 for G in G_steps)
+    if shared_all:
+        HV_steps = [G @ Vp for G in G_steps]  # [ny, m] per snapshot, fleet-wide
+        packed = _PackedUpdate(m, Vp, Qq, HV_steps)
+
     def run_block(c0: int, c1: int) -> None:
+        if shared_all:
+            packed.run(
+                c0, c1, state, dy, var, scale, q_res, P_res, h_std, innov, q_end, P_end
+            )
+            return
         Bn = c1 - c0
         q = state.q_hat[c0:c1].T.copy(order="C")  # always a copy: the state is not mutated
         P = state.P[c0:c1].transpose(1, 2, 0).copy(order="C")
@@ -292,3 +302,102 @@ def snapshot_filter(
     return SnapshotResult(
         q_res, P_res, q_res @ Vp.T, h_std, innov, SnapshotState(q_end, P_end)
     )
+
+
+class _PackedUpdate:
+    """Engine-block update for fleet-wide gains (one operating condition per snapshot for
+    all engines, the ground-station batch), on packed covariances.
+
+    P is stored as its upper triangle, Pp [T, B] with T = m (m + 1) / 2, so a
+    covariance costs 21 numbers instead of 36 for m = 6 and stays symmetric by
+    construction (no symmetrising pass). With h shared by the block, P h is one
+    GEMM, Ph = M_h Pp with M_h [m, T] the map from packed P to P h, precomputed
+    per snapshot and sensor; the rank-one downdate P - P h h^T P / s is, for
+    each row a of the upper triangle (contiguous in Pp), Pp[row a] -= (P h)[a] k[a:].
+    Same scalar sequential updates as the general path (exact for diagonal R).
+    """
+
+    def __init__(self, m: int, Vp: np.ndarray, Qq: np.ndarray, HV_steps: list[np.ndarray]):
+        self.m = m
+        self.ia, self.ib = np.triu_indices(m)
+        starts = np.concatenate([[0], np.cumsum(np.arange(m, 0, -1))])
+        self.rows = [(a, int(starts[a]), int(starts[a + 1])) for a in range(m)]
+        T = self.ia.size
+        t = np.arange(T)
+        off = self.ia != self.ib
+        self.Qp = np.ascontiguousarray(Qq[self.ia, self.ib])[:, None]  # [T, 1]
+        # diag(V*^+ P V*^+T) from packed P: off-diagonal entries count twice.
+        self.Wp = Vp[:, self.ia] * Vp[:, self.ib] * np.where(off, 2.0, 1.0)  # [p, T]
+        self.HV = HV_steps
+        self.Mh = []
+        for HV in HV_steps:
+            ny = HV.shape[0]
+            Mh = np.zeros((ny, m, T))
+            Mh[:, self.ia, t] = HV[:, self.ib]
+            Mh[:, self.ib[off], t[off]] = HV[:, self.ia[off]]
+            self.Mh.append(Mh)
+
+    def unpack(self, Pp: np.ndarray) -> np.ndarray:
+        """Packed [T, B] -> full [B, m, m]."""
+        B = Pp.shape[1]
+        P = np.empty((B, self.m, self.m))
+        P[:, self.ia, self.ib] = Pp.T
+        P[:, self.ib, self.ia] = Pp.T
+        return P
+
+    def run(
+        self,
+        c0: int,
+        c1: int,
+        state: SnapshotState,
+        dy: np.ndarray,
+        var: np.ndarray,
+        scale: np.ndarray,
+        q_res: np.ndarray,
+        P_res: np.ndarray | None,
+        h_std: np.ndarray,
+        innov: np.ndarray,
+        q_end: np.ndarray,
+        P_end: np.ndarray,
+    ) -> None:
+        m, ia, ib = self.m, self.ia, self.ib
+        Bn = c1 - c0
+        q = state.q_hat[c0:c1].T.copy(order="C")  # [m, Bn]; the state is not mutated
+        Pp = np.ascontiguousarray(state.P[c0:c1][:, ia, ib].T)  # [T, Bn]
+        Ph = np.empty((m, Bn))
+        k = np.empty((m, Bn))
+        dq = np.empty((m, Bn))
+        down = np.empty((m, Bn))
+        for j, HV in enumerate(self.HV):
+            ny = HV.shape[0]
+            Pp += self.Qp * scale[c0:c1, j]
+            y_j = np.ascontiguousarray(dy[c0:c1, j].T)  # [ny, Bn]
+            innov[c0:c1, j] = (y_j - HV @ q).T
+            var_j = np.ascontiguousarray(var[c0:c1, j].T)
+            finite = np.isfinite(y_j)
+            all_present = bool(finite.all())
+            for i in range(ny):
+                present = finite[i]
+                if not all_present and not present.any():
+                    continue
+                h = HV[i]
+                np.dot(self.Mh[j][i], Pp, out=Ph)  # P h
+                s_i = h @ Ph + var_j[i]
+                resid = y_j[i] - h @ q
+                np.divide(Ph, s_i, out=k)
+                if not all_present:
+                    resid = np.where(present, resid, 0.0)
+                    k *= present
+                np.multiply(k, resid, out=dq)
+                q += dq
+                for a, r0, r1 in self.rows:  # P - P h h^T P / s, row a of the upper triangle
+                    w = down[: r1 - r0]
+                    np.multiply(k[a:], Ph[a], out=w)
+                    Pp[r0:r1] -= w
+            q_res[c0:c1, j] = q.T
+            if P_res is not None:
+                P_res[c0:c1, j] = self.unpack(Pp)
+            h_var = self.Wp @ Pp
+            h_std[c0:c1, j] = np.sqrt(np.maximum(h_var, 0.0)).T
+        q_end[c0:c1] = q.T
+        P_end[c0:c1] = self.unpack(Pp)
