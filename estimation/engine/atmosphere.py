@@ -9,11 +9,12 @@ Corrected parameters (seed 004): theta = T2 / 288.15 K, delta = P2 / 101325 Pa.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from estimation.engine.gas import R_GAS
+from estimation.engine.xp import NP
 
 T_SL = 288.15  # K
 P_SL = 101325.0  # Pa
@@ -47,30 +48,31 @@ class FlightCondition(NamedTuple):
 
 
 def isa(
-    alt_ft: np.ndarray | float, dtamb: np.ndarray | float = 0.0
+    alt_ft: np.ndarray | float, dtamb: np.ndarray | float = 0.0, xp: Any = NP
 ) -> tuple[np.ndarray, np.ndarray]:
     """Ambient static temperature [K] and pressure [Pa] at geopotential altitude [ft]."""
-    h = np.asarray(alt_ft, dtype=float) * FT
-    t_std = np.where(h < _H_TROPOPAUSE, T_SL - _LAPSE * h, T_SL - _LAPSE * _H_TROPOPAUSE)
+    h = xp.asarray(alt_ft, dtype=float) * FT
+    t_std = xp.where(h < _H_TROPOPAUSE, T_SL - _LAPSE * h, T_SL - _LAPSE * _H_TROPOPAUSE)
     expo = _G0 / (_LAPSE * R_GAS)
-    p_trop = P_SL * (1.0 - _LAPSE * np.minimum(h, _H_TROPOPAUSE) / T_SL) ** expo
+    p_trop = P_SL * (1.0 - _LAPSE * xp.minimum(h, _H_TROPOPAUSE) / T_SL) ** expo
     t_tp = T_SL - _LAPSE * _H_TROPOPAUSE
-    p = p_trop * np.exp(-_G0 * np.maximum(h - _H_TROPOPAUSE, 0.0) / (R_GAS * t_tp))
-    return t_std + np.asarray(dtamb, dtype=float), p
+    p = p_trop * xp.exp(-_G0 * xp.maximum(h - _H_TROPOPAUSE, 0.0) / (R_GAS * t_tp))
+    return t_std + xp.asarray(dtamb, dtype=float), p
 
 
 def flight_condition(
-    alt_ft: np.ndarray | float, mach: np.ndarray | float, dtamb: np.ndarray | float = 0.0
+    alt_ft: np.ndarray | float, mach: np.ndarray | float, dtamb: np.ndarray | float = 0.0,
+    xp: Any = NP,
 ) -> FlightCondition:
     """Ambient and fan-face conditions for altitude [ft], Mach number, dTamb [K].
 
     Ram rise with gamma = 1.4 (the inlet sees ambient air at most 330 K, where
     cp varies by under 1 %): T2 = T (1 + 0.2 M^2), P2 = eta_r P (1 + 0.2 M^2)^3.5.
     """
-    t, p = isa(alt_ft, dtamb)
-    m = np.asarray(mach, dtype=float)
+    t, p = isa(alt_ft, dtamb, xp)
+    m = xp.asarray(mach, dtype=float)
     ram = 1.0 + 0.2 * m * m
     t2 = t * ram
     p2 = INLET_RECOVERY * p * ram**3.5
-    v0 = m * np.sqrt(1.4 * R_GAS * t)
+    v0 = m * xp.sqrt(1.4 * R_GAS * t)
     return FlightCondition(t, p, v0, t2, p2, t2 / T_SL, p2 / P_SL)

@@ -19,7 +19,11 @@ taken as the same for air and products (R = 287.05 J/(kg K)).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+
+from estimation.engine.xp import NP
 
 # Gas-path functions take scalars (the design point) or arrays (a batch of engines).
 Real = np.ndarray | float
@@ -44,24 +48,25 @@ def coefficients(far: Real | float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     return _coefficients(far)
 
 
-def enthalpy_ab(t: Real, a: Real, b: Real) -> np.ndarray:
+def enthalpy_ab(t: Real, a: Real, b: Real, xp: Any = NP) -> np.ndarray:
     """h = a T + b T^2 / 2 with given coefficients (the hot path of the cycle)."""
-    return np.asarray(t * (a + 0.5 * b * t))
+    return xp.asarray(t * (a + 0.5 * b * t))
 
 
-def temperature_from_enthalpy_ab(h: Real, a: Real, b: Real) -> np.ndarray:
+def temperature_from_enthalpy_ab(h: Real, a: Real, b: Real, xp: Any = NP) -> np.ndarray:
     """Inverse of ``enthalpy_ab``."""
-    return 2.0 * h / (a + np.sqrt(a * a + 2.0 * b * h))
+    return 2.0 * h / (a + xp.sqrt(a * a + 2.0 * b * h))
 
 
 def isentropic_temperature_ab(
-    t1: Real, pressure_ratio: Real, a: Real, b: Real
+    t1: Real, pressure_ratio: Real, a: Real, b: Real, xp: Any = NP
 ) -> np.ndarray:
     """``isentropic_temperature`` with given coefficients."""
-    target = a * np.log(t1) + b * t1 + R_GAS * np.log(pressure_ratio)
+    log = xp.log
+    target = a * log(t1) + b * t1 + R_GAS * log(pressure_ratio)
     t = t1 * pressure_ratio ** (R_GAS / (a + b * t1))
     for _ in range(3):
-        t = t - (a * np.log(t) + b * t - target) / (a / t + b)
+        t = t - (a * log(t) + b * t - target) / (a / t + b)
     return t
 
 
@@ -83,11 +88,11 @@ def enthalpy(t: Real, far: Real | float = 0.0) -> np.ndarray:
     return t * (a + 0.5 * b * t)
 
 
-def temperature_from_enthalpy(h: Real, far: Real | float = 0.0) -> np.ndarray:
+def temperature_from_enthalpy(h: Real, far: Real | float = 0.0, xp: Any = NP) -> np.ndarray:
     """Invert h(T): the positive root of b/2 T^2 + a T - h = 0."""
     a, b = _coefficients(far)
     # Written as 2h / (a + sqrt(a^2 + 2bh)) to avoid cancellation.
-    return 2.0 * h / (a + np.sqrt(a * a + 2.0 * b * h))
+    return 2.0 * h / (a + xp.sqrt(a * a + 2.0 * b * h))
 
 
 def entropy_function(t: Real, far: Real | float = 0.0) -> np.ndarray:

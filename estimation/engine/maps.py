@@ -27,9 +27,11 @@ efficiency and flow capacity per module).
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
+
+from estimation.engine.xp import NP
 
 
 class CompressorMap(NamedTuple):
@@ -77,20 +79,21 @@ def compressor(
 
 
 def stall_pressure_ratio(
-    m: CompressorMap, wc: np.ndarray, flow_scale: np.ndarray | float = 1.0
+    m: CompressorMap, wc: np.ndarray, flow_scale: np.ndarray | float = 1.0, xp: Any = NP
 ) -> np.ndarray:
     """Pressure ratio on the stall line (beta = 1) at corrected flow wc."""
     wc_s = m.wc_design * (1.0 - m.flow_slope * (1.0 - m.beta_design)) * flow_scale
-    ratio = np.maximum(wc / wc_s, 1e-6)
+    ratio = xp.maximum(wc / wc_s, 1e-6)
     k = (m.pr_design - 1.0) * (1.0 + m.pr_slope * (1.0 - m.beta_design))
     return 1.0 + k * ratio ** (m.pr_exp / m.flow_exp)
 
 
 def stall_margin(
-    m: CompressorMap, wc: np.ndarray, pr: np.ndarray, flow_scale: np.ndarray | float = 1.0
+    m: CompressorMap, wc: np.ndarray, pr: np.ndarray, flow_scale: np.ndarray | float = 1.0,
+    xp: Any = NP,
 ) -> np.ndarray:
     """Stall margin at constant corrected flow, SM = 100 (PR_stall(Wc) / PR - 1) [%]."""
-    return 100.0 * (stall_pressure_ratio(m, wc, flow_scale) / pr - 1.0)
+    return 100.0 * (stall_pressure_ratio(m, wc, flow_scale, xp) / pr - 1.0)
 
 
 def turbine(
@@ -99,11 +102,12 @@ def turbine(
     pr: np.ndarray,
     flow_scale: np.ndarray | float = 1.0,
     eff_scale: np.ndarray | float = 1.0,
+    xp: Any = NP,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Corrected flow [kg/s] and isentropic efficiency at (n_rel, PR)."""
-    prc = np.maximum(pr, 1.0 + 1e-6)
-    wc = m.wc_design * np.sqrt((1.0 - prc**-2) / (1.0 - m.pr_design**-2)) * flow_scale
-    v = n_rel / np.sqrt(np.log(prc) / np.log(m.pr_design))
-    dv = np.minimum(v - 1.0, 1.0)
+    prc = xp.maximum(pr, 1.0 + 1e-6)
+    wc = m.wc_design * xp.sqrt((1.0 - prc**-2) / (1.0 - m.pr_design**-2)) * flow_scale
+    v = n_rel / xp.sqrt(xp.log(prc) / xp.log(m.pr_design))
+    dv = xp.minimum(v - 1.0, 1.0)
     eff = m.eff_design * (1.0 - m.eff_loading * dv * dv) * eff_scale
     return wc, eff

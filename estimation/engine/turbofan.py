@@ -26,7 +26,8 @@ model-plant mismatch). At steady state Q = 0 and Tm equals the gas temperature.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from collections.abc import Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -55,6 +56,7 @@ from estimation.engine.gas import enthalpy, temperature_from_enthalpy
 from estimation.engine.health import N_HEALTH
 from estimation.engine.maps import compressor, stall_margin, turbine
 from estimation.engine.newton import newton
+from estimation.engine.xp import NP
 
 STATE_NAMES = ("Nf", "Nc", "TMHPC", "TMHPT")
 STATE_UNITS = ("rpm", "rpm", "degR", "degR")
@@ -139,91 +141,109 @@ def gas_path(
     on corrected core speed instead of ``op.vsv``, ``op.vbv`` (steady state).
     """
     hs = op.h / 100.0
+    res, st = gas_path_columns(
+        op, [z[:, i] for i in range(5)], [hs[:, i] for i in range(N_HEALTH)], d,
+        heat, scheduled_actuators, NP,
+    )
+    return np.stack(res, axis=1), st
+
+
+def gas_path_columns(
+    op: Operating,
+    z: Sequence[Any],
+    hs: Sequence[Any],
+    d: EngineDesign,
+    heat: bool = True,
+    scheduled_actuators: bool = False,
+    xp: Any = NP,
+) -> tuple[list[Any], dict[str, Any]]:
+    """The cycle of ``gas_path`` on columns: z the five unknowns, hs the 13 health
+    parameters as fractions (h / 100), each an array [B] with ``xp = NP`` or a
+    float with ``xp = SCALAR`` (one engine; ``op`` then holds floats). Returns the
+    five residuals and the stations, in the same layout.
+    """
     fc = op.fc
-    wf = op.wf * (1.0 + hs[:, 10])
+    wf = op.wf * (1.0 + hs[10])
     t2, p2, pamb = fc.t2, fc.p2, fc.p_amb
 
     # Fan (one map for core and bypass streams).
-    n_fan = op.nf / np.sqrt(fc.theta) / d.nf
-    wc2, pr_fan, eff_fan = compressor(d.fan, n_fan, z[:, 0], 1.0 + hs[:, 1], 1.0 + hs[:, 0])
-    w2 = physical_flow(wc2, t2, p2)
-    t13, dh_fan = compression(t2, pr_fan, eff_fan)
+    n_fan = op.nf / xp.sqrt(fc.theta) / d.nf
+    wc2, pr_fan, eff_fan = compressor(d.fan, n_fan, z[0], 1.0 + hs[1], 1.0 + hs[0])
+    w2 = physical_flow(wc2, t2, p2, xp)
+    t13, dh_fan = compression(t2, pr_fan, eff_fan, xp)
     p13 = p2 * pr_fan
     # LPC (booster) on the fan shaft.
-    n_lpc = op.nf / np.sqrt(t13 / d.t13) / d.nf
-    wc21, pr_lpc, eff_lpc = compressor(d.lpc, n_lpc, z[:, 1], 1.0 + hs[:, 3], 1.0 + hs[:, 2])
-    w_core = physical_flow(wc21, t13, p13)
-    t24, dh_lpc = compression(t13, pr_lpc, eff_lpc)
+    n_lpc = op.nf / xp.sqrt(t13 / d.t13) / d.nf
+    wc21, pr_lpc, eff_lpc = compressor(d.lpc, n_lpc, z[1], 1.0 + hs[3], 1.0 + hs[2])
+    w_core = physical_flow(wc21, t13, p13, xp)
+    t24, dh_lpc = compression(t13, pr_lpc, eff_lpc, xp)
     p24 = p13 * pr_lpc
     # Bypass duct and nozzle.
     w_byp = w2 - w_core
-    dp = d.dp_byp * (corrected_flow(w_byp, t13, p13) / d.wc_byp) ** 2
+    dp = d.dp_byp * (corrected_flow(w_byp, t13, p13, xp) / d.wc_byp) ** 2
     p15 = p13 * (1.0 - dp)
-    w18, fg_byp = nozzle(p15, t13, pamb, d.a_byp, 0.0)
+    w18, fg_byp = nozzle(p15, t13, pamb, d.a_byp, 0.0, xp)
     # Variable bleed overboard, then the HPC with its variable stators.
-    n_hpc = op.nc / np.sqrt(t24 / d.t24) / d.nc
-    vsv_nominal = vsv_schedule(n_hpc)
+    n_hpc = op.nc / xp.sqrt(t24 / d.t24) / d.nc
+    vsv_nominal = vsv_schedule(n_hpc, xp)
     if scheduled_actuators:
-        vsv_cmd, vbv_cmd = vsv_nominal, vbv_schedule(n_hpc)
+        vsv_cmd, vbv_cmd = vsv_nominal, vbv_schedule(n_hpc, xp)
     else:
         vsv_cmd, vbv_cmd = op.vsv, op.vbv
-    vsv = vsv_cmd * (1.0 + hs[:, 11])
-    vbv = vbv_cmd * (1.0 + hs[:, 12])
-    w_vbv = bleed_valve(vbv, p24, t24, pamb, d.k_vbv)
+    vsv = vsv_cmd * (1.0 + hs[11])
+    vbv = vbv_cmd * (1.0 + hs[12])
+    w_vbv = bleed_valve(vbv, p24, t24, pamb, d.k_vbv, xp)
     w25 = w_core - w_vbv
     dv = (vsv - vsv_nominal) / 100.0
     flow_vsv = 1.0 + d.k_vsv * (vsv - 100.0) / 100.0
     wc25, pr_hpc, eff_hpc = compressor(
-        d.hpc, n_hpc, z[:, 2], (1.0 + hs[:, 5]) * flow_vsv, (1.0 + hs[:, 4]) * (1.0 - 0.5 * dv * dv)
+        d.hpc, n_hpc, z[2], (1.0 + hs[5]) * flow_vsv, (1.0 + hs[4]) * (1.0 - 0.5 * dv * dv)
     )
-    w_hpc = physical_flow(wc25, t24, p24)
-    t3a, dh_hpc = compression(t24, pr_hpc, eff_hpc)
+    w_hpc = physical_flow(wc25, t24, p24, xp)
+    t3a, dh_hpc = compression(t24, pr_hpc, eff_hpc, xp)
     p3 = p24 * pr_hpc
     if heat:
-        q_hpc = d.ha_hpc * np.abs(w25 / d.w25) ** 0.8 * (t3a - op.tm_hpc)
-        t3 = temperature_from_enthalpy(enthalpy(t3a) - q_hpc / w25)
+        q_hpc = d.ha_hpc * xp.abs(w25 / d.w25) ** 0.8 * (t3a - op.tm_hpc)
+        t3 = temperature_from_enthalpy(enthalpy(t3a) - q_hpc / w25, 0.0, xp)
     else:
-        q_hpc = np.zeros_like(t3a)
+        q_hpc = xp.zeros_like(t3a)
         t3 = t3a
     # Burner.
-    dpb = d.dp_burner * (corrected_flow(w25, t3, p3) / d.wc3) ** 2
+    dpb = d.dp_burner * (corrected_flow(w25, t3, p3, xp) / d.wc3) ** 2
     p4 = p3 * (1.0 - dpb)
-    t4, far = burner(t3, w25, wf, d.eta_burner)
+    t4, far = burner(t3, w25, wf, d.eta_burner, xp)
     w4 = w25 + wf
     # HPT.
-    pr_hpt = z[:, 3] * d.hpt.pr_design
-    n_hpt = op.nc / np.sqrt(t4 / d.t4) / d.nc
-    wc4, eff_hpt = turbine(d.hpt, n_hpt, pr_hpt, 1.0 + hs[:, 7], 1.0 + hs[:, 6])
-    w4_map = physical_flow(wc4, t4, p4)
-    t45a, dh_hpt = expansion(t4, pr_hpt, eff_hpt, far)
+    pr_hpt = z[3] * d.hpt.pr_design
+    n_hpt = op.nc / xp.sqrt(t4 / d.t4) / d.nc
+    wc4, eff_hpt = turbine(d.hpt, n_hpt, pr_hpt, 1.0 + hs[7], 1.0 + hs[6], xp)
+    w4_map = physical_flow(wc4, t4, p4, xp)
+    t45a, dh_hpt = expansion(t4, pr_hpt, eff_hpt, far, xp)
     t_gas_hpt = 0.5 * (t4 + t45a)
     if heat:
-        q_hpt = d.ha_hpt * np.abs(w4 / d.w4) ** 0.8 * (t_gas_hpt - op.tm_hpt)
-        t45 = temperature_from_enthalpy(enthalpy(t45a, far) - q_hpt / w4, far)
+        q_hpt = d.ha_hpt * xp.abs(w4 / d.w4) ** 0.8 * (t_gas_hpt - op.tm_hpt)
+        t45 = temperature_from_enthalpy(enthalpy(t45a, far) - q_hpt / w4, far, xp)
     else:
-        q_hpt = np.zeros_like(t45a)
+        q_hpt = xp.zeros_like(t45a)
         t45 = t45a
     p45 = p4 / pr_hpt
     # LPT.
-    pr_lpt = z[:, 4] * d.lpt.pr_design
-    n_lpt = op.nf / np.sqrt(t45 / d.t45) / d.nf
-    wc45, eff_lpt = turbine(d.lpt, n_lpt, pr_lpt, 1.0 + hs[:, 9], 1.0 + hs[:, 8])
-    w45_map = physical_flow(wc45, t45, p45)
-    t5, dh_lpt = expansion(t45, pr_lpt, eff_lpt, far)
+    pr_lpt = z[4] * d.lpt.pr_design
+    n_lpt = op.nf / xp.sqrt(t45 / d.t45) / d.nf
+    wc45, eff_lpt = turbine(d.lpt, n_lpt, pr_lpt, 1.0 + hs[9], 1.0 + hs[8], xp)
+    w45_map = physical_flow(wc45, t45, p45, xp)
+    t5, dh_lpt = expansion(t45, pr_lpt, eff_lpt, far, xp)
     p5 = p45 / pr_lpt
     # Core nozzle.
-    w8, fg_core = nozzle(p5, t5, pamb, d.a_core, far)
+    w8, fg_core = nozzle(p5, t5, pamb, d.a_core, far, xp)
 
-    res = np.stack(
-        [
-            (w18 - w_byp) / d.w_byp,
-            (w_hpc - w25) / d.w25,
-            (w4_map - w4) / d.w4,
-            (w45_map - w4) / d.w4,
-            (w8 - w4) / d.w4,
-        ],
-        axis=1,
-    )
+    res = [
+        (w18 - w_byp) / d.w_byp,
+        (w_hpc - w25) / d.w25,
+        (w4_map - w4) / d.w4,
+        (w45_map - w4) / d.w4,
+        (w8 - w4) / d.w4,
+    ]
     power = {
         "fan": w2 * dh_fan, "lpc": w_core * dh_lpc, "hpc": w25 * dh_hpc,
         "hpt": w4 * dh_hpt, "lpt": w4 * dh_lpt,
@@ -241,11 +261,11 @@ def gas_path(
         pr_hpt=pr_hpt, pr_lpt=pr_lpt,
         # Stall lines move with the stators, not with deterioration: a flow
         # capacity loss at the same pressure ratio eats stall margin.
-        sm_fan=stall_margin(d.fan, wc2, pr_fan),
-        sm_lpc=stall_margin(d.lpc, wc21, pr_lpc),
-        sm_hpc=stall_margin(d.hpc, wc25, pr_hpc, flow_vsv),
+        sm_fan=stall_margin(d.fan, wc2, pr_fan, 1.0, xp),
+        sm_lpc=stall_margin(d.lpc, wc21, pr_lpc, 1.0, xp),
+        sm_hpc=stall_margin(d.hpc, wc25, pr_hpc, flow_vsv, xp),
         tm_hpc_eq=t3a, tm_hpt_eq=t_gas_hpt,
-        ps30=static_pressure(p3, t3, w25, d.a_30),
+        ps30=static_pressure(p3, t3, w25, d.a_30, xp),
         power_fan=power["fan"], power_lpc=power["lpc"], power_hpc=power["hpc"],
         power_hpt=power["hpt"], power_lpt=power["lpt"],
         # Spool power balances over design fan / HPC power (steady-state residuals).
