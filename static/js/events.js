@@ -69,7 +69,10 @@ function wssrPlot(div, event) {
     annotations: event.wssr_threshold === null ? [] : [{ xref: "paper", x: 1, xanchor: "right", y: log ? Math.log10(event.wssr_threshold) : event.wssr_threshold, yref: "y", yanchor: "bottom",
       text: `accept below ${fmtNum(event.wssr_threshold, 1)}`, showarrow: false, font: { size: 11 } }],
     xaxis: { title: { text: "Fault hypothesis" } },
-    yaxis: { title: { text: axisTitle("WSSR", "1") + (log ? ", log scale" : "") }, type: log ? "log" : "linear" },
+    yaxis: log
+      ? { title: { text: `${axisTitle("WSSR", "1")}, log scale` }, type: "log", dtick: 1,
+        range: [Math.log10(Math.min(...all) / 2), Math.log10(Math.max(...all) * 2)] }
+      : { title: { text: axisTitle("WSSR", "1") }, type: "linear" },
   }));
 }
 
