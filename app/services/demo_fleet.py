@@ -135,12 +135,6 @@ def _designs(session: Session, operator_id: int, echo: Callable[[str], None]) ->
         name="built-in turbofan, cruise", model=model,
     )
     sensors = [n for n in model.sensor_names if n != "Wf"]
-    base = {
-        "format": "fleethealth.design-spec/1",
-        "sensors": sensors,
-        "health": list(HEALTH),
-        "noise": {"Q": 1e-4, "Qh": 1e-4, "Ph": 4.0},
-    }
     step = models_designs.design_step
     active_id = None
     for name, method, tuners in (
@@ -148,7 +142,7 @@ def _designs(session: Session, operator_id: int, echo: Callable[[str], None]) ->
         ("SVD tuners", "svd", (6, 5)),
     ):
         for m in tuners:
-            spec = dict(base, method=method, tuners=m)
+            spec = design_spec(method, m, sensors)
             design = models_designs.create_design(
                 session, operator_id=operator_id, engine_model_id=row.id,
                 name=f"{name} (m = {m})", spec=spec,
@@ -173,12 +167,29 @@ def _designs(session: Session, operator_id: int, echo: Callable[[str], None]) ->
     return engine_type.id, active_id
 
 
-def _simulate(size: DemoSize, echo: Callable[[str], None]) -> tuple[Any, pa.Table]:
-    config = FleetConfig(
+def fleet_config(size: DemoSize) -> FleetConfig:
+    """The simulator settings of a demo fleet of this size."""
+    return FleetConfig(
         n_aircraft=size.aircraft, n_flights=size.flights, positions=2,
         flights_per_day=size.flights_per_day, fault_rate=size.fault_rate,
         faulted_removal=0.02,
     )
+
+
+def design_spec(method: str, tuners: int, sensors: list[str]) -> dict[str, Any]:
+    """The design spec of a demo design (the built-in model's sensors but Wf)."""
+    return {
+        "format": "fleethealth.design-spec/1",
+        "sensors": sensors,
+        "health": list(HEALTH),
+        "noise": {"Q": 1e-4, "Qh": 1e-4, "Ph": 4.0},
+        "method": method,
+        "tuners": tuners,
+    }
+
+
+def _simulate(size: DemoSize, echo: Callable[[str], None]) -> tuple[Any, pa.Table]:
+    config = fleet_config(size)
     rng = np.random.default_rng(SEED)
     plan_rng, snap_rng = rng.spawn(2)
     plan = plan_fleet(config, plan_rng)

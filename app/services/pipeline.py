@@ -69,6 +69,7 @@ N_AVG = 20  # records averaged for the isolated change
 WARMUP = 150  # records after a start, maintenance or event before the detector arms
 S_MEAN_RATE = 1.0 / 200.0  # memory of the in-control mean of the detector statistic
 S_MEAN_CAP = 30.0  # samples above this many times m count as this much
+DETECTOR_INPUT = "level"  # "level": q_hat against the baseline; "update": q_hat[k] - q_hat[k-1]
 CUSUM_REFERENCE = 2.0  # CUSUM allowance per sample, in units of m (robust to model error)
 ARL0 = 20_000.0  # mean records between false alarms of the CUSUM (theory, independent samples)
 ISOLATION_LEVEL = 0.999  # WSSR quantile below which the best fault explains the change
@@ -105,6 +106,8 @@ class ScheduledGains(NamedTuple):
     G_y: np.ndarray
     G_u: np.ndarray
     G_z: np.ndarray
+    noise_std: np.ndarray | None = None  # [S, ny] sensor noise, percent of y_trim (None: the
+    # design model's)
 
 
 Schedule = Callable[[np.ndarray], ScheduledGains]  # conditions [S, 4] -> gains
@@ -329,9 +332,53 @@ def _cached_schedule(cache_dir: str) -> EngineSchedule:
     return engine_schedule(Path(cache_dir))
 
 
-def engine_schedule_for(model: LinearModel, sched: EngineSchedule) -> Schedule:
+def exact_nominal_trims(
+    conditions: np.ndarray, interpolated: Mapping[str, np.ndarray]
+) -> dict[str, np.ndarray]:
+    """Sensor and actuator trims of the nominal (healthy) built-in engine solved at each
+    record's own condition (alt, mach, dtamb, power) [S, 4], in the engine's units.
+
+    Interpolated trims are off by up to ~0.5 % of some sensors between schedule nodes, as much
+    as a fault's signature; the nonlinear steady-state solve of all records of a call at once
+    costs ~0.06 ms a record and leaves only the linearisation error. Every point converges on
+    its own (the batched Newton drops converged rows), so a record's trim does not depend on
+    which records share its call: re-runs stay bit-identical. Records outside the engine's
+    envelope, or a batch the solver cannot finish, keep the ``interpolated`` trims.
+    """
+    from estimation.engine.errors import EngineConvergenceError
+    from estimation.engine.sensors import SENSOR_NAMES
+    from estimation.engine.steady import ENVELOPE, steady_state
+
+    out = {k: np.array(v, dtype=float, copy=True) for k, v in interpolated.items()}
+    if conditions.shape[0] == 0:
+        return out
+    lo = np.array([ENVELOPE[k][0] for k in ("alt", "mach", "dtamb", "power")])
+    hi = np.array([ENVELOPE[k][1] for k in ("alt", "mach", "dtamb", "power")])
+    inside = np.all(np.isfinite(conditions) & (conditions >= lo) & (conditions <= hi), axis=1)
+    if not inside.any():
+        return out
+    c = conditions[inside]
+    try:
+        ss = steady_state(c[:, :3], power=c[:, 3])
+    except (EngineConvergenceError, ValueError):
+        log.warning("steady-state trims failed for a batch of %d records; interpolating", len(c))
+        return out
+    for i, name in enumerate(SENSOR_NAMES):
+        if name in out:
+            out[name][inside] = ss.sensors[:, i]
+    for i, name in enumerate(("Wf", "VSV", "VBV")):
+        if name in out and name not in SENSOR_NAMES:
+            out[name][inside] = ss.u[:, i]
+    return out
+
+
+def engine_schedule_for(
+    model: LinearModel, sched: EngineSchedule, exact_trims: bool = True
+) -> Schedule:
     """Gains and trims of ``model``'s signals at each record's operating condition, from the
-    built-in engine's schedule (corrected-parameter trims, MATH.md section 8)."""
+    built-in engine's schedule (corrected-parameter trims, MATH.md section 8). With
+    ``exact_trims`` the trims are solved per record (``exact_nominal_trims``); the gains are
+    interpolated (they vary slowly)."""
     tmpl = sched.template
     yi = [tmpl.sensor_names.index(n) for n in model.sensor_names]
     ui = [tmpl.input_names.index(n) for n in model.input_names]
@@ -355,18 +402,30 @@ def engine_schedule_for(model: LinearModel, sched: EngineSchedule) -> Schedule:
 
     ya, yb = convert(model.sensor_names)
     ua, ub = convert(model.input_names)
+    # The built-in engine's sensor noise is a constant in sensor units (seed 001 Table 2), so
+    # in percent of trim it grows with altitude: about four times larger at cruise than at
+    # take-off for the pressures. Each record gets its own.
+    from estimation.engine.fleet import engine_noise_std
+    from estimation.engine.sensors import SENSOR_NAMES
+
+    noise_engine = engine_noise_std()
+    noise_abs = np.array([noise_engine[SENSOR_NAMES.index(n)] for n in model.sensor_names])
+    noise_abs = noise_abs * np.abs(ya)
 
     def schedule(conditions: np.ndarray) -> ScheduledGains:
         # Snapshot columns are (alt, mach, dtamb, power); the schedule's axes (alt, mach,
         # power, dtamb).
         c = np.asarray(conditions, float)[:, [0, 1, 3, 2]]
         trims = sched.trims_at(c)
+        if exact_trims:
+            trims = exact_nominal_trims(np.asarray(conditions, float), trims)
         y_trim = np.stack([trims[n] for n in model.sensor_names], axis=1) * ya + yb
         u_trim = np.stack([trims[n] for n in model.input_names], axis=1) * ua + ub
         Gy = sched.interpolate("Gy", c)[:, yi][:, :, hi]
         Guy = sched.interpolate("Guy", c)[:, yi][:, :, ui]
         Gz = sched.interpolate("Gz", c)[:, zi][:, :, hi]
-        return ScheduledGains(y_trim, u_trim, Gy, Guy, Gz)
+        noise = 100.0 * noise_abs / np.abs(y_trim)
+        return ScheduledGains(y_trim, u_trim, Gy, Guy, Gz, noise)
 
     return schedule
 
@@ -458,6 +517,16 @@ def tuner_update_statistic(
         return 0.0
 
 
+def level_statistic(q: np.ndarray, baseline: np.ndarray, P: np.ndarray) -> float:
+    """s = (q - q_0)^T P^-1 (q - q_0): the tuner estimate against its archived baseline
+    (``estimation.detection.normalised_shift`` with P_q = the filter covariance P)."""
+    d = q - baseline
+    try:
+        return float(d @ np.linalg.solve(0.5 * (P + P.T), d))
+    except np.linalg.LinAlgError:
+        return 0.0
+
+
 def detect_step(
     est: SnapshotEstimator, det: Detector, seq: int, epoch: float, q: np.ndarray,
     P: np.ndarray, q_prev: np.ndarray, P_prior: np.ndarray, reset: bool,
@@ -473,8 +542,11 @@ def detect_step(
             pending = det.pending
             recent = det.history[-min(N_AVG, len(det.history)) :]
             change = np.mean(np.asarray(recent), axis=0) - np.asarray(pending["baseline"])
-            wssr, f = wssr_all(change, P, est.H)
-            early = _event(est, pending, change, wssr, f, P)
+            # This record's P is already widened by the maintenance action: isolate with the
+            # covariance of the records the change comes from.
+            P_last = np.asarray(pending.get("P", P), float)
+            wssr, f = wssr_all(change, P_last, est.H)
+            early = _event(est, pending, change, wssr, f, P_last)
         det.reset()
     base_before = det.baseline()
     det.warm += 1
@@ -484,6 +556,7 @@ def detect_step(
     if det.pending is not None:
         pending = det.pending
         pending["wait"] -= 1
+        pending["P"] = P.tolist()
         base = np.asarray(pending["baseline"])
         if pending["wait"] > 0:
             return wssr_all(q - base, P, est.H)[0], None
@@ -492,7 +565,13 @@ def detect_step(
         draft = _event(est, pending, change, wssr, f, P)
         det.reset()
         return wssr, draft
-    s = tuner_update_statistic(q, q_prev, P, P_prior)
+    if DETECTOR_INPUT == "level":
+        if base_before is None:
+            det.S = 0.0
+            return nan, early
+        s = level_statistic(q, base_before, P)
+    else:
+        s = tuner_update_statistic(q, q_prev, P, P_prior)
     # The statistic's in-control mean is m for a perfect model; model error (interpolated
     # trims, nonlinearity) makes it larger. Its running in-control mean rescales it, so the
     # CUSUM responds to a change against the engine's own normal, not to a steady mismatch.
@@ -512,7 +591,7 @@ def detect_step(
     det.S = max(0.0, det.S + scaled - m - est.cusum.reference)
     if det.S > est.cusum.threshold:
         det.pending = {"seq": seq, "epoch": epoch, "statistic": det.S, "wait": N_CONFIRM,
-                       "baseline": base_before.tolist()}
+                       "baseline": base_before.tolist(), "P": P.tolist()}
         det.S = 0.0
     return wssr_all(q - base_before, P, est.H)[0], early
 
@@ -607,6 +686,7 @@ def run_filters(est: SnapshotEstimator, runs: Sequence[EngineRun]) -> list[Engin
         G_y = np.zeros((E, S, ny, est.Vp.shape[0]))
         G_z = np.zeros((E, S, len(est.layout.aux), est.Vp.shape[0]))
         resets = np.zeros((E, S), dtype=bool)
+        noise = np.broadcast_to(est.noise_std, (E, S, ny)).copy()
         for e, r in enumerate(runs):
             n = max(0, min(c1, len(r.epoch)) - c0)
             if n == 0:
@@ -616,6 +696,8 @@ def run_filters(est: SnapshotEstimator, runs: Sequence[EngineRun]) -> list[Engin
             u_dev = np.where(np.isfinite(u_dev), u_dev, 0.0)  # a missing actuator: at trim
             dy[e, :n] = snapshot_deviation(r.y[c0 : c0 + n], g.y_trim, g.G_u, u_dev)
             G_y[e, :n] = g.G_y
+            if g.noise_std is not None:
+                noise[e, :n] = np.sqrt(g.noise_std**2 + MODEL_ERROR**2)
             G_z[e, :n] = g.G_z
             epochs = r.epoch[c0 : c0 + n]
             prev = np.concatenate([[np.nan if last[e] is None else last[e]], epochs[:-1]])
@@ -631,7 +713,7 @@ def run_filters(est: SnapshotEstimator, runs: Sequence[EngineRun]) -> list[Engin
             np.concatenate([f.q_hat for f in filt]), np.concatenate([f.P for f in filt])
         )
         result = snapshot_filter(
-            state, dy, G_y, est.vstar, est.Qq, est.noise_std, scale, keep_covariance=True
+            state, dy, G_y, est.vstar, est.Qq, noise, scale, keep_covariance=True
         )
         assert result.P is not None
         for e, r in enumerate(runs):
