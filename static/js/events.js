@@ -5,6 +5,7 @@ import { $, badge, fmtNum, fmtTime, h, params, showError, sortableTable, startPa
 import { MARKER_COLOURS, PALETTE, axisTitle, layout, lineWithBand, markerShapes, plot, unitOf } from "./plots.js";
 
 const WINDOW_DAYS = 20;
+const BASELINE_RECORDS = 20;
 
 async function showList() {
   const content = $("#content");
@@ -84,10 +85,18 @@ async function windowPlot(div, event) {
     end: new Date(t + WINDOW_DAYS * day).toISOString(), max_points: 1000 } });
   const group = trend.groups.find((g) => g.key === "health");
   if (!group || !trend.n_records) { div.replaceWith(h("p", { class: "muted" }, "No estimates around the event.")); return; }
-  const traces = group.series.flatMap((s, i) => lineWithBand(trend.time, s, i));
+  // Each parameter against its mean over the last records before the detection, so the
+  // shift shows as a step whatever the engine's accumulated deterioration.
+  const before = trend.time.map((x, i) => [Date.parse(x), i]).filter(([x]) => x < t).slice(-BASELINE_RECORDS).map(([, i]) => i);
+  const series = group.series.map((s) => {
+    const known = before.map((i) => s.value[i]).filter((v) => v !== null);
+    const base = known.length ? known.reduce((a, b) => a + b, 0) / known.length : 0;
+    return { ...s, value: s.value.map((v) => (v === null ? null : v - base)) };
+  });
+  const traces = series.flatMap((s, i) => lineWithBand(trend.time, s, i));
   return plot(div, traces, layout({
     xaxis: { title: { text: "Date (UTC)" }, type: "date" },
-    yaxis: { title: { text: axisTitle("Health change", unitOf(group.series)) } },
+    yaxis: { title: { text: axisTitle("Change since before detection", unitOf(group.series)) } },
     legend: { orientation: "v", x: 1.02, y: 1, font: { size: 11 } },
     shapes: markerShapes([{ kind: "event", x: event.detected_at }]),
   }));
@@ -152,7 +161,7 @@ function showEvent(event, principal) {
     h("div", { class: "grid" },
       h("section", { class: "card" }, h("h2", {}, "Detected shift"), shift),
       h("section", { class: "card" }, h("h2", {}, "WSSR of every fault hypothesis"), wssr)),
-    h("section", { class: "card" }, h("h2", {}, `Health parameters ±${WINDOW_DAYS} days around the detection`), around),
+    h("section", { class: "card" }, h("h2", {}, `Health parameters ±${WINDOW_DAYS} days around the detection, against their mean over the ${BASELINE_RECORDS} records before it`), around),
     actions(event, principal, refresh));
   return Promise.all([shiftPlot(shift, event), wssrPlot(wssr, event), windowPlot(around, event)]);
 }

@@ -47,6 +47,15 @@ def test_event_review_plots_shift_and_wssr_and_acknowledges(
     assert len(shift) == (2 if event["fault"] and event["fault_shift"] else 1)
     around = [t["name"] for t in traces(page, "#around") if t["role"] == "line"]
     assert around == list(event["health_shift"])
+    # Each line is referred to its mean over the 20 records before the detection.
+    baselines = page.evaluate(
+        """(t) => document.querySelector('#around').data.filter((d) => d.meta.role === 'line')
+        .map((d) => { const y = d.y.filter((_, i) => Date.parse(d.x[i]) < Date.parse(t))
+          .slice(-20).filter((v) => v !== null);
+          return y.reduce((a, b) => a + b, 0) / Math.max(1, y.length); })""",
+        event["detected_at"],
+    )
+    assert baselines == pytest.approx([0.0] * len(around), abs=1e-9)
     assert "[%]" in page.evaluate("document.querySelector('#shift').layout.yaxis.title.text")
     screenshot(page, "event-review")
 
