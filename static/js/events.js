@@ -25,7 +25,7 @@ async function showList() {
     { key: "status", label: "Status", cell: (e) => badge(e.status) },
   ];
   content.replaceChildren(h("section", { class: "card" },
-    h("div", { class: "toolbar" }, h("label", {}, "Status", filter), h("span", { class: "muted" }, `${page.total} events`)),
+    h("div", { class: "toolbar" }, h("label", {}, "Status", filter), h("span", { class: "muted" }, `${page.total} event${page.total === 1 ? "" : "s"}`)),
     page.items.length ? h("div", { class: "table-wrap" }, sortableTable(columns, page.items, { sortKey: "detected_at", descending: true }))
       : h("p", { class: "muted" }, "No events with this status.")));
 }

@@ -46,7 +46,39 @@ export function layout(extra = {}) {
   };
 }
 
-export const CONFIG = { responsive: true, displaylogo: false, modeBarButtonsToRemove: ["lasso2d", "select2d"] };
+// The plotted data as CSV: one row per point (x, y, trace), or per cell of a heatmap.
+export function plotCsv(gd) {
+  const quote = (v) => (v === null || v === undefined ? "" : /[",\n]/.test(String(v)) ? `"${String(v).replace(/"/g, '""')}"` : String(v));
+  const rows = [];
+  for (const t of gd.data) {
+    if (t.meta && t.meta.role === "band") continue;
+    if (t.type === "heatmap") {
+      if (!rows.length) rows.push(["trace", "row", "column", "value"]);
+      t.z.forEach((r, i) => r.forEach((v, j) => rows.push([t.name, t.y[i], t.x[j], v])));
+    } else {
+      if (!rows.length) rows.push(["trace", "x", "y", "error"]);
+      (t.x || []).forEach((x, i) => rows.push([t.name, x, t.y[i], t.error_y && t.error_y.array ? t.error_y.array[i] : ""]));
+    }
+  }
+  return rows.map((r) => r.map(quote).join(",")).join("\n") + "\n";
+}
+
+const CSV_ICON = { width: 24, height: 24, path: "M4 2h11l5 5v15H4z M14 3v5h5 M7 12h10v2H7z M7 16h10v2H7z" };
+
+export const CONFIG = {
+  responsive: true, displaylogo: false, modeBarButtonsToRemove: ["lasso2d", "select2d"],
+  modeBarButtonsToAdd: [{
+    name: "Download data as CSV", icon: CSV_ICON,
+    click: (gd) => {
+      const link = document.createElement("a");
+      link.href = URL.createObjectURL(new Blob([plotCsv(gd)], { type: "text/csv" }));
+      link.download = `${gd.id || "plot"}.csv`;
+      document.body.append(link);
+      link.click();
+      setTimeout(() => { URL.revokeObjectURL(link.href); link.remove(); }, 0);
+    },
+  }],
+};
 
 export function plot(div, traces, lay) {
   return Plotly.react(div, traces, lay, CONFIG);

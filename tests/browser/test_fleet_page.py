@@ -46,6 +46,13 @@ def test_fleet_status_lists_every_engine_and_plots_deterioration(
     title = page.evaluate("document.querySelector('#deterioration').layout.yaxis.title.text")
     assert "[%]" in title
     screenshot(page, "fleet-status")
+    # Every plot exports its data as CSV from the mode bar: one row per plotted point.
+    page.hover("#deterioration")
+    with page.expect_download() as download_info:
+        page.click("#deterioration [data-title='Download data as CSV']")
+    lines = download_info.value.path().read_text().splitlines()
+    assert lines[0] == "trace,x,y,error"
+    assert len(lines) - 1 == sum(t["n"] for t in plotted)
     page.select_option("#which", "aux")
     page.wait_for_function(
         "document.querySelector('#deterioration').data.some((t) => t.name === 'Fn')"
