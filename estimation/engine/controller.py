@@ -28,7 +28,7 @@ point's RU.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -40,6 +40,7 @@ from estimation.engine.actuators import (
 from estimation.engine.atmosphere import PSI, RANKINE
 from estimation.engine.design import EngineDesign, engine_design
 from estimation.engine.steady import steady_state
+from estimation.engine.xp import NP, SCALAR
 
 DELTA_EXP = 1.5
 PLA_IDLE_DEG, PLA_TAKEOFF_DEG = 20.0, 80.0  # throttle stops [deg]
@@ -114,11 +115,14 @@ def design_ratio_units(design: EngineDesign | None = None) -> float:
 
 # Keyed by the design object's identity (the design is kept in the value, so
 # the id is not reused): hashing the frozen design field by field on every
-# controller sample would cost more than the control law itself.
-_RU_LINES: dict[int, tuple[EngineDesign, np.ndarray, np.ndarray]] = {}
+# controller sample would cost more than the control law itself. The line is
+# kept as arrays (numpy path) and as lists of floats (scalar path).
+_RU_LINES: dict[int, tuple[EngineDesign, np.ndarray, np.ndarray, list[float], list[float]]] = {}
 
 
-def _steady_ru_line(design: EngineDesign | None) -> tuple[np.ndarray, np.ndarray]:
+def _steady_ru_line(
+    design: EngineDesign | None, xp: Any = NP
+) -> tuple[Any, Any]:
     """Sea-level static steady line: corrected core speed [-] and RU [pps/psia], sorted."""
     d = design or engine_design()
     hit = _RU_LINES.get(id(d))
@@ -128,29 +132,30 @@ def _steady_ru_line(design: EngineDesign | None) -> tuple[np.ndarray, np.ndarray
         nrc = ss.stations["n_hpc"]
         ru = ss.u[:, 0] / (ss.stations["ps30"] / PSI)
         order = np.argsort(nrc)
-        hit = _RU_LINES[id(d)] = (d, nrc[order], ru[order])
-    return hit[1], hit[2]
+        nrc, ru = nrc[order], ru[order]
+        hit = _RU_LINES[id(d)] = (d, nrc, ru, nrc.tolist(), ru.tolist())
+    return (hit[3], hit[4]) if xp is SCALAR else (hit[1], hit[2])
 
 
 def ratio_unit_limits(
     nrc_rel: np.ndarray, gains: ControllerGains = DEFAULT_GAINS,
-    design: EngineDesign | None = None,
+    design: EngineDesign | None = None, xp: Any = NP,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Deceleration and acceleration limits (RU_min, RU_max) [pps/psia] at NRc/NRc_takeoff.
 
     Multiples of the sea-level steady RU line, held flat beyond its ends.
     """
-    grid, ru = _steady_ru_line(design)
-    ru_ss = np.interp(nrc_rel, grid, ru)
+    grid, ru = _steady_ru_line(design, xp)
+    ru_ss = xp.interp(nrc_rel, grid, ru)
     return gains.decel_ratio * ru_ss, gains.accel_ratio * ru_ss
 
 
 def corrected_core_speed(
-    nc: np.ndarray, t24_degr: np.ndarray, design: EngineDesign | None = None
+    nc: np.ndarray, t24_degr: np.ndarray, design: EngineDesign | None = None, xp: Any = NP
 ) -> np.ndarray:
     """NRc over take-off: Nc / sqrt(T24 / T24_design) / Nc_design (as the schedules use it)."""
     d = design or engine_design()
-    return nc / np.sqrt(t24_degr / RANKINE / d.t24) / d.nc
+    return nc / xp.sqrt(t24_degr / RANKINE / d.t24) / d.nc
 
 
 def initial_state(
@@ -176,8 +181,10 @@ def control_step(
     dt: float,
     gains: ControllerGains = DEFAULT_GAINS,
     design: EngineDesign | None = None,
+    xp: Any = NP,
 ) -> tuple[ControllerState, ControlOutput]:
-    """One controller sample for a batch of engines (all arrays [B]).
+    """One controller sample for a batch of engines (all arrays [B]; with
+    ``xp = SCALAR`` one engine: floats, ``state.sensed`` a list of 4, ``u`` a list).
 
     power_pct: power setting [%]; mach, theta2 = T2 / 288.15 K and
     delta2 = P2 / 101325 Pa: flight condition (from the aircraft); nf, nc
@@ -194,21 +201,22 @@ def control_step(
     ru_d = design_ratio_units(d)
     # First-order sensor filters: s <- s + dt / (tau + dt) (m - s).
     alpha = dt / (gains.sensor_tau + dt)
-    raw = np.stack([nf, nc, t24, ps30], axis=-1)
-    sensed = state.sensed + alpha * (raw - state.sensed)
-    nf, nc, t24, ps30 = sensed[..., 0], sensed[..., 1], sensed[..., 2], sensed[..., 3]
-    demand = demanded_corrected_fan_speed(power_pct, d.nf, mach)
-    error = (demand - nf / np.sqrt(theta2)) / d.nf
-    nrc = corrected_core_speed(nc, t24, d)
-    ru_min, ru_max = ratio_unit_limits(nrc, gains, d)
-    nrf_rel = nf / np.sqrt(theta2) / d.nf
-    s = np.clip((nrf_rel - 0.42) / 0.58, 0.0, 1.0)
-    ki = gains.ki + (gains.ki_takeoff * np.minimum(delta2, 1.0) ** DELTA_EXP - gains.ki) * s
+    col = xp.col
+    sensed = xp.stack([col(state.sensed, i) + alpha * (m - col(state.sensed, i))
+                       for i, m in enumerate((nf, nc, t24, ps30))])
+    nf, nc, t24, ps30 = col(sensed, 0), col(sensed, 1), col(sensed, 2), col(sensed, 3)
+    demand = demanded_corrected_fan_speed(power_pct, d.nf, mach, xp)
+    error = (demand - nf / xp.sqrt(theta2)) / d.nf
+    nrc = corrected_core_speed(nc, t24, d, xp)
+    ru_min, ru_max = ratio_unit_limits(nrc, gains, d, xp)
+    nrf_rel = nf / xp.sqrt(theta2) / d.nf
+    s = xp.clip((nrf_rel - 0.42) / 0.58, 0.0, 1.0)
+    ki = gains.ki + (gains.ki_takeoff * xp.minimum(delta2, 1.0) ** DELTA_EXP - gains.ki) * s
     integ = state.integrator + ki * error * dt
     ru_free = (integ + gains.kp * error) * ru_d
-    ru = np.clip(ru_free, ru_min, ru_max)
-    limited = np.where(ru_free > ru_max, 1, np.where(ru_free < ru_min, -1, 0))
+    ru = xp.clip(ru_free, ru_min, ru_max)
+    limited = xp.where(ru_free > ru_max, 1, xp.where(ru_free < ru_min, -1, 0))
     # Back-calculation: on a limit the integrator follows the limited output.
-    integ = np.where(limited != 0, ru / ru_d - gains.kp * error, integ)
-    u = np.stack([ru * ps30, vsv_schedule(nrc), vbv_schedule(nrc)], axis=-1)
+    integ = xp.where(limited != 0, ru / ru_d - gains.kp * error, integ)
+    u = xp.stack([ru * ps30, vsv_schedule(nrc, xp), vbv_schedule(nrc, xp)])
     return ControllerState(integ, sensed), ControlOutput(u, ru, ru_min, ru_max, limited, error, nrc)

@@ -244,6 +244,7 @@ def simulate(
     x0: np.ndarray | None = None,
     gas_path_solution: str = "one_pass",
     on_progress: Callable[[float], None] | None = None,
+    scalar_path: bool = True,
 ) -> TransientResult:
     """Simulate a batch of engines in closed loop from rest at the schedule's start.
 
@@ -261,6 +262,9 @@ def simulate(
     carries one chord correction to the next stage, so the mismatch is of the
     order of the prediction error in a transient and vanishes at rest.
     on_progress(fraction) is called every 1000 steps and at the end.
+    scalar_path: one engine (B = 1) runs the same cycle, control law and steps on
+    Python floats (``transient_one.py``, an order of magnitude faster than numpy
+    on one-element arrays; equal to rounding); False keeps it on numpy arrays.
     """
     if gas_path_solution not in ("converged", "one_pass"):
         raise ValueError(f"gas_path_solution must be 'converged' or 'one_pass', "
@@ -301,6 +305,22 @@ def simulate(
     rec_cond = np.empty((4, n_rec, b))
     rec_lim = np.zeros((n_rec, b), dtype=np.int8)
 
+    if b == 1 and scalar_path:
+        from estimation.engine.transient_one import ScalarGasPath, run_one, scalar_schedule
+
+        one = ScalarGasPath(d, (h[0] / 100.0).tolist(), h, _CHORD_TOL, _CHORD_POLISH,
+                            _CHORD_MAX, _ONE_PASS_LIMIT, _REFRESH_EVERY, _FD_EPS)
+        ctrl1 = ControllerState(float(ctrl.integrator[0]), ctrl.sensed[0].tolist())
+        run_one(
+            scalar_schedule(schedule), n_steps, dt, record_every, x[0].tolist(),
+            z[0].tolist(), ys[0].tolist(), ctrl1, h, noise_std, rng, gains, d, one,
+            gas_path_solution == "one_pass",
+            dict(x=rec_x, u=rec_u, y=rec_y, m=rec_m, aux=rec_aux, cond=rec_cond, lim=rec_lim),
+            on_progress, (_NF, _NC, _T24, _PS30),
+        )
+        return TransientResult(
+            rec_t, rec_x, rec_u, rec_y, rec_m, rec_aux, OperatingPoint(*rec_cond), rec_lim
+        )
     solver = _GasPathSolver(d, b)
     solve = solver.one_pass if gas_path_solution == "one_pass" else solver.solve
     z2 = z

@@ -327,23 +327,22 @@ def solve_inner(
 
 
 def outputs_from_stations(
-    st: dict[str, np.ndarray], op: Operating
+    st: dict[str, np.ndarray], op: Operating, xp: Any = NP
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Sensors [B, 12] and aux [B, 6] in C-MAPSS units (see ``sensors.py``)."""
-    sensors = np.stack(
+    """Sensors [B, 12] and aux [B, 6] in C-MAPSS units (see ``sensors.py``); lists of
+    floats for one engine on the scalar path (``xp = SCALAR``)."""
+    sensors = xp.stack(
         [
             op.nf, op.nc, st["t24"] * RANKINE, st["p24"] / PSI, st["t3"] * RANKINE,
             st["ps30"] / PSI, st["p3"] / PSI, st["t45"] * RANKINE, st["p5"] / PSI,
             st["t5"] * RANKINE, st["p15"] / PSI, op.wf / LBM,
-        ],
-        axis=1,
+        ]
     )
-    aux = np.stack(
+    aux = xp.stack(
         [
             st["fn"] / LBF, st["t4"] * RANKINE, st["sm_fan"], st["sm_lpc"], st["sm_hpc"],
             st["w_byp"] / st["w_core"],
-        ],
-        axis=1,
+        ]
     )
     return sensors, aux
 

@@ -1,0 +1,232 @@
+"""The closed-loop transient of ``transient.simulate`` for one engine, on Python floats.
+
+A batch of one engine spends nearly all its time in numpy's per-call overhead
+(about 150 calls on one-element arrays per gas-path evaluation). Here the same
+cycle (``turbofan.gas_path_columns``), atmosphere and control law
+(``controller.control_step``) run with the ``SCALAR`` namespace of ``xp.py``,
+and the integration, the chord iteration and its Jacobian refresh follow
+``transient.simulate`` and its ``_GasPathSolver`` step by step, so the
+trajectory equals the batched one to rounding (tests/engine/test_transient_one.py).
+The 5 x 5 inverse Jacobian is applied as nested lists; it is computed with
+numpy (one call per refresh).
+
+Where ``math`` raises (a log or square root of a negative number, which only a
+diverging iterate reaches) the evaluation is redone with numpy, which gives
+nan and the batched path's convergence error.
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_right
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from estimation.engine.atmosphere import LBM, PSI, RANKINE, FlightCondition, flight_condition
+from estimation.engine.controller import ControllerGains, ControllerState, control_step
+from estimation.engine.design import EngineDesign
+from estimation.engine.errors import EngineConvergenceError
+from estimation.engine.flight import FlightProfile, OperatingPoint
+from estimation.engine.turbofan import (
+    Operating,
+    gas_path,
+    gas_path_columns,
+    outputs_from_stations,
+)
+from estimation.engine.xp import SCALAR, SCALAR_ERRORS
+
+Vector = list[float]
+Stations = dict[str, Any]
+
+
+def scalar_schedule(schedule: FlightProfile | Callable[[float], OperatingPoint]
+                    ) -> Callable[[float], tuple[float, float, float, float]]:
+    """Operating condition (alt ft, Mach, dTamb K, power %) of one flight against time.
+
+    For a FlightProfile: ``flight.condition_at``'s interpolation on floats.
+    """
+    if not isinstance(schedule, FlightProfile):
+        def call(t: float) -> tuple[float, float, float, float]:
+            c = schedule(t)
+            a, m, dt_, p = (float(np.asarray(v, dtype=float).reshape(-1)[0]) for v in c)
+            return a, m, dt_, p
+        return call
+    ts = schedule.time_s.tolist()
+    alt, mach, power = (v[0].tolist() for v in (schedule.alt_ft, schedule.mach,
+                                                 schedule.power_pct))
+    dtamb = float(schedule.dtamb_k[0])
+    last = len(ts) - 2
+
+    def at(t: float) -> tuple[float, float, float, float]:
+        tt = min(max(t, ts[0]), ts[-1])
+        i = min(max(bisect_right(ts, tt) - 1, 0), last)
+        w = (tt - ts[i]) / (ts[i + 1] - ts[i])
+        return (alt[i] + w * (alt[i + 1] - alt[i]), mach[i] + w * (mach[i + 1] - mach[i]),
+                dtamb, power[i] + w * (power[i + 1] - power[i]))
+    return at
+
+
+class ScalarGasPath:
+    """``transient._GasPathSolver`` for one engine on floats (same steps and thresholds)."""
+
+    def __init__(self, design: EngineDesign, hs: Vector, h: np.ndarray,
+                 chord_tol: float, chord_polish: float, chord_max: int,
+                 one_pass_limit: float, refresh_every: int, fd_eps: float) -> None:
+        self.d = design
+        self.hs = hs  # health / 100, floats
+        self.h = h  # [1, 13] percent, for the numpy fallback
+        self.jinv: list[Vector] | None = None
+        self.dzdu: list[Vector] = [[0.0] * 3 for _ in range(5)]
+        self.tol, self.polish, self.max_iter = chord_tol, chord_polish, chord_max
+        self.limit, self.every, self.eps = one_pass_limit, refresh_every, fd_eps
+        self.calls = 0
+        self.evaluations = 0
+
+    def evaluate(self, op: Operating, z: Vector) -> tuple[Vector, Stations]:
+        self.evaluations += 1
+        try:
+            return gas_path_columns(op, z, self.hs, self.d, True, False, SCALAR)
+        except SCALAR_ERRORS:
+            return self._numpy(op, z)
+
+    def _numpy(self, op: Operating, z: Vector) -> tuple[Vector, Stations]:
+        one = [np.array([v]) for v in op[:7]]
+        fc = FlightCondition(*(np.array([v]) for v in op.fc))
+        with np.errstate(all="ignore"):
+            res, st = gas_path(Operating(*one, fc, self.h), np.array([z]), self.d)
+        return res[0].tolist(), {k: float(np.asarray(v).reshape(-1)[0]) for k, v in st.items()}
+
+    def _refresh(self, op: Operating, z: Vector) -> None:
+        """Forward-difference Jacobians in the unknowns and in (Wf, VSV, VBV)."""
+        eps = self.eps
+        r0 = self.evaluate(op, z)[0]
+        jac = np.empty((5, 5))
+        for j in range(5):
+            zj = list(z)
+            zj[j] = zj[j] + eps
+            rj = self.evaluate(op, zj)[0]
+            jac[:, j] = [(rj[i] - r0[i]) / eps for i in range(5)]
+        du = (eps * max(abs(op.wf), 1e-3), 1e-4, 1e-4)
+        ru = np.empty((5, 3))
+        for c, opc in enumerate((op._replace(wf=op.wf + du[0]), op._replace(vsv=op.vsv + du[1]),
+                                 op._replace(vbv=op.vbv + du[2]))):
+            rc = self.evaluate(opc, z)[0]
+            ru[:, c] = [(rc[i] - r0[i]) / du[c] for i in range(5)]
+        inv = np.linalg.inv(jac)
+        self.jinv = inv.tolist()
+        self.dzdu = (-(inv @ ru)).tolist()
+
+    def predict(self, z: Vector, op_from: Operating, op_to: Operating) -> Vector:
+        """Unknowns after a change of commands only: z + dz/du (u_to - u_from)."""
+        if self.jinv is None:
+            return z
+        d0, d1, d2 = op_to.wf - op_from.wf, op_to.vsv - op_from.vsv, op_to.vbv - op_from.vbv
+        return [zi + (g[0] * d0 + g[1] * d1 + g[2] * d2)
+                for zi, g in zip(z, self.dzdu, strict=True)]
+
+    def _chord(self, z: Vector, res: Vector) -> Vector:
+        assert self.jinv is not None
+        r0, r1, r2, r3, r4 = res
+        return [zi - (a[0] * r0 + a[1] * r1 + a[2] * r2 + a[3] * r3 + a[4] * r4)
+                for zi, a in zip(z, self.jinv, strict=True)]
+
+    def solve(self, op: Operating, z0: Vector) -> tuple[Vector, Stations]:
+        z = list(z0)
+        if self.jinv is None:
+            self._refresh(op, z)
+        res, st = self.evaluate(op, z)
+        return self._converge(op, z, res, st)
+
+    def _converge(self, op: Operating, z: Vector, res: Vector, st: Stations
+                  ) -> tuple[Vector, Stations]:
+        for it in range(self.max_iter):
+            err = max(abs(r) for r in res)
+            if err <= (self.polish if it == 0 else self.tol):
+                return z, st
+            if it >= 3:
+                self._refresh(op, z)
+            z = self._chord(z, res)
+            res, st = self.evaluate(op, z)
+        err = max(abs(r) for r in res)
+        if not err <= self.tol:
+            raise EngineConvergenceError(
+                f"gas path did not converge in the transient for engines [0] "
+                f"(max relative flow mismatch {err:.2e})"
+            )
+        return z, st
+
+    def one_pass(self, op: Operating, z0: Vector) -> tuple[Vector, Stations]:
+        self.calls += 1
+        if self.jinv is None or self.calls % self.every == 0:
+            self._refresh(op, z0)
+        res, st = self.evaluate(op, z0)
+        if max(abs(r) for r in res) > self.limit:
+            return self._converge(op, list(z0), res, st)
+        return self._chord(z0, res), st
+
+
+def run_one(
+    sched: Callable[[float], tuple[float, float, float, float]],
+    n_steps: int, dt: float, record_every: int,
+    x: Vector, z: Vector, y_ctrl: Vector, ctrl: ControllerState, h: np.ndarray,
+    noise_std: np.ndarray | None, rng: np.random.Generator | None,
+    gains: ControllerGains, d: EngineDesign, solver: ScalarGasPath, one_pass: bool,
+    rec: dict[str, np.ndarray], on_progress: Callable[[float], None] | None,
+    idx: tuple[int, int, int, int],
+) -> None:
+    """The step loop of ``transient.simulate`` for B = 1; fills the record arrays ``rec``
+    (keys x, u, y, m, aux, cond, lim, shapes as there)."""
+    i_nf, i_nc, i_t24, i_ps30 = idx
+    solve = solver.one_pass if one_pass else solver.solve
+    noisy = rng is not None and noise_std is not None
+    ns = None if not noisy else np.broadcast_to(np.asarray(noise_std, float), (1, 12))[0]
+    rec_x, rec_u, rec_y, rec_m = rec["x"], rec["u"], rec["y"], rec["m"]
+    rec_aux, rec_cond, rec_lim = rec["aux"], rec["cond"], rec["lim"]
+    half = 0.5 * dt
+    z2 = z
+    op2: Operating | None = None
+    dz12 = [0.0] * 5
+    cond = sched(0.0)
+    fc = flight_condition(cond[0], cond[1], cond[2], SCALAR)
+    for k in range(n_steps + 1):
+        t = k * dt
+        if noisy:
+            assert rng is not None and ns is not None
+            noise = rng.standard_normal(12) * ns
+            nz = noise.tolist()
+            m_nf, m_nc = y_ctrl[i_nf] + nz[i_nf], y_ctrl[i_nc] + nz[i_nc]
+            m_t24, m_ps30 = y_ctrl[i_t24] + nz[i_t24], y_ctrl[i_ps30] + nz[i_ps30]
+        else:
+            noise = None
+            m_nf, m_nc, m_t24, m_ps30 = y_ctrl[i_nf], y_ctrl[i_nc], y_ctrl[i_t24], y_ctrl[i_ps30]
+        ctrl, out = control_step(ctrl, cond[3], cond[1], fc.theta, fc.delta, m_nf, m_nc,
+                                 m_t24, m_ps30, dt, gains, d, SCALAR)
+        u = out.u
+        wf = u[0] * LBM
+        op = Operating(x[0], x[1], x[2] / RANKINE, x[3] / RANKINE, wf, u[1], u[2], fc, None)
+        z1, st = solve(op, z2 if op2 is None else solver.predict(z2, op2, op))
+        if k % record_every == 0:
+            y, aux = outputs_from_stations(st, op, SCALAR)
+            i = k // record_every
+            rec_x[i, 0], rec_u[i, 0], rec_y[i, 0], rec_aux[i, 0] = x, u, y, aux
+            rec_m[i, 0] = y if noise is None else np.add(y, noise)
+            rec_cond[:, i, 0] = cond
+            rec_lim[i, 0] = out.limited
+        if on_progress is not None and (k % 1000 == 0 or k == n_steps):
+            on_progress(k / max(n_steps, 1))
+        if k == n_steps:
+            break
+        k1 = (st["dnf"], st["dnc"], st["dtm_hpc"], st["dtm_hpt"])
+        cond = sched(t + dt)
+        fc = flight_condition(cond[0], cond[1], cond[2], SCALAR)
+        xs = [xi + dt * ki for xi, ki in zip(x, k1, strict=True)]
+        op2 = Operating(xs[0], xs[1], xs[2] / RANKINE, xs[3] / RANKINE, wf, u[1], u[2], fc, None)
+        z2, st2 = solve(op2, [a + b for a, b in zip(z1, dz12, strict=True)])
+        dz12 = [a - b for a, b in zip(z2, z1, strict=True)]
+        k2 = (st2["dnf"], st2["dnc"], st2["dtm_hpc"], st2["dtm_hpt"])
+        x = [xi + half * (a + b) for xi, a, b in zip(x, k1, k2, strict=True)]
+        # The controller's next sample: the sensors it reads at the second stage.
+        y_ctrl = [0.0] * 12
+        y_ctrl[i_nf], y_ctrl[i_nc] = op2.nf, op2.nc
+        y_ctrl[i_t24], y_ctrl[i_ps30] = st2["t24"] * RANKINE, st2["ps30"] / PSI
