@@ -1,0 +1,26 @@
+"""Stream estimates as served: decimated q_hat, h_hat, z_hat with 1-sigma and residuals."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, Field
+
+
+class StreamEstimatesOut(BaseModel):
+    """Series aligned with ``t_s`` (seconds from the recording's start, first sample of each
+    point's window); every value is a window mean, in percent (of trim, or health deviation)."""
+
+    recording_id: int
+    engine_id: int
+    design_id: int | None = Field(description="design the series were estimated with")
+    window_s: float = Field(description="recording time each point averages")
+    n_samples: int = Field(description="samples received")
+    n_samples_estimated: int = Field(description="samples the filter has run over")
+    names: dict[str, list[str]] = Field(description="tuners, health, aux, sensors")
+    t_s: list[float]
+    q_hat: dict[str, list[float]]
+    q_sigma: dict[str, list[float]]
+    h_hat: dict[str, list[float]]
+    h_sigma: dict[str, list[float]]
+    z_hat: dict[str, list[float]]
+    z_sigma: dict[str, list[float]]
+    residual: dict[str, list[float]] = Field(description="innovation per sensor, % of trim")
