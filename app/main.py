@@ -34,6 +34,7 @@ from app.routers import (
     keys,
     maintenance,
     me,
+    stream_estimates,
     streams,
     trends,
     uploads,
@@ -103,6 +104,7 @@ def create_app(
     app.include_router(maintenance.router)
     app.include_router(uploads.router)
     app.include_router(streams.router)
+    app.include_router(stream_estimates.router)
     app.include_router(jobs_router.router)
     app.include_router(assets.router)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
