@@ -75,7 +75,11 @@ def claim_next(factory: SessionFactory, *, worker: str) -> Claim | None:
 
     One UPDATE ... WHERE status = 'queued' RETURNING: of two workers racing for a job only one
     gets the row back. On PostgreSQL the inner SELECT skips rows another worker has locked.
+    An idle worker only reads: on SQLite even an UPDATE of no rows takes the one write lock.
     """
+    with transaction(factory) as session:
+        if session.scalar(select(Job.id).where(Job.status == "queued").limit(1)) is None:
+            return None
     oldest = (
         select(Job.id)
         .where(Job.status == "queued")
@@ -128,12 +132,54 @@ def _locked(exc: OperationalError) -> bool:
     return "database is locked" in str(exc.orig)
 
 
+class SqliteTransactionWatch:
+    """Makes a job's SQLite transactions take the write lock at once, and tells when they do.
+
+    SQLite has one writer. A transaction that reads and later writes fails ("database is
+    locked") if another connection committed in between, since its snapshot is stale; so a
+    job's transaction begins IMMEDIATE: it holds the lock from its first statement to its
+    commit, and other writers wait for it instead. Meanwhile ``busy()`` is true: the job's
+    progress is held back and its heartbeat skipped, both written after its commit. Other
+    databases are never busy.
+    """
+
+    def __init__(self, session: Session) -> None:
+        self._dbapi: Any = None
+        event.listen(session, "after_begin", self._begun)
+        event.listen(session, "after_transaction_end", self._ended)
+
+    def _begun(self, _session: Session, _transaction: object, connection: Any) -> None:
+        if connection.dialect.name != "sqlite" or connection.in_nested_transaction():
+            return  # a savepoint inside a caller's transaction (tests) is not ours to change
+        dbapi = connection.connection.dbapi_connection
+        if dbapi.in_transaction:
+            # A deferred BEGIN was sent (nothing ran yet): begin again, taking the lock.
+            connection.exec_driver_sql("ROLLBACK")
+        connection.exec_driver_sql("BEGIN IMMEDIATE")
+        self._dbapi = dbapi
+
+    def _ended(self, session: Session, _transaction: object) -> None:
+        if not session.in_transaction():
+            self._dbapi = None
+
+    def busy(self) -> bool:
+        # sqlite3's in_transaction is safe to read from the heartbeat thread.
+        dbapi = self._dbapi
+        return dbapi is not None and bool(dbapi.in_transaction)
+
+
+def _never_busy() -> bool:
+    return False
+
+
 class ProgressReporter:
     """The ``progress(fraction, message)`` callback a job function receives.
 
     Writes at most every ``throttle_seconds`` (the first report always), each in its own short
     transaction, so the dashboard sees it while the job's own transaction is still open. Raises
-    ``JobCancelled`` when the write finds the job no longer running under this claim.
+    ``JobCancelled`` when the write finds the job no longer running under this claim. While
+    ``busy()`` (see ``SqliteTransactionWatch``) reports are kept and written by ``flush()``,
+    which the runner calls when the job's session commits.
     """
 
     def __init__(
@@ -143,12 +189,16 @@ class ProgressReporter:
         *,
         throttle_seconds: float = PROGRESS_THROTTLE_SECONDS,
         clock: Callable[[], float] = time.monotonic,
+        busy: Callable[[], bool] = _never_busy,
     ) -> None:
         self._factory = factory
         self._claim = claim
         self._throttle = throttle_seconds
         self._clock = clock
+        self._busy = busy
         self._last_write: float | None = None
+        self._unwritten = False
+        self.finished = False
         self.fraction = 0.0
         self.message = "running"
 
@@ -158,10 +208,26 @@ class ProgressReporter:
         self.fraction = float(fraction)
         if message is not None:
             self.message = message[:500]
+        self._unwritten = True
         now = self._clock()
         if self._last_write is not None and now - self._last_write < self._throttle:
             return
+        if self._busy():
+            return
         self._last_write = now
+        self._write()
+
+    def flush(self) -> None:
+        """Write the latest report if it was held back; never raises (called at commit)."""
+        if not self._unwritten or self.finished:
+            return
+        try:
+            self._write()
+        except Exception as exc:  # cancellation is seen at the next report or the end
+            log.debug("progress of job %s not written at commit: %s", self._claim.job_id, exc)
+
+    def _write(self) -> None:
+        self._unwritten = False
         try:
             with _short_write(self._factory) as session:
                 written = session.execute(
@@ -173,7 +239,8 @@ class ProgressReporter:
         except OperationalError as exc:
             if not _locked(exc):
                 raise
-            self._last_write = None  # the job holds the lock; report again next time
+            self._last_write = None  # another connection holds the lock; report again next time
+            self._unwritten = True
             return
         if written == 0:
             raise JobCancelled(f"job {self._claim.job_id} is no longer running here")
@@ -182,10 +249,17 @@ class ProgressReporter:
 class Heartbeat:
     """Marks a running job alive every ``interval`` seconds from a daemon thread."""
 
-    def __init__(self, factory: SessionFactory, claim: Claim, interval: float) -> None:
+    def __init__(
+        self,
+        factory: SessionFactory,
+        claim: Claim,
+        interval: float,
+        busy: Callable[[], bool] = _never_busy,
+    ) -> None:
         self._factory = factory
         self._claim = claim
         self._interval = interval
+        self._busy = busy
         self._stop = threading.Event()
         self._thread = threading.Thread(
             target=self._beat, name=f"job-{claim.job_id}-heartbeat", daemon=True
@@ -194,6 +268,8 @@ class Heartbeat:
 
     def _beat(self) -> None:
         while not self._stop.wait(self._interval):
+            if self._busy():
+                continue  # the job's transaction is open; its runner knows it is alive
             try:
                 with _short_write(self._factory) as session:
                     written = session.execute(
@@ -219,6 +295,7 @@ def execute(
     throttle_seconds: float = PROGRESS_THROTTLE_SECONDS,
     heartbeat_seconds: float | None = HEARTBEAT_SECONDS,
     dispatcher: Dispatcher | None = None,
+    sqlite_guard: bool = True,
 ) -> str:
     """Run a claimed job to its end and return its final status.
 
@@ -227,7 +304,9 @@ def execute(
     the work back and records the error; ``JobCancelled`` rolls back and leaves 'cancelled'.
     ``heartbeat_seconds=None`` runs without a heartbeat thread (synchronous tests, whose
     session factory shares one connection). Jobs the function queues (``store.submit`` on its
-    session) go to ``dispatcher`` once the session commits them.
+    session) go to ``dispatcher`` once the session commits them. ``sqlite_guard`` holds
+    progress and heartbeats back while the job's SQLite transaction is open (see
+    ``SqliteTransactionWatch``); ``run_pending`` turns it off, having no other writers.
     """
     with transaction(factory) as session:
         job = session.get(Job, claim.job_id)
@@ -239,11 +318,13 @@ def execute(
     except ServiceError as exc:
         return _record_failure(factory, claim, exc.message)
 
-    progress = ProgressReporter(factory, claim, throttle_seconds=throttle_seconds)
-    heartbeat = Heartbeat(factory, claim, heartbeat_seconds) if heartbeat_seconds else None
     session = factory()
+    busy = SqliteTransactionWatch(session).busy if sqlite_guard else _never_busy
+    progress = ProgressReporter(factory, claim, throttle_seconds=throttle_seconds, busy=busy)
+    _flush_at_commit(session, progress)
     if dispatcher is not None:
         _dispatch_queued_jobs(session, dispatcher)
+    heartbeat = Heartbeat(factory, claim, heartbeat_seconds, busy) if heartbeat_seconds else None
     try:
         try:
             result = kind.function(session, parameters, progress, operator_id=operator_id)
@@ -256,6 +337,7 @@ def execute(
             session.rollback()
             log.exception("job %s (%s) failed", claim.job_id, kind_name)
             return _record_failure(factory, claim, f"{type(exc).__name__}: {exc}")
+        progress.finished = True
         try:
             now = utcnow()
             done = session.execute(
@@ -285,6 +367,16 @@ def execute(
         session.close()
         if heartbeat is not None:
             heartbeat.stop()
+
+
+def _flush_at_commit(session: Session, progress: ProgressReporter) -> None:
+    """Write held-back progress as soon as the job's session commits (its lock is free)."""
+
+    def flush(committed: Session) -> None:
+        if not committed.in_nested_transaction():
+            progress.flush()
+
+    event.listen(session, "after_commit", flush)
 
 
 def _dispatch_queued_jobs(session: Session, dispatcher: Dispatcher) -> None:
@@ -406,7 +498,14 @@ def run_pending(
     worker = worker_name("inline")
     ran: list[int] = []
     while (claim := claim_next(factory, worker=worker)) is not None:
-        execute(factory, claim, registry, throttle_seconds=throttle_seconds, heartbeat_seconds=None)
+        execute(
+            factory,
+            claim,
+            registry,
+            throttle_seconds=throttle_seconds,
+            heartbeat_seconds=None,
+            sqlite_guard=False,
+        )
         ran.append(claim.job_id)
     return ran
 

@@ -107,15 +107,20 @@ def cancel(session: Session, *, operator_id: int, job_id: int) -> Job:
 
     A queued job never starts; a running one stops at its next progress report (its function
     gets ``JobCancelled``) and its uncommitted work is rolled back. A finished job is a 409.
+    The UPDATE comes first: on SQLite a transaction that reads before it writes can find its
+    snapshot stale when the running job has just written its progress.
     """
-    job = get_job(session, operator_id=operator_id, job_id=job_id)
     cancelled = session.execute(
         update(Job)
-        .where(Job.id == job_id, Job.status.in_(ACTIVE_STATUSES))
+        .where(
+            Job.id == job_id,
+            Job.operator_id == operator_id,
+            Job.status.in_(ACTIVE_STATUSES),
+        )
         .values(status="cancelled", finished_at=utcnow(), message="cancelled"),
         execution_options={"synchronize_session": False},
     )
-    session.refresh(job)
+    job = get_job(session, operator_id=operator_id, job_id=job_id)
     if cancelled.rowcount == 0:  # type: ignore[attr-defined]
         raise Conflict(f"job {job_id} has {job.status} already; only queued or running jobs cancel")
     return job

@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 from pydantic import BaseModel, ConfigDict
-from sqlalchemy import Connection, Engine, delete, select
+from sqlalchemy import Connection, Engine, delete, func, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db import make_engine, make_sessionmaker, transaction
@@ -105,6 +105,22 @@ def make_registry(gates: Gates | None = None) -> JobRegistry:
             time.sleep(0.01)
         session.add(Operator(name=f"{parameters.name}: last chunk"))
         return {"steps": 3000}
+
+    @registry.job("chunks", parameters=NoteParameters, description="read, report, write x3")
+    def chunks(
+        session: Session, parameters: NoteParameters, progress: Progress, *, operator_id: int
+    ) -> dict[str, Any]:
+        # The pipeline's shape: each chunk reads, reports, writes and commits.
+        for chunk in range(3):
+            before = session.scalar(select(func.count()).select_from(Operator))
+            progress(chunk / 3, f"{parameters.name}: chunk {chunk}")
+            session.add(Operator(name=f"{parameters.name} {chunk} after {before}"))
+            session.commit()
+            if chunk == 0:
+                gates.started.set()
+                if not gates.release.wait(timeout=30):
+                    raise TimeoutError("the test never released the job")
+        return {"chunks": 3}
 
     return registry
 

@@ -784,6 +784,39 @@ def test_runner_start_requeues_what_a_stopped_process_left_running(
     assert row.attempts == 2 and row.result == {"sum": 5 + 6, "operator_id": operator_id}
 
 
+def test_a_job_that_reads_reports_and_writes_in_each_chunk_succeeds(live: Live) -> None:
+    # On SQLite a progress write between the job's read and its write would leave the job's
+    # transaction with a stale snapshot ("database is locked" at its write); the runner holds
+    # such reports back until the job commits.
+    _url, factory = live
+    gates = Gates()
+    registry = make_registry(gates)
+    with transaction(factory) as session:
+        operator, _key = make_operator(session, "Chunks Air")
+        operator_id = operator.id
+    runner = Runner(
+        factory, registry, workers=1, poll_seconds=0.02, heartbeat_seconds=0.01, throttle_seconds=0
+    )
+    runner.start()
+    try:
+        job_id = _submit(factory, registry, operator_id, "chunks", name="chunked")
+        runner.dispatch(job_id)
+        assert gates.started.wait(20), "the first chunk never committed"
+        row = job_row(factory, job_id)
+        assert (row.status, row.message) == ("running", "chunked: chunk 0")
+        gates.release.set()
+        wait_until(lambda: job_row(factory, job_id).status != "running", "the chunked job")
+    finally:
+        gates.release.set()
+        runner.stop()
+    row = job_row(factory, job_id)
+    assert (row.status, row.error, row.result) == ("succeeded", None, {"chunks": 3})
+    with transaction(factory) as session:
+        names = session.scalars(select(Operator.name).where(Operator.name.like("chunked %")))
+        # Each chunk saw the rows of the chunks before it (and the one operator made above).
+        assert sorted(names) == [f"chunked {chunk} after {chunk + 1}" for chunk in range(3)]
+
+
 def test_the_runner_sweep_requeues_dead_workers_jobs_but_not_its_own(live: Live) -> None:
     # Heartbeats off and a tiny stale time: the runner's own waiting job looks stale too, as a
     # job holding SQLite's write lock does. Only the dead worker's job may be requeued.
