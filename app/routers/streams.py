@@ -11,6 +11,7 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 from fastapi import APIRouter, Query, Request, Response, status
 
+from app.routers.stream_estimates import queue_recording_estimation
 from app.routers.uploads import (
     Body,
     ColumnMapping,
@@ -97,6 +98,8 @@ def upload_stream(
         idempotency_key=idempotency_key,
         store=store,
     )
+    if not outcome["replayed"]:
+        queue_recording_estimation(request, session, principal, outcome["recording"])
     response.status_code = status.HTTP_200_OK if outcome["replayed"] else status.HTTP_201_CREATED
     upload = UploadOut.model_validate(outcome["upload"]).model_copy(
         update={"replayed": outcome["replayed"]}
@@ -151,6 +154,8 @@ def append_chunk(
         session, principal, kind="stream_chunk", payload=payload, idempotency_key=None, store=store
     )
     result: streams.ChunkResult = outcome["result"]
+    if not result.replayed:
+        queue_recording_estimation(request, session, principal, result.recording)
     response.status_code = status.HTTP_200_OK if result.replayed else status.HTTP_201_CREATED
     return ChunkOut(
         recording=RecordingOut.model_validate(result.recording),
