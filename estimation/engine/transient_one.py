@@ -82,11 +82,15 @@ class ScalarGasPath:
         self.limit, self.every, self.eps = one_pass_limit, refresh_every, fd_eps
         self.calls = 0
         self.evaluations = 0
+        # Every station (a recorded sample) or only what the step needs.
+        self.full = True
 
-    def evaluate(self, op: Operating, z: Vector) -> tuple[Vector, Stations]:
+    def evaluate(self, op: Operating, z: Vector, full: bool | None = None
+                 ) -> tuple[Vector, Stations]:
         self.evaluations += 1
         try:
-            return gas_path_columns(op, z, self.hs, self.d, True, False, SCALAR)
+            return gas_path_columns(op, z, self.hs, self.d, True, False, SCALAR,
+                                    self.full if full is None else full)
         except SCALAR_ERRORS:
             return self._numpy(op, z)
 
@@ -100,18 +104,18 @@ class ScalarGasPath:
     def _refresh(self, op: Operating, z: Vector) -> None:
         """Forward-difference Jacobians in the unknowns and in (Wf, VSV, VBV)."""
         eps = self.eps
-        r0 = self.evaluate(op, z)[0]
+        r0 = self.evaluate(op, z, False)[0]
         jac = np.empty((5, 5))
         for j in range(5):
             zj = list(z)
             zj[j] = zj[j] + eps
-            rj = self.evaluate(op, zj)[0]
+            rj = self.evaluate(op, zj, False)[0]
             jac[:, j] = [(rj[i] - r0[i]) / eps for i in range(5)]
         du = (eps * max(abs(op.wf), 1e-3), 1e-4, 1e-4)
         ru = np.empty((5, 3))
         for c, opc in enumerate((op._replace(wf=op.wf + du[0]), op._replace(vsv=op.vsv + du[1]),
                                  op._replace(vbv=op.vbv + du[2]))):
-            rc = self.evaluate(opc, z)[0]
+            rc = self.evaluate(opc, z, False)[0]
             ru[:, c] = [(rc[i] - r0[i]) / du[c] for i in range(5)]
         inv = np.linalg.inv(jac)
         self.jinv = inv.tolist()
@@ -205,6 +209,7 @@ def run_one(
         u = out.u
         wf = u[0] * LBM
         op = Operating(x[0], x[1], x[2] / RANKINE, x[3] / RANKINE, wf, u[1], u[2], fc, None)
+        solver.full = k % record_every == 0
         z1, st = solve(op, z2 if op2 is None else solver.predict(z2, op2, op))
         if k % record_every == 0:
             y, aux = outputs_from_stations(st, op, SCALAR)
@@ -222,6 +227,7 @@ def run_one(
         fc = flight_condition(cond[0], cond[1], cond[2], SCALAR)
         xs = [xi + dt * ki for xi, ki in zip(x, k1, strict=True)]
         op2 = Operating(xs[0], xs[1], xs[2] / RANKINE, xs[3] / RANKINE, wf, u[1], u[2], fc, None)
+        solver.full = False
         z2, st2 = solve(op2, [a + b for a, b in zip(z1, dz12, strict=True)])
         dz12 = [a - b for a, b in zip(z2, z1, strict=True)]
         k2 = (st2["dnf"], st2["dnc"], st2["dtm_hpc"], st2["dtm_hpt"])

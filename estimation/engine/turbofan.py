@@ -156,11 +156,13 @@ def gas_path_columns(
     heat: bool = True,
     scheduled_actuators: bool = False,
     xp: Any = NP,
+    stations: bool = True,
 ) -> tuple[list[Any], dict[str, Any]]:
     """The cycle of ``gas_path`` on columns: z the five unknowns, hs the 13 health
     parameters as fractions (h / 100), each an array [B] with ``xp = NP`` or a
     float with ``xp = SCALAR`` (one engine; ``op`` then holds floats). Returns the
-    five residuals and the stations, in the same layout.
+    five residuals and the stations, in the same layout; ``stations=False`` keeps
+    only the state derivatives (dnf, dnc, dtm_hpc, dtm_hpt), t24 and ps30.
     """
     fc = op.fc
     wf = op.wf * (1.0 + hs[10])
@@ -244,13 +246,25 @@ def gas_path_columns(
         (w45_map - w4) / d.w4,
         (w8 - w4) / d.w4,
     ]
-    power = {
-        "fan": w2 * dh_fan, "lpc": w_core * dh_lpc, "hpc": w25 * dh_hpc,
-        "hpt": w4 * dh_hpt, "lpt": w4 * dh_lpt,
-    }
+    p_fan, p_lpc, p_hpc = w2 * dh_fan, w_core * dh_lpc, w25 * dh_hpc
+    p_hpt, p_lpt = w4 * dh_hpt, w4 * dh_lpt
+    lp_surplus = d.eta_mech * p_lpt - p_fan - p_lpc
+    hp_surplus = d.eta_mech * p_hpt - p_hpc
+    # What a transient step needs: the state derivatives and the sensors the
+    # controller reads besides the spool speeds.
+    dynamics = dict(
+        dnf=lp_surplus / (d.j_lp * _RPM2 * op.nf),
+        dnc=hp_surplus / (d.j_hp * _RPM2 * op.nc),
+        dtm_hpc=q_hpc / d.mc_hpc * RANKINE,
+        dtm_hpt=q_hpt / d.mc_hpt * RANKINE,
+        t24=t24,
+        ps30=static_pressure(p3, t3, w25, d.a_30, xp),
+    )
+    if not stations:
+        return res, dynamics
     st = dict(
         t2=t2, p2=p2, p_amb=pamb, v0=fc.v0, w2=w2, t13=t13, p13=p13, p15=p15,
-        w_core=w_core, w_byp=w_byp, w18=w18, t24=t24, p24=p24, w_vbv=w_vbv, w25=w25,
+        w_core=w_core, w_byp=w_byp, w18=w18, p24=p24, w_vbv=w_vbv, w25=w25,
         w_hpc=w_hpc, t3=t3, t3_adiabatic=t3a, p3=p3, q_hpc=q_hpc, t4=t4, p4=p4, far=far,
         wf=wf, w4=w4, t45=t45, t45_adiabatic=t45a, p45=p45, q_hpt=q_hpt, t5=t5, p5=p5,
         w8=w8, fg_byp=fg_byp, fg_core=fg_core, fn=fg_byp + fg_core - w2 * fc.v0,
@@ -265,17 +279,12 @@ def gas_path_columns(
         sm_lpc=stall_margin(d.lpc, wc21, pr_lpc, 1.0, xp),
         sm_hpc=stall_margin(d.hpc, wc25, pr_hpc, flow_vsv, xp),
         tm_hpc_eq=t3a, tm_hpt_eq=t_gas_hpt,
-        ps30=static_pressure(p3, t3, w25, d.a_30, xp),
-        power_fan=power["fan"], power_lpc=power["lpc"], power_hpc=power["hpc"],
-        power_hpt=power["hpt"], power_lpt=power["lpt"],
+        power_fan=p_fan, power_lpc=p_lpc, power_hpc=p_hpc, power_hpt=p_hpt, power_lpt=p_lpt,
         # Spool power balances over design fan / HPC power (steady-state residuals).
-        lp_balance=(d.eta_mech * power["lpt"] - power["fan"] - power["lpc"]) / d.power_fan,
-        hp_balance=(d.eta_mech * power["hpt"] - power["hpc"]) / d.power_hpc,
-        dnf=(d.eta_mech * power["lpt"] - power["fan"] - power["lpc"]) / (d.j_lp * _RPM2 * op.nf),
-        dnc=(d.eta_mech * power["hpt"] - power["hpc"]) / (d.j_hp * _RPM2 * op.nc),
-        dtm_hpc=q_hpc / d.mc_hpc * RANKINE,
-        dtm_hpt=q_hpt / d.mc_hpt * RANKINE,
+        lp_balance=lp_surplus / d.power_fan,
+        hp_balance=hp_surplus / d.power_hpc,
     )
+    st.update(dynamics)
     return res, st
 
 
