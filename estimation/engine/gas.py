@@ -65,9 +65,10 @@ def isentropic_temperature_ab(
     log = xp.log
     target = a * log(t1) + b * t1 + R_GAS * log(pressure_ratio)
     t = t1 * pressure_ratio ** (R_GAS / (a + b * t1))
-    for _ in range(3):
-        t = t - (a * log(t) + b * t - target) / (a / t + b)
-    return t
+    # Three Newton steps, written out (the cycle calls this five times per evaluation).
+    t = t - (a * log(t) + b * t - target) / (a / t + b)
+    t = t - (a * log(t) + b * t - target) / (a / t + b)
+    return t - (a * log(t) + b * t - target) / (a / t + b)
 
 
 def cp(t: Real, far: Real | float = 0.0) -> np.ndarray:

@@ -35,7 +35,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from estimation.engine.atmosphere import flight_condition
+from estimation.engine.atmosphere import PSI, RANKINE, flight_condition
 from estimation.engine.controller import (
     DEFAULT_GAINS,
     ControllerGains,
@@ -111,6 +111,8 @@ class _GasPathSolver:
         self.b = b
         self.evaluations = 0
         self.calls = 0
+        # Every station (a recorded sample) or only what the step needs.
+        self.full = True
 
     def _refresh(self, op: Operating, z: np.ndarray, rows: np.ndarray) -> None:
         """Jacobians by forward differences in one stacked call: d residual / d z
@@ -130,7 +132,7 @@ class _GasPathSolver:
         vsv[(m + 1) * k:(m + 2) * k] += du[:, 1]
         vbv[(m + 2) * k:(m + 3) * k] += du[:, 2]
         stacked = stacked._replace(wf=wf, vsv=vsv, vbv=vbv)
-        r = gas_path(stacked, zs, self.d)[0].reshape(n + 4, k, n)
+        r = gas_path(stacked, zs, self.d, stations=False)[0].reshape(n + 4, k, n)
         self.evaluations += 1
         jac = np.transpose((r[1:m] - r[0]) / _FD_EPS, (1, 2, 0))
         ru = np.transpose((r[m:] - r[0]) / du.T[:, :, None], (1, 2, 0))  # [k, n, 3]
@@ -158,7 +160,7 @@ class _GasPathSolver:
         z = z0.copy()
         if self.jinv is None:
             self._refresh(op, z, np.arange(self.b))
-        res, st = gas_path(op, z, self.d)
+        res, st = gas_path(op, z, self.d, stations=self.full)
         self.evaluations += 1
         return self._converge(op, z, res, st, np.ones(self.b, dtype=bool))
 
@@ -178,9 +180,9 @@ class _GasPathSolver:
             assert self.jinv is not None
             z[rows] -= np.einsum("bij,bj->bi", self.jinv[rows], res[rows])
             if rows.size == self.b:
-                res, st = gas_path(op, z, self.d)
+                res, st = gas_path(op, z, self.d, stations=self.full)
             else:
-                res_b, st_b = gas_path(op.take(rows), z[rows], self.d)
+                res_b, st_b = gas_path(op.take(rows), z[rows], self.d, stations=self.full)
                 res[rows] = res_b
                 for key, val in st_b.items():
                     st[key][rows] = val
@@ -207,7 +209,7 @@ class _GasPathSolver:
         self.calls += 1
         if self.jinv is None or self.calls % _REFRESH_EVERY == 0:
             self._refresh(op, z0, np.arange(self.b))
-        res, st = gas_path(op, z0, self.d)
+        res, st = gas_path(op, z0, self.d, stations=self.full)
         self.evaluations += 1
         assert self.jinv is not None
         z = z0 - np.einsum("bij,bj->bi", self.jinv, res)
@@ -342,6 +344,7 @@ def simulate(
         )
         u = out.u
         op = operating(x, u, _env(cond), h)
+        solver.full = k % record_every == 0
         # The last second stage sat at this time and nearly these states, with
         # the previous commands: start from it, moved by the command change.
         z1, st = solve(op, z2 if op2 is None else solver.predict(z2, op2, op))
@@ -358,13 +361,15 @@ def simulate(
         k1 = np.stack([st["dnf"], st["dnc"], st["dtm_hpc"], st["dtm_hpt"]], axis=1)
         cond_next = _broadcast(sched(t + dt), b)
         op2 = operating(x + dt * k1, u, _env(cond_next), h)
+        solver.full = False
         z2, st2 = solve(op2, z1 + dz12)
         dz12 = z2 - z1
         k2 = np.stack([st2["dnf"], st2["dnc"], st2["dtm_hpc"], st2["dtm_hpt"]], axis=1)
         x = x + 0.5 * dt * (k1 + k2)
         # The second stage sits at t_k+1 with x_k + dt k1 = x_k+1 + O(dt^2): its
         # sensors are the controller's next sample (commands applied without delay).
-        y_ctrl = outputs_from_stations(st2, op2)[0]
+        y_ctrl[:, _NF], y_ctrl[:, _NC] = op2.nf, op2.nc
+        y_ctrl[:, _T24], y_ctrl[:, _PS30] = st2["t24"] * RANKINE, st2["ps30"] / PSI
     return TransientResult(
         rec_t, rec_x, rec_u, rec_y, rec_m, rec_aux, OperatingPoint(*rec_cond), rec_lim
     )

@@ -145,14 +145,14 @@ class ScalarGasPath:
     def _converge(self, op: Operating, z: Vector, res: Vector, st: Stations
                   ) -> tuple[Vector, Stations]:
         for it in range(self.max_iter):
-            err = max(abs(r) for r in res)
+            err = max(map(abs, res))
             if err <= (self.polish if it == 0 else self.tol):
                 return z, st
             if it >= 3:
                 self._refresh(op, z)
             z = self._chord(z, res)
             res, st = self.evaluate(op, z)
-        err = max(abs(r) for r in res)
+        err = max(map(abs, res))
         if not err <= self.tol:
             raise EngineConvergenceError(
                 f"gas path did not converge in the transient for engines [0] "
@@ -165,7 +165,7 @@ class ScalarGasPath:
         if self.jinv is None or self.calls % self.every == 0:
             self._refresh(op, z0)
         res, st = self.evaluate(op, z0)
-        if max(abs(r) for r in res) > self.limit:
+        if max(map(abs, res)) > self.limit:
             return self._converge(op, list(z0), res, st)
         return self._chord(z0, res), st
 

@@ -132,6 +132,7 @@ def gas_path(
     d: EngineDesign,
     heat: bool = True,
     scheduled_actuators: bool = False,
+    stations: bool = True,
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Residuals [B, 5] of the five flow matches and every station value.
 
@@ -139,11 +140,12 @@ def gas_path(
     metal temperatures are then the gas temperatures they settle at.
     ``scheduled_actuators=True`` commands VSV and VBV by their nominal schedules
     on corrected core speed instead of ``op.vsv``, ``op.vbv`` (steady state).
+    ``stations=False``: only the state derivatives, t24 and ps30 (a transient step).
     """
     hs = op.h / 100.0
     res, st = gas_path_columns(
         op, [z[:, i] for i in range(5)], [hs[:, i] for i in range(N_HEALTH)], d,
-        heat, scheduled_actuators, NP,
+        heat, scheduled_actuators, NP, stations,
     )
     return np.stack(res, axis=1), st
 
