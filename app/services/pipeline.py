@@ -64,9 +64,9 @@ log = logging.getLogger("fleethealth.pipeline")
 # Detector settings (records are snapshots; a flight gives one to three).
 N_BASE = 30  # records averaged into the baseline
 GAP = 15  # the baseline ends this many records before the alarm (the fault's onset)
-N_CONFIRM = 80  # records between an alarm and its isolation (the filter settles)
-N_AVG = 20  # records averaged for the isolated change
-WARMUP = 150  # records after a start, maintenance or event before the detector arms
+N_CONFIRM = 20  # records between an alarm and its isolation (fitted in sensor space)
+N_AVG = 10  # records averaged for the tuner change shown with an event
+WARMUP = 60  # records after a start, maintenance or event before the detector arms
 S_MEAN_RATE = 1.0 / 200.0  # memory of the in-control mean of the detector statistic
 S_MEAN_CAP = 30.0  # samples above this many times m count as this much
 DETECTOR_INPUT = "level"  # "level": q_hat against the baseline; "update": q_hat[k] - q_hat[k-1]
@@ -75,6 +75,11 @@ ARL0 = 20_000.0  # mean records between false alarms of the CUSUM (theory, indep
 ISOLATION_LEVEL = 0.999  # WSSR quantile below which the best fault explains the change
 MAGNITUDE_RANGE = (0.5, 3.0)  # fitted fault magnitudes that count as that fault (x nominal)
 SHIFT_LEVEL = 1e-6  # an unexplained change must be this improbable under no change
+ISOLATE_IN = "sensors"  # "sensors": records after the alarm fitted in sensor space; "tuners"
+SENSOR_ISOLATION_LEVEL = 0.999  # WSSR quantile (sensor space) below which a fault explains it
+# Linearisation error (health several percent from the trim) leaves a WSSR per sensor value
+# above 1 even for the right fault: the quantile is scaled by this much.
+SENSOR_WSSR_MARGIN = 1.5
 # Filter settings: tuner random walk per flight (percent), fleet spread at start (percent).
 WALK_STD = 0.05
 FLEET_STD = 1.5
@@ -191,6 +196,7 @@ class SnapshotEstimator:
     P0: np.ndarray  # [m, m] start covariance
     noise_std: np.ndarray  # [ny] percent
     H: np.ndarray  # [m, n_faults] tuner change per library fault (nominal magnitude)
+    S_full: np.ndarray  # [p + nu, n_faults] library shifts in health and actuator-bias space
     fault_shifts: tuple[dict[str, float], ...]
     schedule: Schedule
     cusum: CusumDesign
@@ -256,6 +262,7 @@ def build_estimator(
     usable = np.sum(H**2, axis=0) > 1e-12
     library = tuple(f for f, ok in zip(library, usable, strict=True) if ok)
     H = H[:, usable]
+    S = S[:, usable]
 
     layout = EstimateLayout(
         tuners=tuple(f"q{i + 1}" for i in range(m)),
@@ -294,6 +301,7 @@ def build_estimator(
         P0=0.5 * (P0 + P0.T),
         noise_std=np.sqrt(np.asarray(model.sensor_noise_std, float) ** 2 + MODEL_ERROR**2),
         H=H,
+        S_full=S,
         fault_shifts=tuple(dict(f.shifts) for f in library),
         schedule=schedule or single_point_schedule(model),
         cusum=cusum_for(m),
@@ -527,9 +535,74 @@ def level_statistic(q: np.ndarray, baseline: np.ndarray, P: np.ndarray) -> float
         return 0.0
 
 
+class RecordObservation(NamedTuple):
+    """One record's measurement, for isolation in sensor space.
+
+    dy [ny] (percent of trim, NaN = missing), G_y [ny, p], signatures [ny, n_faults] (the
+    sensor change of each library fault at nominal magnitude, health and actuator-bias
+    columns of the record's own gains), var [ny] (noise variance, percent^2).
+    """
+
+    dy: np.ndarray
+    G_y: np.ndarray
+    signatures: np.ndarray
+    var: np.ndarray
+
+
+def accumulate_sensor_fit(
+    est: SnapshotEstimator, pending: dict[str, Any], obs: RecordObservation
+) -> None:
+    """Add one record to the pending alarm's least-squares fit of each fault in sensor space.
+
+    With r_j = dy_j - G_y,j V*^+ q_0 (the record against the baseline tuners q_0) and g_ij the
+    signature of fault i at record j, the weighted fit over the records j after the alarm is
+    f_i = b_i / a_i and WSSR_i = c - b_i^2 / a_i (seed 002 eq. 21-23 with H_i the stacked
+    g_ij and the noise covariance diagonal), from the sums a_i = sum g^T W g,
+    b_i = sum g^T W r, c = sum r^T W r and the count n of sensor values: four numbers a fault
+    carry the fit, so the detector state stays small.
+    """
+    base = np.asarray(pending["baseline"], float)
+    r = obs.dy - obs.G_y @ (est.Vp @ base)
+    present = np.isfinite(r)
+    if not present.any():
+        return
+    w = np.where(present, 1.0 / obs.var, 0.0)
+    r = np.where(present, r, 0.0)
+    g = np.where(present[:, None], obs.signatures, 0.0)
+    a = np.einsum("i,if,if->f", w, g, g)
+    b = np.einsum("i,if,i->f", w, g, r)
+    fit = pending.setdefault("fit", {"a": [0.0] * len(a), "b": [0.0] * len(b), "c": 0.0,
+                                     "n": 0})
+    fit["a"] = (np.asarray(fit["a"]) + a).tolist()
+    fit["b"] = (np.asarray(fit["b"]) + b).tolist()
+    fit["c"] = float(fit["c"] + np.sum(w * r * r))
+    fit["n"] = int(fit["n"] + present.sum())
+
+
+def _isolate(
+    est: SnapshotEstimator, pending: Mapping[str, Any], change: np.ndarray, P: np.ndarray
+) -> EventDraft | None:
+    """The pending alarm's event: isolated in sensor space when the records after the alarm
+    were accumulated (``accumulate_sensor_fit``), else on the tuner change."""
+    fit = pending.get("fit")
+    if ISOLATE_IN == "sensors" and fit is not None and fit["n"] > 1:
+        a, b, c, n = np.asarray(fit["a"]), np.asarray(fit["b"]), float(fit["c"]), fit["n"]
+        ok = a > 0
+        f = np.where(ok, b / np.where(ok, a, 1.0), 0.0)
+        wssr = np.where(ok, np.maximum(c - b * f, 0.0), c)
+        return _event(est, pending, change, wssr, f, P,
+                      SENSOR_WSSR_MARGIN * float(stats.chi2.ppf(SENSOR_ISOLATION_LEVEL, n - 1)),
+                      c, float(stats.chi2.isf(SHIFT_LEVEL, n)))
+    wssr, f = wssr_all(change, P, est.H)
+    distance = float(change @ np.linalg.solve(P, change))
+    return _event(est, pending, change, wssr, f, P, est.wssr_threshold, distance,
+                  est.shift_threshold)
+
+
 def detect_step(
     est: SnapshotEstimator, det: Detector, seq: int, epoch: float, q: np.ndarray,
     P: np.ndarray, q_prev: np.ndarray, P_prior: np.ndarray, reset: bool,
+    obs: RecordObservation | None = None,
 ) -> tuple[np.ndarray, EventDraft | None]:
     """One record through the detector: WSSR per fault against the baseline (NaN without one),
     and the event when an alarm's isolation is due."""
@@ -545,8 +618,7 @@ def detect_step(
             # This record's P is already widened by the maintenance action: isolate with the
             # covariance of the records the change comes from.
             P_last = np.asarray(pending.get("P", P), float)
-            wssr, f = wssr_all(change, P_last, est.H)
-            early = _event(est, pending, change, wssr, f, P_last)
+            early = _isolate(est, pending, change, P_last)
         det.reset()
     base_before = det.baseline()
     det.warm += 1
@@ -557,12 +629,14 @@ def detect_step(
         pending = det.pending
         pending["wait"] -= 1
         pending["P"] = P.tolist()
+        if obs is not None:
+            accumulate_sensor_fit(est, pending, obs)
         base = np.asarray(pending["baseline"])
+        wssr = wssr_all(q - base, P, est.H)[0]
         if pending["wait"] > 0:
-            return wssr_all(q - base, P, est.H)[0], None
+            return wssr, None
         change = np.mean(np.asarray(det.history[-N_AVG:]), axis=0) - base
-        wssr, f = wssr_all(change, P, est.H)
-        draft = _event(est, pending, change, wssr, f, P)
+        draft = _isolate(est, pending, change, P)
         det.reset()
         return wssr, draft
     if DETECTOR_INPUT == "level":
@@ -592,13 +666,16 @@ def detect_step(
     if det.S > est.cusum.threshold:
         det.pending = {"seq": seq, "epoch": epoch, "statistic": det.S, "wait": N_CONFIRM,
                        "baseline": base_before.tolist(), "P": P.tolist()}
+        if obs is not None:
+            accumulate_sensor_fit(est, det.pending, obs)
         det.S = 0.0
     return wssr_all(q - base_before, P, est.H)[0], early
 
 
 def _event(
     est: SnapshotEstimator, pending: Mapping[str, Any], change: np.ndarray, wssr: np.ndarray,
-    f: np.ndarray, P: np.ndarray,
+    f: np.ndarray, P: np.ndarray, wssr_threshold: float, distance: float,
+    shift_threshold: float,
 ) -> EventDraft | None:
     """The event of an alarm, or None when the change is too small to matter.
 
@@ -611,10 +688,9 @@ def _event(
     best = int(np.argmin(wssr)) if len(names) else None
     lo, hi = MAGNITUDE_RANGE
     isolated = (
-        best is not None and wssr[best] <= est.wssr_threshold and lo <= f[best] <= hi
+        best is not None and wssr[best] <= wssr_threshold and lo <= f[best] <= hi
     )
-    distance = float(change @ np.linalg.solve(P, change))
-    if not isolated and distance < est.shift_threshold:
+    if not isolated and distance < shift_threshold:
         return None
     h_change = est.Vp @ change
     fault_shift = {}
@@ -632,7 +708,7 @@ def _event(
             "tuners": {n: float(v) for n, v in zip(est.layout.tuners, change, strict=True)},
             "health": {n: float(v) for n, v in zip(est.layout.health, h_change, strict=True)},
             "fault": fault_shift,
-            "wssr_threshold": est.wssr_threshold,
+            "wssr_threshold": wssr_threshold,
             "nearest": names[best] if best is not None else None,
             "distance": distance,
         },
@@ -687,6 +763,8 @@ def run_filters(est: SnapshotEstimator, runs: Sequence[EngineRun]) -> list[Engin
         G_z = np.zeros((E, S, len(est.layout.aux), est.Vp.shape[0]))
         resets = np.zeros((E, S), dtype=bool)
         noise = np.broadcast_to(est.noise_std, (E, S, ny)).copy()
+        n_faults = est.S_full.shape[1]
+        signatures = np.zeros((E, S, ny, n_faults))
         for e, r in enumerate(runs):
             n = max(0, min(c1, len(r.epoch)) - c0)
             if n == 0:
@@ -696,6 +774,13 @@ def run_filters(est: SnapshotEstimator, runs: Sequence[EngineRun]) -> list[Engin
             u_dev = np.where(np.isfinite(u_dev), u_dev, 0.0)  # a missing actuator: at trim
             dy[e, :n] = snapshot_deviation(r.y[c0 : c0 + n], g.y_trim, g.G_u, u_dev)
             G_y[e, :n] = g.G_y
+            # Each fault's sensor change at the record's own condition: health columns through
+            # G_y, actuator-bias columns through G_u (MATH.md section 4, in sensor space).
+            p_h = G_y.shape[-1]
+            signatures[e, :n] = (
+                np.einsum("syp,pf->syf", g.G_y, est.S_full[:p_h])
+                + np.einsum("syu,uf->syf", g.G_u, est.S_full[p_h:])
+            )
             if g.noise_std is not None:
                 noise[e, :n] = np.sqrt(g.noise_std**2 + MODEL_ERROR**2)
             G_z[e, :n] = g.G_z
@@ -741,7 +826,8 @@ def run_filters(est: SnapshotEstimator, runs: Sequence[EngineRun]) -> list[Engin
             q_prev = np.concatenate([filt[e].q_hat, q[:-1]])
             P_prior = np.concatenate([filt[e].P, P[:-1]]) + scale[e, :n, None, None] * est.Qq
             blobs = est.layout.pack(
-                _wssr_filled(est, det, r, c0, n, q, P, q_prev, P_prior, resets[e], values, out)
+                _wssr_filled(est, det, r, c0, n, q, P, q_prev, P_prior, resets[e], values, out,
+                             (dy[e, :n], G_y[e, :n], signatures[e, :n], noise[e, :n] ** 2))
             )
             for j in range(n):
                 k = c0 + j
@@ -768,14 +854,19 @@ def _wssr_filled(
     est: SnapshotEstimator, det: Detector, r: EngineRun, c0: int, n: int, q: np.ndarray,
     P: np.ndarray, q_prev: np.ndarray, P_prior: np.ndarray, resets: np.ndarray,
     values: np.ndarray, out: EngineOutput,
+    records: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
-    """Run the detector over the chunk, fill the WSSR block, collect events and checkpoints."""
+    """Run the detector over the chunk, fill the WSSR block, collect events and checkpoints.
+
+    records: (dy [n, ny], G_y [n, ny, p], signatures [n, ny, n_faults], var [n, ny]) of the
+    chunk's records, for isolation in sensor space."""
     s = est.layout.slices()["wssr"]
     for j in range(n):
         seq = r.seq0 + c0 + j
         epoch = float(r.epoch[c0 + j])
+        obs = None if records is None else RecordObservation(*(a[j] for a in records))
         wssr, draft = detect_step(
-            est, det, seq, epoch, q[j], P[j], q_prev[j], P_prior[j], bool(resets[j])
+            est, det, seq, epoch, q[j], P[j], q_prev[j], P_prior[j], bool(resets[j]), obs
         )
         values[j, s] = wssr
         if draft is not None:
