@@ -54,7 +54,7 @@ from app.models.base import utcnow
 from app.models.estimates import EstimateLayout
 from app.models.ingest import ACTUATORS, SENSORS, SignalSpec
 from app.models.stream_estimates import StreamEstimate, StreamFilterState
-from app.services import models_designs, pipeline, streams, units
+from app.services import fleet, models_designs, pipeline, streams, units
 from estimation.engine.schedule import EngineSchedule
 from estimation.kalman import filter_stream_states, steady_state_gain
 from estimation.model import LinearModel
@@ -599,13 +599,13 @@ def read_estimates(
     recording = streams.get_recording(session, operator_id=operator_id, recording_id=recording_id)
     stmt = select(StreamFilterState).where(StreamFilterState.recording_id == recording.id)
     if design_id is not None:
+        fleet.owned(session, EstimatorDesign, operator_id, design_id, "design")
         stmt = stmt.where(StreamFilterState.design_id == design_id)
     state = session.scalars(stmt.order_by(StreamFilterState.updated_at.desc(),
                                           StreamFilterState.id.desc()).limit(1)).first()
-    if state is None:
-        if design_id is not None:
-            raise NotFound(f"recording {recording.id} has no estimates under design {design_id}")
-        return StreamSeries(recording, None, None, WINDOW_S, 0, np.zeros(0), np.zeros((0, 0)))
+    if state is None:  # not estimated (yet, or under that design)
+        return StreamSeries(recording, design_id, None, WINDOW_S, 0, np.zeros(0),
+                            np.zeros((0, 0)))
     layout = EstimateLayout.from_dict(state.layout)
     got = session.execute(
         select(StreamEstimate.t_s, StreamEstimate.n, StreamEstimate.packed)

@@ -358,6 +358,12 @@ def test_the_trend_endpoint_json_csv_viewer_and_tenants(
     back = pacsv.read_csv(io.BytesIO(csv.content))
     np.testing.assert_allclose(back["q_hat.q1"].to_numpy(), body["q_hat"]["q1"])
     assert client.get(url, headers=fleet_data.other).status_code == 404
+    other_design = client.get(url, params={"design_id": 999_999}, headers=fleet_data.viewer)
+    assert other_design.status_code == 404
+    # Before any estimate: an empty series, not an error.
+    fresh = _upload_file(client, fleet_data, _simulate(model, 100, Q_TRUE, seed=7), 1)
+    empty = client.get(f"/api/v1/streams/{fresh['id']}/estimates", headers=fleet_data.viewer)
+    assert empty.status_code == 200 and empty.json()["t_s"] == []
     assert client.get("/api/v1/streams/999999/estimates", headers=fleet_data.viewer
                       ).status_code == 404
 
