@@ -37,6 +37,7 @@ from estimation.engine.turbofan import (
 from estimation.engine.xp import SCALAR, SCALAR_ERRORS
 
 Vector = list[float]
+_NOISE_BLOCK = 4096  # steps of sensor noise drawn at once
 Stations = dict[str, Any]
 
 
@@ -193,11 +194,17 @@ def run_one(
     dz12 = [0.0] * 5
     cond = sched(0.0)
     fc = flight_condition(cond[0], cond[1], cond[2], SCALAR)
+    # Noise is drawn in blocks of steps: the same numbers, in the same order, as
+    # one draw of 12 per step (the batch path's), and exactly as many.
+    block = np.empty((0, 12))
     for k in range(n_steps + 1):
         t = k * dt
         if noisy:
             assert rng is not None and ns is not None
-            noise = rng.standard_normal(12) * ns
+            j = k % _NOISE_BLOCK
+            if j == 0:
+                block = rng.standard_normal((min(_NOISE_BLOCK, n_steps + 1 - k), 12)) * ns
+            noise = block[j]
             nz = noise.tolist()
             m_nf, m_nc = y_ctrl[i_nf] + nz[i_nf], y_ctrl[i_nc] + nz[i_nc]
             m_t24, m_ps30 = y_ctrl[i_t24] + nz[i_t24], y_ctrl[i_ps30] + nz[i_ps30]

@@ -39,14 +39,17 @@ def test_scalar_path_follows_the_batch_through_a_throttle_slam_with_noise() -> N
         return OperatingPoint(np.array([1000.0]), np.array([0.1]), np.array([3.0]),
                               np.array([10.0 if t < 0.3 else 100.0]))
 
+    rngs = [np.random.default_rng(7), np.random.default_rng(7)]
     runs = [
-        simulate(slam, 6.0, health=HEALTH, noise_std=STD, rng=np.random.default_rng(7),
-                 record_every=3, scalar_path=scalar)
-        for scalar in (True, False)
+        simulate(slam, 6.0, health=HEALTH, noise_std=STD, rng=rng, record_every=3,
+                 scalar_path=scalar)
+        for scalar, rng in zip((True, False), rngs, strict=True)
     ]
     assert np.ptp(runs[1].x[:, 0, 0]) > 100.0  # the fan really accelerates
     assert (runs[1].limited != 0).any()
     _assert_same(*runs)
+    # Both drew the same noise, and as much of it: the generators go on alike.
+    assert rngs[0].standard_normal() == rngs[1].standard_normal()
 
 
 def test_scalar_path_equals_a_row_of_a_batch_on_a_flight_profile() -> None:
