@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 from typing import Annotated
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
 from fastapi import APIRouter, Query, Request, Response
@@ -42,6 +43,13 @@ def queue_recording_estimation(
     store.dispatch_after_commit(session, request.app.state.job_dispatcher.dispatch, job.id)
 
 
+def _numbers(values: np.ndarray) -> list[float | None]:
+    """Floats for JSON; a window without a value (a sensor missing throughout) is null."""
+    if np.all(np.isfinite(values)):
+        return values.tolist()  # type: ignore[no-any-return]
+    return [float(v) if np.isfinite(v) else None for v in values]
+
+
 @router.get(
     "/{recording_id}/estimates",
     response_model=StreamEstimatesOut,
@@ -63,15 +71,15 @@ def recording_estimates(
     )
     layout = series.layout
     sl = layout.slices() if layout is not None else {}
-    out: dict[str, dict[str, list[float]]] = {}
+    out: dict[str, dict[str, list[float | None]]] = {}
     for key, block, group in SERIES:
         names = layout.names(group) if layout is not None else ()
         values = series.values[:, sl[block]] if layout is not None else None
         out[key] = {
-            name: values[:, k].tolist() for k, name in enumerate(names)
+            name: _numbers(values[:, k]) for k, name in enumerate(names)
         } if values is not None else {}
     if fmt == "csv":
-        columns: dict[str, list[float]] = {"t_s": series.t_s.tolist()}
+        columns: dict[str, list[float | None]] = {"t_s": _numbers(series.t_s)}
         for key, _block, _group in SERIES:
             for name, column in out[key].items():
                 columns[f"{key}.{name}"] = column

@@ -17,10 +17,10 @@ class StreamEstimatesOut(BaseModel):
     n_samples_estimated: int = Field(description="samples the filter has run over")
     names: dict[str, list[str]] = Field(description="tuners, health, aux, sensors")
     t_s: list[float]
-    q_hat: dict[str, list[float]]
-    q_sigma: dict[str, list[float]]
-    h_hat: dict[str, list[float]]
-    h_sigma: dict[str, list[float]]
-    z_hat: dict[str, list[float]]
-    z_sigma: dict[str, list[float]]
-    residual: dict[str, list[float]] = Field(description="innovation per sensor, % of trim")
+    q_hat: dict[str, list[float | None]]
+    q_sigma: dict[str, list[float | None]]
+    h_hat: dict[str, list[float | None]]
+    h_sigma: dict[str, list[float | None]]
+    z_hat: dict[str, list[float | None]]
+    z_sigma: dict[str, list[float | None]]
+    residual: dict[str, list[float | None]] = Field(description="innovation per sensor, % of trim")

@@ -287,6 +287,30 @@ def _first_outside(cond: np.ndarray, start: int, anchor: np.ndarray) -> int:
     return S
 
 
+def _filter_run(g: SegmentGain, ys: np.ndarray, us: np.ndarray, x_prev: np.ndarray,
+                u_prev: np.ndarray) -> np.ndarray:
+    """x_hat [L, n] over samples ys [L, ny], us [L, nu] with one gain. A sample missing a
+    sensor (null) is not a measurement: x_hat is the prediction A x_hat + B du there."""
+    missing = np.isnan(ys).any(axis=1)
+    L = ys.shape[0]
+    if not missing.any():
+        return filter_stream_states(g.A, g.C, g.K, ys[:, None, :], u=us[:, None, :], B=g.B,
+                                    D=g.D, x0=x_prev, u_prev=u_prev)[:, 0, :]
+    x = np.empty((L, g.A.shape[0]))
+    k = 0
+    while k < L:
+        if missing[k]:
+            x[k] = g.A @ x_prev + g.B @ u_prev
+            x_prev, u_prev, k = x[k], us[k], k + 1
+            continue
+        rest = missing[k:]
+        e = k + int(np.argmax(rest)) if rest.any() else L
+        x[k:e] = filter_stream_states(g.A, g.C, g.K, ys[k:e, None, :], u=us[k:e, None, :],
+                                      B=g.B, D=g.D, x0=x_prev, u_prev=u_prev)[:, 0, :]
+        x_prev, u_prev, k = x[e - 1], us[e - 1], e
+    return x
+
+
 @dataclass
 class Carry:
     """The filter state between samples: x_hat and du of the last sample, the anchor."""
@@ -323,8 +347,7 @@ def filter_piece(
             continue
         g = est.gain(est.snapped(anchor), dt)
         ys, us = dy[i:j], du[i:j]
-        x = filter_stream_states(g.A, g.C, g.K, ys[:, None, :], u=us[:, None, :], B=g.B, D=g.D,
-                                 x0=x_prev, u_prev=u_prev)[:, 0, :]
+        x = _filter_run(g, ys, us, x_prev, u_prev)
         # Innovation dy - C x_pred - D du with x_pred = A x_hat[k-1] + B du[k-1].
         xp = np.vstack([x_prev[None, :], x[:-1]])
         up = np.vstack([u_prev[None, :], us[:-1]])
@@ -489,7 +512,12 @@ def estimate_one(
             at_restart = got
         starts = np.arange(0, S, W)
         counts = np.diff(np.append(starts, S))
-        means = np.add.reduceat(rows, starts, axis=0) / counts[:, None]
+        # Window means over the finite values (a missing sensor has no residual there).
+        finite = np.isfinite(rows)
+        sums = np.add.reduceat(np.where(finite, rows, 0.0), starts, axis=0)
+        seen = np.add.reduceat(finite.astype(np.int64), starts, axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            means = np.where(seen > 0, sums / np.maximum(seen, 1), np.nan)
         blobs = est.layout.pack(means)
         w0 = (start + p0) // W
         session.execute(insert(StreamEstimate), [

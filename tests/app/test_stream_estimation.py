@@ -114,10 +114,10 @@ def _csv(table: pa.Table) -> bytes:
 
 
 def _upload_file(client: TestClient, fleet: Fleet, table: pa.Table, position: int,
-                 start=START) -> dict[str, Any]:
+                 start=START, tail: str = "N101") -> dict[str, Any]:
     response = client.post(
         "/api/v1/streams", content=_csv(table), headers={**fleet.analyst, **CSV},
-        params={"tail": "N101", "position": position, "started_at": start.isoformat()},
+        params={"tail": tail, "position": position, "started_at": start.isoformat()},
     )
     assert response.status_code == 201, response.text[:400]
     return response.json()["recording"]
@@ -379,3 +379,35 @@ def test_job_kind_is_registered_and_internal() -> None:
     with pytest.raises(Exception, match="recording_id"):
         kind.validate({})
 
+
+
+def test_samples_missing_a_sensor_are_predicted_not_measured(
+    client: TestClient, session: Session, fleet_data: Fleet, settings: Settings
+) -> None:
+    model = _model()
+    _activate(session, fleet_data, model, _design_document(model))
+    n = 2000
+    table = _simulate(model, n, Q_TRUE, seed=8)
+    gap = slice(600, 660)  # three seconds without T30 (null cells)
+    t30 = table["T30"].to_numpy().copy()
+    values = [None if gap.start <= k < gap.stop else float(v) for k, v in enumerate(t30)]
+    holed = table.set_column(table.schema.get_field_index("T30"), "T30",
+                             pa.array(values, pa.float64()))
+    full = _upload_file(client, fleet_data, table, 2)
+    gapped = _upload_file(client, fleet_data, holed, 1, tail="N102")  # another engine
+    for rec in (full, gapped):
+        _estimate(session, settings, fleet_data, rec["id"])
+    layout = EstimateLayout.from_dict(_state(session, gapped["id"]).layout)
+    sl = layout.slices()
+    a = layout.unpack([r[3] for r in _rows(session, full["id"])])
+    b = layout.unpack([r[3] for r in _rows(session, gapped["id"])])
+    assert np.all(np.isfinite(b[:, sl["q"]]))
+    # Before the gap the two runs agree exactly; the gap's windows have no T30 residual.
+    np.testing.assert_array_equal(b[:30], a[:30])
+    t30_col = sl["residual"].start + layout.sensors.index("T30")
+    assert np.all(np.isnan(b[30:33, t30_col])) and np.all(np.isfinite(b[33:, t30_col]))
+    # The missing three seconds leave the tuners within their 1-sigma of the full run's.
+    gap_q = b[-1, sl["q"]]
+    assert np.all(np.abs(gap_q - a[-1, sl["q"]]) < a[-1, sl["q_sigma"]])
+    body = client.get(f"/api/v1/streams/{gapped['id']}/estimates", headers=fleet_data.viewer)
+    assert body.status_code == 200 and body.json()["residual"]["T30"][30] is None
