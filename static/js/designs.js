@@ -11,7 +11,10 @@ let designs = [];
 let models = [];
 const cache = new Map();
 
-function squared(unit) { return unit === "%" ? "%²" : `${unit}²`; }
+function squared(unit) {
+  if (!unit || unit === "-" || unit === "1") return "dimensionless";
+  return `${unit}²`;
+}
 
 function unitsOf(result, group) {
   const signals = (result.model && result.model.signals && result.model.signals[group]) || [];
@@ -95,7 +98,9 @@ async function column(id, side) {
   if (conf && conf[variant]) {
     card.append(h("h3", {}, `Confusion matrix: ${VARIANTS[variant] || variant}, correct ${fmtNum(conf[variant].correct_rate, 1)} %`), confusion);
   } else {
-    card.append(h("p", { class: "muted" }, evaluation ? (evaluation.result.isolation_note || "No confusion matrix for this variant.") : "Confusion matrix: run the evaluation."));
+    // A placeholder as tall as the plot keeps the two columns aligned.
+    card.append(h("h3", {}, "Confusion matrix"), h("div", { class: "plot tall placeholder" },
+      evaluation ? (evaluation.result.isolation_note || "No confusion matrix for this variant.") : "No Monte Carlo evaluation yet: run one to see the confusion matrix."));
   }
   if (result.faults) card.append(h("h3", {}, `Misclassification probability (analytic), sum ${fmtNum(result.faults.pmc_sum, 3)}`), pmc);
   // Plot after the card is in the document, so the plots size to it.
@@ -173,10 +178,22 @@ async function create(e) {
     sensors, health: healthNames, noise: { Q: 1e-4, Qh: 1e-4, Ph: 4.0 },
   };
   button.disabled = true;
-  $("#create-status").textContent = "designing…";
+  $("#create-status").textContent = "checking the spec…";
   try {
-    const design = await api("/api/v1/designs", { method: "POST", body: { engine_model_id: model.id, name: $("#name").value.trim(), spec } });
+    // In the background: the spec is checked now (422 names what is wrong), the design step
+    // runs as a create_design job whose progress shows below, then the evaluation job.
+    const design = await api("/api/v1/designs", { method: "POST", query: { background: true },
+      body: { engine_model_id: model.id, name: $("#name").value.trim(), spec } });
     $("#create-status").textContent = `design ${design.id} ${design.status}`;
+    if (design.job_id) {
+      const done = await watchJob(await api(`/api/v1/jobs/${design.job_id}`), `Design step of design ${design.id}`);
+      if (done.status !== "succeeded") {
+        showError(message, new Error(done.error || `design job ${done.status}`), "Design not made");
+        await loadList();
+        return;
+      }
+    }
+    $("#create-status").textContent = `design ${design.id} ready`;
     await loadList(design.id);
     await evaluate(design.id);
   } catch (err) {

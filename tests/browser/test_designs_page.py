@@ -75,6 +75,11 @@ def test_create_a_design_and_watch_its_evaluation(
     page: Any, server: Server, console: Console
 ) -> None:
     sign_in(page, server.seeded.key, "/designs.html")
+    page.evaluate(
+        """() => { window.jobText = [];
+        new MutationObserver(() => window.jobText.push(document.querySelector('#job').innerText))
+        .observe(document.querySelector('#job'), {childList: true, subtree: true}); }"""
+    )
     page.fill("#name", "browser SVD m = 5")
     page.select_option("#method", "svd")
     page.fill("#tuners", "5")
@@ -86,6 +91,13 @@ def test_create_a_design_and_watch_its_evaluation(
                if d["name"] == "browser SVD m = 5"]
     assert len(created) == 1 and created[0]["spec"]["tuners"] == 5
     assert page.input_value("#b") == str(created[0]["id"])
+    # Both jobs were watched on the page: the design step, then the Monte Carlo evaluation.
+    seen = " ".join(page.evaluate("window.jobText"))
+    assert f"Design step of design {created[0]['id']}" in seen
+    assert f"Monte Carlo evaluation of design {created[0]['id']}" in seen
+    design_jobs = _get(server, "/api/v1/jobs?kind=create_design")["items"]
+    mine = [j for j in design_jobs if j["parameters"]["design_id"] == created[0]["id"]]
+    assert [j["status"] for j in mine] == ["succeeded"]
     evaluation = _get(server, f"/api/v1/designs/{created[0]['id']}/evaluation")
     assert evaluation is not None
     assert [t["name"] for t in traces(page, "#health-b")][-1] == "Monte Carlo squared error"
