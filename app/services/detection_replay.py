@@ -42,6 +42,9 @@ class FaultOutcome:
     scale: float
     occurred_at: float
     flights_observed: int  # the engine's flights with data from the fault's on
+    records_before: int  # the engine's records between its last start or maintenance and the fault
+    noncentrality: float  # sum over the fault's first records of g^T R^-1 g (its visibility)
+    concurrent: bool  # another fault was on the same engine (before repair) at the same time
     detected: bool
     isolated: str  # fault named by the first event, NONE for a shift or no event
     kind: str | None  # the first event's kind
@@ -63,6 +66,19 @@ class Score:
     def scored(self) -> list[FaultOutcome]:
         """Faults the engine flew with for at least one flight (the others cannot be seen)."""
         return [f for f in self.faults if f.flights_observed > 0]
+
+    def detectable(
+        self, min_flights: int, min_records_before: int, min_noncentrality: float
+    ) -> list[FaultOutcome]:
+        """Faults a detector could be asked to find: alone on their engine, flown with for
+        ``min_flights``, striking ``min_records_before`` records after the engine's last start
+        or maintenance (its baseline exists), with a sensor signature of at least
+        ``min_noncentrality`` over the first ``VISIBILITY_RECORDS`` records."""
+        return [
+            f for f in self.scored
+            if not f.concurrent and f.flights_observed >= min_flights
+            and f.records_before >= min_records_before and f.noncentrality >= min_noncentrality
+        ]
 
     @property
     def n_detected(self) -> int:
@@ -188,6 +204,31 @@ def replay(
     return events
 
 
+VISIBILITY_RECORDS = 20
+
+
+def fault_noncentrality(
+    est: pipeline.SnapshotEstimator, run: pipeline.EngineRun, at: float, fault: str,
+    scale: float,
+) -> float:
+    """Visibility of a fault: sum_j g_j^T R_j^-1 g_j over the engine's first
+    ``VISIBILITY_RECORDS`` records from ``at``, g_j the sensor change of the library fault
+    (times ``scale``) through the record's scheduled gains (health through G_y, actuator
+    biases through G_u) and R_j the pipeline's noise: the chi-squared noncentrality of the
+    fault in those records (0 for a fault outside the estimator's library)."""
+    k = np.flatnonzero(run.epoch >= at)[:VISIBILITY_RECORDS]
+    if len(k) == 0 or fault not in est.layout.faults:
+        return 0.0
+    column = est.S_full[:, est.layout.faults.index(fault)] * scale
+    g = est.schedule(run.conditions[k])
+    p = g.G_y.shape[-1]
+    dy = g.G_y @ column[:p] + g.G_u @ column[p:]
+    noise = est.noise_std if g.noise_std is None else np.sqrt(
+        g.noise_std**2 + pipeline.MODEL_ERROR**2)
+    present = np.isfinite(run.y[k])
+    return float(np.sum(np.where(present, (dy / noise) ** 2, 0.0)))
+
+
 def _removal_after(plan: FleetPlan, esn: str, at: float) -> float:
     """When the engine carrying a fault from ``at`` left the wing (inf: it never did)."""
     ends = [
@@ -199,20 +240,36 @@ def _removal_after(plan: FleetPlan, esn: str, at: float) -> float:
 
 def score(
     plan: FleetPlan, engines: Sequence[EngineData], events: Sequence[Sequence[pipeline.EventDraft]],
-    library: Sequence[str],
+    library: Sequence[str], est: pipeline.SnapshotEstimator | None = None,
 ) -> Score:
     """Compare drafted events with the plan's injected faults (see the module docstring)."""
     by_esn = {e.esn: (e, ev) for e, ev in zip(engines, events, strict=True)}
     used: set[tuple[str, float]] = set()
     outcomes = []
     repeats = 0
-    for fault in plan.faults:
+    windows = [
+        (f.esn, f.occurred_at, _removal_after(plan, f.esn, f.occurred_at)) for f in plan.faults
+    ]
+    for k, fault in enumerate(plan.faults):
         data, evs = by_esn.get(fault.esn, (None, []))
-        end = _removal_after(plan, fault.esn, fault.occurred_at)
+        end = windows[k][2]
+        concurrent = any(
+            j != k and esn == fault.esn and t0 < end and fault.occurred_at < t1
+            for j, (esn, t0, t1) in enumerate(windows)
+        )
         in_window = [d for d in evs if fault.occurred_at <= d.epoch <= end]
         observed = 0
+        before = 0
+        lam = 0.0
         delay = None
         if data is not None:
+            t0 = data.run.epoch
+            m = data.run.maintenance
+            start = max([t0[0], *m[m <= fault.occurred_at]])
+            before = int(np.sum((t0 >= start) & (t0 < fault.occurred_at)))
+            if est is not None:
+                lam = fault_noncentrality(est, data.run, fault.occurred_at, fault.fault,
+                                          fault.scale)
             t = data.run.epoch
             after = (t >= fault.occurred_at) & (t <= end)
             observed = len(np.unique(data.flight_id[after]))
@@ -229,8 +286,8 @@ def score(
             isolated = first_event.fault
         outcomes.append(
             FaultOutcome(
-                fault.esn, fault.fault, fault.scale, fault.occurred_at, observed,
-                first_event is not None, isolated,
+                fault.esn, fault.fault, fault.scale, fault.occurred_at, observed, before, lam,
+                concurrent, first_event is not None, isolated,
                 None if first_event is None else first_event.kind, delay,
             )
         )

@@ -1,0 +1,141 @@
+"""Shift detection and fault isolation on the built-in engine, scored against the simulator.
+
+A seeded simulated fleet (``estimation.engine.fleet``) with abrupt faults of the seed 002
+library goes through the pipeline's estimation functions (``app.services.detection_replay``);
+its events are compared with the fault list the simulator made, not with typed-in results.
+The faults a detector can be asked to find are chosen by the truth and the physics: the engine
+flew with the fault for a few flights, its baseline existed (enough records since its last
+start or maintenance) and the fault's sensor signature, through the scheduled gains, has a
+noncentrality of at least ``MIN_NONCENTRALITY`` over 20 records (the VBV bias is closed at
+take-off and cruise and the VSV bias barely moves a sensor, so those are not among them).
+
+The trims the pipeline uses on the built-in engine are checked against the steady-state solver
+point by point, and are independent of which records share a call (re-runs stay bit-identical).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.services import demo_fleet, detection_replay, pipeline
+from app.services.models_designs import design_step
+from estimation.engine.fleet import fleet_snapshots, plan_fleet
+from estimation.engine.schedule import EngineSchedule, build_schedule
+from estimation.engine.sensors import SENSOR_NAMES
+from estimation.engine.steady import steady_state
+from estimation.model import LinearModel
+
+MIN_FLIGHTS = 3
+MIN_NONCENTRALITY = 60.0
+TARGET_CORRECT = 0.8  # detected and correctly isolated, of the detectable faults
+TARGET_FALSE_ALARMS = 0.5  # per 1000 engine-flights
+TARGET_MEDIAN_DELAY = 10  # flights
+
+
+@pytest.fixture(scope="module")
+def schedule() -> EngineSchedule:
+    return build_schedule()
+
+
+@pytest.fixture(scope="module")
+def estimator(schedule: EngineSchedule) -> pipeline.SnapshotEstimator:
+    """The demo's active design (all ten health parameters as tuners) on the built-in engine."""
+    p = demo_fleet.DESIGN_POINT
+    model = schedule.model_at(p["alt"], p["mach"], p["power"])
+    sensors = [n for n in model.sensor_names if n != "Wf"]
+    result = design_step(model, demo_fleet.design_spec("subset", 10, sensors))
+    embedded = LinearModel.from_dict(result["model"])
+    return pipeline.build_estimator(
+        0, embedded, result, pipeline.engine_schedule_for(embedded, schedule)
+    )
+
+
+def _score(
+    est: pipeline.SnapshotEstimator, size: demo_fleet.DemoSize, seed: int
+) -> detection_replay.Score:
+    plan_rng, snap_rng = np.random.default_rng(seed).spawn(2)
+    plan = plan_fleet(demo_fleet.fleet_config(size), plan_rng)
+    snaps = fleet_snapshots(plan, snap_rng)
+    engines = detection_replay.engine_runs(plan, snaps, est)
+    events = detection_replay.replay(est, engines)
+    return detection_replay.score(plan, engines, events, est.layout.faults, est)
+
+
+def _check_targets(result: detection_replay.Score, min_faults: int) -> None:
+    wanted = result.detectable(MIN_FLIGHTS, pipeline.N_BASE + pipeline.GAP, MIN_NONCENTRALITY)
+    assert len(wanted) >= min_faults, result.report()  # enough faults for the rate to mean much
+    correct = [f for f in wanted if f.isolated == f.fault]
+    assert len(correct) >= TARGET_CORRECT * len(wanted), result.report()
+    assert result.false_alarms_per_1000 <= TARGET_FALSE_ALARMS, result.report()
+    delays = [f.delay_flights for f in correct if f.delay_flights is not None]
+    assert np.median(delays) <= TARGET_MEDIAN_DELAY, result.report()
+    # A wrong name is worse than none: isolations that name a fault name the injected one,
+    # unless another fault struck the same engine in the same window.
+    wrong = [f for f in wanted if f.isolated not in (f.fault, detection_replay.NONE)]
+    assert len(wrong) <= 0.1 * len(wanted), result.report()
+
+
+def test_faults_are_detected_and_isolated_on_a_simulated_fleet(
+    estimator: pipeline.SnapshotEstimator,
+) -> None:
+    size = demo_fleet.DemoSize(aircraft=8, flights=400, fault_rate=1.0 / 150.0)
+    _check_targets(_score(estimator, size, seed=11), min_faults=10)
+
+
+@pytest.mark.slow
+def test_faults_are_detected_and_isolated_on_a_large_fleet(
+    estimator: pipeline.SnapshotEstimator,
+) -> None:
+    size = demo_fleet.DemoSize(aircraft=20, flights=730, fault_rate=1.0 / 500.0)
+    _check_targets(_score(estimator, size, seed=7), min_faults=30)
+
+
+def test_no_alarm_on_a_fleet_without_faults(estimator: pipeline.SnapshotEstimator) -> None:
+    size = demo_fleet.DemoSize(aircraft=6, flights=300, fault_rate=0.0)
+    result = _score(estimator, size, seed=5)
+    assert result.faults == []
+    # Deterioration, washes, shop visits and swaps but no fault: nothing to report.
+    assert len(result.false_alarms) <= TARGET_FALSE_ALARMS * result.engine_flights / 1000.0
+
+
+def test_trims_are_the_steady_state_solution_whatever_the_batch(
+    schedule: EngineSchedule,
+) -> None:
+    rng = np.random.default_rng(3)
+    n = 40
+    conditions = np.column_stack([
+        rng.uniform(0.0, 40000.0, n), rng.uniform(0.2, 0.85, n), rng.uniform(-20.0, 20.0, n),
+        rng.uniform(70.0, 100.0, n),
+    ])
+    conditions[-1] = [50000.0, 0.8, 0.0, 90.0]  # outside the envelope: interpolated
+    interpolated = schedule.trims_at(conditions[:, [0, 1, 3, 2]])
+    whole = pipeline.exact_nominal_trims(conditions, interpolated)
+    # Each record alone, by the solver directly.
+    for i in (0, 7, n - 2):
+        one = steady_state(conditions[i, :3], power=conditions[i, 3])
+        for k, name in enumerate(SENSOR_NAMES):
+            assert whole[name][i] == pytest.approx(one.sensors[k], rel=1e-9)
+    # A record's trim does not depend on the records beside it: bit-identical in a subset.
+    part = pipeline.exact_nominal_trims(
+        conditions[5:12], {k: v[5:12] for k, v in interpolated.items()}
+    )
+    for name in SENSOR_NAMES:
+        assert np.array_equal(part[name], whole[name][5:12])
+        assert whole[name][-1] == interpolated[name][-1]
+    # The interpolation error the exact trims remove is of the size of a fault's signature.
+    worst = max(
+        np.max(np.abs(whole[n][:-1] / interpolated[n][:-1] - 1.0)) for n in SENSOR_NAMES
+    )
+    assert worst > 1e-3
+
+
+def test_sensor_noise_is_constant_in_sensor_units(estimator: pipeline.SnapshotEstimator) -> None:
+    conditions = np.array([[0.0, 0.0, 0.0, 100.0], [35000.0, 0.8, 0.0, 80.0]])
+    g = estimator.schedule(conditions)
+    assert g.noise_std is not None
+    absolute = g.noise_std * g.y_trim / 100.0
+    np.testing.assert_allclose(absolute[0], absolute[1], rtol=1e-12)
+    # Pressures at cruise are a fraction of those at sea level: their noise in percent grows.
+    p30 = estimator.layout.sensors.index("P30")
+    assert g.noise_std[1, p30] > 2.0 * g.noise_std[0, p30]
