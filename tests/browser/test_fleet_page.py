@@ -53,6 +53,13 @@ def test_fleet_status_lists_every_engine_and_plots_deterioration(
     lines = download_info.value.path().read_text().splitlines()
     assert lines[0] == "trace,x,y,error"
     assert len(lines) - 1 == sum(t["n"] for t in plotted)
+    # Weekly buckets: the same parameters on more points.
+    monthly = plotted[0]["n"]
+    page.select_option("#bucket", "week")
+    page.wait_for_function(
+        "(n) => document.querySelector('#deterioration').data[0].x.length > n", arg=monthly
+    )
+    assert len(traces(page, "#deterioration")) == len(plotted)
     page.select_option("#which", "aux")
     page.wait_for_function(
         "document.querySelector('#deterioration').data.some((t) => t.name === 'Fn')"
