@@ -44,7 +44,6 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
-import scipy.linalg
 from sqlalchemy import delete, insert, select
 from sqlalchemy.orm import Session
 
@@ -95,27 +94,27 @@ class SegmentGain:
 def resample(model: LinearModel, dt: float) -> LinearModel:
     """The model at sample interval ``dt`` (zero-order hold on u and h).
 
-    [x; u; h][k+1] = Phi [x; u; h][k] with Phi = [[A, B, L], [0, I, 0], [0, 0, I]]; at dt the
-    transition is Phi^(dt / model.dt) (exact for the continuous system behind A, B, L whose
-    eigenvalues are positive real, as spool and metal-temperature modes are).
+    With A = exp(Ac dt0) and [B, L] = Ac^-1 (A - I) [Bc, Lc], the same continuous system at dt
+    has A_r = A^r (r = dt / dt0, through the eigenvalues of A, real and positive for spool and
+    metal-temperature modes) and [B_r, L_r] = (A - I)^-1 (A_r - I) [B, L] (functions of A
+    commute), which keeps the steady-state gains C (I - A)^-1 L + M.
     """
     if math.isclose(dt, model.dt, rel_tol=1e-9):
         return model
-    nx, nu, p = model.n_states, model.n_inputs, model.n_health
-    n = nx + nu + p
-    phi = np.eye(n)
-    phi[:nx, :nx] = model.A
-    phi[:nx, nx:nx + nu] = model.B
-    phi[:nx, nx + nu:] = model.L
-    power = scipy.linalg.fractional_matrix_power(phi, dt / model.dt)
-    if np.max(np.abs(np.imag(power))) > 1e-9 * max(1.0, float(np.max(np.abs(power)))):
+    w, T = np.linalg.eig(model.A)
+    on_negative_axis = (np.abs(np.imag(w)) <= 1e-12 * np.abs(w)) & (np.real(w) <= 0.0)
+    if np.any(on_negative_axis):
         raise StreamEstimationError(
             f"the design model (dt {model.dt:g} s) cannot be resampled to {dt:g} s: "
-            "its state matrix has eigenvalues off the positive real axis"
+            "its state matrix has eigenvalues on the negative real axis"
         )
-    power = np.real(power)
-    return replace(model, A=power[:nx, :nx], B=power[:nx, nx:nx + nu], L=power[:nx, nx + nu:],
-                   dt=dt)
+    # Principal powers of conjugate pairs are conjugate: the product is real.
+    Ar_c = np.linalg.solve(T.T, (T * w ** (dt / model.dt)).T).T  # T diag(w^r) T^-1
+    Ar = np.real(Ar_c)
+    eye = np.eye(model.n_states)
+    BL = np.linalg.solve(model.A - eye, (Ar - eye) @ np.hstack([model.B, model.L]))
+    nu = model.n_inputs
+    return replace(model, A=Ar, B=BL[:, :nu], L=BL[:, nu:], dt=dt)
 
 
 def _stored_affine(name: str, unit: str) -> tuple[float, float]:
