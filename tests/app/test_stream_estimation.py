@@ -411,3 +411,45 @@ def test_samples_missing_a_sensor_are_predicted_not_measured(
     assert np.all(np.abs(gap_q - a[-1, sl["q"]]) < a[-1, sl["q_sigma"]])
     body = client.get(f"/api/v1/streams/{gapped['id']}/estimates", headers=fleet_data.viewer)
     assert body.status_code == 200 and body.json()["residual"]["T30"][30] is None
+
+
+def test_uploads_and_live_chunks_queue_jobs_that_estimate_the_recording(
+    client: TestClient, session: Session, fleet_data: Fleet, settings: Settings,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from app.jobs.registry import registry
+
+    model = _model()
+    _activate(session, fleet_data, model, _design_document(model))
+    table = _simulate(model, 400, Q_TRUE, seed=9)
+    opened = client.post("/api/v1/streams/live", headers=fleet_data.analyst, json={
+        "tail": "N102", "position": 1, "started_at": START.isoformat(), "dt_s": DT})
+    live_id = opened.json()["id"]
+    for index, (lo, size) in enumerate([(0, 150), (150, 250)]):
+        response = client.post(f"/api/v1/streams/{live_id}/chunks", params={"index": index},
+                               content=_csv(table.slice(lo, size)),
+                               headers={**fleet_data.analyst, **CSV})
+        assert response.status_code == 201
+    # A resent chunk queues nothing more.
+    again = client.post(f"/api/v1/streams/{live_id}/chunks", params={"index": 1},
+                        content=_csv(table.slice(150, 250)), headers={**fleet_data.analyst, **CSV})
+    assert again.status_code == 200
+    jobs = session.scalars(select(Job).where(Job.operator_id == fleet_data.operator_id,
+                                             Job.kind == "estimate_recording")
+                           .order_by(Job.id)).all()
+    assert [j.parameters for j in jobs] == [
+        {"recording_id": live_id, "through_sample": 150},
+        {"recording_id": live_id, "through_sample": 400},
+    ]
+    # The job function, as a runner calls it, with the service's data directory.
+    monkeypatch.setattr("app.config.get_settings", lambda: settings)
+    kind = registry.get("estimate_recording")
+    seen: list[float] = []
+    result = kind.function(session, kind.validate(jobs[0].parameters),
+                           lambda fraction, message=None: seen.append(fraction),
+                           operator_id=fleet_data.operator_id)
+    assert result["samples"] == 400 and seen[-1] == 1.0
+    # The second job finds nothing left to do.
+    assert kind.function(session, kind.validate(jobs[1].parameters), lambda *a: None,
+                         operator_id=fleet_data.operator_id)["samples"] == 0
+    assert len(_rows(session, live_id)) == 20
