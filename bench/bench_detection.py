@@ -64,16 +64,26 @@ def main() -> None:
     engines = detection_replay.engine_runs(plan, snaps, est)
     events = detection_replay.replay(est, engines)
     t3 = time.perf_counter()
-    result = detection_replay.score(plan, engines, events, est.layout.faults)
+    result = detection_replay.score(plan, engines, events, est.layout.faults, est)
     print(f"fleet: {args.aircraft} aircraft, {len(plan.esns)} engines, {args.flights} flights, "
           f"seed {args.seed}, {len(plan.faults)} faults injected; design {args.method} "
           f"m = {est.m}")
     print(f"time: design {t1 - t0:.1f} s, simulation {t2 - t1:.1f} s, "
           f"estimation {t3 - t2:.1f} s")
     print(result.report())
+    wanted = result.detectable(3, pipeline.N_BASE + pipeline.GAP, 60.0)
+    correct = [f for f in wanted if f.isolated == f.fault]
+    delays = [f.delay_flights for f in correct if f.delay_flights is not None]
+    print(f"detectable faults (alone on their engine, >= 3 flights with it, baseline in place, "
+          f"signature noncentrality >= 60 over 20 records): {len(wanted)}; detected "
+          f"{sum(f.detected for f in wanted)}, correctly isolated {len(correct)}"
+          + (f" ({100.0 * len(correct) / len(wanted):.0f} %)" if wanted else "")
+          + (f", median delay {np.median(delays):.0f} flights" if delays else ""))
     for f in result.scored:
         print(f"  {f.esn} {f.fault:4s} x{f.scale:.2f} -> {f.isolated:4s} ({f.kind}), "
-              f"delay {f.delay_flights} of {f.flights_observed} flights")
+              f"delay {f.delay_flights} of {f.flights_observed} flights, noncentrality "
+              f"{f.noncentrality:.0f}, {f.records_before} records after the last reset"
+              + (", concurrent" if f.concurrent else ""))
     for esn, epoch, kind, fault in result.false_alarms[:30]:
         print(f"  false alarm {esn} {time.strftime('%Y-%m-%d', time.gmtime(epoch))} "
               f"{kind} {fault}")
