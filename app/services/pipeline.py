@@ -15,15 +15,29 @@ Per record the pipeline stores q_hat, h_hat = V*^+ q_hat and z_hat = G_z V*^+ q_
 library fault (seed 002 eq. 21-23) for the tuner change against the baseline.
 
 Detection (MATH.md section 4, last paragraph): a chi-squared CUSUM (``estimation.detection``
-design) runs on each tuner update dq = q_hat[k] - q_hat[k-1] normalised by its covariance
-P_prior - P (white under no change, so the run-length theory holds; slow deterioration is
-tracked by the filter and does not raise it). The baseline is the mean of ``N_BASE`` tuner
-estimates ending ``GAP`` records before the alarm. After an alarm the filter is given
-``N_CONFIRM`` records to settle on the new level, then the change (mean of the last ``N_AVG``
-estimates minus the baseline) is isolated by WSSR: an event of kind ``isolated_fault`` when the
-smallest WSSR is consistent with its fault (below the chi-squared quantile with m - 1 degrees of
-freedom), else ``shift``. Then the baseline restarts. A maintenance action restarts the baseline
-too and widens the filter covariance (the health may jump at a shop visit or wash).
+design) runs on the tuner estimate against its baseline, s = (q_hat - q_0)^T P^-1 (q_hat - q_0)
+with the filter covariance P; q_0 is the mean of ``N_BASE`` tuner estimates ending ``GAP``
+records before the current one. The estimates are correlated from record to record, so the
+run-length theory only orders the settings; the statistic is rescaled by its running
+in-control mean (model error raises it above m) and the false-alarm rate is measured on
+simulated fleets (bench/bench_detection.py, tests/app/test_detection_replay.py). After an
+alarm the ``N_CONFIRM`` records that follow are fitted in sensor space: each record against
+the baseline tuners, r_j = dy_j - G_y,j V*^+ q_0, and each library fault's signature at the
+record's own condition (health columns through G_y, actuator biases through G_u, so a fuel-flow
+or variable-geometry bias is a fault like any other) give f_i and WSSR_i of seed 002 eq. 21-23
+over all those records (``accumulate_sensor_fit``: four sums a fault). The event is an
+``isolated_fault`` when the smallest WSSR is below the chi-squared quantile (times
+``SENSOR_WSSR_MARGIN`` for the linearisation error) and the fitted magnitude is plausible, a
+``shift`` when the change is still improbable under no change, else dropped. Then the
+baseline restarts. A maintenance action restarts the baseline too and widens the filter
+covariance (the health may jump at a shop visit or wash); an alarm pending then is isolated on
+the records there are, with the covariance from before the action.
+
+On the built-in engine the trims are solved per record by the steady-state solver (the
+interpolated ones are off by up to ~0.5 % of a pressure, as much as a fault's signature) and
+the sensor noise is constant in sensor units (so in percent of trim it grows with altitude).
+On the demo fleet this finds 5 of its 6 detectable faults and names each correctly, with no
+stored false alarm (bench/bench_detection.py).
 """
 
 from __future__ import annotations
@@ -85,8 +99,9 @@ WALK_STD = 0.05
 FLEET_STD = 1.5
 START_STD = 5.0
 NEW_FLIGHT_S = 3600.0  # records further apart than this are different flights
-# Sensor model error (percent of trim) added in quadrature to the sensor noise: trims and gains
-# interpolated between schedule nodes are off by about this much.
+# Sensor model error (percent of trim) added in quadrature to the sensor noise: gains
+# interpolated between schedule nodes, and the linearisation of an engine several percent from
+# its trim, are off by about this much.
 MODEL_ERROR = 0.2
 CHECKPOINT_EVERY = 256
 CHUNK = 512  # records per engine per filter call (bounds the scheduled-gain arrays)
