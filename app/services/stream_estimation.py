@@ -11,10 +11,10 @@ parameters, as the snapshot pipeline does). The model matrices and the steady-st
 (DARE) are scheduled piecewise: a segment keeps the gain of its anchor condition until
 altitude, Mach, power or dTamb leaves a box of ``TOLERANCE`` around the anchor; the next sample
 becomes the new anchor. The gain is computed at the anchor rounded to a lattice of the same
-step, so gains are cached and shared between recordings (a climb to 35,000 ft takes about 40
-gains, each a DARE of order nx + m). An imported single-point model has one gain. A model
-linearised at another sample interval is resampled exactly (zero-order hold: the augmented
-transition matrix of [x; u; h] raised to the power dt_recording / dt_model).
+step, so gains are cached and shared between recordings (the benchmark's climb to 35,000 ft,
+cruise and descent takes 71, each a DARE of order nx + m). An imported single-point model has
+one gain. A model linearised at another sample interval is resampled exactly (zero-order hold
+of the same continuous system: A^(dt_recording / dt_model), see ``resample``).
 
 Storage. The filter output is stored as one row per one-second window (means of q_hat, h_hat,
 z_hat, their 1-sigma and the innovations), not per sample: a 20 Hz flight of two hours is

@@ -298,6 +298,12 @@ def test_the_schedule_splits_a_climb_into_gain_segments_whatever_the_chunking(
     # Altitude leaves its 1000 ft box every quarter of the climb, before Mach leaves its 0.02
     # box (every third): anchors near 10, 11, 12 and 13 thousand feet.
     assert summary["segments"] == 4
+    # The samples sit on the scheduled trims (a healthy engine, 0.2 % noise): with trims
+    # taken at each sample's condition the tuners stay within 3 sigma of zero.
+    layout = EstimateLayout.from_dict(_state(session, whole["id"]).layout)
+    last = layout.unpack([_rows(session, whole["id"])[-1][3]])[0]
+    sl = layout.slices()
+    assert np.all(np.abs(last[sl["q"]]) < 3 * last[sl["q_sigma"]])
     opened = client.post("/api/v1/streams/live", headers=fleet_data.analyst, json={
         "tail": "N102", "position": 1, "started_at": START.isoformat(), "dt_s": DT})
     live_id = opened.json()["id"]
