@@ -104,7 +104,7 @@ def main() -> None:
     print(_fmt(f"batch of {args.batch} engines, per engine", bwall / args.batch,
                bcpu / args.batch,
                f"  ({bcpu:.0f} s CPU for the batch; {cpu / (bcpu / args.batch):.1f}x "
-               f"the scalar path's cost per engine)"))
+               f"less CPU per engine than one engine alone)"))
 
     peer_scale = DURATION_S / args.peer_seconds
     pw, pc = (v * peer_scale for v in run(1, args.peer_seconds, "one_pass", scalar_path=False))

@@ -31,7 +31,7 @@ Sensors are recorded at t_k, at the states and commands of the first stage.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -312,7 +312,8 @@ def simulate(
 
         one = ScalarGasPath(d, (h[0] / 100.0).tolist(), h, _CHORD_TOL, _CHORD_POLISH,
                             _CHORD_MAX, _ONE_PASS_LIMIT, _REFRESH_EVERY, _FD_EPS)
-        ctrl1 = ControllerState(float(ctrl.integrator[0]), ctrl.sensed[0].tolist())
+        scalar_state: tuple[Any, ...] = (float(ctrl.integrator[0]), ctrl.sensed[0].tolist())
+        ctrl1 = ControllerState(*scalar_state)
         run_one(
             scalar_schedule(schedule), n_steps, dt, record_every, x[0].tolist(),
             z[0].tolist(), ys[0].tolist(), ctrl1, h, noise_std, rng, gains, d, one,

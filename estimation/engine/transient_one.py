@@ -37,6 +37,14 @@ from estimation.engine.turbofan import (
 from estimation.engine.xp import SCALAR, SCALAR_ERRORS
 
 Vector = list[float]
+# The scalar path passes floats where the batch path's annotations say arrays.
+_control: Any = control_step
+
+
+def _operating(*fields: Any) -> Operating:
+    """Operating of one engine on floats: nf, nc, tm_hpc, tm_hpt, wf, vsv, vbv, fc
+    (health is taken from the solver, not from here)."""
+    return Operating(*fields, None)  # type: ignore[arg-type,call-arg]
 _NOISE_BLOCK = 4096  # steps of sensor noise drawn at once
 Stations = dict[str, Any]
 
@@ -96,10 +104,10 @@ class ScalarGasPath:
             return self._numpy(op, z)
 
     def _numpy(self, op: Operating, z: Vector) -> tuple[Vector, Stations]:
-        one = [np.array([v]) for v in op[:7]]
+        one: list[Any] = [np.array([v]) for v in op[:7]]
         fc = FlightCondition(*(np.array([v]) for v in op.fc))
         with np.errstate(all="ignore"):
-            res, st = gas_path(Operating(*one, fc, self.h), np.array([z]), self.d)
+            res, st = gas_path(Operating(*one, fc, self.h), np.array([z]), self.d)  # type: ignore[call-arg,misc]
         return res[0].tolist(), {k: float(np.asarray(v).reshape(-1)[0]) for k, v in st.items()}
 
     def _refresh(self, op: Operating, z: Vector) -> None:
@@ -112,7 +120,7 @@ class ScalarGasPath:
             zj[j] = zj[j] + eps
             rj = self.evaluate(op, zj, False)[0]
             jac[:, j] = [(rj[i] - r0[i]) / eps for i in range(5)]
-        du = (eps * max(abs(op.wf), 1e-3), 1e-4, 1e-4)
+        du = (eps * max(abs(float(op.wf)), 1e-3), 1e-4, 1e-4)
         ru = np.empty((5, 3))
         for c, opc in enumerate((op._replace(wf=op.wf + du[0]), op._replace(vsv=op.vsv + du[1]),
                                  op._replace(vbv=op.vbv + du[2]))):
@@ -174,7 +182,7 @@ class ScalarGasPath:
 def run_one(
     sched: Callable[[float], tuple[float, float, float, float]],
     n_steps: int, dt: float, record_every: int,
-    x: Vector, z: Vector, y_ctrl: Vector, ctrl: ControllerState, h: np.ndarray,
+    x: Vector, z: Vector, y_ctrl: list[Any], ctrl: ControllerState, h: np.ndarray,
     noise_std: np.ndarray | None, rng: np.random.Generator | None,
     gains: ControllerGains, d: EngineDesign, solver: ScalarGasPath, one_pass: bool,
     rec: dict[str, np.ndarray], on_progress: Callable[[float], None] | None,
@@ -211,11 +219,11 @@ def run_one(
         else:
             noise = None
             m_nf, m_nc, m_t24, m_ps30 = y_ctrl[i_nf], y_ctrl[i_nc], y_ctrl[i_t24], y_ctrl[i_ps30]
-        ctrl, out = control_step(ctrl, cond[3], cond[1], fc.theta, fc.delta, m_nf, m_nc,
+        ctrl, out = _control(ctrl, cond[3], cond[1], fc.theta, fc.delta, m_nf, m_nc,
                                  m_t24, m_ps30, dt, gains, d, SCALAR)
         u = out.u
         wf = u[0] * LBM
-        op = Operating(x[0], x[1], x[2] / RANKINE, x[3] / RANKINE, wf, u[1], u[2], fc, None)
+        op = _operating(x[0], x[1], x[2] / RANKINE, x[3] / RANKINE, wf, u[1], u[2], fc)
         solver.full = k % record_every == 0
         z1, st = solve(op, z2 if op2 is None else solver.predict(z2, op2, op))
         if k % record_every == 0:
@@ -233,13 +241,13 @@ def run_one(
         cond = sched(t + dt)
         fc = flight_condition(cond[0], cond[1], cond[2], SCALAR)
         xs = [xi + dt * ki for xi, ki in zip(x, k1, strict=True)]
-        op2 = Operating(xs[0], xs[1], xs[2] / RANKINE, xs[3] / RANKINE, wf, u[1], u[2], fc, None)
+        op2 = _operating(xs[0], xs[1], xs[2] / RANKINE, xs[3] / RANKINE, wf, u[1], u[2], fc)
         solver.full = False
         z2, st2 = solve(op2, [a + b for a, b in zip(z1, dz12, strict=True)])
         dz12 = [a - b for a, b in zip(z2, z1, strict=True)]
         k2 = (st2["dnf"], st2["dnc"], st2["dtm_hpc"], st2["dtm_hpt"])
         x = [xi + half * (a + b) for xi, a, b in zip(x, k1, k2, strict=True)]
         # The controller's next sample: the sensors it reads at the second stage.
-        y_ctrl = [0.0] * 12
+        y_ctrl = [0.0] * 12  # only these four are read
         y_ctrl[i_nf], y_ctrl[i_nc] = op2.nf, op2.nc
         y_ctrl[i_t24], y_ctrl[i_ps30] = st2["t24"] * RANKINE, st2["ps30"] / PSI
