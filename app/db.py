@@ -40,8 +40,23 @@ def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
     dbapi_connection.isolation_level = None
 
 
+SQLITE_BEGIN = "sqlite_begin"
+
+
 def _sqlite_begin(connection: Any) -> None:
-    connection.exec_driver_sql("BEGIN")
+    # DEFERRED by default: readers never wait. A transaction that will write should say
+    # IMMEDIATE (``writing``): a deferred one that reads, then writes after another connection
+    # committed, fails at once with "database is locked" (its snapshot is stale).
+    mode = connection.get_execution_options().get(SQLITE_BEGIN, "DEFERRED")
+    connection.exec_driver_sql(f"BEGIN {mode}")
+
+
+def writing(session: Session) -> Session:
+    """Mark ``session``'s next transaction as one that writes: on SQLite it takes the write
+    lock at its first statement (BEGIN IMMEDIATE), so concurrent writers queue instead of
+    failing. Call before the session's first statement; a no-op elsewhere."""
+    session.connection(execution_options={SQLITE_BEGIN: "IMMEDIATE"})
+    return session
 
 
 def make_sessionmaker(engine: Engine) -> sessionmaker[Session]:

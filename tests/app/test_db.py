@@ -3,9 +3,15 @@ made inside it as savepoints (what every test relies on), and a savepoint rolls 
 
 from __future__ import annotations
 
+import threading
+from pathlib import Path
+
+import pytest
 from sqlalchemy import Engine, func, select
+from sqlalchemy.exc import OperationalError
 from sqlalchemy.orm import Session
 
+from app.db import writing
 from app.models import Operator
 
 
@@ -39,3 +45,57 @@ def test_a_savepoint_rolls_back_alone(db_engine: Engine) -> None:
             names = set(session.scalars(select(Operator.name)))
             assert "Kept Air" in names and "Dropped Air" not in names
         outer.rollback()
+
+
+def _file_engine(tmp_path: Path) -> Engine:
+    from app.db import make_engine
+    from app.migrate import upgrade
+
+    url = f"sqlite:///{tmp_path / 'locks.sqlite3'}"
+    upgrade(url)
+    return make_engine(url)
+
+
+def _insert_elsewhere(engine: Engine, name: str) -> None:
+    with Session(engine) as other:
+        other.add(Operator(name=name))
+        other.commit()
+
+
+def test_sqlite_deferred_read_then_write_fails_after_a_concurrent_commit(tmp_path: Path) -> None:
+    # Why writers must say so: the stale-snapshot failure that ``writing`` prevents.
+    engine = _file_engine(tmp_path)
+    with Session(engine) as session:
+        session.scalar(select(func.count()).select_from(Operator))
+        _insert_elsewhere(engine, "Between Air")
+        session.add(Operator(name="Late Air"))
+        with pytest.raises(OperationalError, match="locked"):
+            session.flush()
+    engine.dispose()
+
+
+def test_sqlite_writing_session_holds_the_lock_from_its_first_read(tmp_path: Path) -> None:
+    engine = _file_engine(tmp_path)
+    with Session(engine) as session:
+        writing(session)
+        session.scalar(select(func.count()).select_from(Operator))
+        failures: list[BaseException] = []
+
+        def competing_writer() -> None:
+            try:
+                with engine.connect() as connection:
+                    connection.exec_driver_sql("PRAGMA busy_timeout = 100")
+                    connection.execute(Operator.__table__.insert().values(name="Queued Air"))
+                    connection.commit()
+            except OperationalError as exc:
+                failures.append(exc)
+
+        thread = threading.Thread(target=competing_writer)
+        thread.start()
+        thread.join()
+        assert failures and "locked" in str(failures[0])  # it had to wait: we hold the lock
+        session.add(Operator(name="First Air"))
+        session.commit()  # and our write goes through
+    with Session(engine) as check:
+        assert set(check.scalars(select(Operator.name))) == {"First Air"}
+    engine.dispose()
