@@ -2,6 +2,8 @@
 
 Layers, each a small module:
 
+- ``xp``: the array namespaces the cycle is written against: ``NP`` (numpy, a
+  batch of engines) and ``SCALAR`` (``math`` on Python floats, one engine).
 - ``gas``: cp(T, far), enthalpy, entropy function, isentropic temperature.
 - ``atmosphere``: ISA, inlet (T2, P2, theta, delta), unit constants.
 - ``maps``: generic compressor maps with stall lines, turbine maps.
@@ -14,6 +16,9 @@ Layers, each a small module:
   ``evaluate(x, u, env, health, guess)``, ``derivatives(...)``, ``outputs(...)``,
   and the lower level ``operating`` / ``gas_path`` / ``outputs_from_stations``.
 - ``steady``: ``steady_state(env, power=... | wf=..., health)``.
+- ``controller``: fan-speed governor with ratio-unit limits and VSV / VBV schedules.
+- ``transient``: ``simulate(...)`` closed-loop flights of a batch of engines;
+  ``transient_one``: the same for one engine on floats (chosen by ``simulate``).
 - ``sensors``: names, units (C-MAPSS units) and noise of sensors and aux outputs.
 - ``linearize``: ``linearize(alt, mach, power, dtamb, health, dt)`` -> LinearModel.
 - ``schedule``: linear models and corrected trims on an operating-condition grid.

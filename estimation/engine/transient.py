@@ -26,6 +26,12 @@ previous second stage (same time) moved by the command change through dz/du
 stage-to-stage change.
 
 Sensors are recorded at t_k, at the states and commands of the first stage.
+Only recorded stages compute every station; the others stop at the state
+derivatives and the sensors the controller reads.
+
+One engine (B = 1) runs by default on Python floats (``transient_one.py``):
+the same cycle, control law and steps on the ``SCALAR`` namespace, about 15
+times less CPU than numpy on one-element arrays, equal to rounding.
 """
 
 from __future__ import annotations
