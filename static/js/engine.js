@@ -49,9 +49,36 @@ function markers(axis) {
   return out.filter((m) => m.x !== null && m.x !== undefined);
 }
 
+// Where the engine had no data for long (off wing, in the shop), break the lines instead of
+// joining the two sides: a null point between them (plotly leaves gaps at nulls).
+const GAP_MIN_MS = 3 * 86400e3;
+
+function gapBreaks() {
+  const t = trend.time.map((x) => Date.parse(x));
+  const steps = t.slice(1).map((v, i) => v - t[i]).sort((a, b) => a - b);
+  const typical = steps.length ? steps[Math.floor(steps.length / 2)] : 0;
+  const limit = Math.max(GAP_MIN_MS, 20 * typical);
+  return t.slice(1).map((v, i) => (v - t[i] > limit ? i : -1)).filter((i) => i >= 0);
+}
+
+function withBreaks(values, breaks, mid) {
+  if (!breaks.length) return values;
+  const out = [];
+  let b = 0;
+  values.forEach((v, i) => {
+    out.push(v);
+    if (b < breaks.length && breaks[b] === i) { out.push(mid ? mid(i) : null); b += 1; }
+  });
+  return out;
+}
+
 function draw() {
   const axis = $("#axis").value;
-  const x = axis === "date" ? trend.time : trend.seq;
+  const breaks = gapBreaks();
+  const x = axis === "date"
+    ? withBreaks(trend.time, breaks, (i) => new Date((Date.parse(trend.time[i]) + Date.parse(trend.time[i + 1])) / 2).toISOString())
+    : withBreaks(trend.seq, breaks, (i) => (trend.seq[i] + trend.seq[i + 1]) / 2);
+  const broken = (s) => ({ ...s, value: withBreaks(s.value, breaks), sigma: s.sigma && withBreaks(s.sigma, breaks) });
   const marks = markers(axis);
   const container = $("#plots");
   container.className = "grid two";
@@ -63,7 +90,7 @@ function draw() {
     const id = `plot-${group.key}`;
     const div = h("div", { id, class: "plot" });
     container.append(h("section", { class: "card" }, h("h2", {}, TITLES[group.key] || group.label), div));
-    const traces = group.series.flatMap((s, i) => lineWithBand(x, s, i, { band: !!s.sigma }));
+    const traces = group.series.flatMap((s, i) => lineWithBand(x, broken(s), i, { band: !!s.sigma }));
     // Event markers as points too: hovering one names the event.
     const events = marks.filter((m) => m.kind === "event");
     if (events.length) {
@@ -80,7 +107,7 @@ function draw() {
       yaxis2: { overlaying: "y", range: [0, 1.05], visible: false, fixedrange: true },
       shapes: markerShapes(marks),
       annotations: markerAnnotations(marks.filter((m) => m.kind !== "event")),
-      margin: { l: 70, r: 20, t: 30, b: 50 },
+      margin: { l: 70, r: 20, t: 50, b: 50 },
     });
     divs.push(div);
     pending.push([div, traces, lay]);

@@ -39,7 +39,7 @@ export function layout(extra = {}) {
     paper_bgcolor: "#ffffff",
     plot_bgcolor: "#ffffff",
     hovermode: "x unified",
-    legend: { orientation: "h", y: -0.2 },
+    legend: { orientation: "h", x: 0, y: 1.02, yanchor: "bottom" },
     ...extra,
     xaxis: { gridcolor: "#e3e8ee", zerolinecolor: "#c5ced8", automargin: true, ...(extra.xaxis || {}) },
     yaxis: { gridcolor: "#e3e8ee", zerolinecolor: "#c5ced8", automargin: true, ...(extra.yaxis || {}) },
@@ -114,10 +114,20 @@ export function markerShapes(markers) {
   }));
 }
 
+// One label per marker time (an engine change and its shop visit share one), staggered over
+// three rows so neighbours do not print over each other.
 export function markerAnnotations(markers) {
-  return markers.map((m, i) => ({
-    x: m.x, xref: "x", y: 1, yref: "paper", yanchor: "bottom", text: m.short, hovertext: m.label,
-    showarrow: false, font: { size: 10, color: MARKER_COLOURS[m.kind] }, yshift: (i % 2) * 11,
+  const byX = new Map();
+  for (const m of markers) {
+    const key = String(m.x);
+    if (!byX.has(key)) byX.set(key, []);
+    byX.get(key).push(m);
+  }
+  return [...byX.values()].map((group, i) => ({
+    x: group[0].x, xref: "x", y: 1, yref: "paper", yanchor: "bottom",
+    text: [...new Set(group.map((m) => m.short))].join(" · "),
+    hovertext: group.map((m) => m.label).join("<br>"),
+    showarrow: false, font: { size: 10, color: MARKER_COLOURS[group[0].kind] }, yshift: (i % 3) * 11,
   }));
 }
 

@@ -98,6 +98,17 @@ def seed(factory: sessionmaker[Session]) -> Seeded:
     plan = plan_fleet(config, np.random.default_rng(PLAN_SEED))
     snaps = snapshot_table(fleet_snapshots(plan, np.random.default_rng(PLAN_SEED + 100)))
     snaps = snaps.filter(pc.is_in(snaps["phase"], value_set=pa.array(["takeoff", "cruise"])))
+    # Fifteen days without data from one engine (recorder unserviceable): a gap in its trend.
+    def day(n: int) -> pa.Scalar:
+        return pa.scalar(int(config.start_epoch_s + n * 86400), snaps["recorded_at"].type)
+
+    lost = pc.and_(
+        pc.and_(pc.equal(snaps["tail"], plan.tails[0]), pc.equal(snaps["position"], 1)),
+        pc.and_(
+            pc.greater_equal(snaps["recorded_at"], day(50)), pc.less(snaps["recorded_at"], day(65))
+        ),
+    )
+    snaps = snaps.filter(pc.invert(lost))
     with transaction(factory) as session:
         tails = {t: fleet.create_aircraft(session, operator_id=op_id, tail=t).id
                  for t in plan.tails}
