@@ -512,14 +512,24 @@ class EventDraft(NamedTuple):
 
 def wssr_all(shift: np.ndarray, P: np.ndarray, H: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """WSSR_i and f_i of every fault for one shift (seed 002 eq. 21-23), solving with P."""
-    if H.shape[1] == 0:
-        return np.zeros(0), np.zeros(0)
+    wssr, f, _ = wssr_and_distance(shift, P, H)
+    return wssr, f
+
+
+def wssr_and_distance(
+    shift: np.ndarray, P: np.ndarray, H: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """``wssr_all`` and the shift's squared Mahalanobis distance shift^T P^-1 shift (the
+    detector's level statistic) from one solve with P."""
     X = np.linalg.solve(P, np.column_stack([shift, H]))
     Pinv_s, Pinv_H = X[:, 0], X[:, 1:]
+    distance = float(shift @ Pinv_s)
+    if H.shape[1] == 0:
+        return np.zeros(0), np.zeros(0), distance
     norm2 = np.einsum("ij,ij->j", H, Pinv_H)  # H_i^T P^-1 H_i
     proj = H.T @ Pinv_s  # H_i^T P^-1 q
     f = proj / norm2
-    return np.maximum(shift @ Pinv_s - proj * f, 0.0), f
+    return np.maximum(distance - proj * f, 0.0), f, distance
 
 
 def tuner_update_statistic(
@@ -536,16 +546,6 @@ def tuner_update_statistic(
     dq = q - q_prev
     try:
         return float(dq @ np.linalg.solve(C, dq))
-    except np.linalg.LinAlgError:
-        return 0.0
-
-
-def level_statistic(q: np.ndarray, baseline: np.ndarray, P: np.ndarray) -> float:
-    """s = (q - q_0)^T P^-1 (q - q_0): the tuner estimate against its archived baseline
-    (``estimation.detection.normalised_shift`` with P_q = the filter covariance P)."""
-    d = q - baseline
-    try:
-        return float(d @ np.linalg.solve(0.5 * (P + P.T), d))
     except np.linalg.LinAlgError:
         return 0.0
 
@@ -658,9 +658,10 @@ def detect_step(
         if base_before is None:
             det.S = 0.0
             return nan, early
-        s = level_statistic(q, base_before, P)
+        wssr_now, _f, s = wssr_and_distance(q - base_before, P, est.H)
     else:
         s = tuner_update_statistic(q, q_prev, P, P_prior)
+        wssr_now = None
     # The statistic's in-control mean is m for a perfect model; model error (interpolated
     # trims, nonlinearity) makes it larger. Its running in-control mean rescales it, so the
     # CUSUM responds to a change against the engine's own normal, not to a steady mismatch.
@@ -684,7 +685,9 @@ def detect_step(
         if obs is not None:
             accumulate_sensor_fit(est, det.pending, obs)
         det.S = 0.0
-    return wssr_all(q - base_before, P, est.H)[0], early
+    if wssr_now is None:
+        wssr_now = wssr_all(q - base_before, P, est.H)[0]
+    return wssr_now, early
 
 
 def _event(
@@ -780,11 +783,22 @@ def run_filters(est: SnapshotEstimator, runs: Sequence[EngineRun]) -> list[Engin
         noise = np.broadcast_to(est.noise_std, (E, S, ny)).copy()
         n_faults = est.S_full.shape[1]
         signatures = np.zeros((E, S, ny, n_faults))
+        # One schedule call for the chunk's records of every engine: the steady-state trims
+        # are solved in one batch (a record's trim does not depend on its batch).
+        counts = [max(0, min(c1, len(r.epoch)) - c0) for r in runs]
+        offsets = np.concatenate([[0], np.cumsum(counts)])
+        g_all = est.schedule(
+            np.concatenate([r.conditions[c0 : c0 + n] for r, n in zip(runs, counts, strict=True)])
+        )
         for e, r in enumerate(runs):
-            n = max(0, min(c1, len(r.epoch)) - c0)
+            n = counts[e]
             if n == 0:
                 continue
-            g = est.schedule(r.conditions[c0 : c0 + n])
+            part = slice(int(offsets[e]), int(offsets[e + 1]))
+            g = ScheduledGains(
+                g_all.y_trim[part], g_all.u_trim[part], g_all.G_y[part], g_all.G_u[part],
+                g_all.G_z[part], None if g_all.noise_std is None else g_all.noise_std[part],
+            )
             u_dev = 100.0 * (r.u[c0 : c0 + n] - g.u_trim) / g.u_trim
             u_dev = np.where(np.isfinite(u_dev), u_dev, 0.0)  # a missing actuator: at trim
             dy[e, :n] = snapshot_deviation(r.y[c0 : c0 + n], g.y_trim, g.G_u, u_dev)
