@@ -72,6 +72,17 @@ function withBreaks(values, breaks, mid) {
   return out;
 }
 
+function xRange(axis) {
+  if (axis !== "date") {
+    const pad = Math.max(1, 0.01 * (trend.seq[trend.seq.length - 1] - trend.seq[0]));
+    return [trend.seq[0] - pad, trend.seq[trend.seq.length - 1] + pad];
+  }
+  const a = Date.parse(trend.time[0]);
+  const b = Date.parse(trend.time[trend.time.length - 1]);
+  const pad = Math.max(3600e3, 0.01 * (b - a));
+  return [new Date(a - pad).toISOString(), new Date(b + pad).toISOString()];
+}
+
 function draw() {
   const axis = $("#axis").value;
   const breaks = gapBreaks();
@@ -101,7 +112,9 @@ function draw() {
       });
     }
     const lay = layout({
-      xaxis: { title: { text: axis === "date" ? "Date (UTC)" : "Cycles (record number)" }, type: axis === "date" ? "date" : "linear" },
+      // The data's own extent: marker labels near the ends must not stretch the axis.
+      xaxis: { title: { text: axis === "date" ? "Date (UTC)" : "Cycles (record number)" }, type: axis === "date" ? "date" : "linear",
+        range: xRange(axis), autorange: false },
       yaxis: { title: { text: axisTitle(YLABELS[group.key] || group.label, unitOf(group.series)) } },
       legend: { orientation: "v", x: 1.02, y: 1, font: { size: 11 } },
       yaxis2: { overlaying: "y", range: [0, 1.05], visible: false, fixedrange: true },

@@ -89,10 +89,26 @@ export function lineWithBand(x, series, index, { band = true } = {}) {
   const style = styleFor(series.name, index);
   const traces = [];
   if (band && series.sigma) {
-    const upper = series.value.map((v, i) => (v === null || series.sigma[i] === null ? null : v + series.sigma[i]));
-    const lower = series.value.map((v, i) => (v === null || series.sigma[i] === null ? null : v - series.sigma[i]));
+    // One closed polygon (upper edge forward, lower edge back) per run of known values,
+    // separated by nulls: plotly's "toself" fills each null-separated segment on its own.
+    const bx = [];
+    const by = [];
+    let run = [];
+    const flush = () => {
+      if (run.length) {
+        if (bx.length) { bx.push(null); by.push(null); }
+        for (const i of run) { bx.push(x[i]); by.push(series.value[i] + series.sigma[i]); }
+        for (const i of [...run].reverse()) { bx.push(x[i]); by.push(series.value[i] - series.sigma[i]); }
+      }
+      run = [];
+    };
+    series.value.forEach((v, i) => {
+      if (v === null || series.sigma[i] === null || x[i] === null) flush();
+      else run.push(i);
+    });
+    flush();
     traces.push({
-      x: x.concat([...x].reverse()), y: upper.concat([...lower].reverse()),
+      x: bx, y: by,
       type: "scatter", mode: "lines", fill: "toself", fillcolor: rgba(style.color, 0.15),
       line: { width: 0 }, hoverinfo: "skip", showlegend: false, legendgroup: series.name,
       name: `${series.name} ±1σ`, meta: { role: "band" },
