@@ -20,14 +20,23 @@ slice from the start of the flight. ``--full`` runs the whole flight.
 
     /work/venv/bin/python bench/bench_simulate.py [--full] [--batch 64] [--seconds 300]
 
-Figures (2 cores shared with other jobs, load 5-7; CPU seconds per 2500 s
-flight, scaled from the slices):
-    before (numpy path for one engine): one engine 550-1400 s wall
-    (3.3-8 ms per step); batch of 64: 9.5-33 s per engine.
-    after: see the closing lines of a run; the scalar path is about ten times
-    faster than the numpy path for one engine and still several times over the
-    5 s target (about 30 us per 15 ms step would be needed; one gas-path
-    evaluation on floats costs about 25 us and a step needs 2-3).
+Figures measured 2026-11-22 (2 cores shared with other jobs at load 5-10, so
+wall times are 2-3x the CPU times; CPU seconds per 2500 s flight, scaled from
+the 300 s and 30 s slices; two runs each):
+
+    one engine, numpy path (before)   214-228 s CPU (800-850 s wall; 1.3 ms CPU per step)
+    one engine, scalar path (after)   12.7-18.4 s CPU (40 s wall; 76-110 us CPU per step)
+                                      -> 15x less CPU than before; target 5 s: FAIL, 2.5-3.7x over
+    batch of 64, per engine           4.4-4.6 s CPU (19-20 s wall), 3-4x less than one alone
+    batch of 64, per engine, before   5.5 s CPU vs 4.9 s after on the same 60 s slice (the
+                                      batch path skips unused stations now; trajectories
+                                      bit-identical to before)
+    converged gas path, scalar        1.25x the one-pass cost
+
+Why one engine is still over 5 s: the target is 30 us per 15 ms step; one
+gas-path evaluation on floats costs about 30 us (CPython arithmetic on about
+400 floats and 40 calls), and a step needs two plus, with sensor noise, about
+one full solve in four (2.5-3 evaluations per step).
 """
 
 from __future__ import annotations
