@@ -6,13 +6,14 @@ import { $, badge, fmtNum, fmtTime, h, params, progressBar, showError, sortableT
 import { PALETTE, axisTitle, layout, plot } from "./plots.js";
 
 const VARIANTS = { wssr_q: "WSSR on tuner estimates", wssr_y: "WSSR on sensor estimates", max_h: "largest health change", wssr_q_diagnostic: "WSSR, diagnostics-aware design" };
-const EVALUATION = { n_cases: 100, duration_s: 20, window_s: 5, fault_duration_s: 60, seed: 0 };
+// The job kind's defaults are the seed 002 settings (200 cases of 30 s, 300 s per fault).
+const EVALUATION = { seed: 0 };
 let designs = [];
 let models = [];
 const cache = new Map();
 
 function squared(unit) {
-  if (!unit || unit === "-" || unit === "1") return "dimensionless";
+  if (!unit || unit === "-" || unit === "1") return "1";
   return `${unit}²`;
 }
 
@@ -100,7 +101,9 @@ async function column(id, side) {
   } else {
     // A placeholder as tall as the plot keeps the two columns aligned.
     card.append(h("h3", {}, "Confusion matrix"), h("div", { class: "plot tall placeholder" },
-      evaluation ? (evaluation.result.isolation_note || "No confusion matrix for this variant.") : "No Monte Carlo evaluation yet: run one to see the confusion matrix."));
+      evaluation ? (evaluation.result.isolation_note || "No confusion matrix for this variant.")
+        : h("div", {}, h("p", {}, "No Monte Carlo evaluation yet."),
+          h("button", { type: "button", class: "run-evaluation", onclick: () => evaluate(design.id) }, "Run the Monte Carlo evaluation"))));
   }
   if (result.faults) card.append(h("h3", {}, `Misclassification probability (analytic), sum ${fmtNum(result.faults.pmc_sum, 3)}`), pmc);
   // Plot after the card is in the document, so the plots size to it.

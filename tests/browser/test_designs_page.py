@@ -60,6 +60,11 @@ def test_two_designs_side_by_side(page: Any, server: Server, console: Console) -
     title = page.evaluate("document.querySelector('#health-a').layout.yaxis.title.text")
     assert "%²" in title
     screenshot(page, "designs-compare")
+    # The placeholder's button runs the evaluation of design B in place.
+    page.click("#design-b .run-evaluation")
+    page.wait_for_selector("#confusion-b .main-svg", timeout=60_000)
+    evaluated = _get(server, f"/api/v1/designs/{b}/evaluation")
+    assert evaluated["result"]["monte_carlo"]["n_cases"] == 200  # the job's seed 002 defaults
     page.select_option("#variant", "max_h")
     page.wait_for_function(
         "document.querySelector('#design-a').innerText.includes('largest health change')"
