@@ -81,6 +81,12 @@ export const CONFIG = {
 };
 
 export function plot(div, traces, lay) {
+  if (typeof Plotly === "undefined") {
+    div.replaceChildren(Object.assign(document.createElement("p"), {
+      className: "error", textContent: "The plotting library did not load from /vendor/plotly.min.js (is the plotly package installed on the server?).",
+    }));
+    return Promise.resolve(div);
+  }
   return Plotly.react(div, traces, lay, CONFIG);
 }
 

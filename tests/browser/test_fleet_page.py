@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import httpx
 import pytest
 
 from tests.browser.conftest import Console, Server, screenshot, sign_in, traces
@@ -65,3 +66,22 @@ def test_fleet_status_lists_every_engine_and_plots_deterioration(
         "document.querySelector('#deterioration').data.some((t) => t.name === 'Fn')"
     )
     assert console.unexpected() == []
+
+
+def test_a_key_revoked_mid_session_sends_the_user_back_to_sign_in(
+    page: Any, server: Server, console: Console
+) -> None:
+    admin = {"X-API-Key": server.seeded.key}
+    created = httpx.post(
+        f"{server.base_url}/api/v1/keys", json={"name": "night shift", "role": "viewer"},
+        headers=admin,
+    ).json()
+    sign_in(page, created["key"], "/events.html")
+    revoked = httpx.delete(f"{server.base_url}/api/v1/keys/{created['id']}", headers=admin)
+    assert revoked.status_code == 200
+    page.select_option("#status", "closed")  # the next API call answers 401
+    page.wait_for_url("**/signin.html**")
+    assert "sign in again" in page.inner_text("#message")
+    assert page.evaluate("sessionStorage.getItem('fleethealth.apiKey')") is None
+    screenshot(page, "signin-after-revocation")
+    assert console.unexpected("401") == []
