@@ -47,13 +47,14 @@ def engine_trend(
 ) -> object:
     """Tuners, health parameters with 1-sigma, thrust and margins, residuals and WSSR over time,
     with installation changes, maintenance actions and events as markers."""
-    trend = trends.engine_trend(
-        session, principal.operator_id, engine_id, design_id=design_id, start=start, end=end,
-        max_points=max_points,
-    )
+    options: dict[str, Any] = {
+        "design_id": design_id, "start": start, "end": end, "max_points": max_points
+    }
     if format == "csv":
+        trend = trends.engine_trend(session, principal.operator_id, engine_id, **options)
         return _csv(trends.engine_trend_csv(trend), f"trend-{trend['esn']}.csv")
-    return Response(trends.to_json(trend), media_type="application/json")
+    body = trends.engine_trend_json(session, principal.operator_id, engine_id, **options)
+    return Response(body, media_type="application/json")
 
 
 @router.get(
@@ -69,9 +70,9 @@ def aircraft_trend(
     format: Literal["json", "csv"] = "json",
 ) -> object:
     """The union over the tail's installations: each engine's trend while it sat on the tail."""
-    trend = trends.aircraft_trend(
-        session, principal.operator_id, aircraft_id, start=start, end=end, max_points=max_points
-    )
+    options: dict[str, Any] = {"start": start, "end": end, "max_points": max_points}
     if format == "csv":
+        trend = trends.aircraft_trend(session, principal.operator_id, aircraft_id, **options)
         return _csv(trends.aircraft_trend_csv(trend), f"trend-{trend['tail']}.csv")
-    return Response(trends.to_json(trend), media_type="application/json")
+    body = trends.aircraft_trend_json(session, principal.operator_id, aircraft_id, **options)
+    return Response(body, media_type="application/json")
