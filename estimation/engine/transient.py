@@ -21,9 +21,11 @@ by a chord iteration (Newton with a Jacobian kept per engine and refreshed
 only when the iteration slows), started from the previous stage's solution,
 so a step costs two or three gas-path evaluations instead of a full Newton
 solve with finite-difference Jacobians. The first stage starts from the
-previous second stage (same time) moved by the command change through dz/du
-(kept with the Jacobian), the second from the first plus the last step's
-stage-to-stage change.
+previous second stage (same time), the second from the first, each moved by
+the change of states and commands through dz/dv = -J^-1 df/dv (kept with the
+Jacobian, v = Nf, Nc, TMHPC, TMHPT, Wf, VSV, VBV), so that with sensor noise
+(which moves the commands, hence k1, from step to step) the prediction stays
+within the one-pass limit and full solves are rare.
 
 Sensors are recorded at t_k, at the states and commands of the first stage.
 Only recorded stages compute every station; the others stop at the state
@@ -81,6 +83,7 @@ _CHORD_MAX = 6
 _ONE_PASS_LIMIT = 3e-4
 _REFRESH_EVERY = 200
 _FD_EPS = 1e-7
+_N_SENS = 7  # sensitivities of the unknowns: 4 states and 3 commands
 
 Schedule = Callable[[float], OperatingPoint]
 
@@ -113,7 +116,7 @@ class _GasPathSolver:
     def __init__(self, design: EngineDesign, b: int) -> None:
         self.d = design
         self.jinv: np.ndarray | None = None
-        self.dzdu = np.zeros((b, 5, 3))
+        self.dzdu = np.zeros((b, 5, _N_SENS))
         self.b = b
         self.evaluations = 0
         self.calls = 0
@@ -122,43 +125,48 @@ class _GasPathSolver:
 
     def _refresh(self, op: Operating, z: np.ndarray, rows: np.ndarray) -> None:
         """Jacobians by forward differences in one stacked call: d residual / d z
-        (kept inverted) and dz/du = -J^-1 d residual / d(Wf, VSV, VBV)."""
+        (kept inverted) and dz/dv = -J^-1 d residual / dv in the states and commands
+        v = (Nf, Nc, TMHPC, TMHPT, Wf, VSV, VBV)."""
         n = z.shape[1]
         k = rows.size
         sub = op.take(rows)
         base = np.arange(k)
-        stacked = sub.take(np.tile(base, n + 4))
-        zs = np.concatenate([z[rows]] + [z[rows] + _FD_EPS * np.eye(n)[j] for j in range(n)]
-                            + [z[rows]] * 3)
-        du = np.stack([_FD_EPS * np.maximum(np.abs(sub.wf), 1e-3),
-                       np.full(k, 1e-4), np.full(k, 1e-4)], axis=1)
         m = n + 1
-        wf, vsv, vbv = stacked.wf.copy(), stacked.vsv.copy(), stacked.vbv.copy()
-        wf[m * k:(m + 1) * k] += du[:, 0]
-        vsv[(m + 1) * k:(m + 2) * k] += du[:, 1]
-        vbv[(m + 2) * k:(m + 3) * k] += du[:, 2]
-        stacked = stacked._replace(wf=wf, vsv=vsv, vbv=vbv)
-        r = gas_path(stacked, zs, self.d, stations=False)[0].reshape(n + 4, k, n)
+        stacked = sub.take(np.tile(base, m + _N_SENS))
+        zs = np.concatenate([z[rows]] + [z[rows] + _FD_EPS * np.eye(n)[j] for j in range(n)]
+                            + [z[rows]] * _N_SENS)
+        dv = np.stack([_FD_EPS * np.maximum(np.abs(sub.nf), 1.0),
+                       _FD_EPS * np.maximum(np.abs(sub.nc), 1.0),
+                       _FD_EPS * np.maximum(np.abs(sub.tm_hpc), 1.0),
+                       _FD_EPS * np.maximum(np.abs(sub.tm_hpt), 1.0),
+                       _FD_EPS * np.maximum(np.abs(sub.wf), 1e-3),
+                       np.full(k, 1e-4), np.full(k, 1e-4)], axis=1)
+        fields = [f.copy() for f in stacked[:_N_SENS]]
+        for c in range(_N_SENS):
+            fields[c][(m + c) * k:(m + c + 1) * k] += dv[:, c]
+        stacked = Operating(*fields, stacked.fc, stacked.h)
+        r = gas_path(stacked, zs, self.d, stations=False)[0].reshape(m + _N_SENS, k, n)
         self.evaluations += 1
         jac = np.transpose((r[1:m] - r[0]) / _FD_EPS, (1, 2, 0))
-        ru = np.transpose((r[m:] - r[0]) / du.T[:, :, None], (1, 2, 0))  # [k, n, 3]
+        ru = np.transpose((r[m:] - r[0]) / dv.T[:, :, None], (1, 2, 0))  # [k, n, 7]
         # The Jacobian is reused over many steps, so its inverse (5 x 5, well
         # conditioned: flows over design against betas and pressure ratios) is
         # kept rather than re-solving a factorisation each time.
         inv = np.linalg.inv(jac)
         if self.jinv is None:
             self.jinv = np.repeat(inv[:1], self.b, axis=0)
-            self.dzdu = np.zeros((self.b, n, 3))
+            self.dzdu = np.zeros((self.b, n, _N_SENS))
         self.jinv[rows] = inv
         self.dzdu[rows] = -np.einsum("bij,bjk->bik", inv, ru)
 
     def predict(self, z: np.ndarray, op_from: Operating, op_to: Operating) -> np.ndarray:
-        """Unknowns after a change of commands only: z + dz/du (u_to - u_from)."""
+        """Unknowns after a change of states and commands: z + dz/dv (v_to - v_from)
+        (the flight condition's drift over a step is left to the correction)."""
         if self.jinv is None:
             return z
-        du = np.stack([op_to.wf - op_from.wf, op_to.vsv - op_from.vsv,
-                       op_to.vbv - op_from.vbv], axis=1)
-        return z + np.einsum("bij,bj->bi", self.dzdu, du)
+        dv = np.stack([b - a for a, b in zip(op_from[:_N_SENS], op_to[:_N_SENS],
+                                             strict=True)], axis=1)
+        return z + np.einsum("bij,bj->bi", self.dzdu, dv)
 
     def solve(self, op: Operating, z0: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Chord iterations until every row's mismatch is below _CHORD_TOL (at least one
@@ -334,7 +342,6 @@ def simulate(
     solve = solver.one_pass if gas_path_solution == "one_pass" else solver.solve
     z2 = z
     op2: Operating | None = None
-    dz12 = np.zeros_like(z)
     cond = cond_next = cond0
     for k in range(n_steps + 1):
         t = k * dt
@@ -369,8 +376,10 @@ def simulate(
         cond_next = _broadcast(sched(t + dt), b)
         op2 = operating(x + dt * k1, u, _env(cond_next), h)
         solver.full = False
-        z2, st2 = solve(op2, z1 + dz12)
-        dz12 = z2 - z1
+        # The second stage differs from the first by dt k1 in the states only: the
+        # unknowns move by dz/dx dt k1 (a noisy command moves k1, so extrapolating the
+        # last step's stage-to-stage change in time would carry last step's noise).
+        z2, st2 = solve(op2, solver.predict(z1, op, op2))
         k2 = np.stack([st2["dnf"], st2["dnc"], st2["dtm_hpc"], st2["dtm_hpt"]], axis=1)
         x = x + 0.5 * dt * (k1 + k2)
         # The second stage sits at t_k+1 with x_k + dt k1 = x_k+1 + O(dt^2): its

@@ -46,6 +46,14 @@ def _operating(*fields: Any) -> Operating:
     (health is taken from the solver, not from here)."""
     return Operating(*fields, None)  # type: ignore[arg-type,call-arg]
 _NOISE_BLOCK = 4096  # steps of sensor noise drawn at once
+
+
+def _sensitivity_steps(op: Operating, eps: float) -> tuple[float, ...]:
+    """Forward-difference steps in Nf, Nc, TMHPC, TMHPT, Wf (relative) and VSV, VBV
+    (absolute, % open): the same as ``transient._GasPathSolver._refresh``."""
+    return (eps * max(abs(float(op.nf)), 1.0), eps * max(abs(float(op.nc)), 1.0),
+            eps * max(abs(float(op.tm_hpc)), 1.0), eps * max(abs(float(op.tm_hpt)), 1.0),
+            eps * max(abs(float(op.wf)), 1e-3), 1e-4, 1e-4)
 Stations = dict[str, Any]
 
 
@@ -86,7 +94,7 @@ class ScalarGasPath:
         self.hs = hs  # health / 100, floats
         self.h = h  # [1, 13] percent, for the numpy fallback
         self.jinv: list[Vector] | None = None
-        self.dzdu: list[Vector] = [[0.0] * 3 for _ in range(5)]
+        self.dzdu: list[Vector] = [[0.0] * 7 for _ in range(5)]
         self.tol, self.polish, self.max_iter = chord_tol, chord_polish, chord_max
         self.limit, self.every, self.eps = one_pass_limit, refresh_every, fd_eps
         self.calls = 0
@@ -111,7 +119,8 @@ class ScalarGasPath:
         return res[0].tolist(), {k: float(np.asarray(v).reshape(-1)[0]) for k, v in st.items()}
 
     def _refresh(self, op: Operating, z: Vector) -> None:
-        """Forward-difference Jacobians in the unknowns and in (Wf, VSV, VBV)."""
+        """Forward-difference Jacobians in the unknowns and in the states and commands
+        (Nf, Nc, TMHPC, TMHPT, Wf, VSV, VBV): J kept inverted, dz/dv = -J^-1 df/dv."""
         eps = self.eps
         r0 = self.evaluate(op, z, False)[0]
         jac = np.empty((5, 5))
@@ -120,22 +129,27 @@ class ScalarGasPath:
             zj[j] = zj[j] + eps
             rj = self.evaluate(op, zj, False)[0]
             jac[:, j] = [(rj[i] - r0[i]) / eps for i in range(5)]
-        du = (eps * max(abs(float(op.wf)), 1e-3), 1e-4, 1e-4)
-        ru = np.empty((5, 3))
-        for c, opc in enumerate((op._replace(wf=op.wf + du[0]), op._replace(vsv=op.vsv + du[1]),
-                                 op._replace(vbv=op.vbv + du[2]))):
-            rc = self.evaluate(opc, z, False)[0]
-            ru[:, c] = [(rc[i] - r0[i]) / du[c] for i in range(5)]
+        steps = _sensitivity_steps(op, eps)
+        ru = np.empty((5, 7))
+        for c in range(7):
+            fields = list(op)
+            fields[c] = fields[c] + steps[c]
+            rc = self.evaluate(Operating(*fields), z, False)[0]
+            ru[:, c] = [(rc[i] - r0[i]) / steps[c] for i in range(5)]
         inv = np.linalg.inv(jac)
         self.jinv = inv.tolist()
         self.dzdu = (-(inv @ ru)).tolist()
 
     def predict(self, z: Vector, op_from: Operating, op_to: Operating) -> Vector:
-        """Unknowns after a change of commands only: z + dz/du (u_to - u_from)."""
+        """Unknowns after a change of states and commands: z + dz/dv (v_to - v_from),
+        v = (Nf, Nc, TMHPC, TMHPT, Wf, VSV, VBV) (the flight condition's drift over a
+        step is left to the correction)."""
         if self.jinv is None:
             return z
-        d0, d1, d2 = op_to.wf - op_from.wf, op_to.vsv - op_from.vsv, op_to.vbv - op_from.vbv
-        return [zi + (g[0] * d0 + g[1] * d1 + g[2] * d2)
+        dv = [b - a for a, b in zip(op_from[:7], op_to[:7], strict=True)]
+        d0, d1, d2, d3, d4, d5, d6 = dv
+        return [zi + (g[0] * d0 + g[1] * d1 + g[2] * d2 + g[3] * d3 + g[4] * d4
+                      + g[5] * d5 + g[6] * d6)
                 for zi, g in zip(z, self.dzdu, strict=True)]
 
     def _chord(self, z: Vector, res: Vector) -> Vector:
@@ -199,7 +213,6 @@ def run_one(
     half = 0.5 * dt
     z2 = z
     op2: Operating | None = None
-    dz12 = [0.0] * 5
     cond = sched(0.0)
     fc = flight_condition(cond[0], cond[1], cond[2], SCALAR)
     # Noise is drawn in blocks of steps: the same numbers, in the same order, as
@@ -243,8 +256,10 @@ def run_one(
         xs = [xi + dt * ki for xi, ki in zip(x, k1, strict=True)]
         op2 = _operating(xs[0], xs[1], xs[2] / RANKINE, xs[3] / RANKINE, wf, u[1], u[2], fc)
         solver.full = False
-        z2, st2 = solve(op2, [a + b for a, b in zip(z1, dz12, strict=True)])
-        dz12 = [a - b for a, b in zip(z2, z1, strict=True)]
+        # The second stage differs from the first by dt k1 in the states only: the
+        # unknowns move by dz/dx dt k1 (a noisy command moves k1, so extrapolating the
+        # last step's stage-to-stage change in time would carry last step's noise).
+        z2, st2 = solve(op2, solver.predict(z1, op, op2))
         k2 = (st2["dnf"], st2["dnc"], st2["dtm_hpc"], st2["dtm_hpt"])
         x = [xi + half * (a + b) for xi, a, b in zip(x, k1, k2, strict=True)]
         # The controller's next sample: the sensors it reads at the second stage.
