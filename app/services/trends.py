@@ -16,11 +16,18 @@ from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
-from sqlalchemy import Float, cast, func, select
+from sqlalchemy import Float, and_, cast, func, select
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidInput, NotFound
-from app.models import Aircraft, Engine, EstimatorDesign, Installation, MaintenanceAction
+from app.models import (
+    Aircraft,
+    Engine,
+    EngineType,
+    EstimatorDesign,
+    Installation,
+    MaintenanceAction,
+)
 from app.models.estimates import (
     BLOCKS,
     VALUE_DTYPE,
@@ -122,19 +129,66 @@ def resolve_design(
     return None if state is None else session.get(EstimatorDesign, state.design_id)
 
 
+@dataclass(frozen=True)
+class TrendTarget:
+    """What a trend shows: the engine, its type's name and the design (None: not estimated);
+    ``layout`` is the filter state's layout document when already read (None: read it)."""
+
+    engine_id: int
+    esn: str
+    engine_type: str
+    design_id: int | None
+    design_name: str | None
+    layout: dict[str, Any] | None = None
+
+
+def trend_target(
+    session: Session, operator_id: int, engine_id: int, design_id: int | None
+) -> TrendTarget:
+    """The engine and design of a trend. With the engine type's active design (the usual
+    case), one query reads the engine, its type, the design and the layout; otherwise
+    ``get_engine`` and ``resolve_design`` decide."""
+    if design_id is None:
+        e, t = Engine.__table__, EngineType.__table__
+        d, f = EstimatorDesign.__table__, FilterState.__table__
+        row = session.connection().execute(
+            select(e.c.operator_id, e.c.esn, t.c.name, d.c.id, d.c.name, f.c.layout)
+            .join(t, t.c.id == e.c.engine_type_id)
+            .outerjoin(d, and_(d.c.engine_type_id == e.c.engine_type_id, d.c.active.is_(True)))
+            .outerjoin(f, and_(f.c.engine_id == e.c.id, f.c.design_id == d.c.id))
+            .where(e.c.id == engine_id)
+            .limit(1)
+        ).first()
+        if row is None or row[0] != operator_id:
+            raise NotFound(f"engine {engine_id} not found")
+        if row[3] is not None:
+            return TrendTarget(engine_id, row[1], row[2], row[3], row[4], row[5])
+    engine = get_engine(session, operator_id, engine_id)
+    design = resolve_design(session, operator_id, engine, design_id)
+    return TrendTarget(
+        engine.id, engine.esn, engine.engine_type.name,
+        None if design is None else design.id, None if design is None else design.name,
+    )
+
+
 def load_trend_data(
     session: Session,
     engine_id: int,
     design_id: int,
     start: datetime | None = None,
     end: datetime | None = None,
+    layout_doc: dict[str, Any] | None = None,
 ) -> TrendData | None:
-    """Estimates of one engine and design in ``[start, end)``; None when never estimated."""
-    layout_doc = session.scalar(
-        select(FilterState.layout).where(
-            FilterState.engine_id == engine_id, FilterState.design_id == design_id
+    """Estimates of one engine and design in ``[start, end)``; None when never estimated.
+
+    ``layout_doc``: the filter state's layout when the caller has read it already.
+    """
+    if layout_doc is None:
+        layout_doc = session.scalar(
+            select(FilterState.layout).where(
+                FilterState.engine_id == engine_id, FilterState.design_id == design_id
+            )
         )
-    )
     if layout_doc is None:
         return None
     layout = EstimateLayout.from_dict(layout_doc)
@@ -235,8 +289,11 @@ def _series_columns(
     mean_epoch = np.add.reduceat(data.epoch, starts) / counts
     mean_seq = np.add.reduceat(data.seq.astype(float), starts) / counts
     # A bucket keeps its phase when all its records share it: min == max of the phase codes.
-    names, codes = np.unique(np.asarray(data.phase, dtype=object), return_inverse=True)
-    codes = codes.ravel()
+    index: dict[str, int] = {}
+    codes = np.fromiter(
+        (index.setdefault(p, len(index)) for p in data.phase), np.int64, len(data.phase)
+    )
+    names = list(index)
     first = np.minimum.reduceat(codes, starts)
     same = first == np.maximum.reduceat(codes, starts)
     phases = [names[c] if one else None for c, one in zip(first.tolist(), same.tolist(),
@@ -325,24 +382,24 @@ def trend_groups(
 
 
 def _markers(
-    session: Session, engine: Engine, design_id: int | None
+    session: Session, engine_id: int, design_id: int | None
 ) -> dict[str, list[dict[str, Any]]]:
     installs = session.execute(
         select(Installation.installed_at, Installation.removed_at, Installation.position,
                Aircraft.id, Aircraft.tail)
         .join(Aircraft, Aircraft.id == Installation.aircraft_id)
-        .where(Installation.engine_id == engine.id)
+        .where(Installation.engine_id == engine_id)
         .order_by(Installation.installed_at)
     ).all()
     maintenance = session.execute(
         select(MaintenanceAction.id, MaintenanceAction.kind, MaintenanceAction.performed_at,
                MaintenanceAction.notes)
-        .where(MaintenanceAction.engine_id == engine.id)
+        .where(MaintenanceAction.engine_id == engine_id)
         .order_by(MaintenanceAction.performed_at)
     ).all()
     events_query = (
         select(Event.id, Event.detected_at, Event.kind, Event.fault, Event.status, Event.seq)
-        .where(Event.engine_id == engine.id)
+        .where(Event.engine_id == engine_id)
         .order_by(Event.detected_at)
     )
     if design_id is not None:
@@ -397,15 +454,18 @@ def engine_trend(
     ``columns_of=_encoded`` (``engine_trend_json``) leaves the series as JSON text.
     """
     _check_range(start, end)
-    engine = get_engine(session, operator_id, engine_id)
-    design = resolve_design(session, operator_id, engine, design_id)
-    data = None if design is None else load_trend_data(session, engine.id, design.id, start, end)
+    target = trend_target(session, operator_id, engine_id, design_id)
+    data = None
+    if target.design_id is not None:
+        data = load_trend_data(
+            session, target.engine_id, target.design_id, start, end, target.layout
+        )
     out: dict[str, Any] = {
-        "engine_id": engine.id,
-        "esn": engine.esn,
-        "engine_type": engine.engine_type.name,
-        "design_id": None if design is None else design.id,
-        "design_name": None if design is None else design.name,
+        "engine_id": target.engine_id,
+        "esn": target.esn,
+        "engine_type": target.engine_type,
+        "design_id": target.design_id,
+        "design_name": target.design_name,
         "start": start,
         "end": end,
         "n_records": 0,
@@ -427,7 +487,7 @@ def engine_trend(
             groups=groups,
         )
     if markers:
-        out.update(_markers(session, engine, None if design is None else design.id))
+        out.update(_markers(session, target.engine_id, target.design_id))
     else:
         out.update(installations=[], maintenance=[], events=[])
     return out
