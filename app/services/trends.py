@@ -95,6 +95,14 @@ def _iso(epoch: float) -> str:
     return datetime.fromtimestamp(float(epoch), UTC).isoformat().replace("+00:00", "Z")
 
 
+def _iso_list(epoch: np.ndarray) -> list[str]:
+    """``[_iso(t) for t in epoch]``; whole seconds (the usual case) formatted by numpy."""
+    if len(epoch) and np.all(np.floor(epoch) == epoch) and np.all(np.abs(epoch) < 2.5e11):
+        text = np.datetime_as_string(epoch.astype(np.int64).astype("datetime64[s]"))
+        return [f"{t}Z" for t in text.tolist()]
+    return [_iso(t) for t in epoch]
+
+
 def get_engine(session: Session, operator_id: int, engine_id: int) -> Engine:
     engine = session.get(Engine, engine_id)
     if engine is None or engine.operator_id != operator_id:
@@ -280,7 +288,7 @@ def _series_columns(
     """Per-point time/seq/phase columns and the bucket mean, min and max of every value."""
     if starts is None:
         columns = {
-            "time": [_iso(t) for t in data.epoch],
+            "time": _iso_list(data.epoch),
             "seq": data.seq.tolist(),
             "phase": data.phase,
         }
@@ -288,18 +296,15 @@ def _series_columns(
     counts = np.diff(np.append(starts, len(data.epoch)))
     mean_epoch = np.add.reduceat(data.epoch, starts) / counts
     mean_seq = np.add.reduceat(data.seq.astype(float), starts) / counts
-    # A bucket keeps its phase when all its records share it: min == max of the phase codes.
-    index: dict[str, int] = {}
-    codes = np.fromiter(
-        (index.setdefault(p, len(index)) for p in data.phase), np.int64, len(data.phase)
-    )
-    names = list(index)
-    first = np.minimum.reduceat(codes, starts)
-    same = first == np.maximum.reduceat(codes, starts)
-    phases = [names[c] if one else None for c, one in zip(first.tolist(), same.tolist(),
-                                                            strict=True)]
+    # A bucket keeps its phase when all its records share it: no phase change inside it.
+    phase = np.asarray(data.phase)
+    changes = np.concatenate(([0], np.cumsum(phase[1:] != phase[:-1])))
+    ends = np.append(starts[1:], len(phase)) - 1
+    same = (changes[starts] == changes[ends]).tolist()
+    phases = [data.phase[i] if one else None for i, one in zip(starts.tolist(), same,
+                                                                strict=True)]
     columns = {
-        "time": [_iso(t) for t in mean_epoch],
+        "time": _iso_list(mean_epoch),
         "seq": np.round(mean_seq, 1).tolist(),
         "phase": phases,
     }
