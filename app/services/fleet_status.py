@@ -67,6 +67,89 @@ def _state(summary: dict[str, Any] | None, n_open: int, layout: EstimateLayout |
     return "normal"
 
 
+def _layouts(
+    session: Session, operator_id: int, pairs: set[tuple[int, int]]
+) -> dict[tuple[int, int], EstimateLayout]:
+    """(engine id, design id) -> layout, for the given pairs. A layout comes from its design,
+    so one distinct document per design is read and decoded once; a design whose engines
+    carry different documents falls back to reading theirs one by one."""
+    designs = {design_id for _engine_id, design_id in pairs}
+    docs: dict[int, list[Any]] = defaultdict(list)
+    for design_id, doc in session.execute(
+        select(FilterState.design_id, FilterState.layout)
+        .where(FilterState.operator_id == operator_id, FilterState.design_id.in_(designs))
+        .distinct()
+    ).all():
+        docs[design_id].append(doc)
+    single = {
+        design_id: EstimateLayout.from_dict(found[0])
+        for design_id, found in docs.items()
+        if len(found) == 1
+    }
+    out = {pair: single[pair[1]] for pair in pairs if pair[1] in single}
+    mixed = designs - set(single)
+    if mixed:
+        for engine_id, design_id, doc in session.execute(
+            select(FilterState.engine_id, FilterState.design_id, FilterState.layout).where(
+                FilterState.operator_id == operator_id, FilterState.design_id.in_(mixed)
+            )
+        ).all():
+            if (engine_id, design_id) in pairs:
+                out[(engine_id, design_id)] = EstimateLayout.from_dict(doc)
+    return out
+
+
+def _summaries(
+    session: Session, operator_id: int, rows: list[Any]
+) -> list[tuple[dict[str, Any] | None, bool]]:
+    """Per chosen filter-state row (or None): the ``health_summary`` of its latest estimate
+    (None without one) and whether it is on watch. The blobs of each design are decoded with
+    one ``numpy.frombuffer`` and summarised with array operations."""
+    out: list[tuple[dict[str, Any] | None, bool]] = [(None, False)] * len(rows)
+    with_data = [i for i, row in enumerate(rows) if row is not None and row.packed is not None]
+    if not with_data:
+        return out
+    layouts = _layouts(
+        session, operator_id, {(rows[i].engine_id, rows[i].design_id) for i in with_data}
+    )
+    by_layout: dict[int, tuple[EstimateLayout, list[int]]] = {}
+    for i in with_data:
+        layout = layouts[(rows[i].engine_id, rows[i].design_id)]
+        by_layout.setdefault(id(layout), (layout, []))[1].append(i)
+    for layout, members in by_layout.values():
+        values = layout.unpack([rows[i].packed for i in members])
+        s = layout.slices()
+        h, h_sigma, z = values[:, s["h"]], values[:, s["h_sigma"]], values[:, s["z"]]
+        n_health = h.shape[1]
+        abs_h = np.abs(h)
+        # The same tests as ``health_summary`` and the watch rule, row by row.
+        watch = np.any((abs_h > WATCH_PERCENT) & (abs_h > WATCH_SIGMAS * h_sigma), axis=1)
+        worst = np.argmax(abs_h, axis=1) if n_health else None
+        k = thrust_index(layout.aux)
+        health_lists = np.round(h, 4).tolist()
+        aux_lists = np.round(z, 4).tolist()
+        if worst is not None:
+            picked = np.arange(len(members))
+            worst_values = h[picked, worst].tolist()
+            worst_sigmas = h_sigma[picked, worst].tolist()
+            worst_list = worst.tolist()
+        thrust = None if k is None else (-z[:, k]).tolist()
+        for r, i in enumerate(members):
+            row = rows[i]
+            summary = {
+                "recorded_at": row.recorded_at,
+                "seq": row.seq,
+                "worst_health": None if worst is None else layout.health[worst_list[r]],
+                "worst_health_value": None if worst is None else round(worst_values[r], 4),
+                "worst_health_sigma": None if worst is None else round(worst_sigmas[r], 4),
+                "thrust_deficit": None if thrust is None else round(thrust[r], 4),
+                "health": dict(zip(layout.health, health_lists[r], strict=True)),
+                "aux": dict(zip(layout.aux, aux_lists[r], strict=True)),
+            }
+            out[i] = (summary, bool(watch[r]))
+    return out
+
+
 def fleet_status(session: Session, operator_id: int) -> dict[str, Any]:
     """Every engine of the operator with current tail/position, type, last data, latest health
     summary and open events (``app.schemas.estimates.FleetStatus``)."""
@@ -93,48 +176,53 @@ def fleet_status(session: Session, operator_id: int) -> dict[str, Any]:
             )
         ).all()
     }
-    latest = session.execute(
+    f, est = FilterState.__table__, Estimate.__table__
+    latest = session.connection().execute(
         select(
-            FilterState.engine_id, FilterState.design_id, FilterState.layout,
-            FilterState.n_records, FilterState.last_recorded_at, Estimate.recorded_at,
-            Estimate.seq, Estimate.packed,
+            f.c.engine_id, f.c.design_id, f.c.n_records, f.c.last_recorded_at, est.c.recorded_at,
+            est.c.seq, est.c.packed,
         )
         .outerjoin(
-            Estimate,
+            est,
             and_(
-                Estimate.engine_id == FilterState.engine_id,
-                Estimate.design_id == FilterState.design_id,
-                Estimate.seq == FilterState.n_records - 1,
+                est.c.engine_id == f.c.engine_id,
+                est.c.design_id == f.c.design_id,
+                est.c.seq == f.c.n_records - 1,
             ),
         )
-        .where(FilterState.operator_id == operator_id)
+        .where(f.c.operator_id == operator_id)
     ).all()
     by_engine: dict[int, dict[int, Any]] = defaultdict(dict)
     for state_row in latest:
         by_engine[state_row.engine_id][state_row.design_id] = state_row
     counts = open_event_counts(session, operator_id)
     newest_events = latest_open_events(session, operator_id)
-    layouts: dict[int, EstimateLayout] = {}
 
-    out = []
-    for engine_id, esn, type_id, type_name in engines:
+    # The row each engine shows: its type's active design, else its latest filter state.
+    chosen: list[Any] = []
+    for engine_id, _esn, type_id, _type_name in engines:
         states = by_engine.get(engine_id, {})
         design_id = active.get(type_id)
         row: Any = states.get(design_id) if design_id is not None else None
         if row is None and states:
             row = max(states.values(), key=lambda r: (r.last_recorded_at is not None,
                                                       r.last_recorded_at, r.design_id))
-        summary = layout = values = None
-        if row is not None and row.packed is not None:
-            # One layout per design: decode it once.
-            if row.design_id not in layouts:
-                layouts[row.design_id] = EstimateLayout.from_dict(row.layout)
-            layout = layouts[row.design_id]
-            values = layout.unpack([row.packed])[0]
-            summary = health_summary(layout, values, row.recorded_at, row.seq)
+        chosen.append(row)
+    summaries = _summaries(session, operator_id, chosen)
+
+    out = []
+    for (engine_id, esn, _type_id, type_name), row, (summary, watch) in zip(
+        engines, chosen, summaries, strict=True
+    ):
         n_open = counts.get(engine_id, 0)
         event = newest_events.get(engine_id)
         where = installed.get(engine_id)
+        if n_open:
+            state = "alert"
+        elif summary is None:
+            state = "no_data"
+        else:
+            state = "watch" if watch else "normal"
         out.append(
             {
                 "engine_id": engine_id,
@@ -146,7 +234,7 @@ def fleet_status(session: Session, operator_id: int) -> dict[str, Any]:
                 "design_id": None if row is None else row.design_id,
                 "last_data": None if row is None else row.last_recorded_at,
                 "n_records": 0 if row is None else row.n_records,
-                "state": _state(summary, n_open, layout, values),
+                "state": state,
                 "health": summary,
                 "open_events": n_open,
                 "latest_event": None
