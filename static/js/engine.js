@@ -89,7 +89,8 @@ function draw() {
   const x = axis === "date"
     ? withBreaks(trend.time, breaks, (i) => new Date((Date.parse(trend.time[i]) + Date.parse(trend.time[i + 1])) / 2).toISOString())
     : withBreaks(trend.seq, breaks, (i) => (trend.seq[i] + trend.seq[i + 1]) / 2);
-  const broken = (s) => ({ ...s, value: withBreaks(s.value, breaks), sigma: s.sigma && withBreaks(s.sigma, breaks) });
+  const broken = (s) => ({ ...s, value: withBreaks(s.value, breaks), sigma: s.sigma && withBreaks(s.sigma, breaks),
+    min: s.min && withBreaks(s.min, breaks), max: s.max && withBreaks(s.max, breaks) });
   const marks = markers(axis);
   const container = $("#plots");
   container.className = "grid two";
@@ -101,7 +102,7 @@ function draw() {
     const id = `plot-${group.key}`;
     const div = h("div", { id, class: "plot" });
     container.append(h("section", { class: "card" }, h("h2", {}, TITLES[group.key] || group.label), div));
-    const traces = group.series.flatMap((s, i) => lineWithBand(x, broken(s), i, { band: !!s.sigma }));
+    const traces = group.series.flatMap((s, i) => lineWithBand(x, broken(s), i));
     // Event markers as points too: hovering one names the event.
     const events = marks.filter((m) => m.kind === "event");
     if (events.length) {

@@ -90,11 +90,16 @@ export function plot(div, traces, lay) {
   return Plotly.react(div, traces, lay, CONFIG);
 }
 
-// A line with its 1-sigma band: a filled band trace (legend-grouped, no hover) and the line.
+// A line with its band: value ± 1 sigma where the series has a sigma, else (a decimated
+// trend) the min-max envelope of each bucket, so a spike survives decimation. The band is a
+// filled trace (legend-grouped, no hover) drawn under the line.
 export function lineWithBand(x, series, index, { band = true } = {}) {
   const style = styleFor(series.name, index);
   const traces = [];
-  if (band && series.sigma) {
+  const sigma = series.sigma;
+  const upper = sigma ? series.value.map((v, i) => (v === null || sigma[i] === null ? null : v + sigma[i])) : series.max;
+  const lower = sigma ? series.value.map((v, i) => (v === null || sigma[i] === null ? null : v - sigma[i])) : series.min;
+  if (band && upper && lower) {
     // One closed polygon (upper edge forward, lower edge back) per run of known values,
     // separated by nulls: plotly's "toself" fills each null-separated segment on its own.
     const bx = [];
@@ -103,21 +108,21 @@ export function lineWithBand(x, series, index, { band = true } = {}) {
     const flush = () => {
       if (run.length) {
         if (bx.length) { bx.push(null); by.push(null); }
-        for (const i of run) { bx.push(x[i]); by.push(series.value[i] + series.sigma[i]); }
-        for (const i of [...run].reverse()) { bx.push(x[i]); by.push(series.value[i] - series.sigma[i]); }
+        for (const i of run) { bx.push(x[i]); by.push(upper[i]); }
+        for (const i of [...run].reverse()) { bx.push(x[i]); by.push(lower[i]); }
       }
       run = [];
     };
-    series.value.forEach((v, i) => {
-      if (v === null || series.sigma[i] === null || x[i] === null) flush();
+    upper.forEach((u, i) => {
+      if (u === null || lower[i] === null || x[i] === null) flush();
       else run.push(i);
     });
     flush();
     traces.push({
       x: bx, y: by,
-      type: "scatter", mode: "lines", fill: "toself", fillcolor: rgba(style.color, 0.15),
+      type: "scatter", mode: "lines", fill: "toself", fillcolor: rgba(style.color, sigma ? 0.15 : 0.1),
       line: { width: 0 }, hoverinfo: "skip", showlegend: false, legendgroup: series.name,
-      name: `${series.name} ±1σ`, meta: { role: "band" },
+      name: `${series.name} ${sigma ? "±1σ" : "min–max"}`, meta: { role: "band" },
     });
   }
   traces.push({

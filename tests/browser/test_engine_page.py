@@ -39,8 +39,8 @@ def test_trend_plots_every_group_with_bands_markers_and_units(
         assert [t["name"] for t in lines] == [s["name"] for s in group["series"]]
         # Every record is plotted (a long gap in the data adds one null point to break the line).
         assert all(api["n_points"] <= t["n"] <= api["n_points"] + 10 for t in lines)
-        with_sigma = [s for s in group["series"] if s["sigma"] is not None]
-        assert len(bands) == len(with_sigma)
+        banded = [s for s in group["series"] if s["sigma"] is not None or s["max"] is not None]
+        assert len(bands) == len(banded)
         assert [t["name"] for t in plotted if t["name"] == "events"] == ["events"]
         title = page.evaluate(
             f"document.querySelector('#plot-{group['key']}').layout.yaxis.title.text"
@@ -51,6 +51,23 @@ def test_trend_plots_every_group_with_bands_markers_and_units(
     event_lines = [s for s in shapes if s["line"]["color"] == "#D55E00"]
     assert sorted(s["x0"] for s in event_lines) == sorted(e["detected_at"] for e in api["events"])
     screenshot(page, "engine-trend")
+
+    # Decimated to 200 buckets: residuals and WSSR (no sigma) get their bucket min-max band.
+    page.select_option("#max_points", "200")
+    page.click("#form button[type=submit]")
+    page.wait_for_function(
+        "document.querySelector('#plot-residuals').data.some((t) => t.name.endsWith('min–max'))"
+    )
+    decimated = _api_trend(server, engine_id, max_points=200)
+    assert decimated["decimated"] and decimated["n_points"] <= 200
+    residuals = next(g for g in decimated["groups"] if g["key"] == "residuals")
+    envelope = [t for t in traces(page, "#plot-residuals") if t["role"] == "band"]
+    assert [t["name"] for t in envelope] == [f"{s['name']} min–max" for s in residuals["series"]]
+    page.select_option("#max_points", "1000")
+    page.click("#form button[type=submit]")
+    page.wait_for_function(
+        "!document.querySelector('#plot-residuals').data.some((t) => t.name.endsWith('min–max'))"
+    )
 
     # Cycles axis: the record numbers.
     page.select_option("#axis", "cycles")
