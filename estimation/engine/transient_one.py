@@ -32,6 +32,7 @@ from estimation.engine.turbofan import (
     Operating,
     gas_path,
     gas_path_columns,
+    operating_variables,
     outputs_from_stations,
 )
 from estimation.engine.xp import SCALAR, SCALAR_ERRORS
@@ -46,6 +47,7 @@ def _operating(*fields: Any) -> Operating:
     (health is taken from the solver, not from here)."""
     return Operating(*fields, None)  # type: ignore[arg-type,call-arg]
 _NOISE_BLOCK = 4096  # steps of sensor noise drawn at once
+_DERIVATIVES = ("dnf", "dnc", "dtm_hpc", "dtm_hpt")
 
 
 def _sensitivity_steps(op: Operating, eps: float) -> tuple[float, ...]:
@@ -95,12 +97,16 @@ class ScalarGasPath:
         self.h = h  # [1, 13] percent, for the numpy fallback
         self.jinv: list[Vector] | None = None
         self.dzdu: list[Vector] = [[0.0] * 7 for _ in range(5)]
+        self.dkdv: list[Vector] = [[0.0] * 7 for _ in range(4)]
         self.tol, self.polish, self.max_iter = chord_tol, chord_polish, chord_max
         self.limit, self.every, self.eps = one_pass_limit, refresh_every, fd_eps
         self.calls = 0
         self.evaluations = 0
         # Every station (a recorded sample) or only what the step needs.
         self.full = True
+        # One-pass: the first stage of a step that is not recorded reuses the last
+        # second stage (moved by the sensitivities) instead of a gas-path evaluation.
+        self.reuse_stage = True
 
     def evaluate(self, op: Operating, z: Vector, full: bool | None = None
                  ) -> tuple[Vector, Stations]:
@@ -122,23 +128,40 @@ class ScalarGasPath:
         """Forward-difference Jacobians in the unknowns and in the states and commands
         (Nf, Nc, TMHPC, TMHPT, Wf, VSV, VBV): J kept inverted, dz/dv = -J^-1 df/dv."""
         eps = self.eps
-        r0 = self.evaluate(op, z, False)[0]
+        r0, s0 = self.evaluate(op, z, False)
+        k0 = [s0[n] for n in _DERIVATIVES]
         jac = np.empty((5, 5))
+        kz = np.empty((4, 5))
         for j in range(5):
             zj = list(z)
             zj[j] = zj[j] + eps
-            rj = self.evaluate(op, zj, False)[0]
+            rj, sj = self.evaluate(op, zj, False)
             jac[:, j] = [(rj[i] - r0[i]) / eps for i in range(5)]
+            kz[:, j] = [(sj[n] - k0[i]) / eps for i, n in enumerate(_DERIVATIVES)]
         steps = _sensitivity_steps(op, eps)
         ru = np.empty((5, 7))
+        kv = np.empty((4, 7))
         for c in range(7):
-            fields = list(op)
-            fields[c] = fields[c] + steps[c]
-            rc = self.evaluate(Operating(*fields), z, False)[0]
+            v = [float(a) for a in operating_variables(op)]
+            v[c] += steps[c]
+            rc, sc = self.evaluate(_operating(*v, op.fc), z, False)
             ru[:, c] = [(rc[i] - r0[i]) / steps[c] for i in range(5)]
+            kv[:, c] = [(sc[n] - k0[i]) / steps[c] for i, n in enumerate(_DERIVATIVES)]
         inv = np.linalg.inv(jac)
+        dzdv = -(inv @ ru)
         self.jinv = inv.tolist()
-        self.dzdu = (-(inv @ ru)).tolist()
+        self.dzdu = dzdv.tolist()
+        self.dkdv = (kv + kz @ dzdv).tolist()
+
+    def derivatives_moved(self, k: Vector, op_from: Operating, op_to: Operating) -> Vector:
+        """State derivatives after a change of states and commands, on the balanced gas
+        path: k + dk/dv (v_to - v_from), dk/dv = dk/dv|z + dk/dz dz/dv."""
+        v0, v1 = operating_variables(op_from), operating_variables(op_to)
+        dv = [b - a for a, b in zip(v0, v1, strict=True)]
+        d0, d1, d2, d3, d4, d5, d6 = dv
+        return [ki + (g[0] * d0 + g[1] * d1 + g[2] * d2 + g[3] * d3 + g[4] * d4
+                      + g[5] * d5 + g[6] * d6)
+                for ki, g in zip(k, self.dkdv, strict=True)]
 
     def predict(self, z: Vector, op_from: Operating, op_to: Operating) -> Vector:
         """Unknowns after a change of states and commands: z + dz/dv (v_to - v_from),
@@ -146,7 +169,8 @@ class ScalarGasPath:
         step is left to the correction)."""
         if self.jinv is None:
             return z
-        dv = [b - a for a, b in zip(op_from[:7], op_to[:7], strict=True)]
+        v0, v1 = operating_variables(op_from), operating_variables(op_to)
+        dv = [b - a for a, b in zip(v0, v1, strict=True)]
         d0, d1, d2, d3, d4, d5, d6 = dv
         return [zi + (g[0] * d0 + g[1] * d1 + g[2] * d2 + g[3] * d3 + g[4] * d4
                       + g[5] * d5 + g[6] * d6)
@@ -206,6 +230,8 @@ def run_one(
     (keys x, u, y, m, aux, cond, lim, shapes as there)."""
     i_nf, i_nc, i_t24, i_ps30 = idx
     solve = solver.one_pass if one_pass else solver.solve
+    reuse = one_pass and solver.reuse_stage
+    k2: Any = [0.0] * 4  # the last second stage's derivatives
     noisy = rng is not None and noise_std is not None
     ns = None if not noisy else np.broadcast_to(np.asarray(noise_std, float), (1, 12))[0]
     rec_x, rec_u, rec_y, rec_m = rec["x"], rec["u"], rec["y"], rec["m"]
@@ -237,9 +263,18 @@ def run_one(
         u = out.u
         wf = u[0] * LBM
         op = _operating(x[0], x[1], x[2] / RANKINE, x[3] / RANKINE, wf, u[1], u[2], fc)
-        solver.full = k % record_every == 0
-        z1, st = solve(op, z2 if op2 is None else solver.predict(z2, op2, op))
-        if k % record_every == 0:
+        recorded = k % record_every == 0
+        solver.full = recorded
+        if op2 is None or recorded or not reuse:
+            z1, st = solve(op, z2 if op2 is None else solver.predict(z2, op2, op))
+            k1 = [st["dnf"], st["dnc"], st["dtm_hpc"], st["dtm_hpt"]]
+        else:
+            # The last second stage sat at this time, at x_k + O(dt^2) and the
+            # previous commands: its derivatives and unknowns moved to (x_k, u_k)
+            # through the kept sensitivities stand for the first stage.
+            z1 = solver.predict(z2, op2, op)
+            k1 = solver.derivatives_moved(k2, op2, op)
+        if recorded:
             y, aux = outputs_from_stations(st, op, SCALAR)
             i = k // record_every
             rec_x[i, 0], rec_u[i, 0], rec_y[i, 0], rec_aux[i, 0] = x, u, y, aux
@@ -250,7 +285,6 @@ def run_one(
             on_progress(k / max(n_steps, 1))
         if k == n_steps:
             break
-        k1 = (st["dnf"], st["dnc"], st["dtm_hpc"], st["dtm_hpt"])
         cond = sched(t + dt)
         fc = flight_condition(cond[0], cond[1], cond[2], SCALAR)
         xs = [xi + dt * ki for xi, ki in zip(x, k1, strict=True)]
@@ -260,7 +294,7 @@ def run_one(
         # unknowns move by dz/dx dt k1 (a noisy command moves k1, so extrapolating the
         # last step's stage-to-stage change in time would carry last step's noise).
         z2, st2 = solve(op2, solver.predict(z1, op, op2))
-        k2 = (st2["dnf"], st2["dnc"], st2["dtm_hpc"], st2["dtm_hpt"])
+        k2 = [st2["dnf"], st2["dnc"], st2["dtm_hpc"], st2["dtm_hpt"]]
         x = [xi + half * (a + b) for xi, a, b in zip(x, k1, k2, strict=True)]
         # The controller's next sample: the sensors it reads at the second stage.
         y_ctrl = [0.0] * 12  # only these four are read

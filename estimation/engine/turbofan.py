@@ -92,6 +92,12 @@ class Operating(NamedTuple):
         )
 
 
+def operating_variables(op: Operating) -> tuple[Any, ...]:
+    """The states and commands the gas path depends on, v = (Nf, Nc, TMHPC, TMHPT,
+    Wf, VSV, VBV) in Operating's units (arrays [B], or floats for one engine)."""
+    return op.nf, op.nc, op.tm_hpc, op.tm_hpt, op.wf, op.vsv, op.vbv
+
+
 def as_batch(
     x: np.ndarray, u: np.ndarray, env: np.ndarray, health: np.ndarray | None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool]:
