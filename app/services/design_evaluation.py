@@ -61,6 +61,7 @@ def run_evaluation(
     window_s: float,
     fault_duration_s: float,
     seed: int,
+    start: str = "steady",
     progress: Progress | None = None,
 ) -> dict[str, Any]:
     """Run the SSEE and isolation experiments; the evaluation dict (no database access).
@@ -78,7 +79,7 @@ def run_evaluation(
         return report
 
     mc = ev.ssee_monte_carlo(
-        data.design, n_cases, rng=rng, duration=duration_s, window=window_s,
+        data.design, n_cases, rng=rng, duration=duration_s, window=window_s, start=start,
         progress=stage(0.0, 0.5, f"SSEE Monte Carlo ({n_cases} cases)"),
     )
     out: dict[str, Any] = {
@@ -86,6 +87,9 @@ def run_evaluation(
         "design_id": data.design_id,
         "seed": seed,
         "monte_carlo": mc.to_dict(),
+        "monte_carlo_settings": {
+            "cases": n_cases, "duration_s": duration_s, "window_s": window_s, "start": start,
+        },
     }
     try:
         iso = ev.isolation_experiment(

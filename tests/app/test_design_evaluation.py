@@ -64,11 +64,13 @@ def test_evaluation_job_result_is_the_latest_evaluation(
     np.testing.assert_allclose(mc["theory_bias2"], theory["bias2"], rtol=1e-9)
     np.testing.assert_allclose(mc["theory_variance"], theory["variance"], rtol=1e-9)
 
-    # The same experiment run directly by the estimation core with the same seed.
+    # The same experiment run directly by the estimation core with the same seed; by default
+    # each case starts in the stationary regime the theory describes.
+    assert result["monte_carlo_settings"]["start"] == "steady"
     direct = ev.ssee_monte_carlo(
         design_from_result(design["result"]), PARAMS["n_cases"],
         rng=np.random.default_rng(PARAMS["seed"]), duration=PARAMS["duration_s"],
-        window=PARAMS["window_s"],
+        window=PARAMS["window_s"], start="steady",
     )
     np.testing.assert_allclose(mc["squared_error"], direct.squared_error, rtol=1e-9)
     for confusion in result.get("confusion", {}).values():

@@ -3,7 +3,7 @@ confusion matrices), with progress for the dashboard."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.orm import Session
@@ -21,6 +21,14 @@ class EvaluateDesign(BaseModel):
     window_s: float = Field(10.0, gt=0, le=600, description="error window at the end, s")
     fault_duration_s: float = Field(300.0, gt=0, le=3600, description="seconds per fault case")
     seed: int = Field(0, ge=0)
+    start: Literal["steady", "healthy"] = Field(
+        "steady",
+        description=(
+            "steady: each case starts in the stationary regime the theory describes; healthy: "
+            "seed 002's protocol, truth and filter from zero (slow tuners may not converge in "
+            "duration_s, and the Monte Carlo then measures the transient as well)"
+        ),
+    )
 
 
 @registry.job(
@@ -41,5 +49,5 @@ def evaluate_design(
     return design_evaluation.run_evaluation(
         data, n_cases=parameters.n_cases, duration_s=parameters.duration_s,
         window_s=parameters.window_s, fault_duration_s=parameters.fault_duration_s,
-        seed=parameters.seed, progress=progress,
+        seed=parameters.seed, start=parameters.start, progress=progress,
     )
