@@ -148,7 +148,7 @@ def page(context: Any, console: Console) -> Iterator[Any]:
     pg.on("console", lambda m: console.errors.append(f"console: {m.text} @ {m.location.get('url')}")
           if m.type == "error" else None)
     pg.on("pageerror", lambda e: console.errors.append(f"pageerror: {e}"))
-    pg.set_default_timeout(15_000)
+    pg.set_default_timeout(30_000)  # generous: CI shares the machine with other suites
     yield pg
     pg.close()
 

@@ -44,7 +44,11 @@ def test_upload_with_progress_then_refused_file_with_row_errors(
     uploads = _get(server, "/api/v1/uploads?limit=5")["items"]
     assert uploads[0]["status"] == "stored" and uploads[0]["rows_stored"] == table.num_rows
     # The estimation job the upload queued appears and runs to the end (list refreshes itself).
-    page.wait_for_selector("#jobs tr.job-estimate_engines .badge.succeeded", timeout=60_000)
+    page.wait_for_selector(
+        "#jobs tr.job-estimate_engines :is(.badge.succeeded, .badge.failed)", timeout=90_000
+    )
+    jobs = _get(server, "/api/v1/jobs?kind=estimate_engines")["items"]
+    assert jobs[0]["status"] == "succeeded", jobs[0]["error"]
     screenshot(page, "uploads-stored")
 
     # The same rows with a naive timestamp in the second row: refused, row and column named.
