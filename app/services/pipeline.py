@@ -71,6 +71,7 @@ from estimation import isolation
 from estimation.detection import CusumDesign, design_cusum
 from estimation.engine.schedule import EngineSchedule
 from estimation.model import LinearModel
+from estimation.shift_scan import level_scan, sliding_baselines
 from estimation.snapshot import SnapshotState, snapshot_deviation, snapshot_filter
 
 log = logging.getLogger("fleethealth.pipeline")
@@ -888,7 +889,132 @@ def _wssr_filled(
     """Run the detector over the chunk, fill the WSSR block, collect events and checkpoints.
 
     records: (dy [n, ny], G_y [n, ny, p], signatures [n, ny, n_faults], var [n, ny]) of the
-    chunk's records, for isolation in sensor space."""
+    chunk's records, for isolation in sensor space.
+
+    Same results as ``_wssr_filled_per_record`` (``detect_step`` record by record): between a
+    reset and an alarm the baselines, level statistics and WSSR of a run of records are
+    computed at once (``estimation.shift_scan``) and only the CUSUM and its running mean go
+    record by record; a reset, a pending alarm or the "update" statistic take the per-record
+    step.
+    """
+    if DETECTOR_INPUT != "level":
+        return _wssr_filled_per_record(est, det, r, c0, n, q, P, q_prev, P_prior, resets,
+                                       values, out, records)
+    s = est.layout.slices()["wssr"]
+    depth = N_BASE + GAP
+    m = est.m
+    reset_at = np.flatnonzero(resets)
+    j = 0
+    while j < n:
+        if det.pending is not None or resets[j]:
+            _detect_one(est, det, r, c0, j, q, P, q_prev, P_prior, resets, values, out,
+                        records)
+            j += 1
+            continue
+        # A run of records with neither reset nor pending alarm, ending at the next reset, the
+        # next checkpoint (inclusive) or the chunk's end.
+        later = reset_at[reset_at > j]
+        end = int(later[0]) if len(later) else n
+        seq = r.seq0 + c0 + j
+        to_checkpoint = CHECKPOINT_EVERY - (seq + 1) % CHECKPOINT_EVERY
+        end = min(end, j + (to_checkpoint % CHECKPOINT_EVERY) + 1)
+        L = len(det.history)
+        series = np.concatenate([np.asarray(det.history, float).reshape(L, m), q[j:end]])
+        first = max(depth - L, 0)  # run index of the first record with a baseline
+        bases = sliding_baselines(series[: max(len(series) - GAP, 0)], N_BASE)
+        # record i (run index) has history series[L + i - depth : L + i] before its append
+        k_idx = np.arange(j + first, end)
+        with_base = bases[L + first - depth : L + first - depth + len(k_idx)]
+        scan = level_scan(q[k_idx] - with_base, P[k_idx], est.H) if len(k_idx) else None
+        stop = end
+        for i in range(end - j):
+            jj = j + i
+            det.warm += 1
+            if i < first:
+                det.S = 0.0
+                values[jj, s] = np.nan
+                continue
+            assert scan is not None
+            s_k = float(scan.distance[i - first])
+            if det.s_mean is None:
+                det.s_mean = float(m)
+            scaled = s_k * m / max(det.s_mean, m)
+            if det.S == 0.0:
+                det.s_count += 1
+                rate = max(1.0 / det.s_count, S_MEAN_RATE)
+                det.s_mean += (min(s_k, S_MEAN_CAP * m) - det.s_mean) * rate
+            if det.warm < WARMUP:
+                det.S = 0.0
+                values[jj, s] = np.nan
+                continue
+            det.S = max(0.0, det.S + scaled - m - est.cusum.reference)
+            values[jj, s] = scan.wssr[i - first]
+            if det.S > est.cusum.threshold:
+                det.pending = {"seq": r.seq0 + c0 + jj, "epoch": float(r.epoch[c0 + jj]),
+                               "statistic": det.S, "wait": N_CONFIRM,
+                               "baseline": with_base[i - first].tolist(), "P": P[jj].tolist()}
+                if records is not None:
+                    accumulate_sensor_fit(
+                        est, det.pending, RecordObservation(*(a[jj] for a in records))
+                    )
+                det.S = 0.0
+                stop = jj + 1
+                break
+        det.history = series[max(L + stop - j - depth, 0) : L + stop - j].tolist()
+        done = r.seq0 + c0 + stop
+        if done % CHECKPOINT_EVERY == 0:
+            _checkpoint(det, r, c0, stop - 1, q, P, out)
+        j = stop
+    return values
+
+
+def _checkpoint(
+    det: Detector, r: EngineRun, c0: int, j: int, q: np.ndarray, P: np.ndarray,
+    out: EngineOutput,
+) -> None:
+    epoch = float(r.epoch[c0 + j])
+    out.checkpoints.append(
+        (
+            r.seq0 + c0 + j + 1,
+            epoch,
+            int(r.snapshot_id[c0 + j]),
+            {
+                "filter": SnapshotState(q[j : j + 1], P[j : j + 1]).to_dict(),
+                "detector": det.to_dict(),
+                "last_epoch": epoch,
+            },
+        )
+    )
+
+
+def _detect_one(
+    est: SnapshotEstimator, det: Detector, r: EngineRun, c0: int, j: int, q: np.ndarray,
+    P: np.ndarray, q_prev: np.ndarray, P_prior: np.ndarray, resets: np.ndarray,
+    values: np.ndarray, out: EngineOutput,
+    records: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None,
+) -> None:
+    """Record ``j`` of the chunk through ``detect_step``, with its event and checkpoint."""
+    seq = r.seq0 + c0 + j
+    epoch = float(r.epoch[c0 + j])
+    obs = None if records is None else RecordObservation(*(a[j] for a in records))
+    wssr, draft = detect_step(
+        est, det, seq, epoch, q[j], P[j], q_prev[j], P_prior[j], bool(resets[j]), obs
+    )
+    values[j, est.layout.slices()["wssr"]] = wssr
+    if draft is not None:
+        out.events.append(draft)
+    if (seq + 1) % CHECKPOINT_EVERY == 0:
+        _checkpoint(det, r, c0, j, q, P, out)
+
+
+def _wssr_filled_per_record(
+    est: SnapshotEstimator, det: Detector, r: EngineRun, c0: int, n: int, q: np.ndarray,
+    P: np.ndarray, q_prev: np.ndarray, P_prior: np.ndarray, resets: np.ndarray,
+    values: np.ndarray, out: EngineOutput,
+    records: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
+    """``_wssr_filled`` one record at a time through ``detect_step`` (the reference the
+    batched run is tested against, and the path of the "update" statistic)."""
     s = est.layout.slices()["wssr"]
     for j in range(n):
         seq = r.seq0 + c0 + j

@@ -1,0 +1,81 @@
+"""Batched pieces of the tuner-level shift detector (``estimation.detection``), many records at
+once.
+
+The CUSUM recursion S_k = max(0, S_{k-1} + s_k - m - kappa) is cheap scalar arithmetic; what
+costs is the level statistic s_k = (q_k - q_0,k)^T P_k^-1 (q_k - q_0,k) with its baseline
+q_0,k (a sliding mean of earlier estimates) and the WSSR of every library fault (seed 002
+eq. 21-23). Those do not depend on the CUSUM's state between two resets, so they are computed
+here for a whole run of records; the caller keeps only the alarm bookkeeping per record.
+
+Every record's figures are computed with the same operations in the same order as one record
+alone (sequential sums, one LAPACK solve per record), so they do not depend on which records
+share a call: re-runs and split runs stay bit-identical.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+
+class LevelScan(NamedTuple):
+    """Per record (K records): distance [K] = shift^T P^-1 shift, wssr [K, n_faults] and
+    f [K, n_faults] (seed 002 eq. 21-23, WSSR_i = d - (H_i^T P^-1 shift)^2 / H_i^T P^-1 H_i)."""
+
+    distance: np.ndarray
+    wssr: np.ndarray
+    f: np.ndarray
+
+
+def sliding_baselines(series: np.ndarray, n_base: int) -> np.ndarray:
+    """Row i is the mean of ``series[i : i + n_base]`` for i = 0 ... T - n_base, summed row by
+    row in order (as ``np.mean`` over axis 0 of one window does) and divided by ``n_base``.
+
+    series [T, m] -> [T - n_base + 1, m] (empty when T < n_base).
+    """
+    series = np.asarray(series, float)
+    if series.ndim != 2:
+        raise ValueError(f"series must be [T, m], got shape {series.shape}")
+    T = series.shape[0]
+    K = T - n_base + 1
+    if K <= 0:
+        return np.zeros((0, series.shape[1]))
+    acc = series[0:K].copy()
+    for t in range(1, n_base):
+        acc += series[t : t + K]
+    return acc / n_base
+
+
+def level_scan(shift: np.ndarray, P: np.ndarray, H: np.ndarray) -> LevelScan:
+    """Level statistic and fault WSSR of K records at once.
+
+    shift [K, m] (tuner estimate minus baseline), P [K, m, m] (filter covariance),
+    H [m, n_faults] (tuner change per library fault). One solve per record with P_k against
+    [shift_k, H] (seed 002 eq. 21-23 solve rather than invert).
+    """
+    shift = np.asarray(shift, float)
+    P = np.asarray(P, float)
+    K, m = shift.shape
+    if P.shape != (K, m, m):
+        raise ValueError(f"P must be [{K}, {m}, {m}], got {P.shape}")
+    if H.shape[0] != m:
+        raise ValueError(f"H must be [{m}, n_faults], got {H.shape}")
+    nf = H.shape[1]
+    if K == 0:
+        return LevelScan(np.zeros(0), np.zeros((0, nf)), np.zeros((0, nf)))
+    rhs = np.empty((K, m, 1 + nf))
+    rhs[:, :, 0] = shift
+    rhs[:, :, 1:] = H
+    X = np.linalg.solve(P, rhs)
+    Pinv_s, Pinv_H = X[:, :, 0], X[:, :, 1:]
+    distance = np.array([float(a @ b) for a, b in zip(shift, Pinv_s, strict=True)])
+    if nf == 0:
+        return LevelScan(distance, np.zeros((K, 0)), np.zeros((K, 0)))
+    norm2 = np.einsum("ij,kij->kj", H, Pinv_H)
+    # One matrix-vector product per record, as for a record alone (a single [K, m] @ [m, nf]
+    # product sums in another order).
+    proj = np.matmul(H.T[None], Pinv_s[:, :, None])[:, :, 0]
+    f = proj / norm2
+    wssr = np.maximum(distance[:, None] - proj * f, 0.0)
+    return LevelScan(distance, wssr, f)
