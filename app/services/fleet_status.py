@@ -37,7 +37,10 @@ def thrust_index(aux: tuple[str, ...]) -> int | None:
 def health_summary(
     layout: EstimateLayout, values: np.ndarray, recorded_at: datetime, seq: int
 ) -> dict[str, Any]:
-    """Brief of one estimate: the worst health parameter and the thrust deficit."""
+    """Brief of one estimate: the worst health parameter and the thrust deficit.
+
+    The one-engine statement of what ``_summaries`` computes for a whole fleet at once (the
+    tests compare the two)."""
     s = layout.slices()
     h, h_sigma, z = values[s["h"]], values[s["h_sigma"]], values[s["z"]]
     worst = int(np.argmax(np.abs(h))) if len(h) else None

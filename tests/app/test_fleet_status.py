@@ -75,3 +75,43 @@ def test_deterioration_is_the_mean_over_engines_of_engine_means(session: Session
     got = [s["mean"][0] for s in group["health"]]
     np.testing.assert_allclose(got, expected, atol=1e-4)
     np.testing.assert_allclose([s["sigma"][0] for s in group["health"]], spread, atol=1e-4)
+
+
+def test_status_summaries_equal_the_one_engine_reference(
+    client: TestClient, session: Session
+) -> None:
+    """The array summaries of many engines equal ``health_summary`` and the watch rule applied
+    to each engine's latest estimate alone, also when a design's engines carry different
+    layout documents."""
+    from app.models.estimates import EstimateLayout, FilterState
+
+    fleet = make_fleet(session, "Status Ref Air")
+    aircraft = add_aircraft(session, fleet, "F-REF")
+    rng = np.random.default_rng(9)
+    lasts = {}
+    for i in range(12):
+        engine = add_engine(session, fleet, f"R{i:02d}")
+        v = rng.normal(size=(4, LAYOUT.width)) * 2.0
+        v[:, LAYOUT.slices()["h_sigma"]] = rng.uniform(0.05, 1.0, size=(4, len(LAYOUT.health)))
+        add_estimates(session, fleet, engine, aircraft, v,
+                      [T0 + timedelta(days=k, hours=i) for k in range(4)])
+        lasts[engine.id] = v[-1].astype(np.float32).astype(float)
+    # One engine's layout document differs (its own health names): read for that engine.
+    renamed = EstimateLayout.from_dict(
+        dict(LAYOUT.to_dict(), health=[f"x_{n}" for n in LAYOUT.health])
+    )
+    state = session.query(FilterState).filter_by(engine_id=min(lasts)).one()
+    state.layout = renamed.to_dict()
+    session.commit()
+
+    body = client.get("/api/v1/fleet/status", headers={"X-API-Key": fleet.key}).json()
+    assert body["n_engines"] == 12
+    for item in body["engines"]:
+        layout = renamed if item["engine_id"] == min(lasts) else LAYOUT
+        last = lasts[item["engine_id"]]
+        expected = fleet_status.health_summary(
+            layout, last, datetime.fromisoformat(item["last_data"]), 3
+        )
+        expected["recorded_at"] = item["last_data"]
+        assert item["health"] == expected
+        assert item["state"] == fleet_status._state(expected, 0, layout, last)

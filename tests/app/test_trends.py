@@ -260,3 +260,86 @@ def test_another_operators_engine_is_not_found(client: TestClient, session: Sess
         headers={"X-API-Key": theirs.key},
     )
     assert naive.status_code == 422
+
+
+def _reference_trend(values: np.ndarray, phases: list[str], max_points: int) -> dict:
+    """The decimated columns computed record by record in plain Python."""
+    n = len(values)
+    edges = [int(np.floor(k * n / max_points)) for k in range(max_points)] + [n]
+    edges = sorted(set(edges))
+    out: dict = {"phase": [], "value": [], "min": [], "max": []}
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
+        bucket = set(phases[a:b])
+        out["phase"].append(bucket.pop() if len(bucket) == 1 else None)
+        chunk = values[a:b]
+        out["value"].append(chunk.mean(axis=0))
+        out["min"].append(chunk.min(axis=0))
+        out["max"].append(chunk.max(axis=0))
+    return {k: (np.array(v) if k != "phase" else v) for k, v in out.items()}
+
+
+def test_json_fast_path_equals_the_dict_and_a_direct_recomputation(
+    client: TestClient, session: Session
+) -> None:
+    """Records stored out of seq order, missing sensors (NaN) and mixed phases: the route's
+    bytes equal the dict encoded by json, and the numbers equal a bucket-by-bucket loop."""
+    rng = np.random.default_rng(8)
+    fleet = make_fleet(session)
+    engine, aircraft = add_engine(session, fleet, "E7"), add_aircraft(session, fleet, "F-FAST")
+    n = 701
+    values = _values(rng, n)
+    values[rng.random(n) < 0.05, LAYOUT.slices()["residual"].start] = np.nan
+    times = [T0 + timedelta(hours=5 * i) for i in range(n)]
+    # Insert in a shuffled order so the rows do not come back in seq order by accident.
+    order = rng.permutation(n)
+    snaps = [
+        Snapshot(
+            operator_id=fleet.operator_id, engine_id=engine.id, aircraft_id=aircraft.id,
+            position=1, upload_id=fleet.upload.id, recorded_at=times[i],
+            phase="cruise" if (i // 7) % 3 else "takeoff", alt_ft=0.0, mach=0.0, dtamb_k=0.0,
+            power_pct=100.0,
+        )
+        for i in order
+    ]
+    session.add_all(snaps)
+    session.flush()
+    blobs = LAYOUT.pack(values)
+    session.add_all(
+        Estimate(
+            operator_id=fleet.operator_id, engine_id=engine.id, design_id=fleet.design.id,
+            snapshot_id=s.id, seq=int(i), recorded_at=s.recorded_at, phase=s.phase,
+            packed=blobs[i],
+        )
+        for i, s in zip(order, snaps, strict=True)
+    )
+    session.add(
+        FilterState(
+            operator_id=fleet.operator_id, engine_id=engine.id, design_id=fleet.design.id,
+            layout=LAYOUT.to_dict(), state={}, n_records=n, last_recorded_at=times[-1],
+            last_snapshot_id=snaps[-1].id,
+        )
+    )
+    session.commit()
+    headers = {"X-API-Key": fleet.key}
+    phases = ["cruise" if (i // 7) % 3 else "takeoff" for i in range(n)]
+    stored = values.astype(np.float32).astype(float)
+    for max_points in (0, 50, 333):
+        body = client.get(
+            f"/api/v1/engines/{engine.id}/trend", params={"max_points": max_points},
+            headers=headers,
+        ).content
+        trend = trends.engine_trend(session, fleet.operator_id, engine.id, max_points=max_points)
+        assert body == trends.to_json(trend)
+        if max_points == 0:
+            assert trend["phase"] == phases and trend["seq"] == list(range(n))
+            continue
+        ref = _reference_trend(stored, phases, max_points)
+        assert trend["phase"] == ref["phase"]
+        s = LAYOUT.slices()
+        for key, block in (("health", "h"), ("residuals", "residual")):
+            group = next(g for g in trend["groups"] if g["key"] == key)
+            for j, series in enumerate(group["series"]):
+                col = s[block].start + j
+                for field in ("value", "min", "max"):
+                    got = np.array([np.nan if v is None else v for v in series[field]])
+                    np.testing.assert_allclose(got, np.round(ref[field][:, col], 4), atol=1e-12)
