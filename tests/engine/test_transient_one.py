@@ -133,3 +133,23 @@ def test_one_pass_adds_nothing_to_the_step_size_error_through_a_slam() -> None:
     one_err = np.abs(one.sensors - half.sensors)[:, 0].max(axis=0) / STD
     assert np.all(step_err < 2.0)
     assert np.all(one_err <= step_err + 0.1)
+
+
+@pytest.mark.slow
+def test_one_pass_against_converged_and_halved_step_over_seed001_take_off() -> None:
+    # The busiest 300 s of seed 001's flight (ground idle, slam, take-off, climb),
+    # as the two slam tests above do it: with noise against the converged gas path,
+    # without noise against a halved step.
+    prof = flight_profile()
+    one, full = (simulate(prof, 300.0, noise_std=STD, rng=np.random.default_rng(3),
+                          record_every=2, gas_path_solution=m)
+                 for m in ("one_pass", "converged"))
+    gap = np.abs(one.sensors - full.sensors)[:, 0].max(axis=0) / STD
+    assert np.all(gap < 0.1), (int(gap.argmax()), float(gap.max()))
+    one, full = (simulate(prof, 300.0, record_every=2, gas_path_solution=m)
+                 for m in ("one_pass", "converged"))
+    half = simulate(prof, 300.0, dt=0.0075, record_every=4, gas_path_solution="converged")
+    step_err = np.abs(full.sensors - half.sensors)[:, 0].max(axis=0) / STD
+    one_err = np.abs(one.sensors - half.sensors)[:, 0].max(axis=0) / STD
+    assert np.all(step_err < 0.5)
+    assert np.all(one_err <= step_err + 0.1)
