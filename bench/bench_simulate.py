@@ -20,23 +20,36 @@ slice from the start of the flight. ``--full`` runs the whole flight.
 
     /work/venv/bin/python bench/bench_simulate.py [--full] [--batch 64] [--seconds 300]
 
-Figures measured 2026-11-22 (2 cores shared with other jobs at load 5-10, so
-wall times are 2-3x the CPU times; CPU seconds per 2500 s flight, scaled from
-the 300 s and 30 s slices; two runs each):
+Figures measured 2026-11-22 (2 cores shared with other jobs at load 3-5; CPU
+seconds of this process; the old and new code back to back, same conditions,
+``run(1, 2500, "one_pass")`` on the whole flight, four pairs):
 
-    one engine, numpy path (before)   214-228 s CPU (800-850 s wall; 1.3 ms CPU per step)
-    one engine, scalar path (after)   12.7-18.4 s CPU (40 s wall; 76-110 us CPU per step)
-                                      -> 15x less CPU than before; target 5 s: FAIL, 2.5-3.7x over
-    batch of 64, per engine           4.4-4.6 s CPU (19-20 s wall), 3-4x less than one alone
-    batch of 64, per engine, before   5.5 s CPU vs 4.9 s after on the same 60 s slice (the
-                                      batch path skips unused stations now; trajectories
-                                      bit-identical to before)
-    converged gas path, scalar        1.25x the one-pass cost
+    one engine, numpy path (first version)   214-228 s CPU per flight
+    one engine, scalar path, before          10.5-11.4 s CPU (whole flight; 11.5 s scaled from
+                                             the 300 s slice; 2.1-3.0 gas-path evaluations
+                                             per step, 26 % full solves at ground idle)
+    one engine, scalar path, after           7.6-9.8 s CPU (8.0 s scaled from the 300 s slice;
+                                             1.08 evaluations per step, no full solves)
+                                             -> 1.2-1.4x less CPU in each pair;
+                                             target 5 s: FAIL, 1.5-2x over
+    batch of 64, per engine, 60 s slice      4.9 s before, 1.55 s after (3.1x)
+    converged gas path, scalar, 300 s slice  19.7 s before, 18.6 s after
 
-Why one engine is still over 5 s: the target is 30 us per 15 ms step; one
-gas-path evaluation on floats costs about 30 us (CPython arithmetic on about
-400 floats and 40 calls), and a step needs two plus, with sensor noise, about
-one full solve in four (2.5-3 evaluations per step).
+What changed: both stages' gas-path unknowns are predicted through dz/dv in
+the states and commands (noise moves the commands, so the old extrapolation
+in time missed by the noise and fell back to full solves), and the first
+stage of an unrecorded step is the last second stage moved through dk/dv, so
+a step costs one gas-path evaluation. Accuracy (tests/engine/test_transient_one.py):
+against the gas path converged at every stage, every sensor stays within 0.07
+noise standard deviations over seed 001's busiest 300 s with noise, 0.06 through
+a slam; halving the step moves the sensors by up to 0.24 std there (1.25 std
+at a slam, mostly the controller's sample rate), and the one-pass run is no
+further from the halved step than the converged run.
+
+What is left (the "budget" lines below): at 46-59 us per step, one gas-path
+evaluation on floats is 14-27 us and the control law 5-12 us (controller.py)
+depending on the load, the flight condition 1-2.5 us; the rest (about a
+third) is the loop's bookkeeping on lists (predictions, chord, noise, tuples).
 """
 
 from __future__ import annotations
@@ -83,6 +96,48 @@ def run(n: int, seconds: float, mode: str, seed: int = 0,
     return time.perf_counter() - t0, time.process_time() - c0
 
 
+def budget(n: int = 20000) -> None:
+    """CPU per call of what one scalar step is made of (one engine, 50 % power, SLS)."""
+    from estimation.engine.atmosphere import LBM, RANKINE, flight_condition
+    from estimation.engine.controller import (
+        DEFAULT_GAINS,
+        ControllerState,
+        control_step,
+        initial_state,
+    )
+    from estimation.engine.design import engine_design
+    from estimation.engine.steady import steady_state
+    from estimation.engine.turbofan import Operating, gas_path_columns
+    from estimation.engine.xp import SCALAR
+
+    d = engine_design()
+    ss = steady_state(np.zeros(3), power=50.0)
+    x, u, z = (a.reshape(-1).tolist() for a in (ss.x, ss.u, ss.inner))
+    y = ss.sensors.reshape(-1).tolist()
+    fc = flight_condition(0.0, 0.0, 0.0, SCALAR)
+    op = Operating(x[0], x[1], x[2] / RANKINE, x[3] / RANKINE, u[0] * LBM, u[1], u[2], fc,
+                   None)  # type: ignore[arg-type]
+    hs = [0.0] * 13
+    c = initial_state(np.array([u[0]]), *(np.array([v]) for v in (y[0], y[1], y[2], y[5])),
+                      design=d)
+    c1 = ControllerState(float(c.integrator[0]), c.sensed[0].tolist())  # type: ignore[arg-type]
+    items = {
+        "gas path, step stations": lambda: gas_path_columns(op, z, hs, d, True, False, SCALAR,
+                                                            False),
+        "gas path, all stations": lambda: gas_path_columns(op, z, hs, d, True, False, SCALAR),
+        "control law": lambda: control_step(c1, 50.0, 0.0, fc.theta, fc.delta, y[0], y[1],
+                                            y[2], y[5], 0.015, DEFAULT_GAINS, d, SCALAR),
+        "flight condition": lambda: flight_condition(100.0, 0.1, 0.0, SCALAR),
+    }
+    print("budget of a scalar step (CPU per call; a 2500 s flight at 15 ms allows 30 us "
+          "per step):")
+    for name, fun in items.items():
+        c0 = time.process_time()
+        for _ in range(n):
+            fun()
+        print(f"  {name:<40s} {(time.process_time() - c0) / n * 1e6:8.1f} us")
+
+
 def _fmt(label: str, wall: float, cpu: float, extra: str = "") -> str:
     return f"  {label:<40s} {wall:8.1f} s wall {cpu:8.1f} s CPU per flight{extra}"
 
@@ -124,6 +179,8 @@ def main() -> None:
     print(_fmt("scalar path", sw, sc, f"  ({pc / sc:.1f}x faster in CPU)"))
     cw, cc = (v * peer_scale for v in run(1, args.peer_seconds, "converged"))
     print(_fmt("scalar path, converged gas path", cw, cc, f"  ({cc / sc:.2f}x one-pass)"))
+
+    budget()
 
     cfg = FleetConfig(n_aircraft=50, n_flights=20)
     plan = plan_fleet(cfg, np.random.default_rng(1))
