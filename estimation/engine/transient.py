@@ -395,12 +395,14 @@ def simulate(
             # The last second stage sat at this time and nearly these states, with
             # the previous commands: start from it, moved by the change.
             z1, st = solve(op, z2 if op2 is None else solver.predict(z2, op2, op))
+            base_z, base_op = z1, op
             k1 = np.stack([st["dnf"], st["dnc"], st["dtm_hpc"], st["dtm_hpt"]], axis=1)
         else:
             # One-pass, not recorded: the last second stage's derivatives and
             # unknowns moved to (x_k, u_k) through the kept sensitivities stand
             # for the first stage (no gas-path evaluation).
-            z1 = solver.predict(z2, op2, op)
+            # (The second stage's unknowns are predicted from that stage directly.)
+            base_z, base_op = z2, op2
             k1 = solver.derivatives_moved(k2, op2, op)
         if recorded:
             y, aux = outputs_from_stations(st, op)
@@ -418,7 +420,7 @@ def simulate(
         # The second stage differs from the first by dt k1 in the states only: the
         # unknowns move by dz/dx dt k1 (a noisy command moves k1, so extrapolating the
         # last step's stage-to-stage change in time would carry last step's noise).
-        z2, st2 = solve(op2, solver.predict(z1, op, op2))
+        z2, st2 = solve(op2, solver.predict(base_z, base_op, op2))
         k2 = np.stack([st2["dnf"], st2["dnc"], st2["dtm_hpc"], st2["dtm_hpt"]], axis=1)
         x = x + 0.5 * dt * (k1 + k2)
         # The second stage sits at t_k+1 with x_k + dt k1 = x_k+1 + O(dt^2): its

@@ -59,6 +59,12 @@ def _sensitivity_steps(op: Operating, eps: float) -> tuple[float, ...]:
 Stations = dict[str, Any]
 
 
+def _change(a: Operating, b: Operating) -> tuple[float, ...]:
+    """b - a in the gas path's states and commands (``operating_variables``' order)."""
+    return (b.nf - a.nf, b.nc - a.nc, b.tm_hpc - a.tm_hpc, b.tm_hpt - a.tm_hpt,
+            b.wf - a.wf, b.vsv - a.vsv, b.vbv - a.vbv)
+
+
 def scalar_schedule(schedule: FlightProfile | Callable[[float], OperatingPoint]
                     ) -> Callable[[float], tuple[float, float, float, float]]:
     """Operating condition (alt ft, Mach, dTamb K, power %) of one flight against time.
@@ -156,9 +162,7 @@ class ScalarGasPath:
     def derivatives_moved(self, k: Vector, op_from: Operating, op_to: Operating) -> Vector:
         """State derivatives after a change of states and commands, on the balanced gas
         path: k + dk/dv (v_to - v_from), dk/dv = dk/dv|z + dk/dz dz/dv."""
-        v0, v1 = operating_variables(op_from), operating_variables(op_to)
-        dv = [b - a for a, b in zip(v0, v1, strict=True)]
-        d0, d1, d2, d3, d4, d5, d6 = dv
+        d0, d1, d2, d3, d4, d5, d6 = _change(op_from, op_to)
         return [ki + (g[0] * d0 + g[1] * d1 + g[2] * d2 + g[3] * d3 + g[4] * d4
                       + g[5] * d5 + g[6] * d6)
                 for ki, g in zip(k, self.dkdv, strict=True)]
@@ -169,9 +173,7 @@ class ScalarGasPath:
         step is left to the correction)."""
         if self.jinv is None:
             return z
-        v0, v1 = operating_variables(op_from), operating_variables(op_to)
-        dv = [b - a for a, b in zip(v0, v1, strict=True)]
-        d0, d1, d2, d3, d4, d5, d6 = dv
+        d0, d1, d2, d3, d4, d5, d6 = _change(op_from, op_to)
         return [zi + (g[0] * d0 + g[1] * d1 + g[2] * d2 + g[3] * d3 + g[4] * d4
                       + g[5] * d5 + g[6] * d6)
                 for zi, g in zip(z, self.dzdu, strict=True)]
@@ -267,12 +269,14 @@ def run_one(
         solver.full = recorded
         if op2 is None or recorded or not reuse:
             z1, st = solve(op, z2 if op2 is None else solver.predict(z2, op2, op))
+            base_z, base_op = z1, op
             k1 = [st["dnf"], st["dnc"], st["dtm_hpc"], st["dtm_hpt"]]
         else:
             # The last second stage sat at this time, at x_k + O(dt^2) and the
             # previous commands: its derivatives and unknowns moved to (x_k, u_k)
             # through the kept sensitivities stand for the first stage.
-            z1 = solver.predict(z2, op2, op)
+            # (The second stage's unknowns are predicted from that stage directly.)
+            base_z, base_op = z2, op2
             k1 = solver.derivatives_moved(k2, op2, op)
         if recorded:
             y, aux = outputs_from_stations(st, op, SCALAR)
@@ -293,7 +297,7 @@ def run_one(
         # The second stage differs from the first by dt k1 in the states only: the
         # unknowns move by dz/dx dt k1 (a noisy command moves k1, so extrapolating the
         # last step's stage-to-stage change in time would carry last step's noise).
-        z2, st2 = solve(op2, solver.predict(z1, op, op2))
+        z2, st2 = solve(op2, solver.predict(base_z, base_op, op2))
         k2 = [st2["dnf"], st2["dnc"], st2["dtm_hpc"], st2["dtm_hpt"]]
         x = [xi + half * (a + b) for xi, a, b in zip(x, k1, k2, strict=True)]
         # The controller's next sample: the sensors it reads at the second stage.
