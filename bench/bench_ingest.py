@@ -4,12 +4,21 @@ A real uvicorn server on 127.0.0.1 (in a thread) serves the app on a fresh Postg
 database; an httpx client uploads N snapshots in one request (CSV, then Parquet): parse,
 validate, resolve to ESNs, deduplicate, COPY, commit. The peer is a raw COPY of the same rows
 (already resolved, pre-rendered CSV) into the same table, committed, in the same run. Each
-repetition uses fresh timestamps, so every run stores every row. Estimation is not included
-yet (it runs after the upload once the pipeline hooks in).
+repetition uses fresh timestamps, so every run stores every row.
 
-Targets (issue 5): >= 50,000 snapshots/s end to end, and >= 30 % of the raw COPY rate.
+Then end to end with estimation: a second operator whose engine type has an active design (the
+reference linear model, six tuners) uploads N snapshots over HTTP (CSV), and the
+``estimate_engines`` job the upload queued runs to completion (``app.jobs.runner.run_pending``,
+the job functions the in-process runner calls: filter, detection, isolation, estimates stored).
+Its sensor values sit near the model's trims with sensor noise, so the detector runs as on a
+healthy fleet. The estimation runs twice per repetition on fresh rows: with the pipeline's
+batched detector and with the per-record detector (``detect_step`` record by record, the
+previous path), for the before/after figure in the same run.
 
-    /work/venv/bin/python bench/bench_ingest.py [--rows 100000] [--repeat 3]
+Targets (issue 5): >= 50,000 snapshots/s end to end (parse + validate + store + estimate), and
+>= 30 % of the raw COPY rate.
+
+    /work/venv/bin/python bench/bench_ingest.py [--rows 100000] [--repeat 3] [--no-estimate]
 """
 
 from __future__ import annotations
@@ -39,12 +48,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from app.config import Settings  # noqa: E402
 from app.db import make_engine, make_sessionmaker, transaction  # noqa: E402
+from app.jobs.runner import run_pending  # noqa: E402
 from app.main import create_app  # noqa: E402
 from app.migrate import upgrade  # noqa: E402
+from app.models import EngineModel, EstimatorDesign  # noqa: E402
 from app.models.ingest import SNAPSHOT_COLUMNS  # noqa: E402
-from app.services import fleet, tenancy  # noqa: E402
+from app.services import fleet, pipeline, tenancy  # noqa: E402
 from app.services.ingest import SNAPSHOT_PG_TYPES, snapshot_table  # noqa: E402
 from app.services.pgcopy import binary_copy_payload  # noqa: E402
+from estimation.tuners import svd_vstar  # noqa: E402
+from tests.estimation.models import reference_model  # noqa: E402
 
 POSTGRES_URL = os.environ.get(
     "FLEETHEALTH_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test"
@@ -58,11 +71,13 @@ def free_port() -> int:
         return int(sock.getsockname()[1])
 
 
-def build_fleet(url: str, tails: int) -> tuple[str, dict[tuple[str, int], tuple[int, int]], int]:
+def build_fleet(
+    url: str, tails: int, name: str = "Bench Air"
+) -> tuple[str, dict[tuple[str, int], tuple[int, int]], int]:
     """An operator, an analyst key and ``tails`` twin-engine aircraft with engines installed."""
     engine = make_engine(url)
     with transaction(make_sessionmaker(engine)) as session:
-        operator = tenancy.create_operator(session, name="Bench Air")
+        operator = tenancy.create_operator(session, name=name)
         _row, key = tenancy.issue_api_key(session, operator=operator, role="analyst", name="b")
         kind = fleet.create_engine_type(session, operator_id=operator.id, name="generic")
         where: dict[tuple[str, int], tuple[int, int]] = {}
@@ -126,6 +141,52 @@ def snapshots(n: int, tails: int, start: datetime, seed: int) -> pa.Table:
     )
 
 
+def add_design(url: str, operator_id: int) -> pipeline.SnapshotEstimator:
+    """The reference linear model and an active six-tuner design on the operator's engine type
+    (the one ``build_fleet`` made); returns the estimator the pipeline will build from them."""
+    model = reference_model()
+    result = {"vstar": svd_vstar(model, 6).tolist()}
+    engine = make_engine(url)
+    with transaction(make_sessionmaker(engine)) as session:
+        kind = session.scalar(
+            text("SELECT id FROM engine_types WHERE operator_id = :o").bindparams(o=operator_id)
+        )
+        row = EngineModel(
+            operator_id=operator_id, engine_type_id=kind, name="reference", version=1,
+            source="imported", format="fleethealth.linear-model/1", content=model.to_dict(),
+            checksum="0" * 64, dt=model.dt, n_states=model.n_states,
+            sensor_names=list(model.sensor_names), health_names=list(model.health_names),
+            aux_names=list(model.aux_names),
+        )
+        session.add(row)
+        session.flush()
+        session.add(EstimatorDesign(
+            operator_id=operator_id, engine_type_id=kind, engine_model_id=row.id,
+            name="bench", spec={}, status="ready", active=True, result=result,
+        ))
+    engine.dispose()
+    return pipeline.build_estimator(0, model, result)
+
+
+def healthy_snapshots(
+    n: int, tails: int, start: datetime, seed: int, est: pipeline.SnapshotEstimator
+) -> pa.Table:
+    """``snapshots`` with the design's sensors and actuators at their trims plus 0.1 % noise."""
+    rows = snapshots(n, tails, start, seed)
+    rng = np.random.default_rng(seed + 10_000)
+    g = est.schedule(np.zeros((1, 4)))
+    by_column = {spec.column: name for name, spec in pipeline.SNAPSHOT_SIGNALS.items()}
+    for columns, trims in ((est.sensor_columns, g.y_trim[0]), (est.input_columns, g.u_trim[0])):
+        for column, trim in zip(columns, trims, strict=True):
+            if column:
+                name = by_column[column]
+                values = trim * (1.0 + 0.001 * rng.normal(size=n))
+                at = rows.schema.get_field_index(name)
+                rows = (rows.set_column(at, name, pa.array(values)) if at >= 0
+                        else rows.append_column(name, pa.array(values)))
+    return rows
+
+
 def raw_copy_body(
     rows: pa.Table,
     where: dict[tuple[str, int], tuple[int, int]],
@@ -167,11 +228,74 @@ def raw_copy(url: str, body: bytes, fmt: str = "csv") -> float:
         return time.perf_counter() - started
 
 
+def end_to_end(
+    url: str, base: str, args: argparse.Namespace, times: dict[str, list[float]], epoch: int
+) -> None:
+    """Upload over HTTP then run the queued estimation job to completion, per repetition with
+    the batched detector and with the per-record one; adds their times to ``times``."""
+    n = args.rows
+    key, _where, operator_id = build_fleet(url, args.tails, name="Bench Estimate Air")
+    est = add_design(url, operator_id)
+    factory = make_sessionmaker(make_engine(url))
+    run_pending(factory)  # the ingest-only uploads' jobs (no design there: nothing to do)
+    batched = pipeline._wssr_filled
+    detectors = {"batched": batched, "per record": pipeline._wssr_filled_per_record}
+    with httpx.Client(base_url=base, timeout=600, headers={"X-API-Key": key}) as client:
+        for rep in range(args.repeat):
+            line = []
+            for label, detector in detectors.items():
+                epoch += 1
+                rows = healthy_snapshots(
+                    n, args.tails, T0 + timedelta(days=400 * epoch), epoch, est
+                )
+                sink = io.BytesIO()
+                pacsv.write_csv(rows, sink)
+                started = time.perf_counter()
+                response = client.post(
+                    "/api/v1/snapshots/file", content=sink.getvalue(),
+                    headers={"Content-Type": "text/csv"},
+                )
+                response.raise_for_status()
+                stored = time.perf_counter()
+                pipeline._wssr_filled = detector  # type: ignore[assignment]
+                try:
+                    # The request's transaction (the job row with it) may commit just after
+                    # the response: look again until the job is there.
+                    if args.profile and label == "batched":
+                        import cProfile
+
+                        with cProfile.Profile() as prof:
+                            ran = run_pending(factory)
+                        prof.dump_stats(args.profile)
+                    else:
+                        ran = run_pending(factory)
+                    while not ran and time.perf_counter() - stored < 30.0:
+                        time.sleep(0.005)
+                        ran = run_pending(factory)
+                finally:
+                    pipeline._wssr_filled = batched  # type: ignore[assignment]
+                done = time.perf_counter()
+                if response.json()["rows_stored"] != n or not ran:
+                    raise SystemExit(f"{label}: upload or estimation job missing")
+                times.setdefault(f"http csv + estimate ({label})", []).append(done - started)
+                times.setdefault(f"  estimate {label}", []).append(done - stored)
+                line.append(f"{label}: ingest {stored - started:.3f} s + estimate "
+                            f"{done - stored:.3f} s")
+            print(f"  end to end {rep + 1}: " + "; ".join(line))
+    with factory() as session:
+        estimated = session.scalar(text(
+            "SELECT count(*) FROM estimates WHERE operator_id = :o").bindparams(o=operator_id))
+    if estimated != 2 * args.repeat * n:
+        raise SystemExit(f"{estimated} estimates stored, expected {2 * args.repeat * n}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rows", type=int, default=100_000)
     ap.add_argument("--tails", type=int, default=50)
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--no-estimate", action="store_true", help="ingest alone")
+    ap.add_argument("--profile", default="", help="cProfile file of the first estimation job")
     args = ap.parse_args()
 
     name = f"fleethealth_bench_{uuid.uuid4().hex[:8]}"
@@ -268,6 +392,8 @@ def main() -> None:
         expected = 1000 + len(times) * args.repeat * n
         if total != expected:
             raise SystemExit(f"table holds {total} rows, expected {expected}")
+        if not args.no_estimate:
+            end_to_end(url, base, args, times, epoch)
 
         # The peer is the faster raw COPY of the two formats.
         raw_rate = max(n / statistics.median(times[k]) for k in ("raw COPY csv", "raw COPY bin"))
@@ -277,19 +403,26 @@ def main() -> None:
         )
         results = {}
         for label, values in times.items():
+            if label.startswith("  "):
+                continue  # parts of the end-to-end figure, shown below
             rate = n / statistics.median(values)
             results[label] = rate
             print(
                 f"  {label:<13} {statistics.median(values):9.3f} {min(values):8.3f} "
-                f"{rate:12,.0f} {100 * rate / raw_rate:8.1f}% {sizes[label] / 1e6:8.1f}"
+                f"{rate:12,.0f} {100 * rate / raw_rate:8.1f}% {sizes.get(label, 0) / 1e6:8.1f}"
             )
-        for label in ("http csv", "http parquet"):
+        for label in [k for k in results if k.startswith("http")]:
             rate = results[label]
             ok = rate >= 50_000 and rate >= 0.3 * raw_rate
             print(
                 f"target {label}: >= 50,000 snapshots/s and >= 30 % of raw COPY: "
                 f"{rate:,.0f}/s, {100 * rate / raw_rate:.0f} % -> {'PASS' if ok else 'FAIL'}"
             )
+        if not args.no_estimate:
+            for label in ("  estimate batched", "  estimate per record"):
+                rate = n / statistics.median(times[label])
+                print(f"  {label.strip():<22} alone: {statistics.median(times[label]):7.3f} s, "
+                      f"{rate:,.0f} records/s")
     finally:
         if server is not None:
             server.should_exit = True
