@@ -22,16 +22,18 @@ slice from the start of the flight. ``--full`` runs the whole flight.
 
 Figures measured 2026-11-22 (2 cores shared with other jobs at load 3-5; CPU
 seconds of this process; the old and new code back to back, same conditions,
-``run(1, 2500, "one_pass")`` on the whole flight, four pairs):
+``run(1, 2500, "one_pass")`` on the whole flight, pairs):
 
     one engine, numpy path (first version)   214-228 s CPU per flight
     one engine, scalar path, before          10.5-11.4 s CPU (whole flight; 11.5 s scaled from
                                              the 300 s slice; 2.1-3.0 gas-path evaluations
                                              per step, 26 % full solves at ground idle)
-    one engine, scalar path, after           7.6-9.8 s CPU (8.0 s scaled from the 300 s slice;
-                                             1.08 evaluations per step, no full solves)
-                                             -> 1.2-1.4x less CPU in each pair;
-                                             target 5 s: FAIL, 1.5-2x over
+    one engine, scalar path, after           7.1-7.3 s CPU (two pairs against 9.9 and 11.2 s
+                                             before; 7.3 s scaled from the 300 s slice;
+                                             1.08-1.11 evaluations per step, full solves in
+                                             0.8 % of stages, at the slam only)
+                                             -> 1.4-1.6x less CPU in each pair;
+                                             target 5 s: FAIL, 1.4x over
     batch of 64, per engine, 60 s slice      4.9 s before, 1.55 s after (3.1x)
     converged gas path, scalar, 300 s slice  19.7 s before, 18.6 s after
 
@@ -46,7 +48,7 @@ a slam; halving the step moves the sensors by up to 0.24 std there (1.25 std
 at a slam, mostly the controller's sample rate), and the one-pass run is no
 further from the halved step than the converged run.
 
-What is left (the "budget" lines below): at 46-59 us per step, one gas-path
+What is left (the "budget" lines below): at 43-60 us per step, one gas-path
 evaluation on floats is 14-27 us and the control law 5-12 us (controller.py)
 depending on the load, the flight condition 1-2.5 us; the rest (about a
 third) is the loop's bookkeeping on lists (predictions, chord, noise, tuples).
