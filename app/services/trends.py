@@ -16,7 +16,20 @@ from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
-from sqlalchemy import Float, and_, cast, func, select
+from sqlalchemy import (
+    Float,
+    Integer,
+    String,
+    and_,
+    cast,
+    func,
+    literal,
+    literal_column,
+    null,
+    select,
+    type_coerce,
+    union_all,
+)
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidInput, NotFound
@@ -389,43 +402,50 @@ def trend_groups(
 def _markers(
     session: Session, engine_id: int, design_id: int | None
 ) -> dict[str, list[dict[str, Any]]]:
-    installs = session.execute(
-        select(Installation.installed_at, Installation.removed_at, Installation.position,
-               Aircraft.id, Aircraft.tail)
+    """Installations, maintenance actions and events of the engine, each in time order, read
+    with one UNION ALL (one round trip instead of three); ``tag`` says which is which."""
+    text_null = type_coerce(null(), String())
+    int_null = type_coerce(null(), Integer())
+    installs = (
+        select(
+            literal(0, Integer()).label("tag"), Aircraft.id.label("id"),
+            Installation.installed_at.label("t1"), Installation.removed_at.label("t2"),
+            Installation.position.label("n"), Aircraft.tail.label("s1"),
+            text_null.label("s2"), text_null.label("s3"),
+        )
         .join(Aircraft, Aircraft.id == Installation.aircraft_id)
         .where(Installation.engine_id == engine_id)
-        .order_by(Installation.installed_at)
-    ).all()
-    maintenance = session.execute(
-        select(MaintenanceAction.id, MaintenanceAction.kind, MaintenanceAction.performed_at,
-               MaintenanceAction.notes)
-        .where(MaintenanceAction.engine_id == engine_id)
-        .order_by(MaintenanceAction.performed_at)
-    ).all()
-    events_query = (
-        select(Event.id, Event.detected_at, Event.kind, Event.fault, Event.status, Event.seq)
-        .where(Event.engine_id == engine_id)
-        .order_by(Event.detected_at)
     )
+    maintenance = select(
+        literal(1, Integer()), MaintenanceAction.id, MaintenanceAction.performed_at, null(),
+        int_null, MaintenanceAction.kind, MaintenanceAction.notes, text_null,
+    ).where(MaintenanceAction.engine_id == engine_id)
+    events = select(
+        literal(2, Integer()), Event.id, Event.detected_at, null(), Event.seq, Event.kind,
+        Event.fault, Event.status,
+    ).where(Event.engine_id == engine_id)
     if design_id is not None:
-        events_query = events_query.where(Event.design_id == design_id)
-    events = session.execute(events_query).all()
-    return {
-        "installations": [
-            {"aircraft_id": a_id, "tail": tail, "position": pos, "installed_at": inst,
-             "removed_at": rem}
-            for inst, rem, pos, a_id, tail in installs
-        ],
-        "maintenance": [
-            {"id": m_id, "kind": kind, "performed_at": at, "notes": notes}
-            for m_id, kind, at, notes in maintenance
-        ],
-        "events": [
-            {"id": e_id, "detected_at": at, "kind": kind, "fault": fault, "status": status,
-             "seq": seq}
-            for e_id, at, kind, fault, status, seq in events
-        ],
-    }
+        events = events.where(Event.design_id == design_id)
+    query: Any = union_all(installs, maintenance, events).order_by(
+        literal_column("tag"), literal_column("t1"), literal_column("id")
+    )
+    out: dict[str, list[dict[str, Any]]] = {"installations": [], "maintenance": [], "events": []}
+    for tag, row_id, t1, t2, n, s1, s2, s3 in session.execute(query).all():
+        if tag == 0:
+            out["installations"].append(
+                {"aircraft_id": row_id, "tail": s1, "position": n, "installed_at": t1,
+                 "removed_at": t2}
+            )
+        elif tag == 1:
+            out["maintenance"].append(
+                {"id": row_id, "kind": s1, "performed_at": t1, "notes": s2}
+            )
+        else:
+            out["events"].append(
+                {"id": row_id, "detected_at": t1, "kind": s1, "fault": s2, "status": s3,
+                 "seq": n}
+            )
+    return out
 
 
 def _check_range(start: datetime | None, end: datetime | None) -> None:

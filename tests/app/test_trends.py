@@ -343,3 +343,59 @@ def test_json_fast_path_equals_the_dict_and_a_direct_recomputation(
                 for field in ("value", "min", "max"):
                     got = np.array([np.nan if v is None else v for v in series[field]])
                     np.testing.assert_allclose(got, np.round(ref[field][:, col], 4), atol=1e-12)
+
+
+def test_markers_are_the_engines_installations_maintenance_and_events_in_time_order(
+    session: Session,
+) -> None:
+    from app.models import MaintenanceAction
+    from app.models.estimates import Event
+
+    rng = np.random.default_rng(10)
+    fleet = make_fleet(session, "Marker Air")
+    engine, other = add_engine(session, fleet, "M1"), add_engine(session, fleet, "M2")
+    first, second = add_aircraft(session, fleet, "F-MRKA"), add_aircraft(session, fleet, "F-MRKB")
+    swap = T0 + timedelta(days=3)
+    installs = [
+        Installation(operator_id=fleet.operator_id, engine_id=engine.id, aircraft_id=second.id,
+                     position=2, installed_at=swap),
+        Installation(operator_id=fleet.operator_id, engine_id=engine.id, aircraft_id=first.id,
+                     position=1, installed_at=T0, removed_at=swap),
+    ]
+    actions = [
+        MaintenanceAction(operator_id=fleet.operator_id, engine_id=engine.id, kind=kind,
+                          performed_at=T0 + timedelta(days=d, microseconds=250), notes=notes)
+        for kind, d, notes in (("shop_visit", 5, 'said "ok"'), ("water_wash", 1, ""))
+    ]
+    session.add_all(installs + actions)
+    add_estimates(session, fleet, engine, first, _values(rng, 8),
+                  [T0 + timedelta(days=i) for i in range(8)])
+    events = [
+        Event(operator_id=fleet.operator_id, engine_id=e.id, design_id=fleet.design.id, seq=s,
+              detected_at=T0 + timedelta(days=s), kind=kind, fault=fault, statistic=9.0,
+              wssr={}, shift={}, status=status)
+        for e, s, kind, fault, status in (
+            (engine, 6, "isolated_fault", "HPC", "open"),
+            (engine, 2, "shift", None, "acknowledged"),
+            (other, 2, "shift", None, "open"),
+        )
+    ]
+    session.add_all(events)
+    session.flush()
+
+    trend = trends.engine_trend(session, fleet.operator_id, engine.id)
+    assert trend["installations"] == [
+        {"aircraft_id": i.aircraft_id, "tail": {first.id: "F-MRKA", second.id: "F-MRKB"}[
+            i.aircraft_id], "position": i.position, "installed_at": i.installed_at,
+         "removed_at": i.removed_at}
+        for i in sorted(installs, key=lambda i: i.installed_at)
+    ]
+    assert trend["maintenance"] == [
+        {"id": a.id, "kind": a.kind, "performed_at": a.performed_at, "notes": a.notes}
+        for a in sorted(actions, key=lambda a: a.performed_at)
+    ]
+    assert trend["events"] == [
+        {"id": e.id, "detected_at": e.detected_at, "kind": e.kind, "fault": e.fault,
+         "status": e.status, "seq": e.seq}
+        for e in sorted(events[:2], key=lambda e: e.detected_at)
+    ]
