@@ -1225,12 +1225,31 @@ def estimate_engines(
     return summary
 
 
+ESTIMATE_COLUMNS = ("operator_id", "engine_id", "design_id", "snapshot_id", "seq",
+                    "recorded_at", "phase", "packed")
+
+
+def _insert_estimates(session: Session, rows: Sequence[Mapping[str, Any]]) -> None:
+    """Estimate rows into the table: COPY on PostgreSQL (an executemany INSERT took half the
+    estimation job's time), a plain INSERT elsewhere. Same transaction as the session."""
+    connection = session.connection()
+    if connection.dialect.name != "postgresql":
+        session.execute(insert(Estimate), list(rows))
+        return
+    driver = connection.connection.driver_connection
+    assert driver is not None
+    statement = f"COPY estimates ({', '.join(ESTIMATE_COLUMNS)}) FROM STDIN"
+    with driver.cursor() as cursor, cursor.copy(statement) as copy:
+        for row in rows:
+            copy.write_row(tuple(row[c] for c in ESTIMATE_COLUMNS))
+
+
 def _store(
     session: Session, est: SnapshotEstimator, run: EngineRun, fs: FilterState | None,
     out: EngineOutput,
 ) -> None:
     if out.rows:
-        session.execute(insert(Estimate), out.rows)
+        _insert_estimates(session, out.rows)
     if out.checkpoints:
         session.execute(
             insert(FilterCheckpoint),
