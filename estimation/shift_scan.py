@@ -69,7 +69,9 @@ def level_scan(shift: np.ndarray, P: np.ndarray, H: np.ndarray) -> LevelScan:
     rhs[:, :, 1:] = H
     X = np.linalg.solve(P, rhs)
     Pinv_s, Pinv_H = X[:, :, 0], X[:, :, 1:]
-    distance = np.array([float(a @ b) for a, b in zip(shift, Pinv_s, strict=True)])
+    # One dot product per record (stacked matmul sums as ``a @ b`` of one record does; einsum
+    # sums in another order).
+    distance = np.matmul(shift[:, None, :], Pinv_s[:, :, None])[:, 0, 0]
     if nf == 0:
         return LevelScan(distance, np.zeros((K, 0)), np.zeros((K, 0)))
     norm2 = np.einsum("ij,kij->kj", H, Pinv_H)
