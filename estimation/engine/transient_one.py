@@ -110,9 +110,6 @@ class ScalarGasPath:
         self.evaluations = 0
         # Every station (a recorded sample) or only what the step needs.
         self.full = True
-        # One-pass: the first stage of a step that is not recorded reuses the last
-        # second stage (moved by the sensitivities) instead of a gas-path evaluation.
-        self.reuse_stage = True
 
     def evaluate(self, op: Operating, z: Vector, full: bool | None = None
                  ) -> tuple[Vector, Stations]:
@@ -232,7 +229,9 @@ def run_one(
     (keys x, u, y, m, aux, cond, lim, shapes as there)."""
     i_nf, i_nc, i_t24, i_ps30 = idx
     solve = solver.one_pass if one_pass else solver.solve
-    reuse = one_pass and solver.reuse_stage
+    # One-pass: the first stage of a step that is not recorded reuses the last
+    # second stage (moved by the sensitivities) instead of a gas-path evaluation.
+    reuse = one_pass
     k2: Any = [0.0] * 4  # the last second stage's derivatives
     noisy = rng is not None and noise_std is not None
     ns = None if not noisy else np.broadcast_to(np.asarray(noise_std, float), (1, 12))[0]
