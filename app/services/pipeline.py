@@ -1227,6 +1227,7 @@ def estimate_engines(
 
 ESTIMATE_COLUMNS = ("operator_id", "engine_id", "design_id", "snapshot_id", "seq",
                     "recorded_at", "phase", "packed")
+ESTIMATE_PG_TYPES = ("int4", "int4", "int4", "int8", "int4", "timestamptz", "varchar", "bytea")
 
 
 def _insert_estimates(session: Session, rows: Sequence[Mapping[str, Any]]) -> None:
@@ -1238,8 +1239,10 @@ def _insert_estimates(session: Session, rows: Sequence[Mapping[str, Any]]) -> No
         return
     driver = connection.connection.driver_connection
     assert driver is not None
-    statement = f"COPY estimates ({', '.join(ESTIMATE_COLUMNS)}) FROM STDIN"
+    # Binary: the blobs travel as they are (text COPY would send them hex-encoded).
+    statement = f"COPY estimates ({', '.join(ESTIMATE_COLUMNS)}) FROM STDIN (FORMAT BINARY)"
     with driver.cursor() as cursor, cursor.copy(statement) as copy:
+        copy.set_types(list(ESTIMATE_PG_TYPES))
         for row in rows:
             copy.write_row(tuple(row[c] for c in ESTIMATE_COLUMNS))
 
