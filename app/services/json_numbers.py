@@ -51,7 +51,7 @@ def float_rows(matrix: np.ndarray, decimals: int = 4) -> list[str]:
     if not 0 <= decimals <= 4:
         raise ValueError(f"float_rows: decimals must be 0..4, got {decimals}")
     m, n = values.shape
-    if n == 0:
+    if m == 0 or n == 0:
         return ["[]"] * m
     nan = np.isnan(values)
     magnitude = np.where(nan, 0.0, np.abs(values))
