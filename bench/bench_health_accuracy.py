@@ -28,8 +28,9 @@ from app.services.models_designs import design_step
 from estimation.engine.fleet import fleet_snapshots, plan_fleet
 from estimation.model import LinearModel
 
-DESIGNS = (("subset", 10), ("subset", 9), ("subset", 8), ("svd", 9), ("svd", 8), ("svd", 6),
-           ("optimal", 8))
+# method:m, "+bias": the tuners also span the three actuator biases (13 health parameters).
+DESIGNS = ("subset:10", "subset:8", "svd:9", "svd:8", "svd:6", "optimal:8", "svd:8+bias",
+           "svd:9+bias")
 
 
 # A direction of health counts as observable in one record when a 1 % shift along it moves the
@@ -37,11 +38,12 @@ DESIGNS = (("subset", 10), ("subset", 9), ("subset", 8), ("svd", 9), ("svd", 8),
 OBSERVABLE = 0.1
 
 
-def estimator(sched, method: str, m: int) -> pipeline.SnapshotEstimator:
+def estimator(sched, method: str, m: int, biases: bool = False) -> pipeline.SnapshotEstimator:
     p = demo_fleet.DESIGN_POINT
     model = sched.model_at(p["alt"], p["mach"], p["power"])
     sensors = [n for n in model.sensor_names if n != "Wf"]
-    result = design_step(model, demo_fleet.design_spec(method, m, sensors))
+    health = demo_fleet.HEALTH + (demo_fleet.ACTUATOR_BIASES if biases else ())
+    result = design_step(model, demo_fleet.design_spec(method, m, sensors, health))
     embedded = LinearModel.from_dict(result["model"])
     return pipeline.build_estimator(
         0, embedded, result, pipeline.engine_schedule_for(embedded, sched)
@@ -69,13 +71,32 @@ def ranks(est: pipeline.SnapshotEstimator) -> str:
     return "; ".join(out)
 
 
+def fleet_average(est: pipeline.SnapshotEstimator, tracks, flights: int) -> str:
+    """Fleet-average h_hat vs true h over the first and last 60 rounds (about a month), and
+    the most deteriorated value of any engine (settled records), estimated vs true."""
+    rounds = np.concatenate([t.round for t in tracks])
+    hat = np.concatenate([t.h_hat for t in tracks])
+    true = np.concatenate([t.h_true for t in tracks])
+    lines = [" " * 22 + "".join(f"{n[:9]:>10s}" for n in est.layout.health)]
+    for label, lo, hi in (("first month", 0, 60), ("last month", flights - 60, flights)):
+        sel = (rounds >= lo) & (rounds < hi)
+        for kind, v in (("est", hat), ("true", true)):
+            lines.append(f"{label + ' ' + kind:22s}" + "".join(
+                f"{x:10.2f}" for x in v[sel].mean(axis=0)))
+    worst_hat = np.min([t.h_hat[t.settled].min(axis=0) for t in tracks if t.settled.any()], 0)
+    worst_true = np.min([t.h_true.min(axis=0) for t in tracks], axis=0)
+    lines.append(f"{'lowest of any engine est':22s}" + "".join(f"{x:10.2f}" for x in worst_hat))
+    lines.append(f"{'lowest of any engine true':22s}" + "".join(f"{x:10.2f}" for x in worst_true))
+    return "\n".join(lines)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     default = demo_fleet.DemoSize()
     ap.add_argument("--aircraft", type=int, default=default.aircraft)
     ap.add_argument("--flights", type=int, default=default.flights)
     ap.add_argument("--seed", type=int, default=demo_fleet.SEED)
-    ap.add_argument("--designs", default=",".join(f"{a}:{m}" for a, m in DESIGNS))
+    ap.add_argument("--designs", default=",".join(DESIGNS))
     ap.add_argument("--cache", type=Path, default=Path("/tmp/fh/cache"))
     args = ap.parse_args()
 
@@ -90,15 +111,18 @@ def main() -> None:
           f"{time.perf_counter() - t0:.1f} s")
     for item in args.designs.split(","):
         method, m = item.split(":")
+        biases = m.endswith("+bias")
         try:
-            est = estimator(sched, method, int(m))
+            est = estimator(sched, method, int(m.removesuffix("+bias")), biases)
         except Exception as exc:  # an unobservable choice
             print(f"\n== {method} m = {m}: design failed ({exc})")
             continue
         t1 = time.perf_counter()
-        acc = health_accuracy.accuracy(est, health_accuracy.tracks(est, plan, snaps))
-        print(f"\n== {method} m = {est.m} ({time.perf_counter() - t1:.1f} s); G_y {ranks(est)}")
+        tracks = health_accuracy.tracks(est, plan, snaps)
+        acc = health_accuracy.accuracy(est, tracks)
+        print(f"\n== {item} m = {est.m} ({time.perf_counter() - t1:.1f} s); G_y {ranks(est)}")
         print(acc.report())
+        print(fleet_average(est, tracks, args.flights))
 
 
 if __name__ == "__main__":
