@@ -13,7 +13,8 @@ the job functions the in-process runner calls: filter, detection, isolation, est
 Its sensor values sit near the model's trims with sensor noise, so the detector runs as on a
 healthy fleet. The estimation runs twice per repetition on fresh rows: with the pipeline's
 batched detector and with the per-record detector (``detect_step`` record by record, the
-previous path), for the before/after figure in the same run.
+previous path; both store by COPY), for the detector's before/after figure in the same run.
+``--profile FILE`` writes a cProfile of the first estimation job.
 
 Targets (issue 5): >= 50,000 snapshots/s end to end (parse + validate + store + estimate), and
 >= 30 % of the raw COPY rate.
