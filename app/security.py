@@ -29,7 +29,9 @@ def get_session(request: Request) -> Iterator[Session]:
         yield session
 
 
-DbSession = Annotated[Session, Depends(get_session)]
+# scope="function": the session commits before the response is sent, so a 2xx means
+# committed (with the default "request" scope the commit ran after the client had its answer).
+DbSession = Annotated[Session, Depends(get_session, scope="function")]
 
 
 def get_principal(session: DbSession, key: str | None = Security(api_key_header)) -> Principal:
