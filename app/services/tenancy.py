@@ -59,13 +59,16 @@ def issue_api_key(
 
 
 def authenticate(session: Session, key: str) -> Principal | None:
-    row = session.scalar(
-        select(ApiKey).where(ApiKey.digest == digest(key), ApiKey.revoked_at.is_(None))
-    )
+    # One round trip per request: the key and its operator's name together.
+    row = session.execute(
+        select(ApiKey.id, ApiKey.operator_id, ApiKey.role, Operator.name)
+        .join(Operator, Operator.id == ApiKey.operator_id)
+        .where(ApiKey.digest == digest(key), ApiKey.revoked_at.is_(None))
+    ).one_or_none()
     if row is None:
         return None
     return Principal(
-        operator_id=row.operator_id, operator_name=row.operator.name, key_id=row.id, role=row.role
+        operator_id=row.operator_id, operator_name=row.name, key_id=row.id, role=row.role
     )
 
 
