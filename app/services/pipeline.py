@@ -59,7 +59,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from scipy import stats
-from sqlalchemy import and_, delete, func, insert, or_, select
+from sqlalchemy import Double, and_, cast, delete, extract, func, insert, or_, select
 from sqlalchemy.orm import Session
 
 from app.models import Engine, EngineModel, EstimatorDesign, MaintenanceAction, Snapshot
@@ -1052,37 +1052,45 @@ def _wssr_filled_per_record(
 # ---------------------------------------------------------------------- database side
 
 
+def _epoch_column(session: Session, column: Any) -> Any:
+    """``column`` (a UTC timestamp) as seconds since 1970 computed by the database where that
+    is exact: PostgreSQL's ``extract(epoch ...)`` is an exact numeric, rounded once to float8 as
+    ``datetime.timestamp()`` rounds the same microseconds. SQLite returns the timestamp."""
+    if session.connection().dialect.name == "postgresql":
+        return cast(extract("epoch", column), Double)
+    return column
+
+
 def _load_records(
     session: Session, est: SnapshotEstimator, engine_id: int, after: datetime | None
 ) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray, np.ndarray, np.ndarray]:
+    """The engine's records after ``after``, in time order, as columns: one query, the rows
+    transposed once (``zip``) and each column one numpy conversion (NULL -> NaN)."""
     table = Snapshot.__table__
-    sensor_cols = [table.c[c] if c else None for c in est.sensor_columns]
-    input_cols = [table.c[c] if c else None for c in est.input_columns]
-    columns = [table.c.id, table.c.recorded_at, table.c.phase]
+    stored = [c for c in est.sensor_columns + est.input_columns if c]
+    columns = [table.c.id, _epoch_column(session, table.c.recorded_at), table.c.phase]
     columns += [table.c[c] for c in CONDITION_COLUMNS]
-    columns += [c for c in sensor_cols + input_cols if c is not None]
+    columns += [table.c[c] for c in stored]
     query = select(*columns).where(table.c.engine_id == engine_id).order_by(table.c.recorded_at)
     if after is not None:
         query = query.where(table.c.recorded_at > after)
-    rows = session.execute(query).all()
+    rows = session.execute(query).tuples().all()
     n = len(rows)
-    ids = np.fromiter((r[0] for r in rows), np.int64, n)
-    epoch = np.fromiter((r[1].timestamp() for r in rows), float, n)
-    phase = [r[2] for r in rows]
-    data = np.array([r[3:] for r in rows], dtype=float).reshape(n, -1)  # None -> nan
-    conditions = data[:, :4]
-    rest = data[:, 4:]
-    y = np.full((n, len(sensor_cols)), np.nan)
-    u = np.full((n, len(input_cols)), np.nan)
-    k = 0
-    for i, c in enumerate(sensor_cols):
-        if c is not None:
-            y[:, i] = rest[:, k]
-            k += 1
-    for i, c in enumerate(input_cols):
-        if c is not None:
-            u[:, i] = rest[:, k]
-            k += 1
+    width = len(columns)
+    cols: list[Any] = list(zip(*rows, strict=True)) if n else [()] * width
+    ids = np.array(cols[0], dtype=np.int64)
+    if n and isinstance(cols[1][0], datetime):
+        epoch = np.array([t.timestamp() for t in cols[1]], dtype=float)
+    else:
+        epoch = np.array(cols[1], dtype=float)
+    phase = list(cols[2])
+    conditions = np.array(cols[3:7], dtype=float).reshape(4, n).T.copy()
+    by_name = {c: np.array(cols[7 + k], dtype=float) for k, c in enumerate(stored)}
+    missing = np.full(n, np.nan)
+    y = np.column_stack([by_name[c] if c else missing for c in est.sensor_columns]
+                        or [np.empty((n, 0))]).reshape(n, len(est.sensor_columns))
+    u = np.column_stack([by_name[c] if c else missing for c in est.input_columns]
+                        or [np.empty((n, 0))]).reshape(n, len(est.input_columns))
     return ids, epoch, phase, conditions, y, u
 
 
