@@ -9,7 +9,9 @@ every number as text. float32 keeps 7 significant digits, far below the 1-sigma 
 and the pipeline is deterministic, so a re-run writes byte-identical blobs.
 
 Rows are derived data: they are deleted and rewritten when a late record re-runs an engine, so
-every table here cascades from the engine, design and snapshot it was computed from.
+every table here cascades from the design it was computed under (``estimates`` keeps only that
+foreign key; the snapshot, engine and operator are the pipeline's to get right, see migration
+0007).
 """
 
 from __future__ import annotations
@@ -57,12 +59,16 @@ class Estimate(Base):
     )
 
     id: Mapped[int] = mapped_column(BigId, primary_key=True)
-    operator_id: Mapped[int] = mapped_column(ForeignKey("operators.id", ondelete="CASCADE"))
-    engine_id: Mapped[int] = mapped_column(ForeignKey("engines.id", ondelete="CASCADE"))
+    # Only design_id is a foreign key (migration 0007): PostgreSQL checks each one per COPYed
+    # row, and deleting a design must take its estimates. operator_id, engine_id and
+    # snapshot_id are copied by the pipeline from the snapshot it estimates, and snapshots
+    # (hence their engines and operators) are never deleted while they have rows.
+    operator_id: Mapped[int] = mapped_column(Integer)
+    engine_id: Mapped[int] = mapped_column(Integer)
     design_id: Mapped[int] = mapped_column(
         ForeignKey("estimator_designs.id", ondelete="CASCADE"), index=True
     )
-    snapshot_id: Mapped[int] = mapped_column(ForeignKey("snapshots.id", ondelete="CASCADE"))
+    snapshot_id: Mapped[int] = mapped_column(BigId)
     seq: Mapped[int] = mapped_column(Integer)
     recorded_at: Mapped[datetime] = mapped_column(UTCDateTime())
     phase: Mapped[str] = mapped_column(String(16))
