@@ -28,11 +28,20 @@ point's RU.
 
 from __future__ import annotations
 
+import math
+from bisect import bisect_right
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from estimation.engine.actuators import (
+    FLIGHT_IDLE_SLOPE,
+    IDLE_FRACTION,
+    VBV_OPEN,
+    VBV_SHUT,
+    VSV_CLOSED,
+    VSV_OPEN,
     demanded_corrected_fan_speed,
     vbv_schedule,
     vsv_schedule,
@@ -220,3 +229,74 @@ def control_step(
     integ = xp.where(limited != 0, ru / ru_d - gains.kp * error, integ)
     u = xp.stack([ru * ps30, vsv_schedule(nrc, xp), vbv_schedule(nrc, xp)])
     return ControllerState(integ, sensed), ControlOutput(u, ru, ru_min, ru_max, limited, error, nrc)
+
+
+ScalarControlLaw = Callable[
+    [float, list[float], float, float, float, float, float, float, float, float],
+    tuple[float, list[float], list[float], int],
+]
+
+
+def scalar_control_law(
+    dt: float, gains: ControllerGains = DEFAULT_GAINS, design: EngineDesign | None = None,
+) -> ScalarControlLaw:
+    """``control_step`` with ``xp = SCALAR`` for one engine, with the per-sample lookups
+    (design, RU line, gains, filter coefficient) done once.
+
+    The returned ``law(integrator, sensed, power_pct, mach, theta2, delta2, nf, nc, t24,
+    ps30)`` gives ``(integrator, sensed, u, limited)``: the same formulas in the same
+    order as ``control_step`` (and the schedules of ``actuators.py``), so the same
+    floats (tests/engine/test_controller.py).
+    """
+    d = design or engine_design()
+    ru_d = design_ratio_units(d)
+    grid, line = _steady_ru_line(d, SCALAR)
+    g0, g_end, f0, f_end = grid[0], grid[-1], line[0], line[-1]
+    alpha = dt / (gains.sensor_tau + dt)
+    d_nf, d_nc, d_t24 = d.nf, d.nc, d.t24
+    kp, ki0, ki_to = gains.kp, gains.ki, gains.ki_takeoff
+    decel, accel = gains.decel_ratio, gains.accel_ratio
+    idle0, idle_slope = IDLE_FRACTION, FLIGHT_IDLE_SLOPE
+    vsv_lo, vsv_span = VSV_CLOSED, VSV_OPEN - VSV_CLOSED
+    vbv_hi, vbv_span = VBV_OPEN, VBV_OPEN - VBV_SHUT
+    sqrt = math.sqrt
+
+    def law(integrator: float, sensed: list[float], power_pct: float, mach: float,
+            theta2: float, delta2: float, m_nf: float, m_nc: float, m_t24: float,
+            m_ps30: float) -> tuple[float, list[float], list[float], int]:
+        s0, s1, s2, s3 = sensed
+        nf = s0 + alpha * (m_nf - s0)
+        nc = s1 + alpha * (m_nc - s1)
+        t24 = s2 + alpha * (m_t24 - s2)
+        ps30 = s3 + alpha * (m_ps30 - s3)
+        # actuators.demanded_corrected_fan_speed / idle_fraction
+        idle = idle0 + idle_slope * max(mach - 0.05, 0.0)
+        demand = d_nf * (idle + (1.0 - idle) * (power_pct / 100.0))
+        nf_corr = nf / sqrt(theta2)
+        error = (demand - nf_corr) / d_nf
+        nrc = nc / sqrt(t24 / RANKINE / d_t24) / d_nc
+        # xp.SCALAR.interp on the steady RU line
+        if nrc <= g0:
+            ru_ss = f0
+        elif nrc >= g_end:
+            ru_ss = f_end
+        else:
+            j = bisect_right(grid, nrc) - 1
+            ru_ss = (line[j + 1] - line[j]) / (grid[j + 1] - grid[j]) * (nrc - grid[j]) + line[j]
+        ru_min, ru_max = decel * ru_ss, accel * ru_ss
+        s = min(max((nf_corr / d_nf - 0.42) / 0.58, 0.0), 1.0)
+        ki = ki0 + (ki_to * min(delta2, 1.0) ** DELTA_EXP - ki0) * s
+        integ = integrator + ki * error * dt
+        ru_free = (integ + kp * error) * ru_d
+        ru = min(max(ru_free, ru_min), ru_max)
+        limited = 1 if ru_free > ru_max else (-1 if ru_free < ru_min else 0)
+        if limited != 0:
+            integ = ru / ru_d - kp * error
+        # actuators.vsv_schedule / vbv_schedule (smoothstep ramps)
+        a = min(max((nrc - 0.70) / 0.27, 0.0), 1.0)
+        b = min(max((nrc - 0.65) / 0.27, 0.0), 1.0)
+        u = [ru * ps30, vsv_lo + vsv_span * (a * a * (3.0 - 2.0 * a)),
+             vbv_hi - vbv_span * (b * b * (3.0 - 2.0 * b))]
+        return integ, [nf, nc, t24, ps30], u, limited
+
+    return law

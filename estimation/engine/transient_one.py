@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from estimation.engine.atmosphere import LBM, PSI, RANKINE, FlightCondition, flight_condition
-from estimation.engine.controller import ControllerGains, ControllerState, control_step
+from estimation.engine.controller import ControllerGains, ControllerState, scalar_control_law
 from estimation.engine.design import EngineDesign
 from estimation.engine.errors import EngineConvergenceError
 from estimation.engine.flight import FlightProfile, OperatingPoint
@@ -38,8 +38,6 @@ from estimation.engine.turbofan import (
 from estimation.engine.xp import SCALAR, SCALAR_ERRORS
 
 Vector = list[float]
-# The scalar path passes floats where the batch path's annotations say arrays.
-_control: Any = control_step
 
 
 def _operating(*fields: Any) -> Operating:
@@ -240,8 +238,13 @@ def run_one(
     half = 0.5 * dt
     z2 = z
     op2: Operating | None = None
+    law = scalar_control_law(dt, gains, d)
+    integ: float = ctrl.integrator  # type: ignore[assignment]
+    sensed: Vector = ctrl.sensed  # type: ignore[assignment]
     cond = sched(0.0)
-    fc = flight_condition(cond[0], cond[1], cond[2], SCALAR)
+    fc: Any = flight_condition(cond[0], cond[1], cond[2], SCALAR)  # floats in the fields
+    fc_key = cond[:3]  # the flight condition is recomputed only when these move
+    noise_rows: list[Vector] = []
     # Noise is drawn in blocks of steps: the same numbers, in the same order, as
     # one draw of 12 per step (the batch path's), and exactly as many.
     block = np.empty((0, 12))
@@ -252,16 +255,16 @@ def run_one(
             j = k % _NOISE_BLOCK
             if j == 0:
                 block = rng.standard_normal((min(_NOISE_BLOCK, n_steps + 1 - k), 12)) * ns
+                noise_rows = block.tolist()
             noise = block[j]
-            nz = noise.tolist()
+            nz = noise_rows[j]
             m_nf, m_nc = y_ctrl[i_nf] + nz[i_nf], y_ctrl[i_nc] + nz[i_nc]
             m_t24, m_ps30 = y_ctrl[i_t24] + nz[i_t24], y_ctrl[i_ps30] + nz[i_ps30]
         else:
             noise = None
             m_nf, m_nc, m_t24, m_ps30 = y_ctrl[i_nf], y_ctrl[i_nc], y_ctrl[i_t24], y_ctrl[i_ps30]
-        ctrl, out = _control(ctrl, cond[3], cond[1], fc.theta, fc.delta, m_nf, m_nc,
-                                 m_t24, m_ps30, dt, gains, d, SCALAR)
-        u = out.u
+        integ, sensed, u, limited = law(integ, sensed, cond[3], cond[1], fc.theta, fc.delta,
+                                        m_nf, m_nc, m_t24, m_ps30)
         wf = u[0] * LBM
         op = _operating(x[0], x[1], x[2] / RANKINE, x[3] / RANKINE, wf, u[1], u[2], fc)
         recorded = k % record_every == 0
@@ -283,13 +286,15 @@ def run_one(
             rec_x[i, 0], rec_u[i, 0], rec_y[i, 0], rec_aux[i, 0] = x, u, y, aux
             rec_m[i, 0] = y if noise is None else np.add(y, noise)
             rec_cond[:, i, 0] = cond
-            rec_lim[i, 0] = out.limited
+            rec_lim[i, 0] = limited
         if on_progress is not None and (k % 1000 == 0 or k == n_steps):
             on_progress(k / max(n_steps, 1))
         if k == n_steps:
             break
         cond = sched(t + dt)
-        fc = flight_condition(cond[0], cond[1], cond[2], SCALAR)
+        if cond[:3] != fc_key:
+            fc = flight_condition(cond[0], cond[1], cond[2], SCALAR)
+            fc_key = cond[:3]
         xs = [xi + dt * ki for xi, ki in zip(x, k1, strict=True)]
         op2 = _operating(xs[0], xs[1], xs[2] / RANKINE, xs[3] / RANKINE, wf, u[1], u[2], fc)
         solver.full = False

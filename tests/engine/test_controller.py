@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from estimation.engine.actuators import demanded_corrected_fan_speed, vbv_schedule, vsv_schedule
@@ -14,11 +16,13 @@ from estimation.engine.controller import (
     initial_state,
     power_from_pla,
     ratio_unit_limits,
+    scalar_control_law,
 )
 from estimation.engine.design import engine_design
 from estimation.engine.flight import OperatingPoint
 from estimation.engine.steady import steady_state
 from estimation.engine.transient import simulate
+from estimation.engine.xp import SCALAR
 
 NF, NC, T24, PS30 = 0, 1, 2, 5
 ENV = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 15.0], [20000.0, 0.6, -5.0], [35000.0, 0.84, 0.0]])
@@ -146,3 +150,34 @@ def test_power_lever_angle_maps_onto_the_power_setting() -> None:
     pla = np.array([0.0, 20.0, 35.0, 50.0, 80.0, 90.0])
     expect = np.interp(pla, [20.0, 80.0], [0.0, 100.0])
     np.testing.assert_allclose(power_from_pla(pla), expect, rtol=1e-14)
+
+
+def test_scalar_law_equals_control_step_on_floats_and_arrays() -> None:
+    # Free, on the acceleration limit and on the deceleration limit (integrators
+    # far above and below the steady RU), over the envelope and both filter settings.
+    rng = np.random.default_rng(3)
+    b = 40
+    integ = rng.choice([0.05, 0.8, 1.0, 5.0], b) * rng.uniform(0.9, 1.1, b)
+    power, mach, theta = rng.uniform(0, 100, b), rng.uniform(0, 0.9, b), rng.uniform(0.7, 1.2, b)
+    delta = rng.uniform(0.2, 1.2, b)
+    meas = np.stack([rng.uniform(800, 2500, b), rng.uniform(5000, 9300, b),
+                     rng.uniform(500, 660, b), rng.uniform(60, 560, b)], axis=1)
+    raw = meas * rng.uniform(0.97, 1.03, (b, 4))
+    for gains in (ControllerGains(), ControllerGains(sensor_tau=0.0, kp=2.0)):
+        generic: Any = control_step  # floats where the annotations say arrays
+        new, out = generic(ControllerState(integ, raw), power, mach, theta, delta,
+                           *meas.T, 0.015, gains)
+        law = scalar_control_law(0.015, gains)
+        for i in range(b):
+            args = [float(v[i]) for v in (power, mach, theta, delta)] + meas[i].tolist()
+            integ1, sensed1, u1, lim1 = law(float(integ[i]), raw[i].tolist(), *args)
+            n0, o0 = generic(ControllerState(float(integ[i]), raw[i].tolist()),  # type: ignore[arg-type]
+                             *args, 0.015, gains, None, SCALAR)
+            # The same floats as the generic law on floats ...
+            assert (integ1, sensed1, u1, lim1) == (n0.integrator, n0.sensed, o0.u, o0.limited)
+            # ... and as the batch (numpy) law to rounding.
+            np.testing.assert_allclose(u1, out.u[i], rtol=1e-13)
+            np.testing.assert_allclose(integ1, new.integrator[i], rtol=1e-13)
+            np.testing.assert_allclose(sensed1, new.sensed[i], rtol=1e-15)
+            assert lim1 == out.limited[i]
+        assert {-1, 0, 1} <= set(out.limited.tolist())
