@@ -158,9 +158,16 @@ class ScalarGasPath:
         """State derivatives after a change of states and commands, on the balanced gas
         path: k + dk/dv (v_to - v_from), dk/dv = dk/dv|z + dk/dz dz/dv."""
         d0, d1, d2, d3, d4, d5, d6 = _change(op_from, op_to)
-        return [ki + (g[0] * d0 + g[1] * d1 + g[2] * d2 + g[3] * d3 + g[4] * d4
-                      + g[5] * d5 + g[6] * d6)
-                for ki, g in zip(k, self.dkdv, strict=True)]
+        k0, k1, k2, k3 = k
+        g, h, e, f = self.dkdv  # rows written out: a loop over zip costs as much as the sums
+        return [k0 + (g[0] * d0 + g[1] * d1 + g[2] * d2 + g[3] * d3 + g[4] * d4
+                      + g[5] * d5 + g[6] * d6),
+                k1 + (h[0] * d0 + h[1] * d1 + h[2] * d2 + h[3] * d3 + h[4] * d4
+                      + h[5] * d5 + h[6] * d6),
+                k2 + (e[0] * d0 + e[1] * d1 + e[2] * d2 + e[3] * d3 + e[4] * d4
+                      + e[5] * d5 + e[6] * d6),
+                k3 + (f[0] * d0 + f[1] * d1 + f[2] * d2 + f[3] * d3 + f[4] * d4
+                      + f[5] * d5 + f[6] * d6)]
 
     def predict(self, z: Vector, op_from: Operating, op_to: Operating) -> Vector:
         """Unknowns after a change of states and commands: z + dz/dv (v_to - v_from),
@@ -169,15 +176,29 @@ class ScalarGasPath:
         if self.jinv is None:
             return z
         d0, d1, d2, d3, d4, d5, d6 = _change(op_from, op_to)
-        return [zi + (g[0] * d0 + g[1] * d1 + g[2] * d2 + g[3] * d3 + g[4] * d4
-                      + g[5] * d5 + g[6] * d6)
-                for zi, g in zip(z, self.dzdu, strict=True)]
+        z0, z1, z2, z3, z4 = z
+        g, h, e, f, c = self.dzdu
+        return [z0 + (g[0] * d0 + g[1] * d1 + g[2] * d2 + g[3] * d3 + g[4] * d4
+                      + g[5] * d5 + g[6] * d6),
+                z1 + (h[0] * d0 + h[1] * d1 + h[2] * d2 + h[3] * d3 + h[4] * d4
+                      + h[5] * d5 + h[6] * d6),
+                z2 + (e[0] * d0 + e[1] * d1 + e[2] * d2 + e[3] * d3 + e[4] * d4
+                      + e[5] * d5 + e[6] * d6),
+                z3 + (f[0] * d0 + f[1] * d1 + f[2] * d2 + f[3] * d3 + f[4] * d4
+                      + f[5] * d5 + f[6] * d6),
+                z4 + (c[0] * d0 + c[1] * d1 + c[2] * d2 + c[3] * d3 + c[4] * d4
+                      + c[5] * d5 + c[6] * d6)]
 
     def _chord(self, z: Vector, res: Vector) -> Vector:
         assert self.jinv is not None
         r0, r1, r2, r3, r4 = res
-        return [zi - (a[0] * r0 + a[1] * r1 + a[2] * r2 + a[3] * r3 + a[4] * r4)
-                for zi, a in zip(z, self.jinv, strict=True)]
+        z0, z1, z2, z3, z4 = z
+        a, b, c, e, f = self.jinv
+        return [z0 - (a[0] * r0 + a[1] * r1 + a[2] * r2 + a[3] * r3 + a[4] * r4),
+                z1 - (b[0] * r0 + b[1] * r1 + b[2] * r2 + b[3] * r3 + b[4] * r4),
+                z2 - (c[0] * r0 + c[1] * r1 + c[2] * r2 + c[3] * r3 + c[4] * r4),
+                z3 - (e[0] * r0 + e[1] * r1 + e[2] * r2 + e[3] * r3 + e[4] * r4),
+                z4 - (f[0] * r0 + f[1] * r1 + f[2] * r2 + f[3] * r3 + f[4] * r4)]
 
     def solve(self, op: Operating, z0: Vector) -> tuple[Vector, Stations]:
         z = list(z0)
@@ -295,7 +316,9 @@ def run_one(
         if cond[:3] != fc_key:
             fc = flight_condition(cond[0], cond[1], cond[2], SCALAR)
             fc_key = cond[:3]
-        xs = [xi + dt * ki for xi, ki in zip(x, k1, strict=True)]
+        x0, x1, x2, x3 = x
+        a0, a1, a2, a3 = k1
+        xs = [x0 + dt * a0, x1 + dt * a1, x2 + dt * a2, x3 + dt * a3]
         op2 = _operating(xs[0], xs[1], xs[2] / RANKINE, xs[3] / RANKINE, wf, u[1], u[2], fc)
         solver.full = False
         # The second stage differs from the first by dt k1 in the states only: the
@@ -303,7 +326,9 @@ def run_one(
         # last step's stage-to-stage change in time would carry last step's noise).
         z2, st2 = solve(op2, solver.predict(base_z, base_op, op2))
         k2 = [st2["dnf"], st2["dnc"], st2["dtm_hpc"], st2["dtm_hpt"]]
-        x = [xi + half * (a + b) for xi, a, b in zip(x, k1, k2, strict=True)]
+        b0, b1, b2, b3 = k2
+        x = [x0 + half * (a0 + b0), x1 + half * (a1 + b1), x2 + half * (a2 + b2),
+             x3 + half * (a3 + b3)]
         # The controller's next sample: the sensors it reads at the second stage.
         y_ctrl = [0.0] * 12  # only these four are read
         y_ctrl[i_nf], y_ctrl[i_nc] = op2.nf, op2.nc
