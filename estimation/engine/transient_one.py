@@ -247,6 +247,8 @@ def run_one(
     """The step loop of ``transient.simulate`` for B = 1; fills the record arrays ``rec``
     (keys x, u, y, m, aux, cond, lim, shapes as there)."""
     i_nf, i_nc, i_t24, i_ps30 = idx
+    # The four sensors the controller reads (the rest of y_ctrl is not used).
+    y_nf, y_nc, y_t24, y_ps30 = y_ctrl[i_nf], y_ctrl[i_nc], y_ctrl[i_t24], y_ctrl[i_ps30]
     solve = solver.one_pass if one_pass else solver.solve
     # One-pass: the first stage of a step that is not recorded reuses the last
     # second stage (moved by the sensitivities) instead of a gas-path evaluation.
@@ -279,11 +281,11 @@ def run_one(
                 noise_rows = block.tolist()
             noise = block[j]
             nz = noise_rows[j]
-            m_nf, m_nc = y_ctrl[i_nf] + nz[i_nf], y_ctrl[i_nc] + nz[i_nc]
-            m_t24, m_ps30 = y_ctrl[i_t24] + nz[i_t24], y_ctrl[i_ps30] + nz[i_ps30]
+            m_nf, m_nc = y_nf + nz[i_nf], y_nc + nz[i_nc]
+            m_t24, m_ps30 = y_t24 + nz[i_t24], y_ps30 + nz[i_ps30]
         else:
             noise = None
-            m_nf, m_nc, m_t24, m_ps30 = y_ctrl[i_nf], y_ctrl[i_nc], y_ctrl[i_t24], y_ctrl[i_ps30]
+            m_nf, m_nc, m_t24, m_ps30 = y_nf, y_nc, y_t24, y_ps30
         integ, sensed, u, limited = law(integ, sensed, cond[3], cond[1], fc.theta, fc.delta,
                                         m_nf, m_nc, m_t24, m_ps30)
         wf = u[0] * LBM
@@ -330,6 +332,5 @@ def run_one(
         x = [x0 + half * (a0 + b0), x1 + half * (a1 + b1), x2 + half * (a2 + b2),
              x3 + half * (a3 + b3)]
         # The controller's next sample: the sensors it reads at the second stage.
-        y_ctrl = [0.0] * 12  # only these four are read
-        y_ctrl[i_nf], y_ctrl[i_nc] = op2.nf, op2.nc
-        y_ctrl[i_t24], y_ctrl[i_ps30] = st2["t24"] * RANKINE, st2["ps30"] / PSI
+        y_nf, y_nc = op2.nf, op2.nc
+        y_t24, y_ps30 = st2["t24"] * RANKINE, st2["ps30"] / PSI
