@@ -64,9 +64,15 @@ def make_sessionmaker(engine: Engine) -> sessionmaker[Session]:
 
 
 @contextmanager
-def transaction(factory: sessionmaker[Session]) -> Iterator[Session]:
-    """One unit of work: commit on success, roll back on any error."""
+def transaction(factory: sessionmaker[Session], *, write: bool = True) -> Iterator[Session]:
+    """One unit of work: commit on success, roll back on any error.
+
+    ``write`` (the default) marks its first transaction as one that writes (see ``writing``);
+    pass ``write=False`` for a read-only unit that should never wait for a writer.
+    """
     session = factory()
+    if write:
+        writing(session)
     try:
         yield session
         session.commit()

@@ -9,7 +9,7 @@ from fastapi import Depends, Request, Security
 from fastapi.security import APIKeyHeader
 from sqlalchemy.orm import Session
 
-from app.db import transaction, writing
+from app.db import transaction
 from app.errors import Forbidden, Unauthorized
 from app.services.tenancy import Principal, authenticate
 
@@ -23,9 +23,8 @@ READ_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
 
 def get_session(request: Request) -> Iterator[Session]:
     """A session per request, committed when the route returns without error."""
-    with transaction(request.app.state.sessionmaker) as session:
-        if request.method not in READ_METHODS:
-            writing(session)
+    write = request.method not in READ_METHODS
+    with transaction(request.app.state.sessionmaker, write=write) as session:
         yield session
 
 
