@@ -142,9 +142,8 @@ def fill(url: str, n_snapshots: int, n_engines: int) -> dict[str, object]:
         blobs = LAYOUT.pack(values)
         session.execute(insert(Estimate), [
             {"operator_id": operator.id, "engine_id": big, "design_id": design.id,
-             "snapshot_id": s, "seq": i, "recorded_at": times[i], "phase": "cruise",
-             "packed": blobs[i]}
-            for i, s in enumerate(snap_ids)
+             "seq": i, "recorded_at": times[i], "phase": "cruise", "packed": blobs[i]}
+            for i in range(len(snap_ids))
         ])
         others = dict(session.execute(text(
             "SELECT engine_id, id FROM snapshots WHERE operator_id = :o AND engine_id != :e"),
@@ -152,8 +151,7 @@ def fill(url: str, n_snapshots: int, n_engines: int) -> dict[str, object]:
         one = LAYOUT.pack(rng.normal(size=(1, LAYOUT.width)))[0]
         session.execute(insert(Estimate), [
             {"operator_id": operator.id, "engine_id": e, "design_id": design.id,
-             "snapshot_id": others[e], "seq": 0, "recorded_at": T0, "phase": "cruise",
-             "packed": one}
+             "seq": 0, "recorded_at": T0, "phase": "cruise", "packed": one}
             for e in engine_ids[1:]
         ])
         session.execute(insert(FilterState), [

@@ -53,23 +53,16 @@ class Estimate(Base):
     """
 
     __tablename__ = "estimates"
-    __table_args__ = (
-        UniqueConstraint("engine_id", "design_id", "seq"),
-        UniqueConstraint("snapshot_id", "design_id"),
-    )
 
-    id: Mapped[int] = mapped_column(BigId, primary_key=True)
-    # Only design_id is a foreign key (migration 0007): PostgreSQL checks each one per COPYed
-    # row, and deleting a design must take its estimates. operator_id, engine_id and
-    # snapshot_id are copied by the pipeline from the snapshot it estimates, and snapshots
-    # (hence their engines and operators) are never deleted while they have rows.
+    # Derived rows written by COPY, one per snapshot: the key (engine, design, seq) is the only
+    # index and there is no foreign key (migration 0008: each costs a lookup per COPYed row).
+    # operator_id and engine_id are copied by the pipeline from the snapshots it estimates;
+    # snapshots (hence their engines and operators) are never deleted while they have rows, and
+    # a design with estimates is never deleted. The snapshot is (engine_id, recorded_at).
+    engine_id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    design_id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    seq: Mapped[int] = mapped_column(Integer, primary_key=True)
     operator_id: Mapped[int] = mapped_column(Integer)
-    engine_id: Mapped[int] = mapped_column(Integer)
-    design_id: Mapped[int] = mapped_column(
-        ForeignKey("estimator_designs.id", ondelete="CASCADE"), index=True
-    )
-    snapshot_id: Mapped[int] = mapped_column(BigId)
-    seq: Mapped[int] = mapped_column(Integer)
     recorded_at: Mapped[datetime] = mapped_column(UTCDateTime())
     phase: Mapped[str] = mapped_column(String(16))
     packed: Mapped[bytes] = mapped_column(LargeBinary)

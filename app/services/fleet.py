@@ -19,7 +19,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from app.errors import Conflict, InvalidInput, NotFound
-from app.models import Aircraft, Engine, EngineType, Installation
+from app.models import Aircraft, Engine, EngineType, Installation, Snapshot
 from app.models.base import Base
 from app.models.fleet import MAX_POSITIONS
 
@@ -280,6 +280,11 @@ def update_engine(
 
 def delete_engine(session: Session, *, operator_id: int, engine_id: int) -> None:
     row = get_engine(session, operator_id=operator_id, engine_id=engine_id)
+    # Snapshots keep no foreign key (a per-row check on every bulk COPY, migration 0008):
+    # their presence is checked here, under the engine's row lock.
+    _locked(session, row)
+    if session.scalar(select(Snapshot.id).where(Snapshot.engine_id == row.id).limit(1)):
+        raise Conflict(f"engine {row.esn!r} still has data (snapshots)")
     delete_or_conflict(
         session, row, f"engine {row.esn!r} still has installations, maintenance actions or data"
     )

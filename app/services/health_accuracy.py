@@ -89,7 +89,7 @@ def tracks(
         part = engines[start : start + batch]
         for data, res in zip(part, pipeline.run_filters(est, [e.run for e in part]),
                              strict=True):
-            values = est.layout.unpack([row["packed"] for row in res.rows])
+            values = res.packed.astype(np.float64)
             rounds = np.array([int(f.rsplit("-", 1)[1]) - 1 for f in data.flight_id])
             e = plan.esns.index(data.esn)
             h_true = plan.health[rounds, e][:, truth_col]

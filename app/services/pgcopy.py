@@ -12,7 +12,8 @@ Supported column types: int2, int4, int8, float8, timestamptz (microseconds sinc
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -109,3 +110,42 @@ def _scatter(buffer: np.ndarray, starts: np.ndarray, values: np.ndarray) -> None
     width = values.dtype.itemsize
     raw = np.ascontiguousarray(values).view(np.uint8).reshape(-1, width)
     buffer[starts[:, None] + np.arange(width)] = raw
+
+
+# ---------------------------------------------------------------------- fixed-width rows
+#
+# When every field of every row has the same width (no NULL, text of one length), a binary
+# COPY row is a fixed record: int16 field count, then per field an int32 length and the value.
+# A numpy structured dtype then writes all rows in one step, with no scatter at all.
+
+
+def record_dtype(widths: Sequence[tuple[str, np.dtype]]) -> np.dtype:
+    """The structured dtype of one fixed-width binary COPY row of these (name, value dtype)
+    fields, big-endian and unaligned as on the wire."""
+    fields: list[tuple[str, Any]] = [("__count", ">i2")]
+    for name, dtype in widths:
+        fields.append((f"__len_{name}", ">i4"))
+        fields.append((name, dtype))
+    return np.dtype(fields)
+
+
+def fixed_copy_rows(columns: Sequence[tuple[str, np.ndarray]]) -> bytes:
+    """Rows of a binary COPY payload (no header or trailer) from equal-length arrays whose
+    values all have one width: big-endian numbers (``>i4``, ``>i8``, ``>f8``; a timestamptz is
+    ``>i8`` microseconds since ``PG_EPOCH_US``) or raw bytes (``S{w}``/``V{w}`` for text of
+    one length and bytea; a 2-D uint8 array [n, w] is taken as ``V{w}``)."""
+    prepared = []
+    for name, values in columns:
+        if values.ndim == 2:
+            values = np.ascontiguousarray(values, dtype=np.uint8).view(
+                np.dtype((np.void, values.shape[1]))
+            )[:, 0]
+        prepared.append((name, values))
+    n = len(prepared[0][1]) if prepared else 0
+    dtype = record_dtype([(name, values.dtype) for name, values in prepared])
+    rows = np.empty(n, dtype=dtype)
+    rows["__count"] = len(prepared)
+    for name, values in prepared:
+        rows[f"__len_{name}"] = values.dtype.itemsize
+        rows[name] = values
+    return rows.tobytes()

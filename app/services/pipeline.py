@@ -59,12 +59,13 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from scipy import stats
-from sqlalchemy import Double, and_, cast, delete, extract, func, insert, or_, select
+from sqlalchemy import and_, delete, func, insert, or_, select
 from sqlalchemy.orm import Session
 
 from app.models import Engine, EngineModel, EstimatorDesign, MaintenanceAction, Snapshot
 from app.models.base import utcnow
 from app.models.estimates import (
+    VALUE_DTYPE,
     Estimate,
     EstimateLayout,
     Event,
@@ -72,7 +73,7 @@ from app.models.estimates import (
     FilterState,
 )
 from app.models.ingest import ACTUATORS, OPERATING_CONDITION, SENSORS, SignalSpec
-from app.services import units
+from app.services import estimate_rows, units
 from estimation import isolation
 from estimation.detection import CusumDesign, design_cusum
 from estimation.engine.schedule import EngineSchedule
@@ -111,7 +112,9 @@ NEW_FLIGHT_S = 3600.0  # records further apart than this are different flights
 # its trim, are off by about this much.
 MODEL_ERROR = 0.2
 CHECKPOINT_EVERY = 256
-CHUNK = 512  # records per engine per filter call (bounds the scheduled-gain arrays)
+# Records of all engines per filter call (bounds the scheduled-gain arrays, ~120 MB for the
+# built-in engine): a call takes max(64, RECORD_SLOTS // engines) records of each engine.
+RECORD_SLOTS = 32_768
 
 SNAPSHOT_SIGNALS: dict[str, SignalSpec] = {s.name: s for s in SENSORS + ACTUATORS}
 CONDITION_COLUMNS = tuple(s.column for s in OPERATING_CONDITION)
@@ -763,15 +766,31 @@ class EngineRun:
 
 @dataclass
 class EngineOutput:
-    rows: list[dict[str, Any]]
+    """What a run computed for one engine: its records' estimate numbers (the ``packed``
+    blobs' values, one row per record from ``EngineRun.seq0``), events, checkpoints and the
+    state after its last record."""
+
+    values: list[np.ndarray]  # per chunk [n, width] as VALUE_DTYPE
     events: list[EventDraft]
     checkpoints: list[tuple[int, float, int, dict[str, Any]]]  # seq, epoch, snapshot id, state
     state: dict[str, Any]
+    width: int = 0
+
+    @property
+    def packed(self) -> np.ndarray:
+        """[S, width] the numbers of every record's blob (``VALUE_DTYPE``)."""
+        if not self.values:
+            return np.empty((0, self.width), dtype=VALUE_DTYPE)
+        return np.concatenate(self.values)
+
+    def blobs(self) -> list[bytes]:
+        """Each record's ``packed`` blob, as stored."""
+        return [row.tobytes() for row in self.packed]
 
 
 def run_filters(est: SnapshotEstimator, runs: Sequence[EngineRun]) -> list[EngineOutput]:
     """Filter, detect and pack every engine's records; engines are batched in the filter."""
-    outputs = [EngineOutput([], [], [], r.state) for r in runs]
+    outputs = [EngineOutput([], [], [], r.state, est.layout.width) for r in runs]
     filt = [SnapshotState.from_dict(r.state["filter"]) for r in runs]
     dets = [Detector.from_dict(r.state["detector"]) for r in runs]
     last = [r.state.get("last_epoch") for r in runs]
@@ -779,8 +798,9 @@ def run_filters(est: SnapshotEstimator, runs: Sequence[EngineRun]) -> list[Engin
     s = est.layout.slices()
     E = len(runs)
     ny = len(est.sensor_columns)
-    for c0 in range(0, longest, CHUNK):
-        c1 = min(c0 + CHUNK, longest)
+    chunk = max(64, RECORD_SLOTS // max(E, 1))
+    for c0 in range(0, longest, chunk):
+        c1 = min(c0 + chunk, longest)
         S = c1 - c0
         dy = np.full((E, S, ny), np.nan)
         scale = np.zeros((E, S))
@@ -861,25 +881,9 @@ def run_filters(est: SnapshotEstimator, runs: Sequence[EngineRun]) -> list[Engin
             det = dets[e]
             q_prev = np.concatenate([filt[e].q_hat, q[:-1]])
             P_prior = np.concatenate([filt[e].P, P[:-1]]) + scale[e, :n, None, None] * est.Qq
-            blobs = est.layout.pack(
-                _wssr_filled(est, det, r, c0, n, q, P, q_prev, P_prior, resets[e], values, out,
-                             (dy[e, :n], G_y[e, :n], signatures[e, :n], noise[e, :n] ** 2))
-            )
-            for j in range(n):
-                k = c0 + j
-                seq = r.seq0 + k
-                out.rows.append(
-                    {
-                        "operator_id": r.operator_id,
-                        "engine_id": r.engine_id,
-                        "design_id": est.design_id,
-                        "snapshot_id": int(r.snapshot_id[k]),
-                        "seq": seq,
-                        "recorded_at": datetime.fromtimestamp(float(r.epoch[k]), UTC),
-                        "phase": r.phase[k],
-                        "packed": blobs[j],
-                    }
-                )
+            _wssr_filled(est, det, r, c0, n, q, P, q_prev, P_prior, resets[e], values, out,
+                         (dy[e, :n], G_y[e, :n], signatures[e, :n], noise[e, :n] ** 2))
+            out.values.append(values.astype(VALUE_DTYPE))
             filt[e] = SnapshotState(q[-1:], P[-1:])
             out.state = {"filter": filt[e].to_dict(), "detector": det.to_dict(),
                          "last_epoch": last[e]}
@@ -933,39 +937,47 @@ def _wssr_filled(
         with_base = bases[L + first - depth : L + first - depth + len(k_idx)]
         scan = level_scan(q[k_idx] - with_base, P[k_idx], est.H) if len(k_idx) else None
         stop = end
+        # The CUSUM and its running mean, record by record on Python floats; records from
+        # ``armed`` on (run index) carry their WSSR, those before it NaN.
+        distance = scan.distance.tolist() if scan is not None else []
+        S, s_mean, s_count, warm = det.S, det.s_mean, det.s_count, det.warm
+        threshold, reference = est.cusum.threshold, est.cusum.reference
+        armed = end - j
         for i in range(end - j):
-            jj = j + i
-            det.warm += 1
+            warm += 1
             if i < first:
-                det.S = 0.0
-                values[jj, s] = np.nan
+                S = 0.0
                 continue
-            assert scan is not None
-            s_k = float(scan.distance[i - first])
-            if det.s_mean is None:
-                det.s_mean = float(m)
-            scaled = s_k * m / max(det.s_mean, m)
-            if det.S == 0.0:
-                det.s_count += 1
-                rate = max(1.0 / det.s_count, S_MEAN_RATE)
-                det.s_mean += (min(s_k, S_MEAN_CAP * m) - det.s_mean) * rate
-            if det.warm < WARMUP:
-                det.S = 0.0
-                values[jj, s] = np.nan
+            s_k = distance[i - first]
+            if s_mean is None:
+                s_mean = float(m)
+            scaled = s_k * m / max(s_mean, m)
+            if S == 0.0:
+                s_count += 1
+                rate = max(1.0 / s_count, S_MEAN_RATE)
+                s_mean += (min(s_k, S_MEAN_CAP * m) - s_mean) * rate
+            if warm < WARMUP:
+                S = 0.0
                 continue
-            det.S = max(0.0, det.S + scaled - m - est.cusum.reference)
-            values[jj, s] = scan.wssr[i - first]
-            if det.S > est.cusum.threshold:
+            armed = min(armed, i)
+            S = max(0.0, S + scaled - m - reference)
+            if S > threshold:
+                assert scan is not None
+                jj = j + i
                 det.pending = {"seq": r.seq0 + c0 + jj, "epoch": float(r.epoch[c0 + jj]),
-                               "statistic": det.S, "wait": N_CONFIRM,
+                               "statistic": S, "wait": N_CONFIRM,
                                "baseline": with_base[i - first].tolist(), "P": P[jj].tolist()}
                 if records is not None:
                     accumulate_sensor_fit(
                         est, det.pending, RecordObservation(*(a[jj] for a in records))
                     )
-                det.S = 0.0
+                S = 0.0
                 stop = jj + 1
                 break
+        det.S, det.s_mean, det.s_count, det.warm = S, s_mean, s_count, warm
+        values[j:stop, s] = np.nan
+        if scan is not None and j + armed < stop:
+            values[j + armed : stop, s] = scan.wssr[armed - first : stop - j - first]
         det.history = series[max(L + stop - j - depth, 0) : L + stop - j].tolist()
         done = r.seq0 + c0 + stop
         if done % CHECKPOINT_EVERY == 0:
@@ -1052,48 +1064,6 @@ def _wssr_filled_per_record(
 # ---------------------------------------------------------------------- database side
 
 
-def _epoch_column(session: Session, column: Any) -> Any:
-    """``column`` (a UTC timestamp) as seconds since 1970 computed by the database where that
-    is exact: PostgreSQL's ``extract(epoch ...)`` is an exact numeric, rounded once to float8 as
-    ``datetime.timestamp()`` rounds the same microseconds. SQLite returns the timestamp."""
-    if session.connection().dialect.name == "postgresql":
-        return cast(extract("epoch", column), Double)
-    return column
-
-
-def _load_records(
-    session: Session, est: SnapshotEstimator, engine_id: int, after: datetime | None
-) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray, np.ndarray, np.ndarray]:
-    """The engine's records after ``after``, in time order, as columns: one query, the rows
-    transposed once (``zip``) and each column one numpy conversion (NULL -> NaN)."""
-    table = Snapshot.__table__
-    stored = [c for c in est.sensor_columns + est.input_columns if c]
-    columns = [table.c.id, _epoch_column(session, table.c.recorded_at), table.c.phase]
-    columns += [table.c[c] for c in CONDITION_COLUMNS]
-    columns += [table.c[c] for c in stored]
-    query = select(*columns).where(table.c.engine_id == engine_id).order_by(table.c.recorded_at)
-    if after is not None:
-        query = query.where(table.c.recorded_at > after)
-    rows = session.execute(query).tuples().all()
-    n = len(rows)
-    width = len(columns)
-    cols: list[Any] = list(zip(*rows, strict=True)) if n else [()] * width
-    ids = np.array(cols[0], dtype=np.int64)
-    if n and isinstance(cols[1][0], datetime):
-        epoch = np.array([t.timestamp() for t in cols[1]], dtype=float)
-    else:
-        epoch = np.array(cols[1], dtype=float)
-    phase = list(cols[2])
-    conditions = np.array(cols[3:7], dtype=float).reshape(4, n).T.copy()
-    by_name = {c: np.array(cols[7 + k], dtype=float) for k, c in enumerate(stored)}
-    missing = np.full(n, np.nan)
-    y = np.column_stack([by_name[c] if c else missing for c in est.sensor_columns]
-                        or [np.empty((n, 0))]).reshape(n, len(est.sensor_columns))
-    u = np.column_stack([by_name[c] if c else missing for c in est.input_columns]
-                        or [np.empty((n, 0))]).reshape(n, len(est.input_columns))
-    return ids, epoch, phase, conditions, y, u
-
-
 def _restart_point(
     session: Session, est: SnapshotEstimator, fs: FilterState | None, earliest: datetime | None
 ) -> tuple[int, dict[str, Any], datetime | None]:
@@ -1142,25 +1112,57 @@ def _delete_from(
 
 
 def _events_to_redo(
-    session: Session, engine_id: int, design_id: int, seq0: int, state: Mapping[str, Any]
+    events: Sequence[Event], seq0: int, state: Mapping[str, Any]
 ) -> dict[float, Event]:
-    """Events a run from ``seq0`` (state ``state``) recomputes, by detection time (an alarm's
-    record keeps its time when a late record shifts the sequence numbers)."""
+    """Of one engine's ``events``, those a run from ``seq0`` (state ``state``) recomputes, by
+    detection time (an alarm's record keeps its time when a late record shifts the sequence
+    numbers)."""
     pending = (state.get("detector") or {}).get("pending")
-    which = Event.seq >= seq0
-    if pending is not None:
-        which = or_(which, Event.seq == int(pending["seq"]))
-    rows = session.scalars(
-        select(Event).where(Event.engine_id == engine_id, Event.design_id == design_id, which)
-    ).all()
-    return {e.detected_at.timestamp(): e for e in rows}
+    pending_seq = None if pending is None else int(pending["seq"])
+    return {e.detected_at.timestamp(): e for e in events
+            if e.seq >= seq0 or e.seq == pending_seq}
 
 
-def _maintenance_epochs(session: Session, engine_id: int) -> np.ndarray:
-    times = session.scalars(
-        select(MaintenanceAction.performed_at).where(MaintenanceAction.engine_id == engine_id)
-    ).all()
-    return np.array(sorted(t.timestamp() for t in times), dtype=float)
+def _by_engine(session: Session, query: Any) -> dict[int, list[Any]]:
+    """Rows of ``query`` (its first column an engine id) grouped by that id."""
+    out: dict[int, list[Any]] = {}
+    for row in session.execute(query).all():
+        out.setdefault(int(row[0]), []).append(row)
+    return out
+
+
+def _active_designs(
+    session: Session, operator_id: int, engines: Sequence[Engine], design_id: int | None
+) -> tuple[dict[int, EstimatorDesign], dict[int, list[Engine]], list[str]]:
+    """Designs by id, the engines each one runs (the engine type's active design, or
+    ``design_id``), and the ESNs of engines with none."""
+    if design_id is not None:
+        forced = session.get(EstimatorDesign, design_id)
+        by_type = {e.engine_type_id: forced for e in engines}
+    else:
+        by_type = {
+            d.engine_type_id: d
+            for d in session.scalars(
+                select(EstimatorDesign).where(
+                    EstimatorDesign.operator_id == operator_id,
+                    EstimatorDesign.active.is_(True),
+                )
+            )
+        }
+    designs: dict[int, EstimatorDesign] = {}
+    groups: dict[int, list[Engine]] = {}
+    skipped = []
+    for engine in engines:
+        design = by_type.get(engine.engine_type_id)
+        if design is None or design.operator_id != operator_id:
+            skipped.append(engine.esn)
+            continue
+        designs[design.id] = design
+        groups.setdefault(design.id, []).append(engine)
+    return designs, groups, skipped
+
+
+BATCH = 256  # engines filtered together (and committed together by a job)
 
 
 def estimate_engines(
@@ -1174,63 +1176,32 @@ def estimate_engines(
     """Bring every affected engine's estimates up to date.
 
     affected: engine id -> earliest recorded_at of its new records (None: just continue).
-    Engines of one design run batched, 64 at a time; ``commit`` (a job's) is called after
-    each batch so finished engines survive a restart, else all stays in the caller's
-    transaction.
-    Returns counts per outcome.
+    Engines of one design run batched, ``BATCH`` at a time: their records are read in one go
+    and their estimates written in one go (``estimate_rows``); ``commit`` (a job's) is called
+    after each batch so finished engines survive a restart, else all stays in the caller's
+    transaction. Returns counts per outcome.
     """
     engines = session.scalars(
-        select(Engine).where(Engine.operator_id == operator_id, Engine.id.in_(list(affected)))
+        select(Engine)
+        .where(Engine.operator_id == operator_id, Engine.id.in_(list(affected)))
+        .order_by(Engine.id)
     ).all()
-    by_design: dict[int, list[Engine]] = {}
-    skipped = []
-    designs: dict[int, EstimatorDesign] = {}
-    for engine in engines:
-        if design_id is not None:
-            design = session.get(EstimatorDesign, design_id)
-        else:
-            design = session.scalar(
-                select(EstimatorDesign).where(
-                    EstimatorDesign.engine_type_id == engine.engine_type_id,
-                    EstimatorDesign.active.is_(True),
-                )
-            )
-        if design is None or design.operator_id != operator_id:
-            skipped.append(engine.esn)
-            continue
-        designs[design.id] = design
-        by_design.setdefault(design.id, []).append(engine)
+    designs, by_design, skipped = _active_designs(session, operator_id, engines, design_id)
     summary: dict[str, Any] = {"engines": 0, "records": 0, "events": 0, "reruns": 0,
                                "skipped_no_design": skipped}
     total = sum(len(v) for v in by_design.values()) or 1
     done = 0
     for d_id, group in by_design.items():
         est = estimator_for_design(session, designs[d_id])
-        runs, states = [], []
-        for engine in group:
-            fs = session.scalar(
-                select(FilterState).where(
-                    FilterState.engine_id == engine.id, FilterState.design_id == d_id
-                )
-            )
-            seq0, state, after = _restart_point(session, est, fs, affected.get(engine.id))
-            if fs is not None and seq0 < fs.n_records:
-                summary["reruns"] += 1
-            ids, epoch, phase, cond, y, u = _load_records(session, est, engine.id, after)
-            if len(ids) == 0 and fs is not None and seq0 == fs.n_records:
-                continue
-            redo = _events_to_redo(session, engine.id, d_id, seq0, state)
-            runs.append(EngineRun(engine.id, operator_id, seq0, state, ids, epoch, phase, cond,
-                                  y, u, _maintenance_epochs(session, engine.id), redo))
-            states.append(fs)
-        for start in range(0, len(runs), 64):
-            batch = runs[start : start + 64]
-            outputs = run_filters(est, batch)
-            for run, fs, out in zip(batch, states[start : start + 64], outputs, strict=True):
-                _store(session, est, run, fs, out)
-                summary["records"] += len(out.rows)
+        for start in range(0, len(group), BATCH):
+            batch = group[start : start + BATCH]
+            runs, states = _prepare_runs(session, est, operator_id, batch, affected, summary)
+            outputs = run_filters(est, runs)
+            _store_batch(session, est, operator_id, runs, states, outputs)
+            for out in outputs:
+                summary["records"] += len(out.packed)
                 summary["events"] += len(out.events)
-                summary["engines"] += 1
+            summary["engines"] += len(runs)
             done += len(batch)
             if commit is not None:
                 commit()
@@ -1239,44 +1210,90 @@ def estimate_engines(
     return summary
 
 
-ESTIMATE_COLUMNS = ("operator_id", "engine_id", "design_id", "snapshot_id", "seq",
-                    "recorded_at", "phase", "packed")
-ESTIMATE_PG_TYPES = ("int4", "int4", "int4", "int8", "int4", "timestamptz", "varchar", "bytea")
+def _prepare_runs(
+    session: Session, est: SnapshotEstimator, operator_id: int, batch: Sequence[Engine],
+    affected: Mapping[int, datetime | None], summary: dict[str, Any],
+) -> tuple[list[EngineRun], list[FilterState | None]]:
+    """The runs of a batch of engines under one design: restart points (deleting what a
+    re-run redoes), records, maintenance actions and the events a run redoes, each read once
+    for the batch."""
+    ids = [e.id for e in batch]
+    states = {
+        fs.engine_id: fs
+        for fs in session.scalars(
+            select(FilterState).where(
+                FilterState.design_id == est.design_id, FilterState.engine_id.in_(ids)
+            )
+        )
+    }
+    starts = {}
+    for engine_id in ids:
+        fs = states.get(engine_id)
+        starts[engine_id] = _restart_point(session, est, fs, affected.get(engine_id))
+        if fs is not None and starts[engine_id][0] < fs.n_records:
+            summary["reruns"] += 1
+    records = estimate_rows.load_records(
+        session, [(engine_id, starts[engine_id][2]) for engine_id in ids],
+        est.sensor_columns, est.input_columns,
+    )
+    maintenance = _by_engine(
+        session,
+        select(MaintenanceAction.engine_id, MaintenanceAction.performed_at).where(
+            MaintenanceAction.engine_id.in_(ids)
+        ),
+    )
+    events = _by_engine(
+        session,
+        select(Event.engine_id, Event).where(
+            Event.engine_id.in_(ids), Event.design_id == est.design_id
+        ),
+    )
+    runs, kept = [], []
+    for engine_id in ids:
+        fs = states.get(engine_id)
+        seq0, state, _after = starts[engine_id]
+        rec = records[engine_id]
+        if len(rec.snapshot_id) == 0 and fs is not None and seq0 == fs.n_records:
+            continue
+        times = sorted(row[1].timestamp() for row in maintenance.get(engine_id, []))
+        redo = _events_to_redo([row[1] for row in events.get(engine_id, [])], seq0, state)
+        runs.append(EngineRun(engine_id, operator_id, seq0, state, rec.snapshot_id, rec.epoch,
+                              rec.phase, rec.conditions, rec.y, rec.u,
+                              np.array(times, dtype=float), redo))
+        kept.append(fs)
+    return runs, kept
 
 
-def _insert_estimates(session: Session, rows: Sequence[Mapping[str, Any]]) -> None:
-    """Estimate rows into the table: COPY on PostgreSQL (an executemany INSERT took half the
-    estimation job's time), a plain INSERT elsewhere. Same transaction as the session."""
-    connection = session.connection()
-    if connection.dialect.name != "postgresql":
-        session.execute(insert(Estimate), list(rows))
-        return
-    driver = connection.connection.driver_connection
-    assert driver is not None
-    # Binary: the blobs travel as they are (text COPY would send them hex-encoded).
-    statement = f"COPY estimates ({', '.join(ESTIMATE_COLUMNS)}) FROM STDIN (FORMAT BINARY)"
-    with driver.cursor() as cursor, cursor.copy(statement) as copy:
-        copy.set_types(list(ESTIMATE_PG_TYPES))
-        for row in rows:
-            copy.write_row(tuple(row[c] for c in ESTIMATE_COLUMNS))
+def _store_batch(
+    session: Session, est: SnapshotEstimator, operator_id: int, runs: Sequence[EngineRun],
+    states: Sequence[FilterState | None], outputs: Sequence[EngineOutput],
+) -> None:
+    """A batch's estimates in one bulk write, then each engine's checkpoints, events and
+    filter state."""
+    estimate_rows.insert_estimates(
+        session, operator_id=operator_id, design_id=est.design_id,
+        blocks=[(r.engine_id, r.seq0, r.epoch, r.phase, out.packed)
+                for r, out in zip(runs, outputs, strict=True)],
+    )
+    checkpoints = [
+        {"engine_id": run.engine_id, "design_id": est.design_id, "seq": seq,
+         "last_recorded_at": datetime.fromtimestamp(epoch, UTC),
+         "last_snapshot_id": snap, "state": state}
+        for run, out in zip(runs, outputs, strict=True)
+        for seq, epoch, snap, state in out.checkpoints
+    ]
+    if checkpoints:
+        session.execute(insert(FilterCheckpoint), checkpoints)
+    for run, fs, out in zip(runs, states, outputs, strict=True):
+        _store(session, est, run, fs, out)
+    session.flush()
 
 
 def _store(
     session: Session, est: SnapshotEstimator, run: EngineRun, fs: FilterState | None,
     out: EngineOutput,
 ) -> None:
-    if out.rows:
-        _insert_estimates(session, out.rows)
-    if out.checkpoints:
-        session.execute(
-            insert(FilterCheckpoint),
-            [
-                {"engine_id": run.engine_id, "design_id": est.design_id, "seq": seq,
-                 "last_recorded_at": datetime.fromtimestamp(epoch, UTC),
-                 "last_snapshot_id": snap, "state": state}
-                for seq, epoch, snap, state in out.checkpoints
-            ],
-        )
+    """One engine's events (redone ones updated in place) and filter state."""
     redo = dict(run.redo)
     fresh = []
     for draft in out.events:
@@ -1298,7 +1315,8 @@ def _store(
         if pending is not None and float(pending["epoch"]) == epoch:
             continue  # still awaiting its isolation: the next run redoes it
         session.delete(stale)
-    session.flush()  # stale events go before new ones may take their sequence numbers
+    if run.redo:
+        session.flush()  # stale events go before new ones may take their sequence numbers
     for seq, detection in fresh:
         session.add(
             Event(
@@ -1323,34 +1341,67 @@ def _store(
         fs.last_recorded_at = last_time
         fs.last_snapshot_id = last_id
     fs.updated_at = utcnow()
-    session.flush()
-
 
 
 def pending_work(
     session: Session, operator_id: int, engine_ids: Sequence[int] | None = None
 ) -> dict[int, datetime]:
     """Engines with snapshots that have no estimate under their type's active design, and the
-    earliest such snapshot of each: what the pipeline has still to do (or redo)."""
+    earliest such snapshot of each: what the pipeline has still to do (or redo).
+
+    Per engine, from its filter state: the first record after the last processed one (an
+    index lookup), and the count of records up to it against the records processed; only
+    an engine with a late record (more records than processed up to the last one) is searched
+    for its earliest unestimated record.
+    """
     active = (
         select(EstimatorDesign.id, EstimatorDesign.engine_type_id)
         .where(EstimatorDesign.operator_id == operator_id, EstimatorDesign.active.is_(True))
         .subquery()
     )
+    fs = FilterState.__table__
+    snap = Snapshot.__table__
+    after_last = or_(fs.c.last_recorded_at.is_(None), snap.c.recorded_at > fs.c.last_recorded_at)
+    first_new = (
+        select(func.min(snap.c.recorded_at))
+        .where(snap.c.engine_id == Engine.id, after_last)
+        .scalar_subquery()
+    )
+    up_to_last = (
+        select(func.count())
+        .select_from(snap)
+        .where(snap.c.engine_id == Engine.id, snap.c.recorded_at <= fs.c.last_recorded_at)
+        .scalar_subquery()
+    )
     query = (
-        select(Snapshot.engine_id, func.min(Snapshot.recorded_at))
-        .join(Engine, Engine.id == Snapshot.engine_id)
+        select(Engine.id, active.c.id, fs.c.n_records, first_new, up_to_last)
         .join(active, active.c.engine_type_id == Engine.engine_type_id)
-        .outerjoin(
-            Estimate,
-            and_(Estimate.snapshot_id == Snapshot.id, Estimate.design_id == active.c.id),
-        )
-        .where(Snapshot.operator_id == operator_id, Estimate.id.is_(None))
-        .group_by(Snapshot.engine_id)
+        .outerjoin(fs, and_(fs.c.engine_id == Engine.id, fs.c.design_id == active.c.id))
+        .where(Engine.operator_id == operator_id)
     )
     if engine_ids is not None:
-        query = query.where(Snapshot.engine_id.in_(list(engine_ids)))
-    return {int(e): t for e, t in session.execute(query).all()}
+        query = query.where(Engine.id.in_(list(engine_ids)))
+    out = {}
+    for engine_id, d_id, n_records, new, counted in session.execute(query).all():
+        if n_records is not None and counted is not None and counted > n_records:
+            out[int(engine_id)] = _earliest_unestimated(session, engine_id, d_id)
+        elif new is not None:
+            out[int(engine_id)] = new
+    return out
+
+
+def _earliest_unestimated(session: Session, engine_id: int, design_id: int) -> datetime:
+    """The engine's earliest snapshot without an estimate under the design."""
+    estimated = select(Estimate.recorded_at).where(
+        Estimate.engine_id == engine_id, Estimate.design_id == design_id
+    )
+    earliest = session.scalar(
+        select(func.min(Snapshot.recorded_at)).where(
+            Snapshot.engine_id == engine_id, Snapshot.recorded_at.not_in(estimated)
+        )
+    )
+    assert earliest is not None, "more snapshots than estimates, yet none without one"
+    return earliest
 
 
 def catch_up(

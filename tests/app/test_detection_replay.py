@@ -160,10 +160,10 @@ def test_split_run_on_the_built_in_engine_equals_one_run(
             run.u[k0:k1], run.maintenance,
         )
         out = pipeline.run_filters(estimator, [part])[0]
-        rows += out.rows
+        rows += out.blobs()
         events += out.events
         state, seq0 = out.state, k1
-    assert [r["packed"] for r in rows] == [r["packed"] for r in whole.rows]
+    assert rows == whole.blobs()
     assert events == whole.events
     assert state == whole.state
 
@@ -185,7 +185,7 @@ def test_batched_detector_equals_the_per_record_detector(
     assert sum(len(o.events) for o in per_record) >= 2  # alarms and isolations were exercised
     assert sum(len(r.maintenance) for r in runs) >= 2  # and resets
     for a, b in zip(batched, per_record, strict=True):
-        assert [r["packed"] for r in a.rows] == [r["packed"] for r in b.rows]
+        assert a.blobs() == b.blobs()
         assert a.events == b.events
         assert a.checkpoints == b.checkpoints
         assert a.state == b.state

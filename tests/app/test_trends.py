@@ -108,7 +108,7 @@ def add_estimates(
     session.add_all(
         Estimate(
             operator_id=fleet.operator_id, engine_id=engine.id, design_id=fleet.design.id,
-            snapshot_id=s.id, seq=i, recorded_at=s.recorded_at, phase=s.phase, packed=blob,
+            seq=i, recorded_at=s.recorded_at, phase=s.phase, packed=blob,
         )
         for i, (s, blob) in enumerate(zip(snaps, blobs, strict=True))
     )
@@ -307,7 +307,7 @@ def test_json_fast_path_equals_the_dict_and_a_direct_recomputation(
     session.add_all(
         Estimate(
             operator_id=fleet.operator_id, engine_id=engine.id, design_id=fleet.design.id,
-            snapshot_id=s.id, seq=int(i), recorded_at=s.recorded_at, phase=s.phase,
+            seq=int(i), recorded_at=s.recorded_at, phase=s.phase,
             packed=blobs[i],
         )
         for i, s in zip(order, snaps, strict=True)

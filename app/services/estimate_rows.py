@@ -1,0 +1,232 @@
+"""Bulk reads of snapshots and bulk writes of estimates for the estimation pipeline.
+
+An estimation job reads every new record of a batch of engines and writes one estimate row per
+record. On PostgreSQL both move rows of one fixed width in PostgreSQL's binary encoding: the
+read is one query for the whole batch whose rows (a missing sensor as NaN, the phase as a code,
+the time in microseconds) are joined on the server into one bytea and parsed by one
+``numpy.frombuffer``; the write is one binary ``COPY estimates FROM STDIN`` built by numpy per
+phase (rows of one phase have one width). No value passes through a Python object on either
+side. Other databases read with one SELECT per engine and write with an executemany INSERT.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+
+import numpy as np
+from sqlalchemy import insert, select
+from sqlalchemy.orm import Session
+
+from app.models import Snapshot
+from app.models.estimates import VALUE_DTYPE, Estimate
+from app.models.ingest import OPERATING_CONDITION, PHASES
+from app.services.pgcopy import HEADER, PG_EPOCH_US, TRAILER, fixed_copy_rows
+
+CONDITION_COLUMNS = tuple(s.column for s in OPERATING_CONDITION)
+ESTIMATE_COLUMNS = ("operator_id", "engine_id", "design_id", "seq", "recorded_at", "phase",
+                    "packed")
+
+
+@dataclass(frozen=True)
+class Records:
+    """One engine's records in time order, as columns.
+
+    snapshot_id [S], epoch [S] (seconds since 1970, UTC), phase [S], conditions [S, 4]
+    (alt_ft, mach, dtamb_k, power_pct), y [S, ny] and u [S, nu] in stored units with NaN for
+    a missing value (a column the design reads but snapshots do not store is all NaN).
+    """
+
+    snapshot_id: np.ndarray
+    epoch: np.ndarray
+    phase: list[str]
+    conditions: np.ndarray
+    y: np.ndarray
+    u: np.ndarray
+
+
+def load_records(
+    session: Session,
+    wants: Sequence[tuple[int, datetime | None]],
+    sensor_columns: Sequence[str],
+    input_columns: Sequence[str],
+) -> dict[int, Records]:
+    """Each engine's records after its time (None: all of them), for (engine id, after) pairs.
+
+    ``sensor_columns``/``input_columns`` name the snapshot column of each design signal
+    ("" = not stored).
+    """
+    if not wants:
+        return {}
+    stored = list(dict.fromkeys(c for c in (*sensor_columns, *input_columns) if c))
+    if session.connection().dialect.name == "postgresql":
+        columns = _aggregated(session, wants, stored)
+    else:
+        columns = {engine_id: _select(session, engine_id, after, stored)
+                   for engine_id, after in wants}
+    out = {}
+    for engine_id, (ids, epoch, phase, conditions, values) in columns.items():
+        n = len(ids)
+        missing = np.full(n, np.nan)
+
+        def stack(names: Sequence[str], values: dict[str, np.ndarray] = values,
+                  n: int = n, missing: np.ndarray = missing) -> np.ndarray:
+            if not names:
+                return np.empty((n, 0))
+            return np.column_stack([values[c] if c else missing for c in names]).reshape(
+                n, len(names)
+            )
+
+        out[engine_id] = Records(ids, epoch, phase, conditions, stack(sensor_columns),
+                                 stack(input_columns))
+    return out
+
+
+Columns = tuple[np.ndarray, np.ndarray, list[str], np.ndarray, dict[str, np.ndarray]]
+
+
+def _aggregated(
+    session: Session, wants: Sequence[tuple[int, datetime | None]], stored: Sequence[str]
+) -> dict[int, Columns]:
+    """PostgreSQL: every engine's records as one bytea of fixed-width binary rows.
+
+    Each row's fields go through the type's binary send function (big-endian, as in a binary
+    COPY) and ``string_agg`` joins the rows in order on the server, so one value crosses the
+    wire and one ``numpy.frombuffer`` reads it (a binary COPY TO sends a message a row: 0.6 s
+    of Python for 100,000 rows).
+    """
+    for engine_id, after in wants:
+        if not isinstance(engine_id, int) or (after is not None and after.tzinfo is None):
+            raise ValueError(f"engine {engine_id!r} after {after!r}: ids and aware times only")
+    # Only integers and ISO times of aware datetimes are written into the statement.
+    window = ", ".join(
+        f"({engine_id}, " + ("NULL" if after is None else f"'{after.isoformat()}'")
+        + "::timestamptz)"
+        for engine_id, after in wants
+    )
+    phase = "CASE s.phase " + " ".join(
+        f"WHEN '{name}' THEN {code}" for code, name in enumerate(PHASES)
+    ) + " END::int2"
+    fields = [
+        ("engine_id", "int4send(s.engine_id)", ">i4"),
+        ("id", "int8send(s.id)", ">i8"),
+        ("micros", "int8send((extract(epoch FROM s.recorded_at) * 1000000)::int8)", ">i8"),
+        ("phase", f"int2send({phase})", ">i2"),
+    ]
+    fields += [(c, f"float8send(COALESCE(s.{c}, 'NaN'))", ">f8")
+               for c in (*CONDITION_COLUMNS, *stored)]
+    query = (
+        f"SELECT string_agg({' || '.join(sql for _n, sql, _w in fields)}, ''::bytea "
+        "ORDER BY s.engine_id, s.recorded_at) FROM snapshots s "
+        f"JOIN (VALUES {window}) AS w(engine_id, after) ON s.engine_id = w.engine_id "
+        "WHERE w.after IS NULL OR s.recorded_at > w.after"
+    )
+    driver = session.connection().connection.driver_connection
+    assert driver is not None
+    with driver.cursor(binary=True) as cursor:
+        cursor.execute(query)
+        found = cursor.fetchone()
+    payload = b"" if found is None or found[0] is None else bytes(found[0])
+    dtype = np.dtype([(name, w) for name, _sql, w in fields])
+    if len(payload) % dtype.itemsize:
+        raise ValueError(f"rows of {dtype.itemsize} bytes expected, {len(payload)} bytes found")
+    rows = np.frombuffer(payload, dtype=dtype)
+    engines = rows["engine_id"].astype(np.int64)
+    phases = np.array(PHASES, dtype=object)
+    out: dict[int, Columns] = {}
+    for engine_id, _after in wants:
+        lo, hi = np.searchsorted(engines, [engine_id, engine_id + 1])
+        part = rows[lo:hi]
+        out[engine_id] = (
+            part["id"].astype(np.int64),
+            part["micros"].astype(np.int64) / 1e6,
+            phases[part["phase"]].tolist(),
+            np.column_stack([part[c].astype(float) for c in CONDITION_COLUMNS]).reshape(
+                len(part), len(CONDITION_COLUMNS)
+            ),
+            {c: part[c].astype(float) for c in stored},
+        )
+    return out
+
+
+def _select(
+    session: Session, engine_id: int, after: datetime | None, stored: Sequence[str]
+) -> Columns:
+    """Other databases: one engine's records in one SELECT, transposed once."""
+    table = Snapshot.__table__
+    columns = [table.c.id, table.c.recorded_at, table.c.phase]
+    columns += [table.c[c] for c in (*CONDITION_COLUMNS, *stored)]
+    query = select(*columns).where(table.c.engine_id == engine_id).order_by(table.c.recorded_at)
+    if after is not None:
+        query = query.where(table.c.recorded_at > after)
+    rows = session.execute(query).tuples().all()
+    n = len(rows)
+    cols: list[Sequence[object]] = list(zip(*rows, strict=True)) if n else [()] * len(columns)
+    times = cols[1]
+    epoch = np.array([t.timestamp() for t in times], dtype=float)  # type: ignore[attr-defined]
+    k = len(CONDITION_COLUMNS)
+    conditions = np.array(cols[3 : 3 + k], dtype=float).reshape(k, n).T.copy()
+    values = {c: np.array(cols[3 + k + j], dtype=float) for j, c in enumerate(stored)}
+    return np.array(cols[0], dtype=np.int64), epoch, list(cols[2]), conditions, values
+
+
+def epoch_micros(epoch: np.ndarray) -> np.ndarray:
+    """Seconds since 1970 (each the correctly rounded value of a whole number of
+    microseconds, as ``load_records`` returns them) back to those microseconds."""
+    return np.rint(np.asarray(epoch, float) * 1e6).astype(np.int64)
+
+
+def insert_estimates(
+    session: Session,
+    *,
+    operator_id: int,
+    design_id: int,
+    blocks: Sequence[tuple[int, int, np.ndarray, Sequence[str], np.ndarray]],
+) -> int:
+    """Write estimate rows; ``blocks`` holds per engine (engine id, first seq, epoch [n],
+    phase [n], packed values [n, width] as ``VALUE_DTYPE``). Returns the rows written."""
+    blocks = [b for b in blocks if len(b[2])]
+    if not blocks:
+        return 0
+    connection = session.connection()
+    if connection.dialect.name != "postgresql":
+        rows = [
+            {"operator_id": operator_id, "engine_id": engine_id, "design_id": design_id,
+             "seq": seq0 + j, "recorded_at": datetime.fromtimestamp(float(epoch[j]), UTC),
+             "phase": phase[j], "packed": values[j].tobytes()}
+            for engine_id, seq0, epoch, phase, values in blocks
+            for j in range(len(epoch))
+        ]
+        session.execute(insert(Estimate), rows)
+        return len(rows)
+    engine = np.concatenate([np.full(len(b[2]), b[0], dtype=np.int64) for b in blocks])
+    seq = np.concatenate([b[1] + np.arange(len(b[2]), dtype=np.int64) for b in blocks])
+    micros = np.concatenate([epoch_micros(b[2]) for b in blocks]) - PG_EPOCH_US
+    phase = np.concatenate([np.asarray(b[3], dtype=object) for b in blocks])
+    values = np.concatenate([np.ascontiguousarray(b[4], dtype=VALUE_DTYPE) for b in blocks])
+    raw = values.view(np.uint8).reshape(len(values), -1)
+    parts = []
+    # Rows of one phase have one width: one fixed-width record array per phase.
+    for name in dict.fromkeys(phase.tolist()):
+        at = np.flatnonzero(phase == name)
+        text = str(name).encode()
+        parts.append(fixed_copy_rows([
+            ("operator_id", np.full(len(at), operator_id, dtype=">i4")),
+            ("engine_id", engine[at].astype(">i4")),
+            ("design_id", np.full(len(at), design_id, dtype=">i4")),
+            ("seq", seq[at].astype(">i4")),
+            ("recorded_at", micros[at].astype(">i8")),
+            ("phase", np.full(len(at), text, dtype=f"S{len(text)}")),
+            ("packed", raw[at]),
+        ]))
+    driver = connection.connection.driver_connection
+    assert driver is not None
+    statement = f"COPY estimates ({', '.join(ESTIMATE_COLUMNS)}) FROM STDIN (FORMAT BINARY)"
+    with driver.cursor() as cursor, cursor.copy(statement) as copy:
+        copy.write(HEADER)
+        for part in parts:
+            copy.write(part)
+        copy.write(TRAILER)
+    return len(values)
+
