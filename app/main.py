@@ -40,6 +40,7 @@ from app.routers import (
     uploads,
 )
 from app.routers import jobs as jobs_router
+from app.services import fresh_records
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
 
@@ -82,6 +83,8 @@ def create_app(
     app.state.sessionmaker = make_sessionmaker(engine)
     app.state.job_registry = load_kinds()
     dispatcher: Dispatcher = CeleryDispatch() if settings.job_runner == "celery" else NoDispatch()
+    # Uploads keep their records in memory for the estimation job only where it runs here.
+    fresh_records.configure(enabled=settings.job_runner != "celery")
     app.state.job_dispatcher = dispatcher
 
     install_error_handlers(app)

@@ -134,20 +134,13 @@ def fill(url: str, n_snapshots: int, n_engines: int) -> dict[str, object]:
         session.execute(insert(Snapshot), [
             dict(common, engine_id=e, recorded_at=T0, phase="cruise") for e in engine_ids[1:]
         ])
-        snap = dict(session.execute(text(
-            "SELECT id, recorded_at FROM snapshots WHERE engine_id = :e ORDER BY recorded_at"),
-            {"e": big}).all())
-        snap_ids = list(snap)
         values = rng.normal(size=(n_snapshots, LAYOUT.width))
         blobs = LAYOUT.pack(values)
         session.execute(insert(Estimate), [
             {"operator_id": operator.id, "engine_id": big, "design_id": design.id,
              "seq": i, "recorded_at": times[i], "phase": "cruise", "packed": blobs[i]}
-            for i in range(len(snap_ids))
+            for i in range(n_snapshots)
         ])
-        others = dict(session.execute(text(
-            "SELECT engine_id, id FROM snapshots WHERE operator_id = :o AND engine_id != :e"),
-            {"o": operator.id, "e": big}).all())
         one = LAYOUT.pack(rng.normal(size=(1, LAYOUT.width)))[0]
         session.execute(insert(Estimate), [
             {"operator_id": operator.id, "engine_id": e, "design_id": design.id,
@@ -159,7 +152,6 @@ def fill(url: str, n_snapshots: int, n_engines: int) -> dict[str, object]:
              "layout": LAYOUT.to_dict(), "state": {"filter": {}, "detector": {}},
              "n_records": n_snapshots if e == big else 1,
              "last_recorded_at": times[-1] if e == big else T0,
-             "last_snapshot_id": snap_ids[-1] if e == big else others[e],
              "updated_at": T0}
             for e in engine_ids
         ])

@@ -36,7 +36,6 @@ from sqlalchemy.orm import Mapped, mapped_column, relationship
 
 from app.models.base import Base, UTCDateTime, utcnow
 from app.models.designs import JSONDocument
-from app.models.ingest import BigId
 
 EVENT_KINDS = ("shift", "isolated_fault")
 EVENT_STATUSES = ("open", "acknowledged", "closed")
@@ -73,7 +72,7 @@ class FilterState(Base):
 
     ``state`` is the serialised snapshot filter plus the shift detector (baseline, CUSUM);
     ``layout`` names the numbers packed in each estimate's blob; ``n_records`` is the next
-    ``seq``; ``last_recorded_at``/``last_snapshot_id`` order the records already processed.
+    ``seq``; ``last_recorded_at`` is the time of the last record processed.
     """
 
     __tablename__ = "filter_states"
@@ -91,7 +90,6 @@ class FilterState(Base):
     state: Mapped[dict[str, Any]] = mapped_column(JSONDocument)
     n_records: Mapped[int] = mapped_column(Integer, default=0)
     last_recorded_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
-    last_snapshot_id: Mapped[int | None] = mapped_column(BigId, default=None)
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
 
 
@@ -112,7 +110,6 @@ class FilterCheckpoint(Base):
     )
     seq: Mapped[int] = mapped_column(Integer)
     last_recorded_at: Mapped[datetime] = mapped_column(UTCDateTime())
-    last_snapshot_id: Mapped[int] = mapped_column(BigId)
     state: Mapped[dict[str, Any]] = mapped_column(JSONDocument)
 
 

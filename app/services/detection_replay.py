@@ -176,7 +176,7 @@ def engine_runs(
         idx = idx[np.argsort(t[idx], kind="stable")]
         run = pipeline.EngineRun(
             engine_id=k, operator_id=0, seq0=0, state=pipeline.initial_state(est),
-            snapshot_id=idx.astype(np.int64), epoch=t[idx], phase=list(phase[idx]),
+            epoch=t[idx], phase=list(phase[idx]),
             conditions=cond[idx], y=y_all[idx], u=u_all[idx],
             maintenance=np.array(sorted(maint.get(name, [])), dtype=float),
         )

@@ -7,21 +7,29 @@ the time in microseconds) are joined on the server into one bytea and parsed by 
 ``numpy.frombuffer``; the write is one binary ``COPY estimates FROM STDIN`` built by numpy per
 phase (rows of one phase have one width). No value passes through a Python object on either
 side. Other databases read with one SELECT per engine and write with an executemany INSERT.
+Records an upload committed in this process are taken from memory instead when they are all
+there (``fresh_records``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass
 from datetime import UTC, datetime
+from typing import Any
 
 import numpy as np
-from sqlalchemy import insert, select
+import pyarrow as pa
+import pyarrow.compute as pc
+from psycopg.copy import QueuedLibpqWriter
+from sqlalchemy import func, insert, select, text
 from sqlalchemy.orm import Session
 
 from app.models import Snapshot
 from app.models.estimates import VALUE_DTYPE, Estimate
 from app.models.ingest import OPERATING_CONDITION, PHASES
+from app.services import fresh_records
 from app.services.pgcopy import HEADER, PG_EPOCH_US, TRAILER, fixed_copy_rows
 
 CONDITION_COLUMNS = tuple(s.column for s in OPERATING_CONDITION)
@@ -33,12 +41,11 @@ ESTIMATE_COLUMNS = ("operator_id", "engine_id", "design_id", "seq", "recorded_at
 class Records:
     """One engine's records in time order, as columns.
 
-    snapshot_id [S], epoch [S] (seconds since 1970, UTC), phase [S], conditions [S, 4]
+    epoch [S] (seconds since 1970, UTC), phase [S], conditions [S, 4]
     (alt_ft, mach, dtamb_k, power_pct), y [S, ny] and u [S, nu] in stored units with NaN for
     a missing value (a column the design reads but snapshots do not store is all NaN).
     """
 
-    snapshot_id: np.ndarray
     epoch: np.ndarray
     phase: list[str]
     conditions: np.ndarray
@@ -55,19 +62,30 @@ def load_records(
     """Each engine's records after its time (None: all of them), for (engine id, after) pairs.
 
     ``sensor_columns``/``input_columns`` name the snapshot column of each design signal
-    ("" = not stored).
+    ("" = not stored). Records an upload committed in this process come from memory when
+    they are all there (``fresh_records``), the others from the database.
     """
     if not wants:
         return {}
     stored = list(dict.fromkeys(c for c in (*sensor_columns, *input_columns) if c))
-    if session.connection().dialect.name == "postgresql":
-        columns = _aggregated(session, wants, stored)
+    columns: dict[int, Columns] = {}
+    kept = fresh_records.take(session, [engine_id for engine_id, _after in wants])
+    if kept:
+        candidates = {engine_id: fresh_records.after(kept[engine_id], after)
+                      for engine_id, after in wants if engine_id in kept}
+        counts = _count_after(session, [w for w in wants if w[0] in candidates])
+        for engine_id, table in candidates.items():
+            if counts.get(engine_id) == table.num_rows:
+                columns[engine_id] = _from_table(table, stored)
+    rest = [w for w in wants if w[0] not in columns]
+    if rest and session.connection().dialect.name == "postgresql":
+        columns.update(_aggregated(session, rest, stored))
     else:
-        columns = {engine_id: _select(session, engine_id, after, stored)
-                   for engine_id, after in wants}
+        columns.update({engine_id: _select(session, engine_id, after, stored)
+                        for engine_id, after in rest})
     out = {}
-    for engine_id, (ids, epoch, phase, conditions, values) in columns.items():
-        n = len(ids)
+    for engine_id, (epoch, phase, conditions, values) in columns.items():
+        n = len(epoch)
         missing = np.full(n, np.nan)
 
         def stack(names: Sequence[str], values: dict[str, np.ndarray] = values,
@@ -78,12 +96,66 @@ def load_records(
                 n, len(names)
             )
 
-        out[engine_id] = Records(ids, epoch, phase, conditions, stack(sensor_columns),
+        out[engine_id] = Records(epoch, phase, conditions, stack(sensor_columns),
                                  stack(input_columns))
     return out
 
 
-Columns = tuple[np.ndarray, np.ndarray, list[str], np.ndarray, dict[str, np.ndarray]]
+Columns = tuple[np.ndarray, list[str], np.ndarray, dict[str, np.ndarray]]
+
+
+def _window(wants: Sequence[tuple[int, datetime | None]]) -> str:
+    """``VALUES (engine_id, after), ...`` for a PostgreSQL statement. Only integers and ISO
+    times of aware datetimes are written into it."""
+    for engine_id, after in wants:
+        if not isinstance(engine_id, int) or (after is not None and after.tzinfo is None):
+            raise ValueError(f"engine {engine_id!r} after {after!r}: ids and aware times only")
+    return "VALUES " + ", ".join(
+        f"({engine_id}, " + ("NULL" if after is None else f"'{after.isoformat()}'")
+        + "::timestamptz)"
+        for engine_id, after in wants
+    )
+
+
+def _count_after(
+    session: Session, wants: Sequence[tuple[int, datetime | None]]
+) -> dict[int, int]:
+    """How many stored records each engine has after its time."""
+    if not wants:
+        return {}
+    if session.connection().dialect.name == "postgresql":
+        rows = session.execute(text(
+            "SELECT w.engine_id, count(s.engine_id) FROM "
+            f"({_window(wants)}) AS w(engine_id, after) "
+            "LEFT JOIN snapshots s ON s.engine_id = w.engine_id "
+            "AND (w.after IS NULL OR s.recorded_at > w.after) GROUP BY w.engine_id"
+        )).all()
+        return {int(e): int(n) for e, n in rows}
+    out = {}
+    for engine_id, after in wants:
+        query = select(func.count()).select_from(Snapshot).where(Snapshot.engine_id == engine_id)
+        if after is not None:
+            query = query.where(Snapshot.recorded_at > after)
+        out[engine_id] = int(session.scalar(query) or 0)
+    return out
+
+
+def _from_table(table: pa.Table, stored: Sequence[str]) -> Columns:
+    """Kept rows (in time order) as columns, the numbers exactly as stored."""
+    micros = pc.cast(pc.cast(table["recorded_at"], pa.timestamp("us", tz="UTC")), pa.int64())
+    return (
+        np.asarray(micros.to_numpy()) / 1e6,
+        table["phase"].to_pylist(),
+        np.column_stack([_floats(table, c) for c in CONDITION_COLUMNS]).reshape(
+            table.num_rows, len(CONDITION_COLUMNS)
+        ),
+        {c: _floats(table, c) for c in stored},
+    )
+
+
+def _floats(table: pa.Table, column: str) -> np.ndarray:
+    values = pc.cast(table[column], pa.float64())
+    return np.asarray(values.to_numpy(zero_copy_only=False), dtype=float)  # null -> NaN
 
 
 def _aggregated(
@@ -96,21 +168,11 @@ def _aggregated(
     wire and one ``numpy.frombuffer`` reads it (a binary COPY TO sends a message a row: 0.6 s
     of Python for 100,000 rows).
     """
-    for engine_id, after in wants:
-        if not isinstance(engine_id, int) or (after is not None and after.tzinfo is None):
-            raise ValueError(f"engine {engine_id!r} after {after!r}: ids and aware times only")
-    # Only integers and ISO times of aware datetimes are written into the statement.
-    window = ", ".join(
-        f"({engine_id}, " + ("NULL" if after is None else f"'{after.isoformat()}'")
-        + "::timestamptz)"
-        for engine_id, after in wants
-    )
     phase = "CASE s.phase " + " ".join(
         f"WHEN '{name}' THEN {code}" for code, name in enumerate(PHASES)
     ) + " END::int2"
     fields = [
         ("engine_id", "int4send(s.engine_id)", ">i4"),
-        ("id", "int8send(s.id)", ">i8"),
         ("micros", "int8send((extract(epoch FROM s.recorded_at) * 1000000)::int8)", ">i8"),
         ("phase", f"int2send({phase})", ">i2"),
     ]
@@ -119,7 +181,7 @@ def _aggregated(
     query = (
         f"SELECT string_agg({' || '.join(sql for _n, sql, _w in fields)}, ''::bytea "
         "ORDER BY s.engine_id, s.recorded_at) FROM snapshots s "
-        f"JOIN (VALUES {window}) AS w(engine_id, after) ON s.engine_id = w.engine_id "
+        f"JOIN ({_window(wants)}) AS w(engine_id, after) ON s.engine_id = w.engine_id "
         "WHERE w.after IS NULL OR s.recorded_at > w.after"
     )
     driver = session.connection().connection.driver_connection
@@ -139,7 +201,6 @@ def _aggregated(
         lo, hi = np.searchsorted(engines, [engine_id, engine_id + 1])
         part = rows[lo:hi]
         out[engine_id] = (
-            part["id"].astype(np.int64),
             part["micros"].astype(np.int64) / 1e6,
             phases[part["phase"]].tolist(),
             np.column_stack([part[c].astype(float) for c in CONDITION_COLUMNS]).reshape(
@@ -155,20 +216,19 @@ def _select(
 ) -> Columns:
     """Other databases: one engine's records in one SELECT, transposed once."""
     table = Snapshot.__table__
-    columns = [table.c.id, table.c.recorded_at, table.c.phase]
+    columns = [table.c.recorded_at, table.c.phase]
     columns += [table.c[c] for c in (*CONDITION_COLUMNS, *stored)]
     query = select(*columns).where(table.c.engine_id == engine_id).order_by(table.c.recorded_at)
     if after is not None:
         query = query.where(table.c.recorded_at > after)
     rows = session.execute(query).tuples().all()
     n = len(rows)
-    cols: list[Sequence[object]] = list(zip(*rows, strict=True)) if n else [()] * len(columns)
-    times = cols[1]
-    epoch = np.array([t.timestamp() for t in times], dtype=float)  # type: ignore[attr-defined]
+    cols: list[Sequence[Any]] = list(zip(*rows, strict=True)) if n else [()] * len(columns)
+    epoch = np.array([t.timestamp() for t in cols[0]], dtype=float)
     k = len(CONDITION_COLUMNS)
-    conditions = np.array(cols[3 : 3 + k], dtype=float).reshape(k, n).T.copy()
-    values = {c: np.array(cols[3 + k + j], dtype=float) for j, c in enumerate(stored)}
-    return np.array(cols[0], dtype=np.int64), epoch, list(cols[2]), conditions, values
+    conditions = np.array(cols[2 : 2 + k], dtype=float).reshape(k, n).T.copy()
+    values = {c: np.array(cols[2 + k + j], dtype=float) for j, c in enumerate(stored)}
+    return epoch, list(cols[1]), conditions, values
 
 
 def epoch_micros(epoch: np.ndarray) -> np.ndarray:
@@ -177,29 +237,92 @@ def epoch_micros(epoch: np.ndarray) -> np.ndarray:
     return np.rint(np.asarray(epoch, float) * 1e6).astype(np.int64)
 
 
-def insert_estimates(
-    session: Session,
-    *,
-    operator_id: int,
-    design_id: int,
-    blocks: Sequence[tuple[int, int, np.ndarray, Sequence[str], np.ndarray]],
-) -> int:
-    """Write estimate rows; ``blocks`` holds per engine (engine id, first seq, epoch [n],
-    phase [n], packed values [n, width] as ``VALUE_DTYPE``). Returns the rows written."""
-    blocks = [b for b in blocks if len(b[2])]
-    if not blocks:
-        return 0
-    connection = session.connection()
-    if connection.dialect.name != "postgresql":
-        rows = [
-            {"operator_id": operator_id, "engine_id": engine_id, "design_id": design_id,
-             "seq": seq0 + j, "recorded_at": datetime.fromtimestamp(float(epoch[j]), UTC),
-             "phase": phase[j], "packed": values[j].tobytes()}
-            for engine_id, seq0, epoch, phase, values in blocks
-            for j in range(len(epoch))
-        ]
+Block = tuple[int, int, np.ndarray, Sequence[str], np.ndarray]
+"""Estimates of one engine: (engine id, first seq, epoch [n], phase [n], packed values
+[n, width] as ``VALUE_DTYPE``)."""
+
+
+class EstimateWriter:
+    """Estimate rows written while they are computed, inside the session's transaction.
+
+    On PostgreSQL one binary ``COPY estimates`` stays open from ``open`` to ``close``: blocks
+    are encoded by numpy every ``FLUSH_ROWS`` rows and handed to psycopg's queued writer, whose
+    thread sends them while the filter computes the next ones, so the server stores a batch's
+    estimates alongside its computation instead of after it. The session's connection is busy
+    meanwhile (no other statement until ``close``). Elsewhere the rows are INSERTed at ``close``.
+    """
+
+    FLUSH_ROWS = 20_000
+
+    def __init__(self, session: Session, *, operator_id: int, design_id: int) -> None:
+        self.session = session
+        self.operator_id = operator_id
+        self.design_id = design_id
+        self.rows = 0
+        self._pending: list[Block] = []
+        self._pending_rows = 0
+        self._copy: Any = None
+        self._stack: ExitStack | None = None
+
+    def __enter__(self) -> EstimateWriter:
+        connection = self.session.connection()
+        if connection.dialect.name == "postgresql":
+            driver = connection.connection.driver_connection
+            assert driver is not None
+            statement = (
+                f"COPY estimates ({', '.join(ESTIMATE_COLUMNS)}) FROM STDIN (FORMAT BINARY)"
+            )
+            self._stack = ExitStack()
+            cursor = self._stack.enter_context(driver.cursor())
+            self._copy = self._stack.enter_context(
+                cursor.copy(statement, writer=QueuedLibpqWriter(cursor))
+            )
+            self._copy.write(HEADER)
+        return self
+
+    def add(self, block: Block) -> None:
+        if not len(block[2]):
+            return
+        self._pending.append(block)
+        self._pending_rows += len(block[2])
+        self.rows += len(block[2])
+        if self._copy is not None and self._pending_rows >= self.FLUSH_ROWS:
+            self._flush()
+
+    def _flush(self) -> None:
+        if self._pending:
+            self._copy.write(_copy_rows(self.operator_id, self.design_id, self._pending))
+        self._pending, self._pending_rows = [], 0
+
+    def __exit__(self, kind: object, error: object, trace: object) -> None:
+        if self._stack is None:
+            if kind is None:
+                _insert_rows(self.session, self.operator_id, self.design_id, self._pending)
+            return
+        try:
+            if kind is None:
+                self._flush()
+                self._copy.write(TRAILER)
+        finally:
+            # An error inside aborts the COPY (psycopg), and the caller's transaction with it.
+            self._stack.__exit__(kind, error, trace)  # type: ignore[arg-type]
+
+
+def _insert_rows(session: Session, operator_id: int, design_id: int,
+                 blocks: Sequence[Block]) -> None:
+    rows = [
+        {"operator_id": operator_id, "engine_id": engine_id, "design_id": design_id,
+         "seq": seq0 + j, "recorded_at": datetime.fromtimestamp(float(epoch[j]), UTC),
+         "phase": phase[j], "packed": values[j].tobytes()}
+        for engine_id, seq0, epoch, phase, values in blocks
+        for j in range(len(epoch))
+    ]
+    if rows:
         session.execute(insert(Estimate), rows)
-        return len(rows)
+
+
+def _copy_rows(operator_id: int, design_id: int, blocks: Sequence[Block]) -> bytes:
+    """The blocks' rows of a binary COPY into ``estimates`` (no header or trailer)."""
     engine = np.concatenate([np.full(len(b[2]), b[0], dtype=np.int64) for b in blocks])
     seq = np.concatenate([b[1] + np.arange(len(b[2]), dtype=np.int64) for b in blocks])
     micros = np.concatenate([epoch_micros(b[2]) for b in blocks]) - PG_EPOCH_US
@@ -220,13 +343,4 @@ def insert_estimates(
             ("phase", np.full(len(at), text, dtype=f"S{len(text)}")),
             ("packed", raw[at]),
         ]))
-    driver = connection.connection.driver_connection
-    assert driver is not None
-    statement = f"COPY estimates ({', '.join(ESTIMATE_COLUMNS)}) FROM STDIN (FORMAT BINARY)"
-    with driver.cursor() as cursor, cursor.copy(statement) as copy:
-        copy.write(HEADER)
-        for part in parts:
-            copy.write(part)
-        copy.write(TRAILER)
-    return len(values)
-
+    return b"".join(parts)

@@ -33,7 +33,7 @@ from sqlalchemy.orm import Session
 from app.errors import Conflict, ServiceError
 from app.models import Aircraft, Engine, Snapshot, Upload
 from app.models.ingest import SIGNALS, SNAPSHOT_COLUMNS
-from app.services import fleet
+from app.services import fleet, fresh_records
 from app.services.ingest_parse import (
     MAX_ERRORS,
     ErrorLimitReached,
@@ -420,8 +420,10 @@ def snapshot_table(rows: pa.Table, *, operator_id: int, upload_id: int) -> pa.Ta
 
 
 def insert_snapshots(session: Session, rows: pa.Table, *, operator_id: int, upload_id: int) -> None:
-    """Insert new rows in the caller's transaction: COPY on PostgreSQL, executemany on SQLite."""
+    """Insert new rows in the caller's transaction: COPY on PostgreSQL, executemany on SQLite;
+    once it commits, the rows are kept in memory for the estimation job (``fresh_records``)."""
     table = snapshot_table(rows, operator_id=operator_id, upload_id=upload_id)
+    fresh_records.keep_after_commit(session, upload_id, table)
     connection = session.connection()
     if connection.dialect.name == "postgresql":
         copy_binary(connection.connection.driver_connection, "snapshots", table, SNAPSHOT_PG_TYPES)

@@ -754,7 +754,6 @@ class EngineRun:
     operator_id: int
     seq0: int
     state: dict[str, Any]
-    snapshot_id: np.ndarray  # [S]
     epoch: np.ndarray  # [S]
     phase: list[str]
     conditions: np.ndarray  # [S, 4]
@@ -770,11 +769,12 @@ class EngineOutput:
     blobs' values, one row per record from ``EngineRun.seq0``), events, checkpoints and the
     state after its last record."""
 
-    values: list[np.ndarray]  # per chunk [n, width] as VALUE_DTYPE
+    values: list[np.ndarray]  # per chunk [n, width] as VALUE_DTYPE (empty with a sink)
     events: list[EventDraft]
-    checkpoints: list[tuple[int, float, int, dict[str, Any]]]  # seq, epoch, snapshot id, state
+    checkpoints: list[tuple[int, float, dict[str, Any]]]  # seq, epoch, state
     state: dict[str, Any]
     width: int = 0
+    n_records: int = 0
 
     @property
     def packed(self) -> np.ndarray:
@@ -788,8 +788,37 @@ class EngineOutput:
         return [row.tobytes() for row in self.packed]
 
 
-def run_filters(est: SnapshotEstimator, runs: Sequence[EngineRun]) -> list[EngineOutput]:
-    """Filter, detect and pack every engine's records; engines are batched in the filter."""
+class ChunkRecords(NamedTuple):
+    """One engine's records of a chunk, for isolation in sensor space: dy [n, ny] (percent
+    of trim, NaN = missing), G_y [n, ny, p], G_u [n, ny, nu] and var [n, ny] (noise
+    variance, percent^2)."""
+
+    dy: np.ndarray
+    G_y: np.ndarray
+    G_u: np.ndarray
+    var: np.ndarray
+
+    def observation(self, est: SnapshotEstimator, j: int) -> RecordObservation:
+        """Record ``j`` with each library fault's sensor change at its own condition (health
+        columns through G_y, actuator-bias columns through G_u; MATH.md section 4, in sensor
+        space), computed only for the records an alarm fits."""
+        p = self.G_y.shape[-1]
+        signatures = self.G_y[j] @ est.S_full[:p] + self.G_u[j] @ est.S_full[p:]
+        return RecordObservation(self.dy[j], self.G_y[j], signatures, self.var[j])
+
+
+def run_filters(
+    est: SnapshotEstimator, runs: Sequence[EngineRun],
+    sink: Callable[[estimate_rows.Block], None] | None = None,
+) -> list[EngineOutput]:
+    """Filter, detect and pack every engine's records; engines are batched in the filter.
+
+    Per chunk the records of every engine are laid out [engine, record] (padding rows NaN),
+    scheduled in one call, filtered in one call, and their estimates derived in one pass;
+    only the detector goes engine by engine. With a ``sink`` (an ``EstimateWriter``'s
+    ``add``) each engine's estimates of a chunk go there as soon as they are computed instead
+    of into ``EngineOutput.values``.
+    """
     outputs = [EngineOutput([], [], [], r.state, est.layout.width) for r in runs]
     filt = [SnapshotState.from_dict(r.state["filter"]) for r in runs]
     dets = [Detector.from_dict(r.state["detector"]) for r in runs]
@@ -802,44 +831,35 @@ def run_filters(est: SnapshotEstimator, runs: Sequence[EngineRun]) -> list[Engin
     for c0 in range(0, longest, chunk):
         c1 = min(c0 + chunk, longest)
         S = c1 - c0
-        dy = np.full((E, S, ny), np.nan)
-        scale = np.zeros((E, S))
-        G_y = np.zeros((E, S, ny, est.Vp.shape[0]))
-        G_z = np.zeros((E, S, len(est.layout.aux), est.Vp.shape[0]))
-        resets = np.zeros((E, S), dtype=bool)
-        noise = np.broadcast_to(est.noise_std, (E, S, ny)).copy()
-        n_faults = est.S_full.shape[1]
-        signatures = np.zeros((E, S, ny, n_faults))
+        counts = np.array([max(0, min(c1, len(r.epoch)) - c0) for r in runs], dtype=np.int64)
+        # Slot (engine, record) of each of the chunk's records, engine by engine.
+        slot_e = np.repeat(np.arange(E), counts)
+        slot_j = np.arange(len(slot_e)) - np.repeat(np.cumsum(counts) - counts, counts)
+        present = [(r, n) for r, n in zip(runs, counts, strict=True) if n]
+        y = np.concatenate([r.y[c0 : c0 + n] for r, n in present])
+        u = np.concatenate([r.u[c0 : c0 + n] for r, n in present])
         # One schedule call for the chunk's records of every engine: the steady-state trims
         # are solved in one batch (a record's trim does not depend on its batch).
-        counts = [max(0, min(c1, len(r.epoch)) - c0) for r in runs]
-        offsets = np.concatenate([[0], np.cumsum(counts)])
-        g_all = est.schedule(
-            np.concatenate([r.conditions[c0 : c0 + n] for r, n in zip(runs, counts, strict=True)])
-        )
+        g = est.schedule(np.concatenate([r.conditions[c0 : c0 + n] for r, n in present]))
+        u_dev = 100.0 * (u - g.u_trim) / g.u_trim
+        u_dev = np.where(np.isfinite(u_dev), u_dev, 0.0)  # a missing actuator: at trim
+        dy = np.full((E, S, ny), np.nan)
+        dy[slot_e, slot_j] = snapshot_deviation(y, g.y_trim, g.G_u, u_dev)
+        G_y = np.zeros((E, S, ny, est.Vp.shape[0]))
+        G_y[slot_e, slot_j] = g.G_y
+        G_u = np.zeros((E, S, *g.G_u.shape[1:]))
+        G_u[slot_e, slot_j] = g.G_u
+        G_z = np.zeros((E, S, len(est.layout.aux), est.Vp.shape[0]))
+        G_z[slot_e, slot_j] = g.G_z
+        noise = np.broadcast_to(est.noise_std, (E, S, ny)).copy()
+        if g.noise_std is not None:
+            noise[slot_e, slot_j] = np.sqrt(g.noise_std**2 + MODEL_ERROR**2)
+        resets = np.zeros((E, S), dtype=bool)
+        scale = np.zeros((E, S))
         for e, r in enumerate(runs):
-            n = counts[e]
+            n = int(counts[e])
             if n == 0:
                 continue
-            part = slice(int(offsets[e]), int(offsets[e + 1]))
-            g = ScheduledGains(
-                g_all.y_trim[part], g_all.u_trim[part], g_all.G_y[part], g_all.G_u[part],
-                g_all.G_z[part], None if g_all.noise_std is None else g_all.noise_std[part],
-            )
-            u_dev = 100.0 * (r.u[c0 : c0 + n] - g.u_trim) / g.u_trim
-            u_dev = np.where(np.isfinite(u_dev), u_dev, 0.0)  # a missing actuator: at trim
-            dy[e, :n] = snapshot_deviation(r.y[c0 : c0 + n], g.y_trim, g.G_u, u_dev)
-            G_y[e, :n] = g.G_y
-            # Each fault's sensor change at the record's own condition: health columns through
-            # G_y, actuator-bias columns through G_u (MATH.md section 4, in sensor space).
-            p_h = G_y.shape[-1]
-            signatures[e, :n] = (
-                np.einsum("syp,pf->syf", g.G_y, est.S_full[:p_h])
-                + np.einsum("syu,uf->syf", g.G_u, est.S_full[p_h:])
-            )
-            if g.noise_std is not None:
-                noise[e, :n] = np.sqrt(g.noise_std**2 + MODEL_ERROR**2)
-            G_z[e, :n] = g.G_z
             epochs = r.epoch[c0 : c0 + n]
             prev = np.concatenate([[np.nan if last[e] is None else last[e]], epochs[:-1]])
             new_flight = ~(epochs - prev < NEW_FLIGHT_S)  # NaN (first record) counts as new
@@ -857,33 +877,42 @@ def run_filters(est: SnapshotEstimator, runs: Sequence[EngineRun]) -> list[Engin
             state, dy, G_y, est.vstar, est.Qq, noise, scale, keep_covariance=True
         )
         assert result.P is not None
+        q_all, P_all = result.q_hat, result.P
+        VpP = np.einsum("pa,esab->espb", est.Vp, P_all)
+        Gz_Vp = np.einsum("eszp,pa->esza", G_z, est.Vp)
+        values_all = np.empty((E, S, est.layout.width))
+        values_all[..., s["q"]] = q_all
+        values_all[..., s["q_sigma"]] = np.sqrt(
+            np.maximum(np.einsum("esaa->esa", P_all), 0.0)
+        )
+        values_all[..., s["h"]] = q_all @ est.Vp.T
+        values_all[..., s["h_sigma"]] = np.sqrt(
+            np.maximum(np.einsum("espb,pb->esp", VpP, est.Vp), 0.0)
+        )
+        values_all[..., s["z"]] = np.einsum("esza,esa->esz", Gz_Vp, q_all)
+        z_var = np.einsum("esza,esab,eszb->esz", Gz_Vp, P_all, Gz_Vp)
+        values_all[..., s["z_sigma"]] = np.sqrt(np.maximum(z_var, 0.0))
+        values_all[..., s["residual"]] = result.innovation
         for e, r in enumerate(runs):
-            n = max(0, min(c1, len(r.epoch)) - c0)
+            n = int(counts[e])
             if n == 0:
                 continue
-            q = result.q_hat[e, :n]
-            P = result.P[e, :n]
-            h = q @ est.Vp.T
-            VpP = np.einsum("pa,sab->spb", est.Vp, P)
-            h_var = np.einsum("spb,pb->sp", VpP, est.Vp)
-            Gz_Vp = np.einsum("szp,pa->sza", G_z[e, :n], est.Vp)
-            z = np.einsum("sza,sa->sz", Gz_Vp, q)
-            z_var = np.einsum("sza,sab,szb->sz", Gz_Vp, P, Gz_Vp)
-            values = np.empty((n, est.layout.width))
-            values[:, s["q"]] = q
-            values[:, s["q_sigma"]] = np.sqrt(np.maximum(np.einsum("saa->sa", P), 0.0))
-            values[:, s["h"]] = h
-            values[:, s["h_sigma"]] = np.sqrt(np.maximum(h_var, 0.0))
-            values[:, s["z"]] = z
-            values[:, s["z_sigma"]] = np.sqrt(np.maximum(z_var, 0.0))
-            values[:, s["residual"]] = result.innovation[e, :n]
+            q = q_all[e, :n]
+            P = P_all[e, :n]
+            values = values_all[e, :n]
             out = outputs[e]
             det = dets[e]
             q_prev = np.concatenate([filt[e].q_hat, q[:-1]])
             P_prior = np.concatenate([filt[e].P, P[:-1]]) + scale[e, :n, None, None] * est.Qq
             _wssr_filled(est, det, r, c0, n, q, P, q_prev, P_prior, resets[e], values, out,
-                         (dy[e, :n], G_y[e, :n], signatures[e, :n], noise[e, :n] ** 2))
-            out.values.append(values.astype(VALUE_DTYPE))
+                         ChunkRecords(dy[e, :n], G_y[e, :n], G_u[e, :n], noise[e, :n] ** 2))
+            packed = values.astype(VALUE_DTYPE)
+            out.n_records += n
+            if sink is None:
+                out.values.append(packed)
+            else:
+                sink((r.engine_id, r.seq0 + c0, r.epoch[c0 : c0 + n], r.phase[c0 : c0 + n],
+                      packed))
             filt[e] = SnapshotState(q[-1:], P[-1:])
             out.state = {"filter": filt[e].to_dict(), "detector": det.to_dict(),
                          "last_epoch": last[e]}
@@ -894,12 +923,11 @@ def _wssr_filled(
     est: SnapshotEstimator, det: Detector, r: EngineRun, c0: int, n: int, q: np.ndarray,
     P: np.ndarray, q_prev: np.ndarray, P_prior: np.ndarray, resets: np.ndarray,
     values: np.ndarray, out: EngineOutput,
-    records: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
+    records: ChunkRecords | None = None,
 ) -> np.ndarray:
     """Run the detector over the chunk, fill the WSSR block, collect events and checkpoints.
 
-    records: (dy [n, ny], G_y [n, ny, p], signatures [n, ny, n_faults], var [n, ny]) of the
-    chunk's records, for isolation in sensor space.
+    records: the chunk's records of the engine, for isolation in sensor space.
 
     Same results as ``_wssr_filled_per_record`` (``detect_step`` record by record): between a
     reset and an alarm the baselines, level statistics and WSSR of a run of records are
@@ -969,7 +997,7 @@ def _wssr_filled(
                                "baseline": with_base[i - first].tolist(), "P": P[jj].tolist()}
                 if records is not None:
                     accumulate_sensor_fit(
-                        est, det.pending, RecordObservation(*(a[jj] for a in records))
+                        est, det.pending, records.observation(est, jj)
                     )
                 S = 0.0
                 stop = jj + 1
@@ -995,7 +1023,6 @@ def _checkpoint(
         (
             r.seq0 + c0 + j + 1,
             epoch,
-            int(r.snapshot_id[c0 + j]),
             {
                 "filter": SnapshotState(q[j : j + 1], P[j : j + 1]).to_dict(),
                 "detector": det.to_dict(),
@@ -1009,12 +1036,12 @@ def _detect_one(
     est: SnapshotEstimator, det: Detector, r: EngineRun, c0: int, j: int, q: np.ndarray,
     P: np.ndarray, q_prev: np.ndarray, P_prior: np.ndarray, resets: np.ndarray,
     values: np.ndarray, out: EngineOutput,
-    records: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None,
+    records: ChunkRecords | None,
 ) -> None:
     """Record ``j`` of the chunk through ``detect_step``, with its event and checkpoint."""
     seq = r.seq0 + c0 + j
     epoch = float(r.epoch[c0 + j])
-    obs = None if records is None else RecordObservation(*(a[j] for a in records))
+    obs = None if records is None else records.observation(est, j)
     wssr, draft = detect_step(
         est, det, seq, epoch, q[j], P[j], q_prev[j], P_prior[j], bool(resets[j]), obs
     )
@@ -1029,7 +1056,7 @@ def _wssr_filled_per_record(
     est: SnapshotEstimator, det: Detector, r: EngineRun, c0: int, n: int, q: np.ndarray,
     P: np.ndarray, q_prev: np.ndarray, P_prior: np.ndarray, resets: np.ndarray,
     values: np.ndarray, out: EngineOutput,
-    records: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
+    records: ChunkRecords | None = None,
 ) -> np.ndarray:
     """``_wssr_filled`` one record at a time through ``detect_step`` (the reference the
     batched run is tested against, and the path of the "update" statistic)."""
@@ -1037,7 +1064,7 @@ def _wssr_filled_per_record(
     for j in range(n):
         seq = r.seq0 + c0 + j
         epoch = float(r.epoch[c0 + j])
-        obs = None if records is None else RecordObservation(*(a[j] for a in records))
+        obs = None if records is None else records.observation(est, j)
         wssr, draft = detect_step(
             est, det, seq, epoch, q[j], P[j], q_prev[j], P_prior[j], bool(resets[j]), obs
         )
@@ -1050,7 +1077,6 @@ def _wssr_filled_per_record(
                 (
                     done,
                     epoch,
-                    int(r.snapshot_id[c0 + j]),
                     {
                         "filter": SnapshotState(q[j : j + 1], P[j : j + 1]).to_dict(),
                         "detector": det.to_dict(),
@@ -1196,10 +1222,13 @@ def estimate_engines(
         for start in range(0, len(group), BATCH):
             batch = group[start : start + BATCH]
             runs, states = _prepare_runs(session, est, operator_id, batch, affected, summary)
-            outputs = run_filters(est, runs)
-            _store_batch(session, est, operator_id, runs, states, outputs)
+            with estimate_rows.EstimateWriter(
+                session, operator_id=operator_id, design_id=est.design_id
+            ) as writer:
+                outputs = run_filters(est, runs, sink=writer.add)
+            _store_batch(session, est, runs, states, outputs)
             for out in outputs:
-                summary["records"] += len(out.packed)
+                summary["records"] += out.n_records
                 summary["events"] += len(out.events)
             summary["engines"] += len(runs)
             done += len(batch)
@@ -1253,11 +1282,11 @@ def _prepare_runs(
         fs = states.get(engine_id)
         seq0, state, _after = starts[engine_id]
         rec = records[engine_id]
-        if len(rec.snapshot_id) == 0 and fs is not None and seq0 == fs.n_records:
+        if len(rec.epoch) == 0 and fs is not None and seq0 == fs.n_records:
             continue
         times = sorted(row[1].timestamp() for row in maintenance.get(engine_id, []))
         redo = _events_to_redo([row[1] for row in events.get(engine_id, [])], seq0, state)
-        runs.append(EngineRun(engine_id, operator_id, seq0, state, rec.snapshot_id, rec.epoch,
+        runs.append(EngineRun(engine_id, operator_id, seq0, state, rec.epoch,
                               rec.phase, rec.conditions, rec.y, rec.u,
                               np.array(times, dtype=float), redo))
         kept.append(fs)
@@ -1265,22 +1294,17 @@ def _prepare_runs(
 
 
 def _store_batch(
-    session: Session, est: SnapshotEstimator, operator_id: int, runs: Sequence[EngineRun],
+    session: Session, est: SnapshotEstimator, runs: Sequence[EngineRun],
     states: Sequence[FilterState | None], outputs: Sequence[EngineOutput],
 ) -> None:
-    """A batch's estimates in one bulk write, then each engine's checkpoints, events and
-    filter state."""
-    estimate_rows.insert_estimates(
-        session, operator_id=operator_id, design_id=est.design_id,
-        blocks=[(r.engine_id, r.seq0, r.epoch, r.phase, out.packed)
-                for r, out in zip(runs, outputs, strict=True)],
-    )
+    """A batch's checkpoints (one INSERT), then each engine's events and filter state (its
+    estimates went in while they were computed)."""
     checkpoints = [
         {"engine_id": run.engine_id, "design_id": est.design_id, "seq": seq,
          "last_recorded_at": datetime.fromtimestamp(epoch, UTC),
-         "last_snapshot_id": snap, "state": state}
+         "state": state}
         for run, out in zip(runs, outputs, strict=True)
-        for seq, epoch, snap, state in out.checkpoints
+        for seq, epoch, state in out.checkpoints
     ]
     if checkpoints:
         session.execute(insert(FilterCheckpoint), checkpoints)
@@ -1329,7 +1353,6 @@ def _store(
         datetime.fromtimestamp(float(run.epoch[-1]), UTC) if len(run.epoch)
         else (fs.last_recorded_at if fs is not None and run.seq0 == fs.n_records else None)
     )
-    last_id = int(run.snapshot_id[-1]) if len(run.epoch) else None
     if fs is None:
         fs = FilterState(operator_id=run.operator_id, engine_id=run.engine_id,
                          design_id=est.design_id)
@@ -1339,7 +1362,6 @@ def _store(
     fs.n_records = n_records
     if len(run.epoch) or run.seq0 == 0:
         fs.last_recorded_at = last_time
-        fs.last_snapshot_id = last_id
     fs.updated_at = utcnow()
 
 

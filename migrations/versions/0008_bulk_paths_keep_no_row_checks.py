@@ -18,6 +18,9 @@ Both tables are written only by services that resolve what they write from rows 
   carries) and their two indexes go, and so does the design's cascade. A design with estimates
   is never deleted (no route deletes designs; the demo deletes only a design whose creation
   failed, before it estimated anything).
+- filter states and checkpoints drop ``last_snapshot_id`` (never read; ``last_recorded_at``
+  names the same record), so the estimation job can take an upload's records from memory
+  without their generated ids.
 
 Downgrade restores the columns, keys and indexes; snapshot ids come back from
 (engine_id, recorded_at).
@@ -51,10 +54,23 @@ def upgrade() -> None:
         batch_op.create_primary_key(
             batch_op.f('pk_estimates'), ['engine_id', 'design_id', 'seq']
         )
+    for table in ('filter_states', 'filter_checkpoints'):
+        with op.batch_alter_table(table, schema=None) as batch_op:
+            batch_op.drop_column('last_snapshot_id')
 
 
 def downgrade() -> None:
     bigid = sa.BigInteger().with_variant(sa.Integer(), 'sqlite')
+    for table, nullable in (('filter_states', True), ('filter_checkpoints', False)):
+        with op.batch_alter_table(table, schema=None) as batch_op:
+            batch_op.add_column(sa.Column('last_snapshot_id', bigid, nullable=True))
+        op.execute(
+            f"UPDATE {table} SET last_snapshot_id = (SELECT s.id FROM snapshots s WHERE "
+            f"s.engine_id = {table}.engine_id AND s.recorded_at = {table}.last_recorded_at)"
+        )
+        if not nullable:
+            with op.batch_alter_table(table, schema=None) as batch_op:
+                batch_op.alter_column('last_snapshot_id', existing_type=bigid, nullable=False)
     with op.batch_alter_table('estimates', schema=None) as batch_op:
         batch_op.add_column(sa.Column('snapshot_id', bigid, nullable=True))
     op.execute(

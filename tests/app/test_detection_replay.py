@@ -155,7 +155,7 @@ def test_split_run_on_the_built_in_engine_equals_one_run(
     rows, events, state, seq0 = [], [], run.state, 0
     for k0, k1 in ((0, 137), (137, 138), (138, len(run.epoch))):
         part = pipeline.EngineRun(
-            run.engine_id, run.operator_id, seq0, state, run.snapshot_id[k0:k1],
+            run.engine_id, run.operator_id, seq0, state,
             run.epoch[k0:k1], run.phase[k0:k1], run.conditions[k0:k1], run.y[k0:k1],
             run.u[k0:k1], run.maintenance,
         )

@@ -116,7 +116,7 @@ def add_estimates(
         FilterState(
             operator_id=fleet.operator_id, engine_id=engine.id, design_id=fleet.design.id,
             layout=LAYOUT.to_dict(), state={}, n_records=len(times),
-            last_recorded_at=times[-1], last_snapshot_id=snaps[-1].id,
+            last_recorded_at=times[-1],
         )
     )
     session.flush()
@@ -316,7 +316,6 @@ def test_json_fast_path_equals_the_dict_and_a_direct_recomputation(
         FilterState(
             operator_id=fleet.operator_id, engine_id=engine.id, design_id=fleet.design.id,
             layout=LAYOUT.to_dict(), state={}, n_records=n, last_recorded_at=times[-1],
-            last_snapshot_id=snaps[-1].id,
         )
     )
     session.commit()

@@ -1,0 +1,135 @@
+"""Records of just-committed snapshot uploads, kept in this process for the estimation job.
+
+An upload's rows are parsed, validated and resolved in memory, stored, and the estimation job
+that follows needs the same numbers back. When that job runs in the process that stored them
+(the in-process job runner), it takes them from here instead of reading them back from the
+database: on 100,000 records that read is 0.3-0.6 s, a third of the job.
+
+Kept rows are exactly the stored rows (the upload's new rows after deduplication, the
+columns of the ``snapshots`` table, values as COPYed), registered only once their transaction
+has committed. A job uses them for an engine only when they are complete: it counts the
+engine's stored records after its restart point, and takes the kept ones only if there are as
+many (kept rows are stored rows, so equal counts mean the same rows); otherwise it reads the
+database, as a job in another process always does. What a job takes is dropped; the rest is
+bounded (``MAX_RECORDS``, oldest uploads dropped first) and gone with the process.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from collections.abc import Iterable
+from datetime import datetime
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+from sqlalchemy import event
+from sqlalchemy.orm import Session
+
+MAX_RECORDS = 1_000_000
+
+_enabled = True  # off where jobs run in other processes (Celery): nothing would take them
+_lock = threading.Lock()
+# (database url, upload id) -> the upload's stored rows and the engines they are of
+_kept: OrderedDict[tuple[str, int], tuple[pa.Table, frozenset[int]]] = OrderedDict()
+
+
+def configure(*, enabled: bool) -> None:
+    """Keep uploads' records or not (the app factory: not when jobs run under Celery)."""
+    global _enabled
+    _enabled = enabled
+    if not enabled:
+        clear()
+
+
+def _database(session: Session) -> str:
+    return session.connection().engine.url.render_as_string(hide_password=True)
+
+
+def keep_after_commit(session: Session, upload_id: int, rows: pa.Table) -> None:
+    """Keep ``rows`` (columns of ``snapshots``, at least engine_id and recorded_at) for the
+    estimation job once the session's transaction commits; nothing if it rolls back."""
+    if not _enabled or rows.num_rows == 0 or rows.num_rows > MAX_RECORDS:
+        return
+    key = (_database(session), upload_id)
+    engines = frozenset(pc.unique(rows["engine_id"]).to_pylist())
+    ended = False
+
+    def keep(_session: Session) -> None:
+        nonlocal ended
+        if ended:
+            return
+        ended = True
+        with _lock:
+            _kept[key] = (rows, engines)
+            total = sum(t.num_rows for t, _e in _kept.values())
+            while total > MAX_RECORDS:
+                _old, (dropped, _e) = _kept.popitem(last=False)
+                total -= dropped.num_rows
+
+    def forget(_session: Session) -> None:
+        nonlocal ended
+        ended = True  # rolled back: a later commit of this session is not this upload's
+
+    event.listen(session, "after_commit", keep)
+    event.listen(session, "after_rollback", forget)
+
+
+def kept_rows(session: Session) -> int:
+    """How many rows are kept for the session's database."""
+    database = _database(session)
+    with _lock:
+        return sum(t.num_rows for k, (t, _e) in _kept.items() if k[0] == database)
+
+
+def take(session: Session, engine_ids: Iterable[int]) -> dict[int, pa.Table]:
+    """Every kept row of these engines (any order), removed from the store."""
+    wanted_ids = set(engine_ids)
+    wanted = pa.array(sorted(wanted_ids), pa.int64())
+    database = _database(session)
+    parts: dict[int, list[pa.Table]] = {}
+    with _lock:
+        for key in [k for k in _kept if k[0] == database]:
+            table, engines = _kept[key]
+            if engines.isdisjoint(wanted_ids):
+                continue
+            if engines <= wanted_ids:
+                mine, rest = table, None
+            else:
+                inside = pc.is_in(pc.cast(table["engine_id"], pa.int64()), value_set=wanted)
+                mine, rest = table.filter(inside), table.filter(pc.invert(inside))
+            for engine_id, part in _split(mine).items():
+                parts.setdefault(engine_id, []).append(part)
+            if rest is not None and rest.num_rows:
+                _kept[key] = (rest, engines - wanted_ids)
+            else:
+                del _kept[key]
+    return {e: pa.concat_tables(p) if len(p) > 1 else p[0] for e, p in parts.items()}
+
+
+def _split(table: pa.Table) -> dict[int, pa.Table]:
+    engines = np.asarray(pc.cast(table["engine_id"], pa.int64()).to_numpy())
+    order = np.argsort(engines, kind="stable")
+    sorted_engines = engines[order]
+    starts = np.flatnonzero(np.r_[True, sorted_engines[1:] != sorted_engines[:-1]])
+    ends = np.r_[starts[1:], len(order)]
+    return {int(sorted_engines[a]): table.take(order[a:b]) for a, b in zip(starts, ends,
+                                                                           strict=True)}
+
+
+def after(table: pa.Table, when: datetime | None) -> pa.Table:
+    """The rows recorded after ``when`` (all of them for None), in time order."""
+    times = pc.cast(table["recorded_at"], pa.timestamp("us", tz="UTC"))
+    if when is not None:
+        table = table.filter(pc.greater(times, pa.scalar(when, pa.timestamp("us", tz="UTC"))))
+        times = pc.cast(table["recorded_at"], pa.timestamp("us", tz="UTC"))
+    micros = np.asarray(pc.cast(times, pa.int64()).to_numpy())
+    return table.take(np.argsort(micros, kind="stable"))
+
+
+def clear() -> None:
+    """Forget everything kept (and what a test's rolled-back transaction committed inside
+    it: tests clear after each one)."""
+    with _lock:
+        _kept.clear()
