@@ -878,19 +878,17 @@ def run_filters(
         )
         assert result.P is not None
         q_all, P_all = result.q_hat, result.P
-        VpP = np.einsum("pa,esab->espb", est.Vp, P_all)
-        Gz_Vp = np.einsum("eszp,pa->esza", G_z, est.Vp)
+        VpP = est.Vp @ P_all  # [E, S, p, m]
+        Gz_Vp = G_z @ est.Vp  # [E, S, nz, m]
         values_all = np.empty((E, S, est.layout.width))
         values_all[..., s["q"]] = q_all
         values_all[..., s["q_sigma"]] = np.sqrt(
-            np.maximum(np.einsum("esaa->esa", P_all), 0.0)
+            np.maximum(np.diagonal(P_all, axis1=2, axis2=3), 0.0)
         )
         values_all[..., s["h"]] = q_all @ est.Vp.T
-        values_all[..., s["h_sigma"]] = np.sqrt(
-            np.maximum(np.einsum("espb,pb->esp", VpP, est.Vp), 0.0)
-        )
-        values_all[..., s["z"]] = np.einsum("esza,esa->esz", Gz_Vp, q_all)
-        z_var = np.einsum("esza,esab,eszb->esz", Gz_Vp, P_all, Gz_Vp)
+        values_all[..., s["h_sigma"]] = np.sqrt(np.maximum((VpP * est.Vp).sum(axis=-1), 0.0))
+        values_all[..., s["z"]] = (Gz_Vp @ q_all[..., None])[..., 0]
+        z_var = ((Gz_Vp @ P_all) * Gz_Vp).sum(axis=-1)
         values_all[..., s["z_sigma"]] = np.sqrt(np.maximum(z_var, 0.0))
         values_all[..., s["residual"]] = result.innovation
         for e, r in enumerate(runs):
