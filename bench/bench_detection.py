@@ -6,8 +6,8 @@ cruise snapshots (``app.services.detection_replay``), and prints the confusion t
 isolated vs injected fault, detection delays in flights and false alarms per 1000
 engine-flights. The truth is the fleet plan's fault list, never typed-in numbers.
 
-    /work/venv/bin/python bench/bench_detection.py                      # the demo fleet
-    /work/venv/bin/python bench/bench_detection.py --aircraft 20 --flights 1000 \\
+    .venv/bin/python bench/bench_detection.py                      # the demo fleet
+    .venv/bin/python bench/bench_detection.py --aircraft 20 --flights 1000 \\
         --fault-rate 0.002 --seed 7                                     # many faults
 """
 

@@ -4,7 +4,7 @@ Targets (issue 3): steady-state point <= 20 ms, linearisation <= 0.5 s. Peers
 measured in the same run: scipy.optimize.root (hybr) on the same steady-state
 equations, and one engine against a batch of 1000 for the model evaluation.
 
-    /work/venv/bin/python bench/bench_engine.py
+    .venv/bin/python bench/bench_engine.py
 """
 
 from __future__ import annotations

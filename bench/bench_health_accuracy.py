@@ -9,8 +9,8 @@ engine's last record and the fleet-average deterioration slope estimated vs true
 the rank of G_y at cruise alone, take-off alone, and both stacked (what a snapshot filter over
 both phases can observe).
 
-    /work/venv/bin/python bench/bench_health_accuracy.py                 # the demo fleet
-    /work/venv/bin/python bench/bench_health_accuracy.py --aircraft 4 --flights 200
+    .venv/bin/python bench/bench_health_accuracy.py                 # the demo fleet
+    .venv/bin/python bench/bench_health_accuracy.py --aircraft 4 --flights 200
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ against two peers on the same fleet and records, in the same run:
 All three must give the same engines. Target: 100,000 records well inside the ingest
 budget of issue 5 (50,000 snapshots/s end to end, i.e. 2 s per 100,000): <= 0.2 s.
 
-    /work/venv/bin/python bench/bench_resolve.py [--records N] [--tails N] [--url URL]
+    .venv/bin/python bench/bench_resolve.py [--records N] [--tails N] [--url URL]
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ format, and times the services and the HTTP routes (TestClient, JSON included). 
 in the same run: a bare ``SELECT`` of the same rows (the floor any trend query pays), and the
 same trend query reading JSON arrays instead of packed float32 (the storage not chosen).
 
-    /work/venv/bin/python bench/bench_service.py [--snapshots 10000] [--engines 1000]
+    .venv/bin/python bench/bench_service.py [--snapshots 10000] [--engines 1000]
 
 Targets (issue 5): trend p95 <= 50 ms; fleet status <= 300 ms.
 """

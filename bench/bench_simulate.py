@@ -18,7 +18,7 @@ take-off, the first 50 s of climb: the busiest part) is simulated and the
 figures are scaled to 2500 s (the printed figures say so); the peers use a 30 s
 slice from the start of the flight. ``--full`` runs the whole flight.
 
-    /work/venv/bin/python bench/bench_simulate.py [--full] [--batch 64] [--seconds 300]
+    .venv/bin/python bench/bench_simulate.py [--full] [--batch 64] [--seconds 300]
 
 Figures measured 2026-11-22 (2 cores shared with other jobs at load 3-5; CPU
 seconds of this process; the old and new code back to back, same conditions,

@@ -10,7 +10,7 @@ Compares, in one run (6 tuners, 6 sensors, 10 health parameters):
 Target: ours >= 1e6 engine-snapshots per second. The estimates of all three
 are compared.
 
-Run from the repository root:  /work/venv/bin/python bench/bench_snapshot_filter.py
+Run from the repository root:  .venv/bin/python bench/bench_snapshot_filter.py
 """
 
 from __future__ import annotations

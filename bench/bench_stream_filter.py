@@ -11,7 +11,7 @@ Target: ours within 1.5x of plain numpy. Also checks that all four agree on the
 estimates (filterpy and simdkalman start from the steady-state covariance, so
 their gains equal ours from the first step).
 
-Run from the repository root:  /work/venv/bin/python bench/bench_stream_filter.py
+Run from the repository root:  .venv/bin/python bench/bench_stream_filter.py
 """
 
 from __future__ import annotations

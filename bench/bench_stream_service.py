@@ -12,7 +12,7 @@ measured in the same run on the same samples:
 Figures: samples/s of upload, estimation and both end to end; the service estimation time
 over the core filter time; live chunk latency (upload + estimate) per chunk.
 
-Run from the repository root:  /work/venv/bin/python bench/bench_stream_service.py
+Run from the repository root:  .venv/bin/python bench/bench_stream_service.py
 (``--database-url postgresql+psycopg://...`` to use a PostgreSQL database: it is migrated and
 filled, use a throw-away one).
 """

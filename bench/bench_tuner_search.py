@@ -17,7 +17,7 @@
      suite designed on its own from its best subset/SVD start (no start carried
      over from neighbouring suites).
 
-Run from the repository root:  /work/venv/bin/python bench/bench_tuner_search.py
+Run from the repository root:  .venv/bin/python bench/bench_tuner_search.py
 """
 
 from __future__ import annotations
