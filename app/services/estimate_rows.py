@@ -16,7 +16,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import numpy as np
@@ -33,6 +33,8 @@ from app.services import fresh_records
 from app.services.pgcopy import HEADER, PG_EPOCH_US, TRAILER, fixed_copy_rows
 
 CONDITION_COLUMNS = tuple(s.column for s in OPERATING_CONDITION)
+_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
+_MICROSECOND = timedelta(microseconds=1)
 ESTIMATE_COLUMNS = ("operator_id", "engine_id", "design_id", "seq", "recorded_at", "phase",
                     "packed")
 
@@ -70,13 +72,8 @@ def load_records(
     stored = list(dict.fromkeys(c for c in (*sensor_columns, *input_columns) if c))
     columns: dict[int, Columns] = {}
     kept = fresh_records.take(session, [engine_id for engine_id, _after in wants])
-    if kept:
-        candidates = {engine_id: fresh_records.after(kept[engine_id], after)
-                      for engine_id, after in wants if engine_id in kept}
-        counts = _count_after(session, [w for w in wants if w[0] in candidates])
-        for engine_id, table in candidates.items():
-            if counts.get(engine_id) == table.num_rows:
-                columns[engine_id] = _from_table(table, stored)
+    if kept is not None:
+        columns.update(_complete_kept(session, kept, wants, stored))
     rest = [w for w in wants if w[0] not in columns]
     if rest and session.connection().dialect.name == "postgresql":
         columns.update(_aggregated(session, rest, stored))
@@ -140,17 +137,38 @@ def _count_after(
     return out
 
 
-def _from_table(table: pa.Table, stored: Sequence[str]) -> Columns:
-    """Kept rows (in time order) as columns, the numbers exactly as stored."""
-    micros = pc.cast(pc.cast(table["recorded_at"], pa.timestamp("us", tz="UTC")), pa.int64())
-    return (
-        np.asarray(micros.to_numpy()) / 1e6,
-        table["phase"].to_pylist(),
-        np.column_stack([_floats(table, c) for c in CONDITION_COLUMNS]).reshape(
-            table.num_rows, len(CONDITION_COLUMNS)
-        ),
-        {c: _floats(table, c) for c in stored},
-    )
+def _complete_kept(
+    session: Session, kept: pa.Table, wants: Sequence[tuple[int, datetime | None]],
+    stored: Sequence[str],
+) -> dict[int, Columns]:
+    """From kept rows sorted by engine and time, the records of each engine that has them
+    all (as many as the database counts after its time), as columns of the stored numbers."""
+    engines = np.asarray(kept["engine_id"].to_numpy())
+    micros = np.asarray(pc.cast(kept["recorded_at"], pa.int64()).to_numpy())
+    ranges = {}
+    for engine_id, after in wants:
+        lo, hi = (int(i) for i in np.searchsorted(engines, [engine_id, engine_id + 1]))
+        if lo == hi:
+            continue
+        if after is not None:
+            cut = (after - _EPOCH) // _MICROSECOND
+            lo += int(np.searchsorted(micros[lo:hi], cut, side="right"))
+        ranges[engine_id] = (lo, hi)
+    if not ranges:
+        return {}
+    counts = _count_after(session, [w for w in wants if w[0] in ranges])
+    complete = {e: r for e, r in ranges.items() if counts.get(e) == r[1] - r[0]}
+    if not complete:
+        return {}
+    phase = kept["phase"].to_pylist()
+    values = {c: _floats(kept, c) for c in (*CONDITION_COLUMNS, *stored)}
+    conditions = np.column_stack([values[c] for c in CONDITION_COLUMNS])
+    epoch = micros / 1e6
+    return {
+        engine_id: (epoch[lo:hi], phase[lo:hi], conditions[lo:hi],
+                    {c: values[c][lo:hi] for c in stored})
+        for engine_id, (lo, hi) in complete.items()
+    }
 
 
 def _floats(table: pa.Table, column: str) -> np.ndarray:

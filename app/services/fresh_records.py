@@ -19,9 +19,7 @@ from __future__ import annotations
 import threading
 from collections import OrderedDict
 from collections.abc import Iterable
-from datetime import datetime
 
-import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 from sqlalchemy import event
@@ -83,49 +81,38 @@ def kept_rows(session: Session) -> int:
         return sum(t.num_rows for k, (t, _e) in _kept.items() if k[0] == database)
 
 
-def take(session: Session, engine_ids: Iterable[int]) -> dict[int, pa.Table]:
-    """Every kept row of these engines (any order), removed from the store."""
+def take(session: Session, engine_ids: Iterable[int]) -> pa.Table | None:
+    """Every kept row of these engines, sorted by engine and time, removed from the store
+    (None when there is none)."""
     wanted_ids = set(engine_ids)
     wanted = pa.array(sorted(wanted_ids), pa.int64())
     database = _database(session)
-    parts: dict[int, list[pa.Table]] = {}
+    parts: list[pa.Table] = []
     with _lock:
         for key in [k for k in _kept if k[0] == database]:
             table, engines = _kept[key]
             if engines.isdisjoint(wanted_ids):
                 continue
             if engines <= wanted_ids:
-                mine, rest = table, None
-            else:
-                inside = pc.is_in(pc.cast(table["engine_id"], pa.int64()), value_set=wanted)
-                mine, rest = table.filter(inside), table.filter(pc.invert(inside))
-            for engine_id, part in _split(mine).items():
-                parts.setdefault(engine_id, []).append(part)
-            if rest is not None and rest.num_rows:
-                _kept[key] = (rest, engines - wanted_ids)
-            else:
+                parts.append(table)
                 del _kept[key]
-    return {e: pa.concat_tables(p) if len(p) > 1 else p[0] for e, p in parts.items()}
-
-
-def _split(table: pa.Table) -> dict[int, pa.Table]:
-    engines = np.asarray(pc.cast(table["engine_id"], pa.int64()).to_numpy())
-    order = np.argsort(engines, kind="stable")
-    sorted_engines = engines[order]
-    starts = np.flatnonzero(np.r_[True, sorted_engines[1:] != sorted_engines[:-1]])
-    ends = np.r_[starts[1:], len(order)]
-    return {int(sorted_engines[a]): table.take(order[a:b]) for a, b in zip(starts, ends,
-                                                                           strict=True)}
-
-
-def after(table: pa.Table, when: datetime | None) -> pa.Table:
-    """The rows recorded after ``when`` (all of them for None), in time order."""
-    times = pc.cast(table["recorded_at"], pa.timestamp("us", tz="UTC"))
-    if when is not None:
-        table = table.filter(pc.greater(times, pa.scalar(when, pa.timestamp("us", tz="UTC"))))
-        times = pc.cast(table["recorded_at"], pa.timestamp("us", tz="UTC"))
-    micros = np.asarray(pc.cast(times, pa.int64()).to_numpy())
-    return table.take(np.argsort(micros, kind="stable"))
+                continue
+            inside = pc.is_in(pc.cast(table["engine_id"], pa.int64()), value_set=wanted)
+            parts.append(table.filter(inside))
+            _kept[key] = (table.filter(pc.invert(inside)), engines - wanted_ids)
+    if not parts:
+        return None
+    table = pa.concat_tables(parts) if len(parts) > 1 else parts[0]
+    table = table.set_column(
+        table.schema.get_field_index("engine_id"), "engine_id",
+        pc.cast(table["engine_id"], pa.int64()),
+    ).set_column(
+        table.schema.get_field_index("recorded_at"), "recorded_at",
+        pc.cast(table["recorded_at"], pa.timestamp("us", tz="UTC")),
+    )
+    return table.take(pc.sort_indices(
+        table, sort_keys=[("engine_id", "ascending"), ("recorded_at", "ascending")]
+    ))
 
 
 def clear() -> None:

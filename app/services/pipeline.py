@@ -1355,7 +1355,9 @@ def _store(
         fs = FilterState(operator_id=run.operator_id, engine_id=run.engine_id,
                          design_id=est.design_id)
         session.add(fs)
-    fs.layout = est.layout.to_dict()
+    layout = est.layout.to_dict()
+    if fs.layout != layout:  # an unchanged layout is not rewritten (JSON is not diffed)
+        fs.layout = layout
     fs.state = out.state
     fs.n_records = n_records
     if len(run.epoch) or run.seq0 == 0:
