@@ -16,6 +16,12 @@ rows: with the pipeline's batched detector and with the per-record detector (``d
 record by record, the previous path), for the detector's before/after figure in the same run.
 ``--profile FILE`` writes a cProfile of the first estimation job.
 
+With ``--sustained K``: a third operator uploads the same number of
+snapshots in K consecutive uploads, back to back, into a server whose in-process job runner
+estimates each upload as it commits (as ``fleethealth serve`` runs): the time from the first
+request to the last estimate stored, ingest of one upload overlapping estimation of the one
+before.
+
 Targets (issue 5): >= 50,000 snapshots/s end to end (parse + validate + store + estimate), and
 >= 30 % of the raw COPY rate.
 
@@ -294,6 +300,79 @@ def end_to_end(
         )
 
 
+def start_server(url: str, background_jobs: bool) -> tuple[uvicorn.Server, int]:
+    """uvicorn on a free port in a thread, serving the app on ``url``."""
+    settings = Settings(
+        database_url=url, log_json=False, log_level="WARNING", data_dir=Path("/tmp/fh-bench")
+    )
+    port = free_port()
+    server = uvicorn.Server(uvicorn.Config(
+        create_app(settings, background_jobs=background_jobs), host="127.0.0.1", port=port,
+        log_level="warning",
+    ))
+    threading.Thread(target=server.run, daemon=True).start()
+    while not server.started:
+        time.sleep(0.05)
+    return server, port
+
+
+def sustained(
+    url: str, args: argparse.Namespace, times: dict[str, list[float]], epoch: int
+) -> None:
+    """Uploads back to back into a server whose in-process job runner estimates them as they
+    commit (``fleethealth serve``): the time from the first request to the last estimate
+    stored, for ``args.rows`` snapshots in ``args.sustained`` uploads per repetition."""
+    n, k = args.rows, args.sustained
+    key, _where, operator_id = build_fleet(url, args.tails, name="Bench Sustained Air")
+    est = add_design(url, operator_id)
+    server, port = start_server(url, background_jobs=True)
+    engine = create_engine(url)
+
+    def stored() -> int:
+        with engine.connect() as connection:
+            return int(connection.execute(text(
+                "SELECT count(*) FROM estimates WHERE operator_id = :o"), {"o": operator_id}
+            ).scalar_one())
+
+    def idle() -> bool:
+        with engine.connect() as connection:
+            return not connection.execute(text(
+                "SELECT count(*) FROM jobs WHERE operator_id = :o AND status IN "
+                "('queued', 'running')"), {"o": operator_id}).scalar_one()
+
+    try:
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=600,
+                          headers={"X-API-Key": key}) as client:
+            for rep in range(args.repeat):
+                epoch += 1
+                rows = healthy_snapshots(n, args.tails, T0 + timedelta(days=400 * epoch),
+                                         epoch, est)
+                # Consecutive slices: each upload continues every engine's history.
+                bodies = []
+                for part in range(k):
+                    sink = io.BytesIO()
+                    pacsv.write_csv(rows.slice(part * n // k, n // k), sink)
+                    bodies.append(sink.getvalue())
+                goal = stored() + n
+                started = time.perf_counter()
+                for body in bodies:
+                    client.post("/api/v1/snapshots/file", content=body,
+                                headers={"Content-Type": "text/csv"}).raise_for_status()
+                posted = time.perf_counter()
+                while stored() < goal or not idle():
+                    if time.perf_counter() - started > 600:
+                        raise SystemExit("sustained: estimates did not arrive")
+                    time.sleep(0.02)
+                done = time.perf_counter()
+                times.setdefault(f"http csv + estimate, {k} uploads", []).append(done - started)
+                print(f"  sustained {rep + 1}: {k} uploads posted in {posted - started:.3f} s, "
+                      f"last estimate stored at {done - started:.3f} s")
+    finally:
+        server.should_exit = True
+        time.sleep(0.5)
+        engine.dispose()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rows", type=int, default=100_000)
@@ -301,6 +380,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-estimate", action="store_true", help="ingest alone")
     ap.add_argument("--profile", default="", help="cProfile file of the first estimation job")
+    ap.add_argument("--sustained", type=int, default=0,
+                    help="uploads per repetition into a server with its job runner (0: skip)")
     ap.add_argument("--compare-detector", action="store_true",
                     help="also run the estimation with the per-record detector")
     args = ap.parse_args()
@@ -314,17 +395,7 @@ def main() -> None:
     try:
         upgrade(url)
         key, where, operator_id = build_fleet(url, args.tails)
-        settings = Settings(
-            database_url=url, log_json=False, log_level="WARNING", data_dir=Path("/tmp/fh-bench")
-        )
-        port = free_port()
-        server = uvicorn.Server(
-            uvicorn.Config(create_app(settings), host="127.0.0.1", port=port, log_level="warning")
-        )
-        thread = threading.Thread(target=server.run, daemon=True)
-        thread.start()
-        while not server.started:
-            time.sleep(0.05)
+        server, port = start_server(url, background_jobs=False)
 
         # A placeholder upload row for the raw COPY's foreign key.
         with create_engine(url).begin() as connection:
@@ -401,6 +472,8 @@ def main() -> None:
             raise SystemExit(f"table holds {total} rows, expected {expected}")
         if not args.no_estimate:
             end_to_end(url, base, args, times, epoch)
+            if args.sustained:
+                sustained(url, args, times, epoch + 10 * args.repeat)
 
         # The peer is the faster raw COPY of the two formats.
         raw_rate = max(n / statistics.median(times[k]) for k in ("raw COPY csv", "raw COPY bin"))

@@ -8,12 +8,12 @@ the time in microseconds) are joined on the server into one bytea and parsed by 
 phase (rows of one phase have one width). No value passes through a Python object on either
 side. Other databases read with one SELECT per engine and write with an executemany INSERT.
 Records an upload committed in this process are taken from memory instead when they are all
-there (``fresh_records``).
+there (``fresh_records``, handed in by the caller).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
@@ -29,7 +29,6 @@ from sqlalchemy.orm import Session
 from app.models import Snapshot
 from app.models.estimates import VALUE_DTYPE, Estimate
 from app.models.ingest import OPERATING_CONDITION, PHASES
-from app.services import fresh_records
 from app.services.pgcopy import HEADER, PG_EPOCH_US, TRAILER, fixed_copy_rows
 
 CONDITION_COLUMNS = tuple(s.column for s in OPERATING_CONDITION)
@@ -60,18 +59,19 @@ def load_records(
     wants: Sequence[tuple[int, datetime | None]],
     sensor_columns: Sequence[str],
     input_columns: Sequence[str],
+    kept: pa.Table | None = None,
 ) -> dict[int, Records]:
     """Each engine's records after its time (None: all of them), for (engine id, after) pairs.
 
     ``sensor_columns``/``input_columns`` name the snapshot column of each design signal
-    ("" = not stored). Records an upload committed in this process come from memory when
-    they are all there (``fresh_records``), the others from the database.
+    ("" = not stored). ``kept``: rows an upload committed in this process (``fresh_records``,
+    sorted by engine and time); an engine's records come from there when they are all there,
+    else from the database.
     """
     if not wants:
         return {}
     stored = list(dict.fromkeys(c for c in (*sensor_columns, *input_columns) if c))
     columns: dict[int, Columns] = {}
-    kept = fresh_records.take(session, [engine_id for engine_id, _after in wants])
     if kept is not None:
         columns.update(_complete_kept(session, kept, wants, stored))
     rest = [w for w in wants if w[0] not in columns]
@@ -80,22 +80,41 @@ def load_records(
     else:
         columns.update({engine_id: _select(session, engine_id, after, stored)
                         for engine_id, after in rest})
-    out = {}
-    for engine_id, (epoch, phase, conditions, values) in columns.items():
-        n = len(epoch)
-        missing = np.full(n, np.nan)
+    return {engine_id: _records(c, sensor_columns, input_columns)
+            for engine_id, c in columns.items()}
 
-        def stack(names: Sequence[str], values: dict[str, np.ndarray] = values,
-                  n: int = n, missing: np.ndarray = missing) -> np.ndarray:
-            if not names:
-                return np.empty((n, 0))
-            return np.column_stack([values[c] if c else missing for c in names]).reshape(
-                n, len(names)
-            )
 
-        out[engine_id] = Records(epoch, phase, conditions, stack(sensor_columns),
-                                 stack(input_columns))
-    return out
+def records_from_table(
+    table: pa.Table, sensor_columns: Sequence[str], input_columns: Sequence[str]
+) -> dict[int, Records]:
+    """Every engine's records in ``table`` (columns of ``snapshots``, sorted by engine and
+    time), with no look at the database."""
+    stored = list(dict.fromkeys(c for c in (*sensor_columns, *input_columns) if c))
+    engines = np.asarray(pc.cast(table["engine_id"], pa.int64()).to_numpy())
+    starts = np.flatnonzero(np.r_[True, engines[1:] != engines[:-1]]) if len(engines) else (
+        np.zeros(0, dtype=np.int64)
+    )
+    ranges = {int(engines[a]): (int(a), int(b))
+              for a, b in zip(starts, np.r_[starts[1:], len(engines)], strict=True)}
+    return {engine_id: _records(c, sensor_columns, input_columns)
+            for engine_id, c in _table_columns(table, ranges, stored).items()}
+
+
+def _records(
+    columns: Columns, sensor_columns: Sequence[str], input_columns: Sequence[str]
+) -> Records:
+    epoch, phase, conditions, values = columns
+    n = len(epoch)
+    missing = np.full(n, np.nan)
+
+    def stack(names: Sequence[str]) -> np.ndarray:
+        if not names:
+            return np.empty((n, 0))
+        return np.column_stack([values[c] if c else missing for c in names]).reshape(
+            n, len(names)
+        )
+
+    return Records(epoch, phase, conditions, stack(sensor_columns), stack(input_columns))
 
 
 Columns = tuple[np.ndarray, list[str], np.ndarray, dict[str, np.ndarray]]
@@ -158,16 +177,23 @@ def _complete_kept(
         return {}
     counts = _count_after(session, [w for w in wants if w[0] in ranges])
     complete = {e: r for e, r in ranges.items() if counts.get(e) == r[1] - r[0]}
-    if not complete:
-        return {}
-    phase = kept["phase"].to_pylist()
-    values = {c: _floats(kept, c) for c in (*CONDITION_COLUMNS, *stored)}
+    return _table_columns(kept, complete, stored) if complete else {}
+
+
+def _table_columns(
+    table: pa.Table, ranges: Mapping[int, tuple[int, int]], stored: Sequence[str]
+) -> dict[int, Columns]:
+    """Rows ``lo:hi`` of ``table`` for each engine, as columns of the stored numbers."""
+    micros = np.asarray(pc.cast(pc.cast(table["recorded_at"], pa.timestamp("us", tz="UTC")),
+                                pa.int64()).to_numpy())
+    phase = table["phase"].to_pylist()
+    values = {c: _floats(table, c) for c in (*CONDITION_COLUMNS, *stored)}
     conditions = np.column_stack([values[c] for c in CONDITION_COLUMNS])
     epoch = micros / 1e6
     return {
         engine_id: (epoch[lo:hi], phase[lo:hi], conditions[lo:hi],
                     {c: values[c][lo:hi] for c in stored})
-        for engine_id, (lo, hi) in complete.items()
+        for engine_id, (lo, hi) in ranges.items()
     }
 
 

@@ -26,6 +26,7 @@ import numpy as np
 import psycopg
 import pyarrow as pa
 import pyarrow.compute as pc
+from psycopg.copy import QueuedLibpqWriter
 from sqlalchemy import DateTime, select, type_coerce
 from sqlalchemy import exc as sa_exc
 from sqlalchemy.orm import Session
@@ -448,10 +449,13 @@ SNAPSHOT_PG_TYPES = {
 def copy_binary(
     driver_connection: Any, table_name: str, table: pa.Table, pg_types: Mapping[str, str]
 ) -> None:
-    """Binary COPY of ``table`` through psycopg 3 (the server parses no text)."""
+    """Binary COPY of ``table`` through psycopg 3 (the server parses no text). psycopg's
+    queued writer sends each batch from a thread while the next one is encoded, so the
+    server stores rows while Python encodes the following ones."""
     names = ", ".join(table.column_names)
+    statement = f"COPY {table_name} ({names}) FROM STDIN (FORMAT binary)"
     with driver_connection.cursor() as cursor:
-        with cursor.copy(f"COPY {table_name} ({names}) FROM STDIN (FORMAT binary)") as copy:
+        with cursor.copy(statement, writer=QueuedLibpqWriter(cursor)) as copy:
             copy.write(HEADER)
             for batch in table.to_batches(max_chunksize=COPY_BATCH_ROWS):
                 copy.write(binary_copy_rows(pa.Table.from_batches([batch]), pg_types))
