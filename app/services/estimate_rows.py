@@ -84,22 +84,6 @@ def load_records(
             for engine_id, c in columns.items()}
 
 
-def records_from_table(
-    table: pa.Table, sensor_columns: Sequence[str], input_columns: Sequence[str]
-) -> dict[int, Records]:
-    """Every engine's records in ``table`` (columns of ``snapshots``, sorted by engine and
-    time), with no look at the database."""
-    stored = list(dict.fromkeys(c for c in (*sensor_columns, *input_columns) if c))
-    engines = np.asarray(pc.cast(table["engine_id"], pa.int64()).to_numpy())
-    starts = np.flatnonzero(np.r_[True, engines[1:] != engines[:-1]]) if len(engines) else (
-        np.zeros(0, dtype=np.int64)
-    )
-    ranges = {int(engines[a]): (int(a), int(b))
-              for a, b in zip(starts, np.r_[starts[1:], len(engines)], strict=True)}
-    return {engine_id: _records(c, sensor_columns, input_columns)
-            for engine_id, c in _table_columns(table, ranges, stored).items()}
-
-
 def _records(
     columns: Columns, sensor_columns: Sequence[str], input_columns: Sequence[str]
 ) -> Records:

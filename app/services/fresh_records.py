@@ -19,7 +19,6 @@ from __future__ import annotations
 import threading
 from collections import OrderedDict
 from collections.abc import Iterable
-from typing import Any, NamedTuple
 
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -30,18 +29,8 @@ MAX_RECORDS = 1_000_000
 
 _enabled = True  # off where jobs run in other processes (Celery): nothing would take them
 _lock = threading.Lock()
-
-
-class Taken(NamedTuple):
-    """What a job takes: the rows (sorted by engine and time; None when there are none) and
-    the extras their uploads attached (``early_estimates``)."""
-
-    table: pa.Table | None
-    extras: list[Any]
-
-
-# (database url, upload id) -> the upload's stored rows, the engines they are of, an extra
-_kept: OrderedDict[tuple[str, int], tuple[pa.Table, frozenset[int], Any]] = OrderedDict()
+# (database url, upload id) -> the upload's stored rows and the engines they are of
+_kept: OrderedDict[tuple[str, int], tuple[pa.Table, frozenset[int]]] = OrderedDict()
 
 
 def configure(*, enabled: bool) -> None:
@@ -56,12 +45,9 @@ def _database(session: Session) -> str:
     return session.connection().engine.url.render_as_string(hide_password=True)
 
 
-def keep_after_commit(
-    session: Session, upload_id: int, rows: pa.Table, extra: Any = None
-) -> None:
-    """Keep ``rows`` (columns of ``snapshots``, at least engine_id and recorded_at) and an
-    ``extra`` for the estimation job once the session's transaction commits; nothing if it
-    rolls back."""
+def keep_after_commit(session: Session, upload_id: int, rows: pa.Table) -> None:
+    """Keep ``rows`` (columns of ``snapshots``, at least engine_id and recorded_at) for the
+    estimation job once the session's transaction commits; nothing if it rolls back."""
     if not _enabled or rows.num_rows == 0 or rows.num_rows > MAX_RECORDS:
         return
     key = (_database(session), upload_id)
@@ -74,10 +60,10 @@ def keep_after_commit(
             return
         ended = True
         with _lock:
-            _kept[key] = (rows, engines, extra)
+            _kept[key] = (rows, engines)
             total = sum(entry[0].num_rows for entry in _kept.values())
             while total > MAX_RECORDS:
-                _old, (dropped, _e, _x) = _kept.popitem(last=False)
+                _old, (dropped, _e) = _kept.popitem(last=False)
                 total -= dropped.num_rows
 
     def forget(_session: Session) -> None:
@@ -95,30 +81,27 @@ def kept_rows(session: Session) -> int:
         return sum(entry[0].num_rows for k, entry in _kept.items() if k[0] == database)
 
 
-def take(session: Session, engine_ids: Iterable[int]) -> Taken:
-    """Every kept row of these engines, sorted by engine and time, removed from the store,
-    with the extras of the uploads they come from."""
+def take(session: Session, engine_ids: Iterable[int]) -> pa.Table | None:
+    """Every kept row of these engines, sorted by engine and time, removed from the store
+    (None when there is none)."""
     wanted_ids = set(engine_ids)
     wanted = pa.array(sorted(wanted_ids), pa.int64())
     database = _database(session)
     parts: list[pa.Table] = []
-    extras: list[Any] = []
     with _lock:
         for key in [k for k in _kept if k[0] == database]:
-            table, engines, extra = _kept[key]
+            table, engines = _kept[key]
             if engines.isdisjoint(wanted_ids):
                 continue
-            if extra is not None:
-                extras.append(extra)
             if engines <= wanted_ids:
                 parts.append(table)
                 del _kept[key]
                 continue
             inside = pc.is_in(pc.cast(table["engine_id"], pa.int64()), value_set=wanted)
             parts.append(table.filter(inside))
-            _kept[key] = (table.filter(pc.invert(inside)), engines - wanted_ids, extra)
+            _kept[key] = (table.filter(pc.invert(inside)), engines - wanted_ids)
     if not parts:
-        return Taken(None, extras)
+        return None
     table = pa.concat_tables(parts) if len(parts) > 1 else parts[0]
     table = table.set_column(
         table.schema.get_field_index("engine_id"), "engine_id",
@@ -127,9 +110,9 @@ def take(session: Session, engine_ids: Iterable[int]) -> Taken:
         table.schema.get_field_index("recorded_at"), "recorded_at",
         pc.cast(table["recorded_at"], pa.timestamp("us", tz="UTC")),
     )
-    return Taken(table.take(pc.sort_indices(
+    return table.take(pc.sort_indices(
         table, sort_keys=[("engine_id", "ascending"), ("recorded_at", "ascending")]
-    )), extras)
+    ))
 
 
 def clear() -> None:

@@ -1277,10 +1277,9 @@ def _prepare_runs(
         starts[engine_id] = _restart_point(session, est, fs, affected.get(engine_id))
         if fs is not None and starts[engine_id][0] < fs.n_records:
             summary["reruns"] += 1
-    taken = fresh_records.take(session, ids)
     records = estimate_rows.load_records(
         session, [(engine_id, starts[engine_id][2]) for engine_id in ids],
-        est.sensor_columns, est.input_columns, kept=taken.table,
+        est.sensor_columns, est.input_columns, kept=fresh_records.take(session, ids),
     )
     maintenance = _by_engine(
         session,

@@ -37,8 +37,8 @@ def assert_same(a: estimate_rows.Records, b: estimate_rows.Records) -> None:
 
 def load(session: Session, wants: list) -> dict[int, estimate_rows.Records]:
     """As the pipeline loads: what is kept for these engines, completed from the database."""
-    taken = fresh_records.take(session, [engine_id for engine_id, _after in wants])
-    return estimate_rows.load_records(session, wants, SENSORS, INPUTS, kept=taken.table)
+    kept = fresh_records.take(session, [engine_id for engine_id, _after in wants])
+    return estimate_rows.load_records(session, wants, SENSORS, INPUTS, kept=kept)
 
 
 def test_kept_records_equal_the_stored_ones(client: TestClient, session: Session) -> None:
