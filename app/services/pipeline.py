@@ -949,13 +949,10 @@ def _wssr_filled(
                         records)
             j += 1
             continue
-        # A run of records with neither reset nor pending alarm, ending at the next reset, the
-        # next checkpoint (inclusive) or the chunk's end.
+        # A run of records with neither reset nor pending alarm, up to the next reset or the
+        # chunk's end (an alarm ends it early).
         later = reset_at[reset_at > j]
         end = int(later[0]) if len(later) else n
-        seq = r.seq0 + c0 + j
-        to_checkpoint = CHECKPOINT_EVERY - (seq + 1) % CHECKPOINT_EVERY
-        end = min(end, j + (to_checkpoint % CHECKPOINT_EVERY) + 1)
         L = len(det.history)
         series = np.concatenate([np.asarray(det.history, float).reshape(L, m), q[j:end]])
         first = max(depth - L, 0)  # run index of the first record with a baseline
@@ -965,51 +962,62 @@ def _wssr_filled(
         with_base = bases[L + first - depth : L + first - depth + len(k_idx)]
         scan = level_scan(q[k_idx] - with_base, P[k_idx], est.H) if len(k_idx) else None
         stop = end
-        # The CUSUM and its running mean, record by record on Python floats; records from
-        # ``armed`` on (run index) carry their WSSR, those before it NaN.
+        # The CUSUM and its running mean, record by record on Python floats, with the same
+        # operations as ``detect_step`` (``b if b > a else a`` is ``max(a, b)``, NaN
+        # included); records from ``armed`` on (run index) carry their WSSR, those before it
+        # NaN. Run index i is a checkpoint when its seq + 1 is a multiple of CHECKPOINT_EVERY.
         distance = scan.distance.tolist() if scan is not None else []
         S, s_mean, s_count, warm = det.S, det.s_mean, det.s_count, det.warm
         threshold, reference = est.cusum.threshold, est.cusum.reference
+        cap = S_MEAN_CAP * m
         armed = end - j
+        next_checkpoint = -(r.seq0 + c0 + j + 1) % CHECKPOINT_EVERY
         for i in range(end - j):
             warm += 1
             if i < first:
                 S = 0.0
-                continue
-            s_k = distance[i - first]
-            if s_mean is None:
-                s_mean = float(m)
-            scaled = s_k * m / max(s_mean, m)
-            if S == 0.0:
-                s_count += 1
-                rate = max(1.0 / s_count, S_MEAN_RATE)
-                s_mean += (min(s_k, S_MEAN_CAP * m) - s_mean) * rate
-            if warm < WARMUP:
-                S = 0.0
-                continue
-            armed = min(armed, i)
-            S = max(0.0, S + scaled - m - reference)
-            if S > threshold:
-                assert scan is not None
-                jj = j + i
-                det.pending = {"seq": r.seq0 + c0 + jj, "epoch": float(r.epoch[c0 + jj]),
-                               "statistic": S, "wait": N_CONFIRM,
-                               "baseline": with_base[i - first].tolist(), "P": P[jj].tolist()}
-                if records is not None:
-                    accumulate_sensor_fit(
-                        est, det.pending, records.observation(est, jj)
-                    )
-                S = 0.0
-                stop = jj + 1
-                break
+            else:
+                s_k = distance[i - first]
+                if s_mean is None:
+                    s_mean = float(m)
+                scaled = s_k * m / (m if m > s_mean else s_mean)
+                if S == 0.0:
+                    s_count += 1
+                    inverse = 1.0 / s_count
+                    rate = S_MEAN_RATE if S_MEAN_RATE > inverse else inverse
+                    s_mean += ((cap if cap < s_k else s_k) - s_mean) * rate
+                if warm < WARMUP:
+                    S = 0.0
+                else:
+                    if armed > i:
+                        armed = i
+                    S = S + scaled - m - reference
+                    S = S if S > 0.0 else 0.0
+                    if S > threshold:
+                        assert scan is not None
+                        jj = j + i
+                        det.pending = {
+                            "seq": r.seq0 + c0 + jj, "epoch": float(r.epoch[c0 + jj]),
+                            "statistic": S, "wait": N_CONFIRM,
+                            "baseline": with_base[i - first].tolist(), "P": P[jj].tolist(),
+                        }
+                        if records is not None:
+                            accumulate_sensor_fit(est, det.pending, records.observation(est, jj))
+                        S = 0.0
+                        stop = jj + 1
+            if i == next_checkpoint or stop < end:
+                det.S, det.s_mean, det.s_count, det.warm = S, s_mean, s_count, warm
+                det.history = series[max(L + i + 1 - depth, 0) : L + i + 1].tolist()
+                if i == next_checkpoint:
+                    _checkpoint(det, r, c0, j + i, q, P, out)
+                    next_checkpoint += CHECKPOINT_EVERY
+                if stop < end:
+                    break
         det.S, det.s_mean, det.s_count, det.warm = S, s_mean, s_count, warm
+        det.history = series[max(L + stop - j - depth, 0) : L + stop - j].tolist()
         values[j:stop, s] = np.nan
         if scan is not None and j + armed < stop:
             values[j + armed : stop, s] = scan.wssr[armed - first : stop - j - first]
-        det.history = series[max(L + stop - j - depth, 0) : L + stop - j].tolist()
-        done = r.seq0 + c0 + stop
-        if done % CHECKPOINT_EVERY == 0:
-            _checkpoint(det, r, c0, stop - 1, q, P, out)
         j = stop
     return values
 
