@@ -27,13 +27,16 @@ from estimation.engine.fleet import fleet_snapshots, plan_fleet
 from estimation.model import LinearModel
 
 
-def demo_estimator(cache_dir: Path, method: str = "subset", tuners: int = 10):
-    """The demo's active design on the built-in engine, as the pipeline builds it."""
+def demo_estimator(cache_dir: Path, method: str = "subset", tuners: int = 10,
+                   biases: bool = False):
+    """The demo's active design on the built-in engine, as the pipeline builds it (``biases``:
+    the tuners also span the three actuator biases)."""
     sched = engine_schedule(cache_dir)
     p = demo_fleet.DESIGN_POINT
     model = sched.model_at(p["alt"], p["mach"], p["power"])
     sensors = [n for n in model.sensor_names if n != "Wf"]
-    result = design_step(model, demo_fleet.design_spec(method, tuners, sensors))
+    health = demo_fleet.HEALTH + (demo_fleet.ACTUATOR_BIASES if biases else ())
+    result = design_step(model, demo_fleet.design_spec(method, tuners, sensors, health))
     embedded = LinearModel.from_dict(result["model"])
     return pipeline.build_estimator(
         0, embedded, result, pipeline.engine_schedule_for(embedded, sched)
@@ -49,11 +52,13 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=demo_fleet.SEED)
     ap.add_argument("--tuners", type=int, default=10)
     ap.add_argument("--method", default="subset")
+    ap.add_argument("--biases", action="store_true",
+                    help="the design's health vector includes the three actuator biases")
     ap.add_argument("--cache", type=Path, default=Path("/tmp/fh/cache"))
     args = ap.parse_args()
 
     t0 = time.perf_counter()
-    est = demo_estimator(args.cache, args.method, args.tuners)
+    est = demo_estimator(args.cache, args.method, args.tuners, args.biases)
     t1 = time.perf_counter()
     size = demo_fleet.DemoSize(aircraft=args.aircraft, flights=args.flights,
                                fault_rate=args.fault_rate)

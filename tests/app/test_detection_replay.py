@@ -189,3 +189,31 @@ def test_batched_detector_equals_the_per_record_detector(
         assert a.events == b.events
         assert a.checkpoints == b.checkpoints
         assert a.state == b.state
+
+
+def test_an_actuator_bias_in_the_health_vector_is_one_fault_column(
+    schedule: EngineSchedule,
+) -> None:
+    """With the actuator biases among the design's health parameters, an actuator fault's
+    signature comes from its health column alone (not that and its input column again)."""
+    p = demo_fleet.DESIGN_POINT
+    model = schedule.model_at(p["alt"], p["mach"], p["power"])
+    sensors = [n for n in model.sensor_names if n != "Wf"]
+    spec = demo_fleet.design_spec("svd", 8, sensors,
+                                  demo_fleet.HEALTH + demo_fleet.ACTUATOR_BIASES)
+    result = design_step(model, spec)
+    embedded = LinearModel.from_dict(result["model"])
+    est = pipeline.build_estimator(0, embedded, result)
+    assert est.bias_inputs == ()  # every input's bias is a health parameter here
+    health = list(embedded.health_names)
+    assert est.S_full.shape[0] == len(health)
+    faults = list(est.layout.faults)
+    for fault, bias in (("Wf", "wf_bias"), ("VSV", "vsv_bias"), ("VBV", "vbv_bias")):
+        column = est.S_full[:, faults.index(fault)]
+        assert np.flatnonzero(column).tolist() == [health.index(bias)]
+    # Without them in the health vector, the same faults act through the input columns.
+    plain = demo_fleet.design_spec("svd", 8, sensors)
+    result = design_step(model, plain)
+    est = pipeline.build_estimator(0, LinearModel.from_dict(result["model"]), result)
+    assert len(est.bias_inputs) == len(embedded.input_names)
+    assert est.S_full.shape[0] == len(demo_fleet.HEALTH) + len(est.bias_inputs)
