@@ -219,10 +219,8 @@ def fault_noncentrality(
     k = np.flatnonzero(run.epoch >= at)[:VISIBILITY_RECORDS]
     if len(k) == 0 or fault not in est.layout.faults:
         return 0.0
-    column = est.S_full[:, est.layout.faults.index(fault)] * scale
     g = est.schedule(run.conditions[k])
-    p = g.G_y.shape[-1]
-    dy = g.G_y @ column[:p] + g.G_u @ column[p:]
+    dy = est.fault_signatures(g.G_y, g.G_u)[..., est.layout.faults.index(fault)] * scale
     noise = est.noise_std if g.noise_std is None else np.sqrt(
         g.noise_std**2 + pipeline.MODEL_ERROR**2)
     present = np.isfinite(run.y[k])

@@ -242,6 +242,13 @@ class SnapshotEstimator:
     def m(self) -> int:
         return int(self.vstar.shape[0])
 
+    def fault_signatures(self, G_y: np.ndarray, G_u: np.ndarray) -> np.ndarray:
+        """Each library fault's sensor change (nominal magnitude) at the conditions of these
+        gains: health columns through G_y [..., ny, p], actuator-bias columns through G_u
+        [..., ny, nu] (MATH.md section 4, in sensor space) -> [..., ny, n_faults]."""
+        p = G_y.shape[-1]
+        return G_y @ self.S_full[:p] + G_u[..., list(self.bias_inputs)] @ self.S_full[p:]
+
 
 @functools.lru_cache(maxsize=32)
 def cusum_for(m: int) -> CusumDesign:
@@ -821,9 +828,7 @@ class ChunkRecords(NamedTuple):
         """Record ``j`` with each library fault's sensor change at its own condition (health
         columns through G_y, actuator-bias columns through G_u; MATH.md section 4, in sensor
         space), computed only for the records an alarm fits."""
-        p = self.G_y.shape[-1]
-        G_u = self.G_u[j][:, list(est.bias_inputs)]
-        signatures = self.G_y[j] @ est.S_full[:p] + G_u @ est.S_full[p:]
+        signatures = est.fault_signatures(self.G_y[j], self.G_u[j])
         return RecordObservation(self.dy[j], self.G_y[j], signatures, self.var[j])
 
 
