@@ -21,7 +21,7 @@ import _common  # noqa: F401  (import path)
 import numpy as np
 
 from app.engine_cache import engine_schedule
-from app.services import demo_fleet, detection_replay, pipeline
+from app.services import demo_fleet, detection_replay, estimator, shift_detection
 from app.services.models_designs import design_step
 from estimation.engine.fleet import fleet_snapshots, plan_fleet
 from estimation.model import LinearModel
@@ -38,8 +38,8 @@ def demo_estimator(cache_dir: Path, method: str = "subset", tuners: int = 10,
     health = demo_fleet.HEALTH + (demo_fleet.ACTUATOR_BIASES if biases else ())
     result = design_step(model, demo_fleet.design_spec(method, tuners, sensors, health))
     embedded = LinearModel.from_dict(result["model"])
-    return pipeline.build_estimator(
-        0, embedded, result, pipeline.engine_schedule_for(embedded, sched)
+    return estimator.build_estimator(
+        0, embedded, result, estimator.engine_schedule_for(embedded, sched)
     )
 
 
@@ -76,7 +76,7 @@ def main() -> None:
     print(f"time: design {t1 - t0:.1f} s, simulation {t2 - t1:.1f} s, "
           f"estimation {t3 - t2:.1f} s")
     print(result.report())
-    wanted = result.detectable(3, pipeline.N_BASE + pipeline.GAP, 60.0)
+    wanted = result.detectable(3, shift_detection.N_BASE + shift_detection.GAP, 60.0)
     correct = [f for f in wanted if f.isolated == f.fault]
     delays = [f.delay_flights for f in correct if f.delay_flights is not None]
     print(f"detectable faults (alone on their engine, >= 3 flights with it, baseline in place, "

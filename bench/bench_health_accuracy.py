@@ -23,7 +23,13 @@ import _common  # noqa: F401  (import path)
 import numpy as np
 
 from app.engine_cache import engine_schedule
-from app.services import demo_fleet, health_accuracy, pipeline
+from app.services import demo_fleet, health_accuracy
+from app.services.estimator import (
+    MODEL_ERROR,
+    SnapshotEstimator,
+    build_estimator,
+    engine_schedule_for,
+)
 from app.services.models_designs import design_step
 from estimation.engine.fleet import fleet_snapshots, plan_fleet
 from estimation.model import LinearModel
@@ -38,19 +44,19 @@ DESIGNS = ("subset:10", "subset:8", "svd:9", "svd:8", "svd:6", "optimal:8", "svd
 OBSERVABLE = 0.1
 
 
-def estimator(sched, method: str, m: int, biases: bool = False) -> pipeline.SnapshotEstimator:
+def estimator(sched, method: str, m: int, biases: bool = False) -> SnapshotEstimator:
     p = demo_fleet.DESIGN_POINT
     model = sched.model_at(p["alt"], p["mach"], p["power"])
     sensors = [n for n in model.sensor_names if n != "Wf"]
     health = demo_fleet.HEALTH + (demo_fleet.ACTUATOR_BIASES if biases else ())
     result = design_step(model, demo_fleet.design_spec(method, m, sensors, health))
     embedded = LinearModel.from_dict(result["model"])
-    return pipeline.build_estimator(
-        0, embedded, result, pipeline.engine_schedule_for(embedded, sched)
+    return build_estimator(
+        0, embedded, result, engine_schedule_for(embedded, sched)
     )
 
 
-def ranks(est: pipeline.SnapshotEstimator) -> str:
+def ranks(est: SnapshotEstimator) -> str:
     """Singular values / rank of G_y (noise-scaled) at cruise, take-off, and both stacked."""
     cruise = np.array([[35000.0, 0.8, 0.0, 80.0]])
     takeoff = np.array([[0.0, 0.2, 15.0, 100.0]])
@@ -59,7 +65,7 @@ def ranks(est: pipeline.SnapshotEstimator) -> str:
     for name, c in (("cruise", cruise), ("takeoff", takeoff)):
         g = est.schedule(c)
         noise = est.noise_std if g.noise_std is None else np.sqrt(
-            g.noise_std[0] ** 2 + pipeline.MODEL_ERROR**2)
+            g.noise_std[0] ** 2 + MODEL_ERROR**2)
         A = g.G_y[0] / noise[:, None]
         stacked.append(A)
         sv = np.linalg.svd(A, compute_uv=False)
@@ -71,7 +77,7 @@ def ranks(est: pipeline.SnapshotEstimator) -> str:
     return "; ".join(out)
 
 
-def fleet_average(est: pipeline.SnapshotEstimator, tracks, flights: int) -> str:
+def fleet_average(est: SnapshotEstimator, tracks, flights: int) -> str:
     """Fleet-average h_hat vs true h over the first and last 60 rounds (about a month), and
     the most deteriorated value of any engine (settled records), estimated vs true."""
     rounds = np.concatenate([t.round for t in tracks])

@@ -60,7 +60,7 @@ from app.main import create_app  # noqa: E402
 from app.migrate import upgrade  # noqa: E402
 from app.models import EngineModel, EstimatorDesign  # noqa: E402
 from app.models.ingest import SNAPSHOT_COLUMNS  # noqa: E402
-from app.services import fleet, pipeline, tenancy  # noqa: E402
+from app.services import estimator, fleet, pipeline, tenancy  # noqa: E402
 from app.services.ingest import SNAPSHOT_PG_TYPES, snapshot_table  # noqa: E402
 from app.services.pgcopy import binary_copy_payload  # noqa: E402
 from estimation.tuners import svd_vstar  # noqa: E402
@@ -148,7 +148,7 @@ def snapshots(n: int, tails: int, start: datetime, seed: int) -> pa.Table:
     )
 
 
-def add_design(url: str, operator_id: int) -> pipeline.SnapshotEstimator:
+def add_design(url: str, operator_id: int) -> estimator.SnapshotEstimator:
     """The reference linear model and an active six-tuner design on the operator's engine type
     (the one ``build_fleet`` made); returns the estimator the pipeline will build from them."""
     model = reference_model()
@@ -172,17 +172,17 @@ def add_design(url: str, operator_id: int) -> pipeline.SnapshotEstimator:
             name="bench", spec={}, status="ready", active=True, result=result,
         ))
     engine.dispose()
-    return pipeline.build_estimator(0, model, result)
+    return estimator.build_estimator(0, model, result)
 
 
 def healthy_snapshots(
-    n: int, tails: int, start: datetime, seed: int, est: pipeline.SnapshotEstimator
+    n: int, tails: int, start: datetime, seed: int, est: estimator.SnapshotEstimator
 ) -> pa.Table:
     """``snapshots`` with the design's sensors and actuators at their trims plus 0.1 % noise."""
     rows = snapshots(n, tails, start, seed)
     rng = np.random.default_rng(seed + 10_000)
     g = est.schedule(np.zeros((1, 4)))
-    by_column = {spec.column: name for name, spec in pipeline.SNAPSHOT_SIGNALS.items()}
+    by_column = {spec.column: name for name, spec in estimator.SNAPSHOT_SIGNALS.items()}
     for columns, trims in ((est.sensor_columns, g.y_trim[0]), (est.input_columns, g.u_trim[0])):
         for column, trim in zip(columns, trims, strict=True):
             if column:

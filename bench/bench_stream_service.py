@@ -38,7 +38,7 @@ from app.db import make_engine, make_sessionmaker
 from app.main import create_app
 from app.migrate import upgrade
 from app.models import EngineModel, EstimatorDesign
-from app.services import fleet, pipeline, stream_estimation
+from app.services import estimator, fleet, stream_estimation
 from app.services.tenancy import create_operator, issue_api_key
 from estimation.design import design_to_dict
 from estimation.kalman import filter_stream_states
@@ -63,7 +63,7 @@ def flight_table(model, n: int, seed: int = 0) -> pa.Table:
         y[k] = model.C @ x + model.D @ u[k] + model.M @ h
         x = model.A @ x + model.B @ u[k] + model.L @ h
     y += rng.normal(size=y.shape) * model.sensor_noise_std
-    gains = pipeline.single_point_schedule(model)(np.zeros((1, 4)))
+    gains = estimator.single_point_schedule(model)(np.zeros((1, 4)))
     cols = {"time_s": t, "alt_ft": np.full(n, 35000.0), "mach": np.full(n, 0.8),
             "dtamb_k": np.zeros(n), "power_pct": np.full(n, 85.0)}
     cols["Wf"] = gains.u_trim[0, 0] * (1 + u[:, 0] / 100)
@@ -232,7 +232,7 @@ def scheduled(minutes: float) -> None:
 
     sched = build_schedule({"alt": (0.0, 20000.0, 40000.0), "mach": (0.2, 0.5, 0.85),
                             "power": (60.0, 100.0)})
-    pipeline.builtin_schedule = lambda: sched  # type: ignore[assignment]
+    estimator.builtin_schedule = lambda: sched  # type: ignore[assignment]
     model = sched.model_at(20000.0, 0.5, 80.0).select_health(sched.template.health_names[:10])
     n = int(minutes * 60 / DT)
     f = np.linspace(0.0, 1.0, n)

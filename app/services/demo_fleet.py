@@ -29,7 +29,7 @@ from app.db import transaction
 from app.models import Engine, EngineType, Operator, Snapshot
 from app.models.estimates import Event
 from app.models.jobs import JobSchedule
-from app.services import fleet, ingest, maintenance, models_designs, pipeline
+from app.services import estimation_runs, estimator, fleet, ingest, maintenance, models_designs
 from app.services.demo import DEMO_OPERATOR
 from app.services.simulate_io import snapshot_table
 from estimation.engine.fleet import FleetConfig, fleet_snapshots, plan_fleet
@@ -92,7 +92,7 @@ def ensure_demo_fleet(
                     f"{summary['events']} events (reused)"
                 )
                 # Catch up if a previous first start stopped before estimating everything.
-                pipeline.catch_up(session, operator_id)
+                estimation_runs.catch_up(session, operator_id)
                 return summary
     started = time.monotonic()
     with transaction(factory) as session:
@@ -108,7 +108,9 @@ def ensure_demo_fleet(
         def progress(fraction: float, message: str | None = None) -> None:
             echo(f"  {100 * fraction:5.1f} %  {message or ''}")
 
-        result = pipeline.catch_up(session, operator_id, progress=progress, commit=session.commit)
+        result = estimation_runs.catch_up(
+            session, operator_id, progress=progress, commit=session.commit
+        )
         summary = _summary(session, operator_id)
     echo(
         f"demo fleet ready in {time.monotonic() - started:.0f} s: {summary['engines']} engines, "
@@ -137,7 +139,7 @@ def _designs(session: Session, operator_id: int, echo: Callable[[str], None]) ->
         session, operator_id=operator_id, name=ENGINE_TYPE,
         description="The generic two-spool turbofan built into fleethealth.",
     )
-    sched = pipeline.builtin_schedule()
+    sched = estimator.builtin_schedule()
     model = sched.model_at(DESIGN_POINT["alt"], DESIGN_POINT["mach"], DESIGN_POINT["power"])
     row, _created = models_designs.register_builtin_model(
         session, operator_id=operator_id, engine_type_id=engine_type.id,

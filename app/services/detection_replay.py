@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from app.services import pipeline
+from app.services import estimator, pipeline, shift_detection
 from estimation.engine.fleet import FleetPlan, Snapshots
 from estimation.engine.sensors import SENSOR_NAMES
 
@@ -136,7 +136,7 @@ class EngineData:
 
 
 def engine_runs(
-    plan: FleetPlan, snaps: Snapshots, est: pipeline.SnapshotEstimator,
+    plan: FleetPlan, snaps: Snapshots, est: estimator.SnapshotEstimator,
     phases: Sequence[str] = ("takeoff", "cruise"),
 ) -> list[EngineData]:
     """Every engine's snapshots of ``phases`` as pipeline runs from a fresh state.
@@ -151,7 +151,7 @@ def engine_runs(
         [snaps.alt_ft[keep], snaps.mach[keep], snaps.dtamb_k[keep], snaps.power_pct[keep]],
         axis=1,
     )
-    column_of = {spec.column: spec.name for spec in pipeline.SNAPSHOT_SIGNALS.values()}
+    column_of = {spec.column: spec.name for spec in estimator.SNAPSHOT_SIGNALS.values()}
     y_all = np.full((int(keep.sum()), len(est.sensor_columns)), np.nan)
     for i, col in enumerate(est.sensor_columns):
         if col:
@@ -175,7 +175,7 @@ def engine_runs(
         idx = np.flatnonzero(esn == name)
         idx = idx[np.argsort(t[idx], kind="stable")]
         run = pipeline.EngineRun(
-            engine_id=k, operator_id=0, seq0=0, state=pipeline.initial_state(est),
+            engine_id=k, operator_id=0, seq0=0, state=shift_detection.initial_state(est),
             epoch=t[idx], phase=list(phase[idx]),
             conditions=cond[idx], y=y_all[idx], u=u_all[idx],
             maintenance=np.array(sorted(maint.get(name, [])), dtype=float),
@@ -185,10 +185,10 @@ def engine_runs(
 
 
 def replay(
-    est: pipeline.SnapshotEstimator, engines: Sequence[EngineData], batch: int = 64
-) -> list[list[pipeline.EventDraft]]:
+    est: estimator.SnapshotEstimator, engines: Sequence[EngineData], batch: int = 64
+) -> list[list[shift_detection.EventDraft]]:
     """The pipeline's events per engine (``pipeline.run_filters`` in batches, as stored)."""
-    events: list[list[pipeline.EventDraft]] = []
+    events: list[list[shift_detection.EventDraft]] = []
     for start in range(0, len(engines), batch):
         runs = [e.run for e in engines[start : start + batch]]
         for out in pipeline.run_filters(est, runs):
@@ -196,7 +196,7 @@ def replay(
             pending = (out.state.get("detector") or {}).get("pending")
             if pending is not None:
                 # An alarm still awaiting its isolation when the data ends: detected, unnamed.
-                drafts.append(pipeline.EventDraft(
+                drafts.append(shift_detection.EventDraft(
                     int(pending["seq"]), float(pending["epoch"]), "pending", None, None,
                     float(pending["statistic"]), {}, {},
                 ))
@@ -208,7 +208,7 @@ VISIBILITY_RECORDS = 20
 
 
 def fault_noncentrality(
-    est: pipeline.SnapshotEstimator, run: pipeline.EngineRun, at: float, fault: str,
+    est: estimator.SnapshotEstimator, run: pipeline.EngineRun, at: float, fault: str,
     scale: float,
 ) -> float:
     """Visibility of a fault: sum_j g_j^T R_j^-1 g_j over the engine's first
@@ -222,7 +222,7 @@ def fault_noncentrality(
     g = est.schedule(run.conditions[k])
     dy = est.fault_signatures(g.G_y, g.G_u)[..., est.layout.faults.index(fault)] * scale
     noise = est.noise_std if g.noise_std is None else np.sqrt(
-        g.noise_std**2 + pipeline.MODEL_ERROR**2)
+        g.noise_std**2 + estimator.MODEL_ERROR**2)
     present = np.isfinite(run.y[k])
     return float(np.sum(np.where(present, (dy / noise) ** 2, 0.0)))
 
@@ -237,8 +237,9 @@ def _removal_after(plan: FleetPlan, esn: str, at: float) -> float:
 
 
 def score(
-    plan: FleetPlan, engines: Sequence[EngineData], events: Sequence[Sequence[pipeline.EventDraft]],
-    library: Sequence[str], est: pipeline.SnapshotEstimator | None = None,
+    plan: FleetPlan, engines: Sequence[EngineData],
+    events: Sequence[Sequence[shift_detection.EventDraft]],
+    library: Sequence[str], est: estimator.SnapshotEstimator | None = None,
 ) -> Score:
     """Compare drafted events with the plan's injected faults (see the module docstring)."""
     by_esn = {e.esn: (e, ev) for e, ev in zip(engines, events, strict=True)}

@@ -18,8 +18,9 @@ from sqlalchemy.orm import Session
 
 from app.models import Engine, EstimatorDesign
 from app.models.estimates import Estimate, EstimateLayout, FilterState
+from app.services.estimation_runs import pending_work
+from app.services.estimator import cusum_for
 from app.services.events import open_event_counts
-from app.services.pipeline import cusum_for, pending_work
 
 
 def fleet_diagnostics(

@@ -1,4 +1,5 @@
-"""Events: list, acknowledge, comment, close. The pipeline opens them (app/services/pipeline.py).
+"""Events: list, acknowledge, comment, close. The pipeline opens them
+(app/services/estimation_runs.py).
 
 Status moves open -> acknowledged -> closed (open -> closed directly is allowed too); a closed
 event cannot be acknowledged again, and acknowledging twice is a no-op, so a retried request does

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.services import detection_replay, pipeline
+from app.services import detection_replay, estimator, pipeline
 from estimation.engine.fleet import FleetPlan, Snapshots
 
 
@@ -77,7 +77,7 @@ class Accuracy:
 
 
 def tracks(
-    est: pipeline.SnapshotEstimator, plan: FleetPlan, snaps: Snapshots,
+    est: estimator.SnapshotEstimator, plan: FleetPlan, snaps: Snapshots,
     phases: Sequence[str] = ("takeoff", "cruise"), settle: int = 30, batch: int = 64,
 ) -> list[HealthTrack]:
     """Every engine's h_hat (``pipeline.run_filters``) next to the plan's true health."""
@@ -111,7 +111,7 @@ def _slope(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return (xc @ (y - y.mean(axis=0))) / (xc @ xc)
 
 
-def accuracy(est: pipeline.SnapshotEstimator, track_list: Sequence[HealthTrack],
+def accuracy(est: estimator.SnapshotEstimator, track_list: Sequence[HealthTrack],
              min_records: int = 20) -> Accuracy:
     """Bias, RMS error, end-of-data error and slopes over settled records (see the module)."""
     err = np.concatenate([t.h_hat[t.settled] - t.h_true[t.settled] for t in track_list])

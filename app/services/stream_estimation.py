@@ -53,7 +53,7 @@ from app.models.base import utcnow
 from app.models.estimates import EstimateLayout
 from app.models.ingest import ACTUATORS, SENSORS, SignalSpec
 from app.models.stream_estimates import StreamEstimate, StreamFilterState
-from app.services import fleet, models_designs, pipeline, streams, units
+from app.services import estimator, fleet, models_designs, streams, units
 from estimation.engine.schedule import EngineSchedule
 from estimation.kalman import filter_stream_states, steady_state_gain
 from estimation.model import LinearModel
@@ -226,7 +226,7 @@ def estimator_for(
         raise StreamEstimationError(f"design {design.id}: its engine model is missing")
     result = design.result
     embedded = result.get("model")
-    sched = pipeline.builtin_schedule() if row.source == "builtin" else None
+    sched = estimator.builtin_schedule() if row.source == "builtin" else None
     key = (design.id, _document_key(result, None if isinstance(embedded, Mapping)
                                     else row.content), tuple(signals), id(sched))
     cached = _ESTIMATORS.get(key)
@@ -243,7 +243,7 @@ def estimator_for(
             f"the recording carries none of design {design.id}'s sensors {model.sensor_names}"
         )
     model = model.select_sensors(used)
-    vstar_doc = pipeline._find(result, "vstar")
+    vstar_doc = estimator._find(result, "vstar")
     if vstar_doc is None:
         raise StreamEstimationError(f"design {design.id} has no V* (vstar)")
     vstar = np.asarray(vstar_doc, float)

@@ -12,7 +12,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from app.models import Engine, EngineType, Installation, Snapshot
 from app.models.estimates import Estimate
 from app.models.jobs import JobSchedule
-from app.services import demo_fleet, fleet_status, pipeline
+from app.services import demo_fleet, estimation_runs, estimator, fleet_status
 from app.services.demo import ensure_demo_operator
 from estimation.engine.schedule import EngineSchedule, build_schedule
 
@@ -29,7 +29,7 @@ def test_demo_fleet_is_seeded_once_and_estimated(
     session_factory: sessionmaker[Session], session: Session, tmp_path: Path,
     coarse_schedule: EngineSchedule, monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    monkeypatch.setattr(pipeline, "builtin_schedule", lambda: coarse_schedule)
+    monkeypatch.setattr(estimator, "builtin_schedule", lambda: coarse_schedule)
     with session_factory() as s:
         ensure_demo_operator(s, tmp_path)
         s.commit()
@@ -52,7 +52,7 @@ def test_demo_fleet_is_seeded_once_and_estimated(
         select(func.count()).select_from(Estimate).where(Estimate.operator_id == operator_id)
     )
     assert estimates == snapshots
-    assert pipeline.pending_work(session, operator_id) == {}
+    assert estimation_runs.pending_work(session, operator_id) == {}
     status = fleet_status.fleet_status(session, operator_id)
     installed = session.scalar(
         select(func.count()).select_from(Installation).where(

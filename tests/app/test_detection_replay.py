@@ -19,7 +19,14 @@ import numpy as np
 import pytest
 
 from app.services import demo_fleet, detection_replay, pipeline
+from app.services.estimator import (
+    SnapshotEstimator,
+    build_estimator,
+    engine_schedule_for,
+    exact_nominal_trims,
+)
 from app.services.models_designs import design_step
+from app.services.shift_detection import GAP, N_BASE
 from estimation.engine.fleet import fleet_snapshots, plan_fleet
 from estimation.engine.schedule import EngineSchedule, build_schedule
 from estimation.engine.sensors import SENSOR_NAMES
@@ -39,20 +46,20 @@ def schedule() -> EngineSchedule:
 
 
 @pytest.fixture(scope="module")
-def estimator(schedule: EngineSchedule) -> pipeline.SnapshotEstimator:
+def estimator(schedule: EngineSchedule) -> SnapshotEstimator:
     """The demo's active design (all ten health parameters as tuners) on the built-in engine."""
     p = demo_fleet.DESIGN_POINT
     model = schedule.model_at(p["alt"], p["mach"], p["power"])
     sensors = [n for n in model.sensor_names if n != "Wf"]
     result = design_step(model, demo_fleet.design_spec("subset", 10, sensors))
     embedded = LinearModel.from_dict(result["model"])
-    return pipeline.build_estimator(
-        0, embedded, result, pipeline.engine_schedule_for(embedded, schedule)
+    return build_estimator(
+        0, embedded, result, engine_schedule_for(embedded, schedule)
     )
 
 
 def _score(
-    est: pipeline.SnapshotEstimator, size: demo_fleet.DemoSize, seed: int
+    est: SnapshotEstimator, size: demo_fleet.DemoSize, seed: int
 ) -> detection_replay.Score:
     plan_rng, snap_rng = np.random.default_rng(seed).spawn(2)
     plan = plan_fleet(demo_fleet.fleet_config(size), plan_rng)
@@ -63,7 +70,7 @@ def _score(
 
 
 def _check_targets(result: detection_replay.Score, min_faults: int) -> None:
-    wanted = result.detectable(MIN_FLIGHTS, pipeline.N_BASE + pipeline.GAP, MIN_NONCENTRALITY)
+    wanted = result.detectable(MIN_FLIGHTS, N_BASE + GAP, MIN_NONCENTRALITY)
     assert len(wanted) >= min_faults, result.report()  # enough faults for the rate to mean much
     correct = [f for f in wanted if f.isolated == f.fault]
     assert len(correct) >= TARGET_CORRECT * len(wanted), result.report()
@@ -77,7 +84,7 @@ def _check_targets(result: detection_replay.Score, min_faults: int) -> None:
 
 
 def test_faults_are_detected_and_isolated_on_a_simulated_fleet(
-    estimator: pipeline.SnapshotEstimator,
+    estimator: SnapshotEstimator,
 ) -> None:
     size = demo_fleet.DemoSize(aircraft=8, flights=400, fault_rate=1.0 / 150.0)
     _check_targets(_score(estimator, size, seed=11), min_faults=10)
@@ -85,13 +92,13 @@ def test_faults_are_detected_and_isolated_on_a_simulated_fleet(
 
 @pytest.mark.slow
 def test_faults_are_detected_and_isolated_on_a_large_fleet(
-    estimator: pipeline.SnapshotEstimator,
+    estimator: SnapshotEstimator,
 ) -> None:
     size = demo_fleet.DemoSize(aircraft=20, flights=730, fault_rate=1.0 / 500.0)
     _check_targets(_score(estimator, size, seed=7), min_faults=30)
 
 
-def test_no_alarm_on_a_fleet_without_faults(estimator: pipeline.SnapshotEstimator) -> None:
+def test_no_alarm_on_a_fleet_without_faults(estimator: SnapshotEstimator) -> None:
     size = demo_fleet.DemoSize(aircraft=6, flights=300, fault_rate=0.0)
     result = _score(estimator, size, seed=5)
     assert result.faults == []
@@ -110,14 +117,14 @@ def test_trims_are_the_steady_state_solution_whatever_the_batch(
     ])
     conditions[-1] = [50000.0, 0.8, 0.0, 90.0]  # outside the envelope: interpolated
     interpolated = schedule.trims_at(conditions[:, [0, 1, 3, 2]])
-    whole = pipeline.exact_nominal_trims(conditions, interpolated)
+    whole = exact_nominal_trims(conditions, interpolated)
     # Each record alone, by the solver directly.
     for i in (0, 7, n - 2):
         one = steady_state(conditions[i, :3], power=conditions[i, 3])
         for k, name in enumerate(SENSOR_NAMES):
             assert whole[name][i] == pytest.approx(one.sensors[k], rel=1e-9)
     # A record's trim does not depend on the records beside it: bit-identical in a subset.
-    part = pipeline.exact_nominal_trims(
+    part = exact_nominal_trims(
         conditions[5:12], {k: v[5:12] for k, v in interpolated.items()}
     )
     for name in SENSOR_NAMES:
@@ -130,7 +137,7 @@ def test_trims_are_the_steady_state_solution_whatever_the_batch(
     assert worst > 1e-3
 
 
-def test_sensor_noise_is_constant_in_sensor_units(estimator: pipeline.SnapshotEstimator) -> None:
+def test_sensor_noise_is_constant_in_sensor_units(estimator: SnapshotEstimator) -> None:
     conditions = np.array([[0.0, 0.0, 0.0, 100.0], [35000.0, 0.8, 0.0, 80.0]])
     g = estimator.schedule(conditions)
     assert g.noise_std is not None
@@ -142,7 +149,7 @@ def test_sensor_noise_is_constant_in_sensor_units(estimator: pipeline.SnapshotEs
 
 
 def test_split_run_on_the_built_in_engine_equals_one_run(
-    estimator: pipeline.SnapshotEstimator,
+    estimator: SnapshotEstimator,
 ) -> None:
     """Exact trims and per-record noise keep a run split over uploads bit-identical to one
     uninterrupted run (records grouped differently into solver batches and chunks)."""
@@ -169,7 +176,7 @@ def test_split_run_on_the_built_in_engine_equals_one_run(
 
 
 def test_batched_detector_equals_the_per_record_detector(
-    estimator: pipeline.SnapshotEstimator, monkeypatch: pytest.MonkeyPatch,
+    estimator: SnapshotEstimator, monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """The detector's batched run (baselines, level statistics and WSSR of a run of records
     at once) gives byte for byte the rows, events, checkpoints and end states of
@@ -203,7 +210,7 @@ def test_an_actuator_bias_in_the_health_vector_is_one_fault_column(
                                   demo_fleet.HEALTH + demo_fleet.ACTUATOR_BIASES)
     result = design_step(model, spec)
     embedded = LinearModel.from_dict(result["model"])
-    est = pipeline.build_estimator(0, embedded, result)
+    est = build_estimator(0, embedded, result)
     assert est.bias_inputs == ()  # every input's bias is a health parameter here
     health = list(embedded.health_names)
     assert est.S_full.shape[0] == len(health)
@@ -214,6 +221,6 @@ def test_an_actuator_bias_in_the_health_vector_is_one_fault_column(
     # Without them in the health vector, the same faults act through the input columns.
     plain = demo_fleet.design_spec("svd", 8, sensors)
     result = design_step(model, plain)
-    est = pipeline.build_estimator(0, LinearModel.from_dict(result["model"]), result)
+    est = build_estimator(0, LinearModel.from_dict(result["model"]), result)
     assert len(est.bias_inputs) == len(embedded.input_names)
     assert est.S_full.shape[0] == len(demo_fleet.HEALTH) + len(est.bias_inputs)

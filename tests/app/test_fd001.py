@@ -16,7 +16,7 @@ from sqlalchemy.orm import Session
 
 from app.cli.importers import CMAPSS_SENSORS, ENGINE_TYPE, import_cmapss
 from app.models import Engine, EngineType
-from app.services import models_designs, pipeline, tenancy, trends
+from app.services import estimation_runs, estimator, models_designs, tenancy, trends
 from estimation.engine.schedule import EngineSchedule, build_schedule
 
 FD001 = Path(__file__).resolve().parents[3] / "shared" / "data" / "cmapss" / "train_FD001.txt"
@@ -35,7 +35,7 @@ def test_hpc_carries_the_largest_deterioration_at_end_of_life(
     client: TestClient, session: Session, fd001_schedule: EngineSchedule,
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    monkeypatch.setattr(pipeline, "builtin_schedule", lambda: fd001_schedule)
+    monkeypatch.setattr(estimator, "builtin_schedule", lambda: fd001_schedule)
     operator = tenancy.create_operator(session, name=f"FD001 {uuid.uuid4().hex[:8]}")
     _row, key = tenancy.issue_api_key(session, operator=operator, role="analyst", name="fd")
     session.commit()
@@ -63,7 +63,7 @@ def test_hpc_carries_the_largest_deterioration_at_end_of_life(
     )
     models_designs.run_design(session, design, models_designs.design_step)
     models_designs.activate_design(session, operator_id=operator.id, design_id=design.id)
-    summary = pipeline.catch_up(session, operator.id)
+    summary = estimation_runs.catch_up(session, operator.id)
     assert summary["engines"] == UNITS
 
     engines = session.scalars(select(Engine).where(Engine.operator_id == operator.id)).all()

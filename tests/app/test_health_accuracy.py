@@ -26,7 +26,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from app.services import demo_fleet, health_accuracy, pipeline
+from app.services import demo_fleet, estimator, health_accuracy
 from app.services.models_designs import design_step
 from estimation.engine.fleet import FleetPlan, Snapshots, fleet_snapshots, plan_fleet
 from estimation.engine.schedule import EngineSchedule, build_schedule
@@ -43,19 +43,19 @@ def schedule() -> EngineSchedule:
 
 def _estimator(
     schedule: EngineSchedule, method: str, m: int, health: tuple[str, ...] = demo_fleet.HEALTH
-) -> pipeline.SnapshotEstimator:
+) -> estimator.SnapshotEstimator:
     p = demo_fleet.DESIGN_POINT
     model = schedule.model_at(p["alt"], p["mach"], p["power"])
     sensors = [n for n in model.sensor_names if n != "Wf"]
     result = design_step(model, demo_fleet.design_spec(method, m, sensors, health))
     embedded = LinearModel.from_dict(result["model"])
-    return pipeline.build_estimator(
-        0, embedded, result, pipeline.engine_schedule_for(embedded, schedule)
+    return estimator.build_estimator(
+        0, embedded, result, estimator.engine_schedule_for(embedded, schedule)
     )
 
 
 @pytest.fixture(scope="module")
-def active(schedule: EngineSchedule) -> pipeline.SnapshotEstimator:
+def active(schedule: EngineSchedule) -> estimator.SnapshotEstimator:
     return _estimator(schedule, *demo_fleet.ACTIVE_DESIGN)
 
 
@@ -66,7 +66,7 @@ def _fleet(**changes: object) -> tuple[FleetPlan, Snapshots]:
     return plan, fleet_snapshots(plan, snap_rng)
 
 
-def _unrepresented(est: pipeline.SnapshotEstimator,
+def _unrepresented(est: estimator.SnapshotEstimator,
                    tracks: list[health_accuracy.HealthTrack]) -> np.ndarray:
     """Per record, the true health the tuners cannot represent: (I - V*^+ V*) h [S, p]."""
     p = est.Vp.shape[0]
@@ -75,7 +75,7 @@ def _unrepresented(est: pipeline.SnapshotEstimator,
 
 
 def test_health_error_is_within_the_filters_sigma_where_its_model_holds(
-    active: pipeline.SnapshotEstimator,
+    active: estimator.SnapshotEstimator,
 ) -> None:
     plan, snaps = _fleet(bias_std=(0.0, 0.0, 0.0), initial_cycles_max=500.0, fault_rate=0.0)
     tracks = health_accuracy.tracks(active, plan, snaps)
@@ -87,7 +87,7 @@ def test_health_error_is_within_the_filters_sigma_where_its_model_holds(
 
 
 def test_trend_changes_follow_the_truth_on_the_demo_configuration(
-    active: pipeline.SnapshotEstimator,
+    active: estimator.SnapshotEstimator,
 ) -> None:
     plan, snaps = _fleet()
     tracks = health_accuracy.tracks(active, plan, snaps)
@@ -102,7 +102,7 @@ def test_trend_changes_follow_the_truth_on_the_demo_configuration(
 
 
 def test_spanning_the_actuator_biases_brings_the_levels_closer_to_the_truth(
-    schedule: EngineSchedule, active: pipeline.SnapshotEstimator,
+    schedule: EngineSchedule, active: estimator.SnapshotEstimator,
 ) -> None:
     plan, snaps = _fleet()
     mine = health_accuracy.accuracy(active, health_accuracy.tracks(active, plan, snaps))

@@ -13,7 +13,7 @@ from sqlalchemy.orm import Session
 
 from app.models import EngineModel, MaintenanceAction, Snapshot
 from app.models.estimates import Estimate, Event, FilterState
-from app.services import pipeline
+from app.services import estimation_runs, estimator
 from estimation import isolation
 from estimation.model import LinearModel
 from estimation.tuners import svd_vstar
@@ -45,7 +45,7 @@ def _records(seed: int, fault: str | None = None, at: int = 0, jump: np.ndarray 
     """Times and stored sensor values of N snapshots (two per flight) with slow deterioration,
     optionally a library fault from record ``at`` and a health jump from ``jump_at``."""
     model = _model()
-    est = pipeline.build_estimator(0, model, {"vstar": svd_vstar(model, M_TUNERS).tolist()})
+    est = estimator.build_estimator(0, model, {"vstar": svd_vstar(model, M_TUNERS).tolist()})
     G_y, _ = model.steady_state_gains()
     rng = np.random.default_rng(seed)
     h = -np.linspace(0.0, 1.0, N)[:, None] * np.ones(model.n_health)
@@ -105,17 +105,17 @@ def test_split_and_late_uploads_equal_one_uninterrupted_run(session: Session) ->
     whole, split, late = (add_engine(session, fleet, esn) for esn in ("W1", "S1", "L1"))
 
     start = _store(session, fleet, whole.id, aircraft.id, times, y, range(N))
-    pipeline.estimate_engines(session, fleet.operator_id, {whole.id: start})
+    estimation_runs.estimate_engines(session, fleet.operator_id, {whole.id: start})
 
     # The same records in three uploads, the pipeline running after each (a restart each time).
     for part in (range(0, 300), range(300, 301), range(301, N)):
         start = _store(session, fleet, split.id, aircraft.id, times, y, part)
-        pipeline.estimate_engines(session, fleet.operator_id, {split.id: start})
+        estimation_runs.estimate_engines(session, fleet.operator_id, {split.id: start})
 
     # Out of order: the middle arrives last and re-runs the engine from before it.
     for part in (range(0, 250), range(700, N), range(250, 700)):
         start = _store(session, fleet, late.id, aircraft.id, times, y, part)
-        summary = pipeline.estimate_engines(session, fleet.operator_id, {late.id: start})
+        summary = estimation_runs.estimate_engines(session, fleet.operator_id, {late.id: start})
     assert summary["reruns"] == 1
 
     reference = _rows(session, whole.id)
@@ -133,7 +133,7 @@ def test_split_and_late_uploads_equal_one_uninterrupted_run(session: Session) ->
     assert states[split.id] == states[whole.id] == states[late.id]
 
     # Running again with nothing new changes nothing and duplicates nothing.
-    pipeline.estimate_engines(session, fleet.operator_id, {whole.id: times[0]})
+    estimation_runs.estimate_engines(session, fleet.operator_id, {whole.id: times[0]})
     assert _rows(session, whole.id) == reference
     count = session.scalar(
         select(func.count()).select_from(Estimate).where(Estimate.engine_id == whole.id)
@@ -152,7 +152,7 @@ def test_library_fault_opens_an_event_isolated_to_it(session: Session) -> None:
         times, y = _records(seed=seed, fault=fault, at=450)
         affected[engine.id] = _store(session, fleet, engine.id, aircraft.id, times, y, range(N))
         engines[fault] = engine
-    pipeline.estimate_engines(session, fleet.operator_id, affected)
+    estimation_runs.estimate_engines(session, fleet.operator_id, affected)
     for fault, engine in engines.items():
         events = session.scalars(select(Event).where(Event.engine_id == engine.id)).all()
         if fault is None:
@@ -184,7 +184,7 @@ def test_maintenance_action_restarts_the_baseline(session: Session) -> None:
         e.id: _store(session, fleet, e.id, aircraft.id, times, y, range(N))
         for e in (without, with_action)
     }
-    pipeline.estimate_engines(session, fleet.operator_id, affected)
+    estimation_runs.estimate_engines(session, fleet.operator_id, affected)
     # Unannounced, the recovery is a shift; after the recorded shop visit it is the new normal.
     assert [e[0] >= 600 for e in _events(session, without.id)] == [True]
     assert _events(session, with_action.id) == []
@@ -196,14 +196,16 @@ def test_catch_up_estimates_exactly_the_snapshots_without_estimates(session: Ses
     times, y = _records(seed=31)
     engine = add_engine(session, fleet, "CU1")
     _store(session, fleet, engine.id, aircraft.id, times, y, range(0, 200))
-    assert pipeline.pending_work(session, fleet.operator_id) == {engine.id: times[0]}
-    first = pipeline.catch_up(session, fleet.operator_id)
-    assert first["records"] == 200 and pipeline.pending_work(session, fleet.operator_id) == {}
+    assert estimation_runs.pending_work(session, fleet.operator_id) == {engine.id: times[0]}
+    first = estimation_runs.catch_up(session, fleet.operator_id)
+    assert (
+        first["records"] == 200 and estimation_runs.pending_work(session, fleet.operator_id) == {}
+    )
     _store(session, fleet, engine.id, aircraft.id, times, y, range(200, 260))
-    assert pipeline.pending_work(session, fleet.operator_id) == {engine.id: times[200]}
-    second = pipeline.catch_up(session, fleet.operator_id)
+    assert estimation_runs.pending_work(session, fleet.operator_id) == {engine.id: times[200]}
+    second = estimation_runs.catch_up(session, fleet.operator_id)
     assert second["records"] == 60 and second["reruns"] == 0
-    assert pipeline.catch_up(session, fleet.operator_id)["records"] == 0
+    assert estimation_runs.catch_up(session, fleet.operator_id)["records"] == 0
     assert [r[0] for r in _rows(session, engine.id)] == list(range(260))
 
 
@@ -216,7 +218,7 @@ def test_fleet_diagnostics_summarises_and_queues_estimation(session: Session) ->
     times, y = _records(seed=41, fault="HPC", at=450)
     engine = add_engine(session, fleet, "DX1")
     _store(session, fleet, engine.id, aircraft.id, times, y, range(0, 800))
-    pipeline.catch_up(session, fleet.operator_id)
+    estimation_runs.catch_up(session, fleet.operator_id)
     summary = fleet_diagnostics(session, FleetDiagnostics(), lambda *a: None,
                                 operator_id=fleet.operator_id)
     events = _events(session, engine.id)
@@ -239,17 +241,20 @@ def test_rerun_keeps_what_people_did_with_an_event(session: Session) -> None:
     times, y = _records(seed=7, fault="HPC", at=500)
     reference, engine = add_engine(session, fleet, "ACK0"), add_engine(session, fleet, "ACK1")
     start = _store(session, fleet, reference.id, aircraft.id, times, y, range(N))
-    pipeline.estimate_engines(session, fleet.operator_id, {reference.id: start})
+    estimation_runs.estimate_engines(session, fleet.operator_id, {reference.id: start})
     start = _store(session, fleet, engine.id, aircraft.id, times, y,
                    [i for i in range(N) if i != 100])
-    pipeline.estimate_engines(session, fleet.operator_id, {engine.id: start})
+    estimation_runs.estimate_engines(session, fleet.operator_id, {engine.id: start})
     event = session.scalars(select(Event).where(Event.engine_id == engine.id)).one()
     event.status = "acknowledged"
     session.add(EventComment(event_id=event.id, author="test", body="borescope booked"))
     session.flush()
 
     late = _store(session, fleet, engine.id, aircraft.id, times, y, [100])
-    assert pipeline.estimate_engines(session, fleet.operator_id, {engine.id: late})["reruns"] == 1
+    assert (
+        estimation_runs.estimate_engines(session, fleet.operator_id, {engine.id: late})["reruns"]
+        == 1
+    )
     session.expire_all()
     kept = session.scalars(select(Event).where(Event.engine_id == engine.id)).one()
     assert kept.id == event.id and kept.status == "acknowledged"

@@ -26,7 +26,7 @@ from app.config import Settings
 from app.models import Engine, EngineModel, EstimatorDesign, Job
 from app.models.estimates import EstimateLayout
 from app.models.stream_estimates import StreamEstimate, StreamFilterState
-from app.services import pipeline, stream_estimation
+from app.services import estimator, stream_estimation
 from estimation.design import design_to_dict
 from estimation.engine.schedule import build_schedule
 from estimation.model import LinearModel
@@ -94,7 +94,7 @@ def _simulate(model: LinearModel, n: int, q_true: np.ndarray, seed: int) -> pa.T
         y[k] = model.C @ x + model.D @ u[k] + model.M @ h
         x = model.A @ x + model.B @ u[k] + model.L @ h
     y += rng.normal(size=y.shape) * model.sensor_noise_std
-    gains = pipeline.single_point_schedule(model)(np.zeros((1, 4)))
+    gains = estimator.single_point_schedule(model)(np.zeros((1, 4)))
     y_stored = gains.y_trim[0] * (1.0 + y / 100.0)
     u_stored = gains.u_trim[0] * (1.0 + u / 100.0)
     columns: dict[str, Any] = {
@@ -275,7 +275,7 @@ def test_the_schedule_splits_a_climb_into_gain_segments_whatever_the_chunking(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     sched = build_schedule({"alt": (0.0, 40000.0), "mach": (0.2, 0.85), "power": (60.0, 100.0)})
-    monkeypatch.setattr(pipeline, "builtin_schedule", lambda: sched)
+    monkeypatch.setattr(estimator, "builtin_schedule", lambda: sched)
     model = sched.model_at(20000.0, 0.5, 80.0).select_health(sched.template.health_names[:10])
     noise = reference_noise(model)
     design = design_filter(model, svd_vstar(model, 6), noise["Q"], noise["Qh"], noise["Ph"])

@@ -67,7 +67,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     from app.db import make_engine, make_sessionmaker
     from app.main import create_app
     from app.migrate import upgrade
-    from app.services import pipeline
+    from app.services import estimator
     from estimation.engine.schedule import build_schedule
     from tests.browser.seed import seed
 
@@ -76,7 +76,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     upgrade(url)
     schedule = build_schedule()
     patch = pytest.MonkeyPatch()
-    patch.setattr(pipeline, "builtin_schedule", lambda: schedule)
+    patch.setattr(estimator, "builtin_schedule", lambda: schedule)
     engine = make_engine(url)
     factory = make_sessionmaker(engine)
     seeded = seed(factory)

@@ -24,7 +24,15 @@ from app.jobs import store
 from app.jobs.registry import load_kinds
 from app.jobs.runner import run_pending
 from app.models.estimates import Event
-from app.services import fleet, ingest, maintenance, models_designs, pipeline, tenancy
+from app.services import (
+    estimation_runs,
+    estimator,
+    fleet,
+    ingest,
+    maintenance,
+    models_designs,
+    tenancy,
+)
 from app.services.simulate_io import snapshot_table
 from estimation.engine.fleet import FleetConfig, fleet_snapshots, plan_fleet
 
@@ -50,7 +58,7 @@ class Seeded:
 
 
 def _designs(session: Session, operator_id: int, type_id: int) -> tuple[int, list[int]]:
-    model = pipeline.builtin_schedule().model_at(*DESIGN_POINT)
+    model = estimator.builtin_schedule().model_at(*DESIGN_POINT)
     row, _ = models_designs.register_builtin_model(
         session, operator_id=operator_id, engine_type_id=type_id, name="built-in cruise",
         model=model,
@@ -149,7 +157,7 @@ def seed(factory: sessionmaker[Session]) -> Seeded:
             content_format="parquet",
         )
     with transaction(factory) as session:
-        pipeline.catch_up(session, op_id)
+        estimation_runs.catch_up(session, op_id)
     _evaluate(factory, op_id, out.design_ids[0])
     with transaction(factory) as session:
         event = session.scalars(

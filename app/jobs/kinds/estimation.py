@@ -10,7 +10,7 @@ from sqlalchemy.orm import Session
 
 from app.jobs import store
 from app.jobs.registry import Progress, registry
-from app.services import diagnostics, pipeline
+from app.services import diagnostics, estimation_runs
 
 # The default schedule of the fleet-wide diagnostic job (seconds): once a day.
 FLEET_DIAGNOSTICS_INTERVAL = 24 * 3600
@@ -32,7 +32,7 @@ class EstimateEngines(BaseModel):
 def estimate_engines(
     session: Session, parameters: EstimateEngines, progress: Progress, *, operator_id: int
 ) -> dict[str, Any]:
-    return pipeline.catch_up(session, operator_id, progress=progress, commit=session.commit)
+    return estimation_runs.catch_up(session, operator_id, progress=progress, commit=session.commit)
 
 
 class FleetDiagnostics(BaseModel):
