@@ -89,6 +89,8 @@ SENSORS = (
     SignalSpec("T50", "temperature", "degR", 0.0),
     SignalSpec("P15", "pressure", "psia", 0.0),
 )
+# alt_ft, mach, dtamb_k, power_pct: the operating condition as stored
+CONDITION_COLUMNS = tuple(s.column for s in OPERATING_CONDITION)
 MEASURED = ACTUATORS + SENSORS  # nullable: NULL is a missing value
 SIGNALS = OPERATING_CONDITION + MEASURED
 

@@ -28,10 +28,9 @@ from sqlalchemy.orm import Session
 
 from app.models import Snapshot
 from app.models.estimates import VALUE_DTYPE, Estimate
-from app.models.ingest import OPERATING_CONDITION, PHASES
+from app.models.ingest import CONDITION_COLUMNS, PHASES
 from app.services.pgcopy import HEADER, PG_EPOCH_US, TRAILER, fixed_copy_rows
 
-CONDITION_COLUMNS = tuple(s.column for s in OPERATING_CONDITION)
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 _MICROSECOND = timedelta(microseconds=1)
 ESTIMATE_COLUMNS = ("operator_id", "engine_id", "design_id", "seq", "recorded_at", "phase",

@@ -25,7 +25,7 @@ from sqlalchemy.orm import Session
 
 from app.models import EngineModel, EstimatorDesign
 from app.models.estimates import EstimateLayout
-from app.models.ingest import ACTUATORS, OPERATING_CONDITION, SENSORS, SignalSpec
+from app.models.ingest import ACTUATORS, SENSORS, SignalSpec
 from app.services import units
 from estimation import isolation
 from estimation.detection import CusumDesign, design_cusum
@@ -50,7 +50,6 @@ START_STD = 5.0
 MODEL_ERROR = 0.2
 
 SNAPSHOT_SIGNALS: dict[str, SignalSpec] = {s.name: s for s in SENSORS + ACTUATORS}
-CONDITION_COLUMNS = tuple(s.column for s in OPERATING_CONDITION)
 
 
 class PipelineError(RuntimeError):

@@ -51,7 +51,7 @@ from app.errors import NotFound
 from app.models import Engine, EngineModel, EstimatorDesign, StreamChunk, StreamRecording
 from app.models.base import utcnow
 from app.models.estimates import EstimateLayout
-from app.models.ingest import ACTUATORS, SENSORS, SignalSpec
+from app.models.ingest import ACTUATORS, CONDITION_COLUMNS, SENSORS, SignalSpec
 from app.models.stream_estimates import StreamEstimate, StreamFilterState
 from app.services import estimator, fleet, models_designs, streams, units
 from estimation.engine.schedule import EngineSchedule
@@ -66,7 +66,6 @@ PIECE = 65_536  # samples filtered per pass (bounds memory; aligned on windows)
 # Noise when a design document does not carry it (per sample of the design model).
 DEFAULT_Q_STD = 0.01
 DEFAULT_QH_STD = 0.01
-CONDITION_COLUMNS = ("alt_ft", "mach", "dtamb_k", "power_pct")
 
 STORED: dict[str, SignalSpec] = {s.name: s for s in SENSORS + ACTUATORS}
 
