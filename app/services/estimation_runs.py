@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 from sqlalchemy import and_, delete, func, insert, or_, select
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, defer
 
 from app.models import Engine, EstimatorDesign, MaintenanceAction, Snapshot
 from app.models.base import utcnow
@@ -218,9 +218,9 @@ def _prepare_runs(
     states = {
         fs.engine_id: fs
         for fs in session.scalars(
-            select(FilterState).where(
-                FilterState.design_id == est.design_id, FilterState.engine_id.in_(ids)
-            )
+            select(FilterState)
+            .options(defer(FilterState.layout))  # the trends' to read, not the filter's
+            .where(FilterState.design_id == est.design_id, FilterState.engine_id.in_(ids))
         )
     }
     starts = {}
@@ -322,12 +322,10 @@ def _store(
         else (fs.last_recorded_at if fs is not None and run.seq0 == fs.n_records else None)
     )
     if fs is None:
+        # The layout follows from the design, which never changes once used: written once.
         fs = FilterState(operator_id=run.operator_id, engine_id=run.engine_id,
-                         design_id=est.design_id)
+                         design_id=est.design_id, layout=est.layout.to_dict())
         session.add(fs)
-    layout = est.layout.to_dict()
-    if fs.layout != layout:  # an unchanged layout is not rewritten (JSON is not diffed)
-        fs.layout = layout
     fs.state = out.state
     fs.n_records = n_records
     if len(run.epoch) or run.seq0 == 0:
