@@ -49,8 +49,10 @@ from app.models.estimates import (
     Event,
     FilterState,
 )
+from app.models.ingest import PHASES
 from app.services import json_numbers
 from app.services.json_numbers import RawJSON
+from app.services.pgcopy import PG_EPOCH_US
 
 # Trend groups as the dashboard draws them: (key, value block, sigma block, names group, label).
 GROUPS = (
@@ -69,7 +71,8 @@ class TrendData:
     """Decoded estimates of one engine and design, in time order (not decimated).
 
     epoch : (n,) seconds since 1970 UTC; seq : (n,) record numbers; phase : n strings;
-    values : (n, width) per ``layout``.
+    values : (n, width) per ``layout``, float32 as stored (bucket minima and maxima are exact
+    in it, means are summed in float64).
     """
 
     layout: EstimateLayout
@@ -236,27 +239,33 @@ def load_trend_data(
         epoch=np.asarray(recorded, dtype=float),
         seq=np.asarray(seq, dtype=np.int64),
         phase=list(phase),
-        values=layout.unpack(list(blobs)),
+        values=np.frombuffer(b"".join(blobs), dtype=VALUE_DTYPE).reshape(
+            len(blobs), layout.width
+        ),
     )
 
 
-# PostgreSQL: the whole trend as one row: arrays of seq and time, and every blob concatenated.
-# The aggregates carry no ORDER BY: each would sort the rows again (four sorts of 10,000 wide
-# rows cost more than the scan), while all aggregates of one query see the rows in the same
-# order, so the arrays stay aligned and numpy puts them in seq order.
+# PostgreSQL: the whole trend as one row of two values: each record's seq, time and phase code
+# in their binary send formats (fixed width), and every blob, each concatenated. The aggregates
+# carry no ORDER BY: each would sort the rows again, while all aggregates of one query see the
+# rows in the same order, so the two stay aligned and numpy puts them in seq order. (Arrays of
+# seq, time and phase cost twice as much: building and parsing arrays, numeric epochs.)
+_PHASE_CODE = "CASE phase " + " ".join(
+    f"WHEN '{name}' THEN {code}" for code, name in enumerate(PHASES)
+) + " ELSE -1 END::int2"
 _AGGREGATE_SQL = (
-    "SELECT array_agg(seq), array_agg(CAST(EXTRACT(epoch FROM recorded_at) AS float8)), "
-    "array_agg(phase), string_agg(packed, ''::bytea) FROM estimates "
+    "SELECT string_agg(int4send(seq) || timestamptz_send(recorded_at) || "
+    f"int2send({_PHASE_CODE}), ''::bytea), string_agg(packed, ''::bytea) FROM estimates "
     "WHERE engine_id = %(engine_id)s AND design_id = %(design_id)s"
 )
+_RECORD = np.dtype([("seq", ">i4"), ("micros", ">i8"), ("phase", ">i2")])
 
 
 def _load_aggregated(
     session: Session, layout: EstimateLayout, engine_id: int, design_id: int,
     start: datetime | None, end: datetime | None,
 ) -> TrendData:
-    """PostgreSQL: one row read in the binary protocol (no hex text of 2 MB of blobs to decode,
-    no float parsing), so the driver hands over four values instead of ten thousand rows."""
+    """PostgreSQL: one row read in the binary protocol, two values parsed by numpy."""
     sql = _AGGREGATE_SQL
     params: dict[str, Any] = {"engine_id": engine_id, "design_id": design_id}
     if start is not None:
@@ -268,22 +277,24 @@ def _load_aggregated(
     driver = session.connection().connection.driver_connection
     with driver.cursor(binary=True) as cursor:  # type: ignore[union-attr]
         cursor.execute(sql, params)
-        seq_list, epoch_list, phase_list, packed = cursor.fetchone()
-    if not seq_list:
+        keys, packed = cursor.fetchone()
+    if not keys:
         return TrendData(layout, np.empty(0), np.empty(0, int), [], np.empty((0, layout.width)))
-    seq = np.asarray(seq_list, dtype=np.int64)
-    epoch = np.asarray(epoch_list, dtype=float)
+    records = np.frombuffer(keys, dtype=_RECORD)
+    seq = records["seq"].astype(np.int64)
+    epoch = (records["micros"].astype(np.int64) + PG_EPOCH_US) / 1e6
+    codes = records["phase"].astype(np.int64)
     values = np.frombuffer(packed, dtype=VALUE_DTYPE).reshape(len(seq), layout.width)
     order = None if np.all(seq[1:] > seq[:-1]) else np.argsort(seq, kind="stable")
     if order is not None:
-        seq, epoch, values = seq[order], epoch[order], values[order]
-        phase_list = [phase_list[i] for i in order.tolist()]
+        seq, epoch, values, codes = seq[order], epoch[order], values[order], codes[order]
+    names = np.array([*PHASES, ""], dtype=object)  # -1 (not a snapshot phase): ""
     return TrendData(
         layout=layout,
         epoch=epoch,
         seq=seq,
-        phase=list(phase_list),
-        values=values.astype(np.float64),
+        phase=names[codes].tolist(),
+        values=values,
     )
 
 
@@ -358,7 +369,9 @@ def trend_groups(
     else:
         counts = np.diff(np.append(starts, len(data.epoch)))
         with np.errstate(invalid="ignore"):
-            values = np.add.reduceat(data.values, starts, axis=0) / counts[:, None]
+            values = (
+                np.add.reduceat(data.values, starts, axis=0, dtype=np.float64) / counts[:, None]
+            )
     slices = data.layout.slices()
     # Every column that goes out, encoded in one call: row r of ``wanted`` is column r.
     picks: list[np.ndarray] = []
@@ -382,7 +395,7 @@ def trend_groups(
             rows["min"] = take(lo, cols)
             rows["max"] = take(hi, cols)
         layout_groups.append((key, label, names, units, rows))
-    wanted = np.concatenate(picks, axis=0) if picks else np.empty((0, 0))
+    wanted = np.concatenate(picks, axis=0, dtype=np.float64) if picks else np.empty((0, 0))
     encoded = columns_of(wanted)
     groups = []
     for key, label, names, units, rows in layout_groups:
