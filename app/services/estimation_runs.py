@@ -414,4 +414,8 @@ def catch_up(
             totals[key] += result[key]
         if result["records"] == 0:
             break  # nothing could be estimated (no ready design): stop rather than spin
+    # Rows uploads kept in memory that no pass took (engines without an active design).
+    fresh_records.discard(
+        session, session.scalars(select(Engine.id).where(Engine.operator_id == operator_id))
+    )
     return totals

@@ -84,6 +84,29 @@ def kept_rows(session: Session) -> int:
 def take(session: Session, engine_ids: Iterable[int]) -> pa.Table | None:
     """Every kept row of these engines, sorted by engine and time, removed from the store
     (None when there is none)."""
+    parts = _remove(session, engine_ids)
+    if not parts:
+        return None
+    table = pa.concat_tables(parts) if len(parts) > 1 else parts[0]
+    table = table.set_column(
+        table.schema.get_field_index("engine_id"), "engine_id",
+        pc.cast(table["engine_id"], pa.int64()),
+    ).set_column(
+        table.schema.get_field_index("recorded_at"), "recorded_at",
+        pc.cast(table["recorded_at"], pa.timestamp("us", tz="UTC")),
+    )
+    return table.take(pc.sort_indices(
+        table, sort_keys=[("engine_id", "ascending"), ("recorded_at", "ascending")]
+    ))
+
+
+def discard(session: Session, engine_ids: Iterable[int]) -> None:
+    """Drop what is kept of these engines (the job found nothing to do with it: no active
+    design, or already estimated), so it does not sit in memory until evicted."""
+    _remove(session, engine_ids)
+
+
+def _remove(session: Session, engine_ids: Iterable[int]) -> list[pa.Table]:
     wanted_ids = set(engine_ids)
     wanted = pa.array(sorted(wanted_ids), pa.int64())
     database = _database(session)
@@ -100,19 +123,7 @@ def take(session: Session, engine_ids: Iterable[int]) -> pa.Table | None:
             inside = pc.is_in(pc.cast(table["engine_id"], pa.int64()), value_set=wanted)
             parts.append(table.filter(inside))
             _kept[key] = (table.filter(pc.invert(inside)), engines - wanted_ids)
-    if not parts:
-        return None
-    table = pa.concat_tables(parts) if len(parts) > 1 else parts[0]
-    table = table.set_column(
-        table.schema.get_field_index("engine_id"), "engine_id",
-        pc.cast(table["engine_id"], pa.int64()),
-    ).set_column(
-        table.schema.get_field_index("recorded_at"), "recorded_at",
-        pc.cast(table["recorded_at"], pa.timestamp("us", tz="UTC")),
-    )
-    return table.take(pc.sort_indices(
-        table, sort_keys=[("engine_id", "ascending"), ("recorded_at", "ascending")]
-    ))
+    return parts
 
 
 def clear() -> None:

@@ -12,7 +12,7 @@ from sqlalchemy import delete
 from sqlalchemy.orm import Session
 
 from app.models import Snapshot
-from app.services import estimate_rows, fresh_records
+from app.services import estimate_rows, estimation_runs, fresh_records
 from tests.app.fleet_fixture import T0, csv_bytes, make_fleet, snapshot_rows
 
 SENSORS = ("nf", "nc", "t30", "p30", "t50", "t24")  # t24 is never uploaded: all NaN
@@ -91,3 +91,14 @@ def test_a_rolled_back_upload_keeps_nothing(session: Session) -> None:
     fresh_records.keep_after_commit(session, 10**9, rows)
     session.commit()
     assert fresh_records.kept_rows(session) == 8
+
+
+def test_the_estimation_job_drops_what_it_cannot_use(client: TestClient, session: Session) -> None:
+    """Engines without an active design: the job estimates nothing, and what their upload kept
+    in memory goes rather than waiting to be evicted."""
+    fleet = make_fleet(session)
+    upload(client, fleet.analyst, snapshot_rows(40, seed=5))
+    assert fresh_records.kept_rows(session) == 40
+    totals = estimation_runs.catch_up(session, fleet.operator_id)
+    assert totals["records"] == 0
+    assert fresh_records.kept_rows(session) == 0
