@@ -68,7 +68,8 @@ def configure(factory: SessionFactory, registry: JobRegistry) -> None:
 @celery.task(name="fleethealth.run_job", bind=True)
 def run_job(self: Any, job_id: int) -> str:
     context = worker_context()
-    claim = claim_job(context.factory, job_id, worker=worker_name("celery"))
+    claim = claim_job(context.factory, job_id, worker=worker_name("celery"),
+                      serial_kinds=context.registry.serial_kinds())
     if claim is None:
         return "not queued"
     # Jobs this job queues go to the queue this worker took it from.

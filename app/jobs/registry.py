@@ -52,7 +52,9 @@ class JobKind:
     """A registered kind of job.
 
     ``role`` is the least role whose API key may submit it through ``POST /api/v1/jobs``;
-    ``submittable=False`` keeps a kind internal (submitted by services, e.g. after an upload).
+    ``submittable=False`` keeps a kind internal (submitted by services, e.g. after an upload);
+    ``serial=True``: one job of the kind runs at a time per operator (a queued one waits while
+    another runs; the runners' claims check it).
     """
 
     name: str
@@ -61,6 +63,7 @@ class JobKind:
     description: str
     role: str = "analyst"
     submittable: bool = True
+    serial: bool = False
 
     def validate(self, parameters: dict[str, Any] | None) -> BaseModel:
         """The parameters as the kind's model, or ``InvalidInput`` (422) naming each field."""
@@ -104,6 +107,7 @@ class JobRegistry:
         description: str,
         role: str = "analyst",
         submittable: bool = True,
+        serial: bool = False,
     ) -> Callable[[JobFunction], JobFunction]:
         """Decorator: register the decorated function as job kind ``name``."""
 
@@ -116,11 +120,16 @@ class JobRegistry:
                     description=description,
                     role=role,
                     submittable=submittable,
+                    serial=serial,
                 )
             )
             return function
 
         return decorate
+
+    def serial_kinds(self) -> tuple[str, ...]:
+        """Kinds of which one job at a time runs per operator."""
+        return tuple(name for name, kind in self._kinds.items() if kind.serial)
 
     def get(self, name: str) -> JobKind:
         """The kind called ``name``, or ``InvalidInput`` listing the known kinds."""

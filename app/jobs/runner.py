@@ -14,15 +14,15 @@ import os
 import socket
 import threading
 import time
-from collections.abc import Callable, Collection, Iterator
+from collections.abc import Callable, Collection, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
 
-from sqlalchemy import event, select, update
+from sqlalchemy import event, or_, select, true, update
 from sqlalchemy.exc import OperationalError
-from sqlalchemy.orm import Session, sessionmaker
+from sqlalchemy.orm import Session, aliased, sessionmaker
 
 from app.db import transaction
 from app.errors import ServiceError
@@ -70,37 +70,61 @@ def _claim_values(worker: str) -> dict[str, Any]:
     }
 
 
-def claim_next(factory: SessionFactory, *, worker: str) -> Claim | None:
-    """Atomically take the oldest queued job, or None when none is queued.
+def claim_next(
+    factory: SessionFactory, *, worker: str, serial_kinds: Sequence[str] = ()
+) -> Claim | None:
+    """Atomically take the oldest queued job that may start, or None when there is none.
 
     One UPDATE ... WHERE status = 'queued' RETURNING: of two workers racing for a job only one
     gets the row back. On PostgreSQL the inner SELECT skips rows another worker has locked.
     An idle worker only reads: on SQLite even an UPDATE of no rows takes the one write lock.
+    A job of a kind in ``serial_kinds`` waits while one of its kind runs for its operator.
     """
     with transaction(factory) as session:
         if session.scalar(select(Job.id).where(Job.status == "queued").limit(1)) is None:
             return None
     oldest = (
         select(Job.id)
-        .where(Job.status == "queued")
+        .where(Job.status == "queued", _may_start(serial_kinds))
         .order_by(Job.id)
         .limit(1)
         .with_for_update(skip_locked=True)
         .scalar_subquery()
     )
-    return _claim(factory, Job.id == oldest, worker)
+    return _claim(factory, Job.id == oldest, worker, serial_kinds)
 
 
-def claim_job(factory: SessionFactory, job_id: int, *, worker: str) -> Claim | None:
-    """Atomically take job ``job_id`` if it is still queued (a Celery message names its job)."""
-    return _claim(factory, Job.id == job_id, worker)
+def claim_job(
+    factory: SessionFactory, job_id: int, *, worker: str, serial_kinds: Sequence[str] = ()
+) -> Claim | None:
+    """Atomically take job ``job_id`` if it is still queued and may start (a Celery message
+    names its job; one that must wait stays queued for the next tick's message)."""
+    return _claim(factory, Job.id == job_id, worker, serial_kinds)
 
 
-def _claim(factory: SessionFactory, which: Any, worker: str) -> Claim | None:
+def _may_start(serial_kinds: Sequence[str]) -> Any:
+    """A queued job may start unless its kind is serial and one of its kind runs for its
+    operator. (At most one job of a serial kind is queued per operator, see
+    ``app.jobs.kinds.estimation.queue_estimation``, so two claims cannot both pass.)"""
+    if not serial_kinds:
+        return true()
+    running = aliased(Job)
+    sibling = (
+        select(running.id)
+        .where(running.operator_id == Job.operator_id, running.kind == Job.kind,
+               running.status == "running")
+        .exists()
+    )
+    return or_(Job.kind.not_in(list(serial_kinds)), ~sibling)
+
+
+def _claim(
+    factory: SessionFactory, which: Any, worker: str, serial_kinds: Sequence[str] = ()
+) -> Claim | None:
     with transaction(factory) as session:
         row = session.execute(
             update(Job)
-            .where(which, Job.status == "queued")
+            .where(which, Job.status == "queued", _may_start(serial_kinds))
             .values(**_claim_values(worker))
             .returning(Job.id, Job.attempts),
             execution_options={"synchronize_session": False},
@@ -497,7 +521,8 @@ def run_pending(
     registry = registry or load_kinds()
     worker = worker_name("inline")
     ran: list[int] = []
-    while (claim := claim_next(factory, worker=worker)) is not None:
+    serial = registry.serial_kinds()
+    while (claim := claim_next(factory, worker=worker, serial_kinds=serial)) is not None:
         execute(
             factory,
             claim,
@@ -580,7 +605,9 @@ class Runner:
         worker = worker_name("inprocess")
         while not self._stop.is_set():
             try:
-                claim = claim_next(self._factory, worker=worker)
+                claim = claim_next(
+                    self._factory, worker=worker, serial_kinds=self._registry.serial_kinds()
+                )
                 if claim is not None:
                     with self._lock:
                         self._running.add(claim.job_id)

@@ -5,11 +5,12 @@ from __future__ import annotations
 
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.orm import Session
 
 from app.jobs import store
-from app.jobs.registry import Progress, registry
+from app.jobs.registry import JobRegistry, Progress, registry
+from app.models import Job
 from app.services import diagnostics, estimation_runs
 
 # The default schedule of the fleet-wide diagnostic job (seconds): once a day.
@@ -17,9 +18,13 @@ FLEET_DIAGNOSTICS_INTERVAL = 24 * 3600
 
 
 class EstimateEngines(BaseModel):
-    """No parameters: the job finds every snapshot without an estimate and estimates it."""
+    """The job finds every snapshot without an estimate and estimates it."""
 
     model_config = ConfigDict(extra="forbid")
+    follow_up: bool = Field(
+        default=False,
+        description="queued while another estimation runs: it starts when that one ends",
+    )
 
 
 @registry.job(
@@ -28,11 +33,33 @@ class EstimateEngines(BaseModel):
     description="Run the snapshot filter, shift detection and isolation over new snapshots.",
     role="analyst",
     submittable=False,
+    serial=True,
 )
 def estimate_engines(
     session: Session, parameters: EstimateEngines, progress: Progress, *, operator_id: int
 ) -> dict[str, Any]:
     return estimation_runs.catch_up(session, operator_id, progress=progress, commit=session.commit)
+
+
+def queue_estimation(session: Session, *, operator_id: int, job_registry: JobRegistry) -> Job:
+    """Queue the estimation of the operator's new snapshots (the caller dispatches it once
+    committed).
+
+    One estimation runs at a time per operator (a serial kind). A running one may already have
+    looked for work for the last time when the caller's rows commit, so then a follow-up is
+    queued (once: later submissions find it) and starts when the running one ends; otherwise
+    the queued job, if any, covers these rows too.
+    """
+    job, _created = store.submit(
+        session, operator_id=operator_id, kind="estimate_engines", parameters={},
+        registry=job_registry,
+    )
+    if job.status == "running":
+        job, _created = store.submit(
+            session, operator_id=operator_id, kind="estimate_engines",
+            parameters={"follow_up": True}, registry=job_registry,
+        )
+    return job
 
 
 class FleetDiagnostics(BaseModel):
@@ -51,9 +78,6 @@ def fleet_diagnostics(
     """Read-only summary; snapshots left unestimated get an estimation job queued."""
     summary = diagnostics.fleet_diagnostics(session, operator_id, progress=progress)
     if summary["n_engines_waiting"]:
-        job, _created = store.submit(
-            session, operator_id=operator_id, kind="estimate_engines", parameters={},
-            registry=registry,
-        )
+        job = queue_estimation(session, operator_id=operator_id, job_registry=registry)
         summary["estimation_job_id"] = job.id
     return summary
