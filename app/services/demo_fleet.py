@@ -14,7 +14,7 @@ from __future__ import annotations
 import io
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from typing import Any
 
@@ -202,8 +202,16 @@ def design_spec(
     }
 
 
+def demo_start_epoch(size: DemoSize, today: datetime | None = None) -> float:
+    """The first flight round of a demo seeded today: its data ends at today's midnight (UTC),
+    so the dashboard's "last data" is not in the future."""
+    today = today or datetime.now(UTC)
+    midnight = datetime(today.year, today.month, today.day, tzinfo=UTC).timestamp()
+    return midnight - 86400.0 * size.flights / size.flights_per_day
+
+
 def _simulate(size: DemoSize, echo: Callable[[str], None]) -> tuple[Any, pa.Table]:
-    config = fleet_config(size)
+    config = replace(fleet_config(size), start_epoch_s=demo_start_epoch(size))
     rng = np.random.default_rng(SEED)
     plan_rng, snap_rng = rng.spawn(2)
     plan = plan_fleet(config, plan_rng)

@@ -3,6 +3,7 @@ reuses it. Counts are checked against the simulator's plan."""
 
 from __future__ import annotations
 
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import pytest
@@ -47,6 +48,17 @@ def test_demo_fleet_is_seeded_once_and_estimated(
     )
     # Two snapshots (take-off, cruise) per installed engine and flight: 2 aircraft x 2 positions.
     assert snapshots == first["snapshots"] == SMALL.aircraft * 2 * SMALL.flights * 2
+    # The simulated period ends today (UTC midnight), not in the future.
+    first_at, last_at = session.execute(
+        select(func.min(Snapshot.recorded_at), func.max(Snapshot.recorded_at)).where(
+            Snapshot.operator_id == operator_id
+        )
+    ).one()
+    now = datetime.now(UTC)
+    midnight = datetime(now.year, now.month, now.day, tzinfo=UTC)
+    assert midnight - timedelta(days=SMALL.flights / SMALL.flights_per_day + 1) <= first_at
+    assert last_at <= midnight
+    assert last_at > midnight - timedelta(days=2)
     assert engines == first["engines"]
     estimates = session.scalar(
         select(func.count()).select_from(Estimate).where(Estimate.operator_id == operator_id)
