@@ -25,7 +25,7 @@ import pyarrow.compute as pc
 from sqlalchemy import event
 from sqlalchemy.orm import Session
 
-MAX_RECORDS = 1_000_000
+MAX_RECORDS = 500_000  # about 100 MB of snapshot columns at most
 
 _enabled = True  # off where jobs run in other processes (Celery): nothing would take them
 _lock = threading.Lock()
