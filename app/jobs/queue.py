@@ -26,6 +26,7 @@ from sqlalchemy.orm import Session
 
 from app.jobs import store
 from app.jobs.dispatch import Dispatcher
+from app.jobs.kinds.estimation import queue_estimation
 from app.jobs.registry import JobRegistry
 from app.models.jobs import Job
 
@@ -56,6 +57,14 @@ class JobQueue:
         if created:
             store.dispatch_after_commit(session, self.dispatcher.dispatch, job.id)
         return job, created
+
+    def estimate(self, session: Session, *, operator_id: int) -> Job:
+        """Queue the estimation of the operator's snapshots that lack estimates under their
+        active designs (after an upload, an activation); see
+        ``app.jobs.kinds.estimation.queue_estimation``."""
+        job = queue_estimation(session, operator_id=operator_id, job_registry=self.registry)
+        store.dispatch_after_commit(session, self.dispatcher.dispatch, job.id)
+        return job
 
 
 def get_job_queue(request: Request) -> JobQueue:

@@ -84,11 +84,15 @@ def get_design(design_id: int, session: DbSession, principal: CurrentPrincipal) 
 
 
 @router.post("/designs/{design_id}/activate", response_model=DesignOut)
-def activate_design(design_id: int, session: DbSession, principal: Analyst) -> DesignOut:
-    """Put the design in service for its engine type; the previously active one retires."""
+def activate_design(
+    design_id: int, session: DbSession, principal: Analyst, jobs: Jobs
+) -> DesignOut:
+    """Put the design in service for its engine type; the previously active one retires. The
+    type's engines are then estimated under it in the background (an estimation job)."""
     row = models_designs.activate_design(
         session, operator_id=principal.operator_id, design_id=design_id
     )
+    jobs.estimate(session, operator_id=principal.operator_id)
     return DesignOut.model_validate(row)
 
 

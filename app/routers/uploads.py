@@ -13,8 +13,7 @@ import pyarrow.csv as pacsv
 from fastapi import APIRouter, Depends, Header, Query, Request, Response, status
 
 from app.errors import InvalidInput, NotFound, PayloadTooLarge, ServiceError
-from app.jobs import store
-from app.jobs.kinds.estimation import queue_estimation as queue_estimation_job
+from app.jobs.queue import get_job_queue
 from app.limits import BodyTooLarge
 from app.schemas.fleet import Page, PageParams
 from app.schemas.uploads import EngineSnapshots, SnapshotBatch, UploadDetail, UploadOut
@@ -145,11 +144,7 @@ def queue_estimation(request: Request, session: DbSession, principal: Principal,
     """After a stored upload with new rows: queue the estimation job, dispatched on commit."""
     if result.replayed or not result.upload.affected:
         return
-    job = queue_estimation_job(
-        session, operator_id=principal.operator_id,
-        job_registry=request.app.state.job_registry,
-    )
-    store.dispatch_after_commit(session, request.app.state.job_dispatcher.dispatch, job.id)
+    get_job_queue(request).estimate(session, operator_id=principal.operator_id)
 
 
 def upload_out(result: UploadResult, response: Response) -> UploadOut:

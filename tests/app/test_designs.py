@@ -12,7 +12,7 @@ from sqlalchemy import func, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from app.models import EngineModel, EstimatorDesign
+from app.models import EngineModel, EstimatorDesign, Job
 from app.services import models_designs
 from estimation import tuners
 from tests.app.fleetkit import (
@@ -137,6 +137,13 @@ def test_one_active_design_per_engine_type(
     off = client.post(f"{API}/designs/{second['id']}/deactivate", headers=tenant.headers())
     assert off.json()["active"] is False
     assert client.get(url, headers=tenant.headers()).json() is None
+    # Each activation queued the estimation of the type's engines under it (one job: the later
+    # activations found it queued).
+    queued = session.scalars(
+        select(Job.status).where(Job.operator_id == tenant.operator_id,
+                                 Job.kind == "estimate_engines")
+    ).all()
+    assert queued == ["queued"]
 
 
 def test_only_a_ready_design_can_be_active(
@@ -152,6 +159,9 @@ def test_only_a_ready_design_can_be_active(
     session.commit()
     response = client.post(f"{API}/designs/{pending.id}/activate", headers=tenant.headers())
     assert response.status_code == 409 and "pending" in error_of(response)["message"]
+    assert session.scalar(
+        select(func.count()).select_from(Job).where(Job.operator_id == tenant.operator_id)
+    ) == 0  # a refused activation queues nothing
 
 
 def test_database_allows_one_active_design_per_engine_type(
