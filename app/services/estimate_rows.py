@@ -23,7 +23,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 from psycopg.copy import QueuedLibpqWriter
-from sqlalchemy import func, insert, select, text
+from sqlalchemy import func, insert, select
 from sqlalchemy.orm import Session
 
 from app.models import Snapshot
@@ -103,17 +103,16 @@ def _records(
 Columns = tuple[np.ndarray, list[str], np.ndarray, dict[str, np.ndarray]]
 
 
-def _window(wants: Sequence[tuple[int, datetime | None]]) -> str:
-    """``VALUES (engine_id, after), ...`` for a PostgreSQL statement. Only integers and ISO
-    times of aware datetimes are written into it."""
+# Each engine with its "after" time, as a relation of the statement: two array parameters.
+_WINDOW = "unnest(%(engine_ids)s::int4[], %(afters)s::timestamptz[]) AS w(engine_id, after)"
+
+
+def _window_params(wants: Sequence[tuple[int, datetime | None]]) -> dict[str, list[Any]]:
     for engine_id, after in wants:
-        if not isinstance(engine_id, int) or (after is not None and after.tzinfo is None):
-            raise ValueError(f"engine {engine_id!r} after {after!r}: ids and aware times only")
-    return "VALUES " + ", ".join(
-        f"({engine_id}, " + ("NULL" if after is None else f"'{after.isoformat()}'")
-        + "::timestamptz)"
-        for engine_id, after in wants
-    )
+        if after is not None and after.tzinfo is None:
+            raise ValueError(f"engine {engine_id}: {after!r} carries no time zone")
+    return {"engine_ids": [int(e) for e, _after in wants],
+            "afters": [after for _e, after in wants]}
 
 
 def _count_after(
@@ -123,13 +122,16 @@ def _count_after(
     if not wants:
         return {}
     if session.connection().dialect.name == "postgresql":
-        rows = session.execute(text(
-            "SELECT w.engine_id, count(s.engine_id) FROM "
-            f"({_window(wants)}) AS w(engine_id, after) "
-            "LEFT JOIN snapshots s ON s.engine_id = w.engine_id "
-            "AND (w.after IS NULL OR s.recorded_at > w.after) GROUP BY w.engine_id"
-        )).all()
-        return {int(e): int(n) for e, n in rows}
+        driver = session.connection().connection.driver_connection
+        assert driver is not None
+        with driver.cursor() as cursor:
+            cursor.execute(
+                f"SELECT w.engine_id, count(s.engine_id) FROM {_WINDOW} "
+                "LEFT JOIN snapshots s ON s.engine_id = w.engine_id "
+                "AND (w.after IS NULL OR s.recorded_at > w.after) GROUP BY w.engine_id",
+                _window_params(wants),
+            )
+            return {int(e): int(n) for e, n in cursor.fetchall()}
     out = {}
     for engine_id, after in wants:
         query = select(func.count()).select_from(Snapshot).where(Snapshot.engine_id == engine_id)
@@ -208,13 +210,13 @@ def _aggregated(
     query = (
         f"SELECT string_agg({' || '.join(sql for _n, sql, _w in fields)}, ''::bytea "
         "ORDER BY s.engine_id, s.recorded_at) FROM snapshots s "
-        f"JOIN ({_window(wants)}) AS w(engine_id, after) ON s.engine_id = w.engine_id "
+        f"JOIN {_WINDOW} ON s.engine_id = w.engine_id "
         "WHERE w.after IS NULL OR s.recorded_at > w.after"
     )
     driver = session.connection().connection.driver_connection
     assert driver is not None
     with driver.cursor(binary=True) as cursor:
-        cursor.execute(query)
+        cursor.execute(query, _window_params(wants))
         found = cursor.fetchone()
     payload = b"" if found is None or found[0] is None else bytes(found[0])
     dtype = np.dtype([(name, w) for name, _sql, w in fields])
