@@ -21,26 +21,8 @@ import _common  # noqa: F401  (import path)
 import numpy as np
 
 from app.engine_cache import engine_schedule
-from app.services import demo_fleet, detection_replay, estimator, shift_detection
-from app.services.models_designs import design_step
+from app.services import demo_fleet, detection_replay, shift_detection
 from estimation.engine.fleet import fleet_snapshots, plan_fleet
-from estimation.model import LinearModel
-
-
-def demo_estimator(cache_dir: Path, method: str = "subset", tuners: int = 10,
-                   biases: bool = False):
-    """The demo's active design on the built-in engine, as the pipeline builds it (``biases``:
-    the tuners also span the three actuator biases)."""
-    sched = engine_schedule(cache_dir)
-    p = demo_fleet.DESIGN_POINT
-    model = sched.model_at(p["alt"], p["mach"], p["power"])
-    sensors = [n for n in model.sensor_names if n != "Wf"]
-    health = demo_fleet.HEALTH + (demo_fleet.ACTUATOR_BIASES if biases else ())
-    result = design_step(model, demo_fleet.design_spec(method, tuners, sensors, health))
-    embedded = LinearModel.from_dict(result["model"])
-    return estimator.build_estimator(
-        0, embedded, result, estimator.engine_schedule_for(embedded, sched)
-    )
 
 
 def main() -> None:
@@ -58,7 +40,8 @@ def main() -> None:
     args = ap.parse_args()
 
     t0 = time.perf_counter()
-    est = demo_estimator(args.cache, args.method, args.tuners, args.biases)
+    est = demo_fleet.design_estimator(engine_schedule(args.cache), args.method, args.tuners,
+                                      args.biases)
     t1 = time.perf_counter()
     size = demo_fleet.DemoSize(aircraft=args.aircraft, flights=args.flights,
                                fault_rate=args.fault_rate)

@@ -27,12 +27,8 @@ from app.services import demo_fleet, health_accuracy
 from app.services.estimator import (
     MODEL_ERROR,
     SnapshotEstimator,
-    build_estimator,
-    engine_schedule_for,
 )
-from app.services.models_designs import design_step
 from estimation.engine.fleet import fleet_snapshots, plan_fleet
-from estimation.model import LinearModel
 
 # method:m, "+bias": the tuners also span the three actuator biases (13 health parameters).
 DESIGNS = ("subset:10", "subset:8", "svd:9", "svd:8", "svd:6", "optimal:8", "svd:8+bias",
@@ -42,18 +38,6 @@ DESIGNS = ("subset:10", "subset:8", "svd:9", "svd:8", "svd:6", "optimal:8", "svd
 # A direction of health counts as observable in one record when a 1 % shift along it moves the
 # sensors by at least 0.1 noise sigma (G_y is scaled by each sensor's noise).
 OBSERVABLE = 0.1
-
-
-def estimator(sched, method: str, m: int, biases: bool = False) -> SnapshotEstimator:
-    p = demo_fleet.DESIGN_POINT
-    model = sched.model_at(p["alt"], p["mach"], p["power"])
-    sensors = [n for n in model.sensor_names if n != "Wf"]
-    health = demo_fleet.HEALTH + (demo_fleet.ACTUATOR_BIASES if biases else ())
-    result = design_step(model, demo_fleet.design_spec(method, m, sensors, health))
-    embedded = LinearModel.from_dict(result["model"])
-    return build_estimator(
-        0, embedded, result, engine_schedule_for(embedded, sched)
-    )
 
 
 def ranks(est: SnapshotEstimator) -> str:
@@ -119,7 +103,8 @@ def main() -> None:
         method, m = item.split(":")
         biases = m.endswith("+bias")
         try:
-            est = estimator(sched, method, int(m.removesuffix("+bias")), biases)
+            est = demo_fleet.design_estimator(sched, method, int(m.removesuffix("+bias")),
+                                              biases)
         except Exception as exc:  # an unobservable choice
             print(f"\n== {method} m = {m}: design failed ({exc})")
             continue

@@ -33,6 +33,7 @@ from app.services import estimation_runs, estimator, fleet, ingest, maintenance,
 from app.services.demo import DEMO_OPERATOR
 from app.services.simulate_io import snapshot_table
 from estimation.engine.fleet import FleetConfig, fleet_snapshots, plan_fleet
+from estimation.model import LinearModel
 
 ENGINE_TYPE = "Generic two-spool turbofan (built-in)"
 SEED = 20260101
@@ -200,6 +201,23 @@ def design_spec(
         "method": method,
         "tuners": tuners,
     }
+
+
+def design_estimator(
+    sched: Any, method: str, tuners: int, biases: bool = False
+) -> estimator.SnapshotEstimator:
+    """A demo design on the built-in engine's schedule ``sched``, as the pipeline builds it
+    (``biases``: the tuners also span the three actuator biases); for the benchmarks that score
+    designs against the simulator's truth."""
+    p = DESIGN_POINT
+    model = sched.model_at(p["alt"], p["mach"], p["power"])
+    sensors = [n for n in model.sensor_names if n != "Wf"]
+    health = HEALTH + (ACTUATOR_BIASES if biases else ())
+    result = models_designs.design_step(model, design_spec(method, tuners, sensors, health))
+    embedded = LinearModel.from_dict(result["model"])
+    return estimator.build_estimator(
+        0, embedded, result, estimator.engine_schedule_for(embedded, sched)
+    )
 
 
 def demo_start_epoch(size: DemoSize, today: datetime | None = None) -> float:

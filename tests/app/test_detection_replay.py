@@ -22,7 +22,6 @@ from app.services import demo_fleet, detection_replay, pipeline
 from app.services.estimator import (
     SnapshotEstimator,
     build_estimator,
-    engine_schedule_for,
     exact_nominal_trims,
 )
 from app.services.models_designs import design_step
@@ -48,14 +47,7 @@ def schedule() -> EngineSchedule:
 @pytest.fixture(scope="module")
 def estimator(schedule: EngineSchedule) -> SnapshotEstimator:
     """The demo's active design (all ten health parameters as tuners) on the built-in engine."""
-    p = demo_fleet.DESIGN_POINT
-    model = schedule.model_at(p["alt"], p["mach"], p["power"])
-    sensors = [n for n in model.sensor_names if n != "Wf"]
-    result = design_step(model, demo_fleet.design_spec("subset", 10, sensors))
-    embedded = LinearModel.from_dict(result["model"])
-    return build_estimator(
-        0, embedded, result, engine_schedule_for(embedded, schedule)
-    )
+    return demo_fleet.design_estimator(schedule, *demo_fleet.ACTIVE_DESIGN)
 
 
 def _score(

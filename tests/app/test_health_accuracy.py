@@ -27,10 +27,8 @@ import numpy as np
 import pytest
 
 from app.services import demo_fleet, estimator, health_accuracy
-from app.services.models_designs import design_step
 from estimation.engine.fleet import FleetPlan, Snapshots, fleet_snapshots, plan_fleet
 from estimation.engine.schedule import EngineSchedule, build_schedule
-from estimation.model import LinearModel
 
 SIZE = demo_fleet.DemoSize(aircraft=3, flights=240)
 SEED = 2
@@ -41,22 +39,9 @@ def schedule() -> EngineSchedule:
     return build_schedule()
 
 
-def _estimator(
-    schedule: EngineSchedule, method: str, m: int, health: tuple[str, ...] = demo_fleet.HEALTH
-) -> estimator.SnapshotEstimator:
-    p = demo_fleet.DESIGN_POINT
-    model = schedule.model_at(p["alt"], p["mach"], p["power"])
-    sensors = [n for n in model.sensor_names if n != "Wf"]
-    result = design_step(model, demo_fleet.design_spec(method, m, sensors, health))
-    embedded = LinearModel.from_dict(result["model"])
-    return estimator.build_estimator(
-        0, embedded, result, estimator.engine_schedule_for(embedded, schedule)
-    )
-
-
 @pytest.fixture(scope="module")
 def active(schedule: EngineSchedule) -> estimator.SnapshotEstimator:
-    return _estimator(schedule, *demo_fleet.ACTIVE_DESIGN)
+    return demo_fleet.design_estimator(schedule, *demo_fleet.ACTIVE_DESIGN)
 
 
 def _fleet(**changes: object) -> tuple[FleetPlan, Snapshots]:
@@ -106,7 +91,7 @@ def test_spanning_the_actuator_biases_brings_the_levels_closer_to_the_truth(
 ) -> None:
     plan, snaps = _fleet()
     mine = health_accuracy.accuracy(active, health_accuracy.tracks(active, plan, snaps))
-    wider = _estimator(schedule, "svd", 8, demo_fleet.HEALTH + demo_fleet.ACTUATOR_BIASES)
+    wider = demo_fleet.design_estimator(schedule, "svd", 8, biases=True)
     peer = health_accuracy.accuracy(wider, health_accuracy.tracks(wider, plan, snaps))
     turbo = [peer.names.index(n) for n in mine.names]
     assert mine.names == demo_fleet.HEALTH
