@@ -2,7 +2,14 @@
 
 from app.models.base import Base
 from app.models.designs import EngineModel, EngineType, EstimatorDesign
-from app.models.estimates import Estimate, Event, EventComment, FilterCheckpoint, FilterState
+from app.models.estimates import (
+    Estimate,
+    EstimationBacklog,
+    Event,
+    EventComment,
+    FilterCheckpoint,
+    FilterState,
+)
 from app.models.fleet import Aircraft, Engine, Installation, MaintenanceAction
 from app.models.ingest import Snapshot, StreamChunk, StreamRecording, Upload
 from app.models.jobs import Job, JobSchedule
@@ -17,6 +24,7 @@ __all__ = [
     "EngineModel",
     "EngineType",
     "Estimate",
+    "EstimationBacklog",
     "EstimatorDesign",
     "Event",
     "EventComment",

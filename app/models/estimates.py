@@ -93,6 +93,35 @@ class FilterState(Base):
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
 
 
+class EstimationBacklog(Base):
+    """A mark on an engine whose snapshots its estimates do not cover yet: the estimation job's
+    to-do list.
+
+    Whatever stores snapshots, or changes what an engine's estimates depend on, adds a mark in
+    its own transaction (``backlog.mark``); the estimation job deletes exactly the marks it
+    read, in the transaction that stores the engine's estimates, so a mark added meanwhile
+    waits for its next pass. Finding the work is a read of this table, whatever the length of
+    the engines' histories.
+
+    ``earliest``: the earliest record the mark concerns (a re-run starts before it when it is
+    older than the last record processed); None: continue from the filter state. ``rows``:
+    the records the mark's upload stored (None: unknown), which tells the job when records an
+    upload kept in memory are all of them.
+    """
+
+    __tablename__ = "estimation_backlog"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    operator_id: Mapped[int] = mapped_column(
+        ForeignKey("operators.id", ondelete="CASCADE"), index=True
+    )
+    engine_id: Mapped[int] = mapped_column(
+        ForeignKey("engines.id", ondelete="CASCADE"), index=True
+    )
+    earliest: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
+    rows: Mapped[int | None] = mapped_column(Integer, default=None)
+
+
 class FilterCheckpoint(Base):
     """The pipeline state after ``seq`` records (every N records): where a re-run restarts.
 

@@ -15,6 +15,7 @@ from app.schemas.fleet import (
     Page,
     PageParams,
 )
+from app.jobs.queue import Jobs
 from app.security import Analyst, CurrentPrincipal, DbSession
 from app.services import fleet
 
@@ -54,14 +55,20 @@ def get_engine(engine_id: int, session: DbSession, principal: CurrentPrincipal) 
 
 @router.patch("/{engine_id}", response_model=EngineOut)
 def update_engine(
-    engine_id: int, body: EngineUpdate, session: DbSession, principal: Analyst
+    engine_id: int, body: EngineUpdate, session: DbSession, principal: Analyst, jobs: Jobs
 ) -> EngineOut:
+    """Change an engine; a new engine type has its data estimated under that type's active
+    design in the background (an estimation job)."""
+    before = fleet.get_engine(session, operator_id=principal.operator_id, engine_id=engine_id)
+    old_type = before.engine_type_id
     row = fleet.update_engine(
         session,
         operator_id=principal.operator_id,
         engine_id=engine_id,
         changes=body.model_dump(exclude_unset=True),
     )
+    if row.engine_type_id != old_type:
+        jobs.estimate(session, operator_id=principal.operator_id)
     return EngineOut.model_validate(row)
 
 

@@ -16,6 +16,7 @@ from app.schemas.fleet import (
     Page,
     PageParams,
 )
+from app.jobs.queue import Jobs
 from app.security import Analyst, CurrentPrincipal, DbSession
 from app.services import maintenance
 
@@ -48,9 +49,12 @@ def list_actions(
 
 @router.post("", response_model=MaintenanceOut, status_code=status.HTTP_201_CREATED)
 def record_action(
-    body: MaintenanceCreate, session: DbSession, principal: Analyst
+    body: MaintenanceCreate, session: DbSession, principal: Analyst, jobs: Jobs
 ) -> MaintenanceOut:
+    """Record an action; the engine's estimates from its time on are redone in the
+    background (an estimation job), with the detection baseline restarted there."""
     row = maintenance.record_action(session, operator_id=principal.operator_id, **body.model_dump())
+    jobs.estimate(session, operator_id=principal.operator_id)
     return MaintenanceOut.model_validate(row)
 
 
@@ -66,20 +70,27 @@ def get_action(
 
 @router.patch("/{maintenance_action_id}", response_model=MaintenanceOut)
 def update_action(
-    maintenance_action_id: int, body: MaintenanceUpdate, session: DbSession, principal: Analyst
+    maintenance_action_id: int, body: MaintenanceUpdate, session: DbSession, principal: Analyst,
+    jobs: Jobs,
 ) -> MaintenanceOut:
+    """Change an action; estimates are redone from the earlier of its old and new time."""
     row = maintenance.update_action(
         session,
         operator_id=principal.operator_id,
         action_id=maintenance_action_id,
         changes=body.model_dump(exclude_unset=True),
     )
+    jobs.estimate(session, operator_id=principal.operator_id)
     return MaintenanceOut.model_validate(row)
 
 
 @router.delete("/{maintenance_action_id}", response_model=Deleted)
-def delete_action(maintenance_action_id: int, session: DbSession, principal: Analyst) -> Deleted:
+def delete_action(
+    maintenance_action_id: int, session: DbSession, principal: Analyst, jobs: Jobs
+) -> Deleted:
+    """Delete an action; estimates are redone from its time without its baseline restart."""
     maintenance.delete_action(
         session, operator_id=principal.operator_id, action_id=maintenance_action_id
     )
+    jobs.estimate(session, operator_id=principal.operator_id)
     return Deleted(id=maintenance_action_id)

@@ -1,9 +1,11 @@
 """The fleet-wide diagnostic summary: where every engine's detector and isolation stand.
 
-Read-only over stored state, so it runs beside the estimation job without racing it: per engine
+It reads stored state, so it runs beside the estimation job without racing it: per engine
 under its type's active design, the CUSUM statistic and any alarm awaiting isolation (from the
 filter state), the hypothesis with the smallest WSSR on the latest estimate and whether that
 WSSR is small enough to name it, open events, and whether snapshots are waiting to be estimated.
+Its one write is the backlog check (``estimation_runs.audit``): waiting snapshots that no mark
+covers get one, for the estimation job it queues.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from sqlalchemy.orm import Session
 
 from app.models import Engine, EstimatorDesign
 from app.models.estimates import Estimate, EstimateLayout, FilterState
-from app.services.estimation_runs import pending_work
+from app.services.estimation_runs import audit
 from app.services.estimator import cusum_for
 from app.services.events import open_event_counts
 
@@ -45,7 +47,7 @@ def fleet_diagnostics(
         .where(Engine.operator_id == operator_id)
         .order_by(Engine.esn)
     ).all()
-    behind = pending_work(session, operator_id)
+    behind = audit(session, operator_id)
     open_events = open_event_counts(session, operator_id)
     engines = []
     nearest_counts: Counter[str] = Counter()

@@ -59,20 +59,22 @@ def load_records(
     sensor_columns: Sequence[str],
     input_columns: Sequence[str],
     kept: pa.Table | None = None,
+    expected: Mapping[int, int] | None = None,
 ) -> dict[int, Records]:
     """Each engine's records after its time (None: all of them), for (engine id, after) pairs.
 
     ``sensor_columns``/``input_columns`` name the snapshot column of each design signal
     ("" = not stored). ``kept``: rows an upload committed in this process (``fresh_records``,
     sorted by engine and time); an engine's records come from there when they are all there,
-    else from the database.
+    else from the database. ``expected``: how many records engines are known to have after
+    their time (the backlog's count); the others are counted in the database.
     """
     if not wants:
         return {}
     stored = list(dict.fromkeys(c for c in (*sensor_columns, *input_columns) if c))
     columns: dict[int, Columns] = {}
     if kept is not None:
-        columns.update(_complete_kept(session, kept, wants, stored))
+        columns.update(_complete_kept(session, kept, wants, stored, expected or {}))
     rest = [w for w in wants if w[0] not in columns]
     if rest and session.connection().dialect.name == "postgresql":
         columns.update(_aggregated(session, rest, stored))
@@ -143,10 +145,11 @@ def _count_after(
 
 def _complete_kept(
     session: Session, kept: pa.Table, wants: Sequence[tuple[int, datetime | None]],
-    stored: Sequence[str],
+    stored: Sequence[str], expected: Mapping[int, int],
 ) -> dict[int, Columns]:
     """From kept rows sorted by engine and time, the records of each engine that has them
-    all (as many as the database counts after its time), as columns of the stored numbers."""
+    all (as many as ``expected`` says, else as the database counts after its time), as columns
+    of the stored numbers."""
     engines = np.asarray(kept["engine_id"].to_numpy())
     micros = np.asarray(pc.cast(kept["recorded_at"], pa.int64()).to_numpy())
     ranges = {}
@@ -160,7 +163,10 @@ def _complete_kept(
         ranges[engine_id] = (lo, hi)
     if not ranges:
         return {}
-    counts = _count_after(session, [w for w in wants if w[0] in ranges])
+    counts = dict(expected)
+    counts.update(_count_after(
+        session, [w for w in wants if w[0] in ranges and w[0] not in expected]
+    ))
     complete = {e: r for e, r in ranges.items() if counts.get(e) == r[1] - r[0]}
     return _table_columns(kept, complete, stored) if complete else {}
 

@@ -29,13 +29,14 @@ from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 from sqlalchemy import and_, delete, func, insert, or_, select
 from sqlalchemy.orm import Session, defer
 
 from app.models import Engine, EstimatorDesign, MaintenanceAction, Snapshot
 from app.models.base import utcnow
 from app.models.estimates import Estimate, Event, FilterCheckpoint, FilterState
-from app.services import estimate_rows, fresh_records
+from app.services import backlog, estimate_rows, fresh_records
 from app.services.estimator import SnapshotEstimator, estimator_for_design
 from app.services.pipeline import EngineOutput, EngineRun, run_filters
 from app.services.shift_detection import initial_state
@@ -163,6 +164,7 @@ def estimate_engines(
     progress: Callable[[float, str], None] | None = None,
     design_id: int | None = None,
     commit: Callable[[], None] | None = None,
+    from_backlog: bool = False,
 ) -> dict[str, Any]:
     """Bring every affected engine's estimates up to date.
 
@@ -170,7 +172,9 @@ def estimate_engines(
     Engines of one design run batched, ``BATCH`` at a time: their records are read in one go
     and their estimates written in one go (``estimate_rows``); ``commit`` (a job's) is called
     after each batch so finished engines survive a restart, else all stays in the caller's
-    transaction. Returns counts per outcome.
+    transaction. ``from_backlog``: each batch's restart points come from the engines' backlog
+    marks (read once the batch's rows kept in memory are taken, so no kept row is newer than
+    the marks), and those marks go with the batch. Returns counts per outcome.
     """
     engines = session.scalars(
         select(Engine)
@@ -187,13 +191,21 @@ def estimate_engines(
         for start in range(0, len(group), BATCH):
             batch = group[start : start + BATCH]
             with _no_gc_pauses():
-                runs, states = _prepare_runs(session, est, operator_id, batch, affected,
-                                             summary)
+                ids = [e.id for e in batch]
+                kept = fresh_records.take(session, ids)
+                marks = backlog.pending(session, operator_id, ids) if from_backlog else None
+                runs, states = _prepare_runs(
+                    session, est, operator_id, batch, summary, kept,
+                    affected if marks is None else {e: m.earliest for e, m in marks.items()},
+                    marks or {},
+                )
                 with estimate_rows.EstimateWriter(
                     session, operator_id=operator_id, design_id=est.design_id
                 ) as writer:
                     outputs = run_filters(est, runs, sink=writer.add)
                 _store_batch(session, est, runs, states, outputs)
+                if marks is not None:
+                    backlog.settle(session, marks.values())
             for out in outputs:
                 summary["records"] += out.n_records
                 summary["events"] += len(out.events)
@@ -208,11 +220,18 @@ def estimate_engines(
 
 def _prepare_runs(
     session: Session, est: SnapshotEstimator, operator_id: int, batch: Sequence[Engine],
-    affected: Mapping[int, datetime | None], summary: dict[str, Any],
+    summary: dict[str, Any], kept: pa.Table | None, affected: Mapping[int, datetime | None],
+    marks: Mapping[int, backlog.Mark],
 ) -> tuple[list[EngineRun], list[FilterState | None]]:
     """The runs of a batch of engines under one design: restart points (deleting what a
     re-run redoes), records, maintenance actions and the events a run redoes, each read once
-    for the batch."""
+    for the batch.
+
+    ``kept``: the batch's rows uploads kept in memory. An engine that continues from its
+    filter state has exactly as many new records as its backlog marks count, when they were
+    read after the rows were taken: every record stored since the state was written came
+    with a mark not yet settled, and a kept row's mark was committed with it. Equal counts
+    then mean the kept rows are all of them."""
     ids = [e.id for e in batch]
     states = {
         fs.engine_id: fs
@@ -228,9 +247,15 @@ def _prepare_runs(
         starts[engine_id] = _restart_point(session, est, fs, affected.get(engine_id))
         if fs is not None and starts[engine_id][0] < fs.n_records:
             summary["reruns"] += 1
+    expected = {}
+    for engine_id in ids:
+        fs, mark = states.get(engine_id), marks.get(engine_id)
+        if (fs is not None and mark is not None and mark.rows is not None
+                and starts[engine_id][0] == fs.n_records):
+            expected[engine_id] = mark.rows
     records = estimate_rows.load_records(
         session, [(engine_id, starts[engine_id][2]) for engine_id in ids],
-        est.sensor_columns, est.input_columns, kept=fresh_records.take(session, ids),
+        est.sensor_columns, est.input_columns, kept=kept, expected=expected,
     )
     maintenance = _by_engine(
         session,
@@ -336,7 +361,8 @@ def pending_work(
     session: Session, operator_id: int, engine_ids: Sequence[int] | None = None
 ) -> dict[int, datetime]:
     """Engines with snapshots that have no estimate under their type's active design, and the
-    earliest such snapshot of each: what the pipeline has still to do (or redo).
+    earliest such snapshot of each: what the pipeline has still to do (or redo), found from
+    the stored rows themselves (``audit`` checks the backlog with it).
 
     Per engine, from its filter state: the first record after the last processed one (an
     index lookup), and the count of records up to it against the records processed; only
@@ -393,6 +419,17 @@ def _earliest_unestimated(session: Session, engine_id: int, design_id: int) -> d
     return earliest
 
 
+def audit(session: Session, operator_id: int) -> dict[int, datetime]:
+    """Check the backlog against the stored rows: engines with unestimated snapshots but no
+    mark (rows stored by a path that did not mark them) are marked. Returns every engine with
+    unestimated snapshots and the earliest of them (the fleet diagnostics' "waiting")."""
+    behind = pending_work(session, operator_id)
+    marked = backlog.pending(session, operator_id, behind)
+    missing = {e: (t, None) for e, t in behind.items() if e not in marked}
+    backlog.mark(session, operator_id, missing)
+    return behind
+
+
 def catch_up(
     session: Session,
     operator_id: int,
@@ -400,14 +437,18 @@ def catch_up(
     commit: Callable[[], None] | None = None,
     max_passes: int = 10,
 ) -> dict[str, Any]:
-    """Estimate until no snapshot of the operator lacks an estimate (records that arrive
-    meanwhile are picked up by the next pass). Idempotent: a second call finds nothing."""
+    """Estimate every engine of the operator's backlog until none is left (records that
+    arrive meanwhile are marked and picked up by the next pass). Idempotent: a second call
+    finds nothing."""
     totals: dict[str, Any] = {"engines": 0, "records": 0, "events": 0, "reruns": 0, "passes": 0}
     for _ in range(max_passes):
-        work = pending_work(session, operator_id)
+        work = backlog.pending(session, operator_id)
         if not work:
             break
-        result = estimate_engines(session, operator_id, work, progress, commit=commit)
+        result = estimate_engines(
+            session, operator_id, {e: m.earliest for e, m in work.items()}, progress,
+            commit=commit, from_backlog=True,
+        )
         totals["passes"] += 1
         for key in ("engines", "records", "events", "reruns"):
             totals[key] += result[key]

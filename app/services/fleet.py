@@ -22,6 +22,7 @@ from app.errors import Conflict, InvalidInput, NotFound
 from app.models import Aircraft, Engine, EngineType, Installation, Snapshot
 from app.models.base import Base
 from app.models.fleet import MAX_POSITIONS
+from app.services import backlog
 
 RowT = TypeVar("RowT", bound=Base)
 
@@ -273,8 +274,11 @@ def update_engine(
             "engine_type_id",
             "engine type",
         )
+    retyped = changes.get("engine_type_id") not in (None, row.engine_type_id)
     apply_changes(row, changes)
     flush_or_conflict(session, f"engine {row.esn!r} exists already")
+    if retyped:
+        backlog.mark_from_start(session, operator_id, [row.id])  # under the new type's design
     return row
 
 

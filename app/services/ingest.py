@@ -34,7 +34,7 @@ from sqlalchemy.orm import Session
 from app.errors import Conflict, ServiceError
 from app.models import Aircraft, Engine, Snapshot, Upload
 from app.models.ingest import SIGNALS, SNAPSHOT_COLUMNS
-from app.services import fleet, fresh_records
+from app.services import backlog, fleet, fresh_records
 from app.services.ingest_parse import (
     MAX_ERRORS,
     ErrorLimitReached,
@@ -232,6 +232,8 @@ def ingest_snapshots(
         upload.affected = [a.as_json() for a in affected]
         if fresh.num_rows:
             insert_snapshots(session, fresh, operator_id=operator_id, upload_id=upload.id)
+            backlog.mark(session, operator_id, {a.engine_id: (a.earliest, a.rows)
+                                                for a in affected})
         session.flush()
     except INTEGRITY_ERRORS as exc:
         # A concurrent upload stored some of these rows (or took the key) first.

@@ -1,7 +1,9 @@
 """Maintenance actions (water wash, module change, shop visit) of an operator's engines.
 
 Each action restarts the engine's detection baseline: ``baseline_resets`` gives the times the
-detection step starts a new baseline from.
+detection step starts a new baseline from. Recording, moving or deleting an action marks the
+engine in the estimation backlog from the action's time, so the estimation job re-runs what
+the action changes.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.models import Engine, MaintenanceAction
+from app.services import backlog
 from app.services.fleet import (
     apply_changes,
     delete_or_conflict,
@@ -42,7 +45,16 @@ def record_action(
     )
     session.add(row)
     session.flush()
+    _mark(session, operator_id, (engine_id, performed_at))
     return row
+
+
+def _mark(session: Session, operator_id: int, *at: tuple[int, datetime]) -> None:
+    """Mark engines from the times of actions recorded, moved or deleted (no new records)."""
+    earliest: dict[int, datetime] = {}
+    for engine_id, performed_at in at:
+        earliest[engine_id] = min(performed_at, earliest.get(engine_id, performed_at))
+    backlog.mark(session, operator_id, {e: (t, 0) for e, t in earliest.items()})
 
 
 def get_action(session: Session, *, operator_id: int, action_id: int) -> MaintenanceAction:
@@ -78,14 +90,18 @@ def update_action(
     session: Session, *, operator_id: int, action_id: int, changes: Mapping[str, Any]
 ) -> MaintenanceAction:
     row = get_action(session, operator_id=operator_id, action_id=action_id)
+    before = (row.engine_id, row.performed_at)
     apply_changes(row, changes)
     session.flush()
+    _mark(session, operator_id, before, (row.engine_id, row.performed_at))
     return row
 
 
 def delete_action(session: Session, *, operator_id: int, action_id: int) -> None:
     row = get_action(session, operator_id=operator_id, action_id=action_id)
+    at = (row.engine_id, row.performed_at)
     delete_or_conflict(session, row, f"maintenance action {row.id} is still referenced")
+    _mark(session, operator_id, at)
 
 
 def baseline_resets(

@@ -19,8 +19,9 @@ from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
 
 from app.errors import Conflict, InvalidInput
-from app.models import EngineModel, EngineType, EstimatorDesign
+from app.models import Engine, EngineModel, EngineType, EstimatorDesign, Snapshot
 from app.models.base import utcnow
+from app.services import backlog
 from app.services.fleet import delete_or_conflict, owned, paginate, referenced
 from estimation.design import parse_spec
 from estimation.design import run_design as run_spec
@@ -361,6 +362,14 @@ def activate_design(session: Session, *, operator_id: int, design_id: int) -> Es
         design.active = True
         design.activated_at = utcnow()
         session.flush()
+        # Every engine of the type with data is to be estimated (or continued) under it.
+        backlog.mark_from_start(session, operator_id, session.scalars(
+            select(Engine.id).where(
+                Engine.operator_id == operator_id,
+                Engine.engine_type_id == design.engine_type_id,
+                select(Snapshot.id).where(Snapshot.engine_id == Engine.id).exists(),
+            )
+        ))
     return design
 
 

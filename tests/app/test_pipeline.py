@@ -13,7 +13,7 @@ from sqlalchemy.orm import Session
 
 from app.models import EngineModel, MaintenanceAction, Snapshot
 from app.models.estimates import Estimate, Event, FilterState
-from app.services import estimation_runs, estimator
+from app.services import backlog, estimation_runs, estimator
 from estimation import isolation
 from estimation.model import LinearModel
 from estimation.tuners import svd_vstar
@@ -62,7 +62,16 @@ def _records(seed: int, fault: str | None = None, at: int = 0, jump: np.ndarray 
 
 def _store(session: Session, fleet: Fleet, engine_id: int, aircraft_id: int,
            times: list[datetime], y: np.ndarray, idx: range | list[int]) -> datetime:
-    """Snapshots idx of the records, as an upload would store them; their earliest time."""
+    """Snapshots idx of the records, stored and marked in the backlog as an upload would;
+    their earliest time."""
+    earliest = _store_rows(session, fleet, engine_id, aircraft_id, times, y, idx)
+    backlog.mark(session, fleet.operator_id, {engine_id: (earliest, len(idx))})
+    return earliest
+
+
+def _store_rows(session: Session, fleet: Fleet, engine_id: int, aircraft_id: int,
+                times: list[datetime], y: np.ndarray, idx: range | list[int]) -> datetime:
+    """Snapshots idx of the records, stored without a backlog mark; their earliest time."""
     model = _model()
     columns = [s.name.lower() for s in model.sensors]
     session.add_all(

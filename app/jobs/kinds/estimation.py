@@ -75,7 +75,7 @@ class FleetDiagnostics(BaseModel):
 def fleet_diagnostics(
     session: Session, parameters: FleetDiagnostics, progress: Progress, *, operator_id: int
 ) -> dict[str, Any]:
-    """Read-only summary; snapshots left unestimated get an estimation job queued."""
+    """The summary; snapshots left unestimated are marked and get an estimation job queued."""
     summary = diagnostics.fleet_diagnostics(session, operator_id, progress=progress)
     if summary["n_engines_waiting"]:
         job = queue_estimation(session, operator_id=operator_id, job_registry=registry)
