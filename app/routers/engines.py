@@ -6,6 +6,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query, status
 
+from app.jobs.queue import Jobs
 from app.schemas.fleet import (
     Deleted,
     EngineCreate,
@@ -15,7 +16,6 @@ from app.schemas.fleet import (
     Page,
     PageParams,
 )
-from app.jobs.queue import Jobs
 from app.security import Analyst, CurrentPrincipal, DbSession
 from app.services import fleet
 

@@ -7,6 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Query, status
 from pydantic import AwareDatetime
 
+from app.jobs.queue import Jobs
 from app.schemas.fleet import (
     Deleted,
     MaintenanceCreate,
@@ -16,7 +17,6 @@ from app.schemas.fleet import (
     Page,
     PageParams,
 )
-from app.jobs.queue import Jobs
 from app.security import Analyst, CurrentPrincipal, DbSession
 from app.services import maintenance
 
