@@ -178,7 +178,6 @@ def run_filters(
         )
         assert result.P is not None
         q_all, P_all = result.q_hat, result.P
-        VpP = est.Vp @ P_all  # [E, S, p, m]
         Gz_Vp = G_z @ est.Vp  # [E, S, nz, m]
         values_all = np.empty((E, S, est.layout.width))
         values_all[..., s["q"]] = q_all
@@ -186,7 +185,7 @@ def run_filters(
             np.maximum(np.diagonal(P_all, axis1=2, axis2=3), 0.0)
         )
         values_all[..., s["h"]] = q_all @ est.Vp.T
-        values_all[..., s["h_sigma"]] = np.sqrt(np.maximum((VpP * est.Vp).sum(axis=-1), 0.0))
+        values_all[..., s["h_sigma"]] = result.h_std
         values_all[..., s["z"]] = (Gz_Vp @ q_all[..., None])[..., 0]
         z_var = ((Gz_Vp @ P_all) * Gz_Vp).sum(axis=-1)
         values_all[..., s["z_sigma"]] = np.sqrt(np.maximum(z_var, 0.0))

@@ -80,7 +80,9 @@ class Detector:
                    int(d.get("warm", 0)))
 
     def to_dict(self) -> dict[str, Any]:
-        return {"history": [list(q) for q in self.history], "S": self.S, "pending": self.pending,
+        # Only the outer list is copied: a history's entries are never changed in place
+        # (records are appended and dropped, runs assign new lists).
+        return {"history": list(self.history), "S": self.S, "pending": self.pending,
                 "s_mean": self.s_mean, "s_count": self.s_count, "warm": self.warm}
 
     def reset(self) -> None:
