@@ -1,26 +1,22 @@
 """Bulk snapshot ingest on PostgreSQL: HTTP end to end against a raw COPY of the same rows.
 
-A real uvicorn server on 127.0.0.1 (in a thread) serves the app on a fresh PostgreSQL
-database; an httpx client uploads N snapshots in one request (CSV, then Parquet): parse,
-validate, resolve to ESNs, deduplicate, COPY, commit. The peer is a raw COPY of the same rows
-(already resolved, pre-rendered CSV) into the same table, committed, in the same run. Each
-repetition uses fresh timestamps, so every run stores every row.
+The server is ``fleethealth serve`` in its own process, as deployed (uvicorn, the in-process
+job runner, on a fresh PostgreSQL database); an httpx client in this process uploads N
+snapshots in one request (CSV, then Parquet): parse, validate, resolve to ESNs, deduplicate,
+COPY, commit. The peer is a raw COPY of the same rows (already resolved, pre-rendered CSV or
+binary) into the same table, committed, in the same run. Each repetition uses fresh
+timestamps, so every run stores every row.
 
 Then end to end with estimation: a second operator whose engine type has an active design (the
-reference linear model, six tuners) uploads N snapshots over HTTP (CSV), and the
-``estimate_engines`` job the upload queued runs to completion (``app.jobs.runner.run_pending``,
-the job functions the in-process runner calls: filter, detection, isolation, estimates stored).
-Its sensor values sit near the model's trims with sensor noise, so the detector runs as on a
-healthy fleet. With ``--compare-detector`` the estimation runs twice per repetition on fresh
-rows: with the pipeline's batched detector and with the per-record detector (``detect_step``
-record by record, the previous path), for the detector's before/after figure in the same run.
-``--profile FILE`` writes a cProfile of the first estimation job.
+reference linear model, six tuners) uploads N snapshots over HTTP (CSV), and the time runs
+from the request to the end of the estimation job the upload queued, which the server's job
+runner starts as the upload commits (filter, detection, isolation, estimates stored). Its
+sensor values sit near the model's trims with sensor noise, so the detector runs as on a
+healthy fleet.
 
-With ``--sustained K``: a third operator uploads the same number of
-snapshots in K consecutive uploads, back to back, into a server whose in-process job runner
-estimates each upload as it commits (as ``fleethealth serve`` runs): the time from the first
-request to the last estimate stored, ingest of one upload overlapping estimation of the one
-before.
+With ``--sustained K``: a third operator uploads the same number of snapshots in K
+consecutive uploads, back to back: the time from the first request to the last estimate
+stored, ingest of one upload overlapping estimation of the one before.
 
 Targets (issue 5): >= 50,000 snapshots/s end to end (parse + validate + store + estimate), and
 >= 30 % of the raw COPY rate.
@@ -35,32 +31,32 @@ import io
 import os
 import socket
 import statistics
+import subprocess
 import sys
-import threading
 import time
 import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
+from typing import Any
 
 import httpx
 import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
-import uvicorn
 from sqlalchemy import create_engine, text
 from sqlalchemy.engine import make_url
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
 
-from app.config import Settings  # noqa: E402
 from app.db import make_engine, make_sessionmaker, transaction  # noqa: E402
-from app.jobs.runner import run_pending  # noqa: E402
-from app.main import create_app  # noqa: E402
 from app.migrate import upgrade  # noqa: E402
 from app.models import EngineModel, EstimatorDesign  # noqa: E402
 from app.models.ingest import SNAPSHOT_COLUMNS  # noqa: E402
-from app.services import estimator, fleet, pipeline, tenancy  # noqa: E402
+from app.services import estimator, fleet, tenancy  # noqa: E402
 from app.services.ingest import SNAPSHOT_PG_TYPES, snapshot_table  # noqa: E402
 from app.services.pgcopy import binary_copy_payload  # noqa: E402
 from estimation.tuners import svd_vstar  # noqa: E402
@@ -238,82 +234,83 @@ def raw_copy(url: str, body: bytes, fmt: str = "csv") -> float:
 def end_to_end(
     url: str, base: str, args: argparse.Namespace, times: dict[str, list[float]], epoch: int
 ) -> None:
-    """Upload over HTTP then run the queued estimation job to completion, per repetition with
-    the batched detector and with the per-record one; adds their times to ``times``."""
+    """Upload over HTTP and wait for the estimation job the upload queued to end; adds the
+    times to ``times``."""
     n = args.rows
     key, _where, operator_id = build_fleet(url, args.tails, name="Bench Estimate Air")
     est = add_design(url, operator_id)
-    factory = make_sessionmaker(make_engine(url))
-    run_pending(factory)  # the ingest-only uploads' jobs (no design there: nothing to do)
-    batched = pipeline._wssr_filled
-    detectors = {"batched": batched}
-    if args.compare_detector:
-        detectors["per record"] = pipeline._wssr_filled_per_record
+    engine = create_engine(url)
     with httpx.Client(base_url=base, timeout=600, headers={"X-API-Key": key}) as client:
         for rep in range(args.repeat):
-            line = []
-            for label, detector in detectors.items():
-                epoch += 1
-                rows = healthy_snapshots(
-                    n, args.tails, T0 + timedelta(days=400 * epoch), epoch, est
-                )
-                sink = io.BytesIO()
-                pacsv.write_csv(rows, sink)
-                started = time.perf_counter()
-                response = client.post(
-                    "/api/v1/snapshots/file", content=sink.getvalue(),
-                    headers={"Content-Type": "text/csv"},
-                )
-                response.raise_for_status()
-                stored = time.perf_counter()
-                pipeline._wssr_filled = detector  # type: ignore[assignment]
-                try:
-                    # The request's transaction (the job row with it) may commit just after
-                    # the response: look again until the job is there.
-                    if args.profile and label == "batched":
-                        import cProfile
-
-                        with cProfile.Profile() as prof:
-                            ran = run_pending(factory)
-                        prof.dump_stats(args.profile)
-                    else:
-                        ran = run_pending(factory)
-                    while not ran and time.perf_counter() - stored < 30.0:
-                        time.sleep(0.005)
-                        ran = run_pending(factory)
-                finally:
-                    pipeline._wssr_filled = batched  # type: ignore[assignment]
-                done = time.perf_counter()
-                if response.json()["rows_stored"] != n or not ran:
-                    raise SystemExit(f"{label}: upload or estimation job missing")
-                times.setdefault(f"http csv + estimate ({label})", []).append(done - started)
-                times.setdefault(f"  estimate {label}", []).append(done - stored)
-                line.append(f"{label}: ingest {stored - started:.3f} s + estimate "
-                            f"{done - stored:.3f} s")
-            print(f"  end to end {rep + 1}: " + "; ".join(line))
-    with factory() as session:
-        estimated = session.scalar(text(
-            "SELECT count(*) FROM estimates WHERE operator_id = :o").bindparams(o=operator_id))
-    if estimated != len(detectors) * args.repeat * n:
-        raise SystemExit(
-            f"{estimated} estimates stored, expected {len(detectors) * args.repeat * n}"
-        )
+            epoch += 1
+            rows = healthy_snapshots(n, args.tails, T0 + timedelta(days=400 * epoch), epoch, est)
+            sink = io.BytesIO()
+            pacsv.write_csv(rows, sink)
+            started = time.perf_counter()
+            response = client.post(
+                "/api/v1/snapshots/file", content=sink.getvalue(),
+                headers={"Content-Type": "text/csv"},
+            )
+            response.raise_for_status()
+            stored = time.perf_counter()
+            wait_for_jobs(engine, operator_id, started)
+            done = time.perf_counter()
+            if response.json()["rows_stored"] != n:
+                raise SystemExit("end to end: upload incomplete")
+            times.setdefault("http csv + estimate", []).append(done - started)
+            times.setdefault("  estimate", []).append(done - stored)
+            print(f"  end to end {rep + 1}: ingest {stored - started:.3f} s + estimation job "
+                  f"{done - stored:.3f} s")
+    with engine.connect() as connection:
+        estimated = connection.execute(text(
+            "SELECT count(*) FROM estimates WHERE operator_id = :o"), {"o": operator_id}
+        ).scalar_one()
+    engine.dispose()
+    if estimated != args.repeat * n:
+        raise SystemExit(f"{estimated} estimates stored, expected {args.repeat * n}")
 
 
-def start_server(url: str, background_jobs: bool) -> tuple[uvicorn.Server, int]:
-    """uvicorn on a free port in a thread, serving the app on ``url``."""
-    settings = Settings(
-        database_url=url, log_json=False, log_level="WARNING", data_dir=Path("/tmp/fh-bench")
-    )
+def wait_for_jobs(engine: Any, operator_id: int, started: float) -> None:
+    """Until the operator has no queued or running job (polled every 5 ms; the upload's job
+    was queued in its transaction, so it is there once the response is)."""
+    while True:
+        with engine.connect() as connection:
+            busy = connection.execute(text(
+                "SELECT count(*) FROM jobs WHERE operator_id = :o AND status IN "
+                "('queued', 'running')"), {"o": operator_id}).scalar_one()
+        if not busy:
+            return
+        if time.perf_counter() - started > 600:
+            raise SystemExit("the estimation job did not end")
+        time.sleep(0.005)
+
+
+@contextmanager
+def serving(url: str) -> Iterator[str]:
+    """``fleethealth serve`` on ``url`` in its own process (no demo, migrated already, its job
+    runner on); yields its base URL."""
     port = free_port()
-    server = uvicorn.Server(uvicorn.Config(
-        create_app(settings, background_jobs=background_jobs), host="127.0.0.1", port=port,
-        log_level="warning",
-    ))
-    threading.Thread(target=server.run, daemon=True).start()
-    while not server.started:
-        time.sleep(0.05)
-    return server, port
+    env = {**os.environ, "FLEETHEALTH_DATABASE_URL": url, "FLEETHEALTH_LOG_LEVEL": "WARNING",
+           "FLEETHEALTH_LOG_JSON": "false", "FLEETHEALTH_DATA_DIR": "/tmp/fh-bench"}
+    command = [sys.executable, "-c", "from app.cli import main; main()", "serve", "--no-demo",
+               "--skip-migrate", "--host", "127.0.0.1", "--port", str(port)]
+    server = subprocess.Popen(command, env=env, cwd=ROOT, stdout=subprocess.DEVNULL)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.perf_counter() + 60
+        while True:
+            try:
+                if httpx.get(f"{base}/health", timeout=1).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            if server.poll() is not None or time.perf_counter() > deadline:
+                raise SystemExit("fleethealth serve did not start")
+            time.sleep(0.1)
+        yield base
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
 
 
 def sustained(
@@ -325,7 +322,6 @@ def sustained(
     n, k = args.rows, args.sustained
     key, _where, operator_id = build_fleet(url, args.tails, name="Bench Sustained Air")
     est = add_design(url, operator_id)
-    server, port = start_server(url, background_jobs=True)
     engine = create_engine(url)
 
     def stored() -> int:
@@ -341,8 +337,8 @@ def sustained(
                 "('queued', 'running')"), {"o": operator_id}).scalar_one()
 
     try:
-        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=600,
-                          headers={"X-API-Key": key}) as client:
+        with serving(url) as base, httpx.Client(base_url=base, timeout=600,
+                                                 headers={"X-API-Key": key}) as client:
             for rep in range(args.repeat):
                 epoch += 1
                 rows = healthy_snapshots(n, args.tails, T0 + timedelta(days=400 * epoch),
@@ -368,8 +364,6 @@ def sustained(
                 print(f"  sustained {rep + 1}: {k} uploads posted in {posted - started:.3f} s, "
                       f"last estimate stored at {done - started:.3f} s")
     finally:
-        server.should_exit = True
-        time.sleep(0.5)
         engine.dispose()
 
 
@@ -379,11 +373,8 @@ def main() -> None:
     ap.add_argument("--tails", type=int, default=50)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-estimate", action="store_true", help="ingest alone")
-    ap.add_argument("--profile", default="", help="cProfile file of the first estimation job")
     ap.add_argument("--sustained", type=int, default=0,
                     help="uploads per repetition into a server with its job runner (0: skip)")
-    ap.add_argument("--compare-detector", action="store_true",
-                    help="also run the estimation with the per-record detector")
     args = ap.parse_args()
 
     name = f"fleethealth_bench_{uuid.uuid4().hex[:8]}"
@@ -391,125 +382,128 @@ def main() -> None:
     with admin.connect() as connection:
         connection.execute(text(f'CREATE DATABASE "{name}"'))
     url = make_url(POSTGRES_URL).set(database=name).render_as_string(hide_password=False)
-    server = None
     try:
         upgrade(url)
         key, where, operator_id = build_fleet(url, args.tails)
-        server, port = start_server(url, background_jobs=False)
-
-        # A placeholder upload row for the raw COPY's foreign key.
-        with create_engine(url).begin() as connection:
-            upload_id = connection.execute(
-                text(
-                    "INSERT INTO uploads (operator_id, created_at, kind, content_format, checksum,"
-                    " status, rows_received, rows_stored, rows_duplicate, bytes_received,"
-                    " message, errors, affected) VALUES (:o, now(), 'snapshots', 'csv', 'raw',"
-                    " 'stored', 0, 0, 0, 0, 'raw COPY peer', '[]', '[]') RETURNING id"
-                ),
-                {"o": operator_id},
-            ).scalar_one()
-
-        n = args.rows
-        print(
-            f"bulk snapshot ingest: {n} snapshots per request, {2 * args.tails} engines, "
-            f"PostgreSQL, uvicorn on 127.0.0.1:{port}"
-        )
-        times: dict[str, list[float]] = {
-            "http csv": [],
-            "http parquet": [],
-            "raw COPY csv": [],
-            "raw COPY bin": [],
-        }
-        sizes: dict[str, int] = {}
-        base = f"http://127.0.0.1:{port}"
-        with httpx.Client(base_url=base, timeout=600, headers={"X-API-Key": key}) as client:
-            warm = snapshots(1000, args.tails, T0 - timedelta(hours=12), seed=99)
-            sink = io.BytesIO()
-            pacsv.write_csv(warm, sink)
-            client.post(
-                "/api/v1/snapshots/file",
-                content=sink.getvalue(),
-                headers={"Content-Type": "text/csv"},
-            ).raise_for_status()
-            epoch = 0
-            for rep in range(args.repeat):
-                for label in times:
-                    epoch += 1
-                    rows = snapshots(n, args.tails, T0 + timedelta(days=400 * epoch), seed=epoch)
-                    if label.startswith("raw COPY"):
-                        fmt = "binary" if label.endswith("bin") else "csv"
-                        body = raw_copy_body(rows, where, operator_id, upload_id, fmt)
-                        sizes[label] = len(body)
-                        times[label].append(raw_copy(url, body, fmt))
-                        continue
-                    sink = io.BytesIO()
-                    if label == "http csv":
-                        pacsv.write_csv(rows, sink)
-                        media = "text/csv"
-                    else:
-                        pq.write_table(rows, sink)
-                        media = "application/vnd.apache.parquet"
-                    body = sink.getvalue()
-                    sizes[label] = len(body)
-                    started = time.perf_counter()
-                    response = client.post(
-                        "/api/v1/snapshots/file", content=body, headers={"Content-Type": media}
-                    )
-                    elapsed = time.perf_counter() - started
-                    response.raise_for_status()
-                    stored = response.json()["rows_stored"]
-                    if stored != n:
-                        raise SystemExit(f"{label}: stored {stored} of {n} rows")
-                    times[label].append(elapsed)
-                print(
-                    f"  repetition {rep + 1}: "
-                    + ", ".join(f"{k} {v[-1]:.3f} s" for k, v in times.items())
-                )
-        with create_engine(url).connect() as connection:
-            total = connection.execute(text("SELECT count(*) FROM snapshots")).scalar_one()
-        expected = 1000 + len(times) * args.repeat * n
-        if total != expected:
-            raise SystemExit(f"table holds {total} rows, expected {expected}")
-        if not args.no_estimate:
-            end_to_end(url, base, args, times, epoch)
-            if args.sustained:
-                sustained(url, args, times, epoch + 10 * args.repeat)
-
-        # The peer is the faster raw COPY of the two formats.
-        raw_rate = max(n / statistics.median(times[k]) for k in ("raw COPY csv", "raw COPY bin"))
-        print(
-            f"  {'path':<13} {'median s':>9} {'best s':>8} {'snapshots/s':>12} "
-            f"{'% of COPY':>9} {'body MB':>8}"
-        )
-        results = {}
-        for label, values in times.items():
-            if label.startswith("  "):
-                continue  # parts of the end-to-end figure, shown below
-            rate = n / statistics.median(values)
-            results[label] = rate
-            print(
-                f"  {label:<13} {statistics.median(values):9.3f} {min(values):8.3f} "
-                f"{rate:12,.0f} {100 * rate / raw_rate:8.1f}% {sizes.get(label, 0) / 1e6:8.1f}"
-            )
-        for label in [k for k in results if k.startswith("http")]:
-            rate = results[label]
-            ok = rate >= 50_000 and rate >= 0.3 * raw_rate
-            print(
-                f"target {label}: >= 50,000 snapshots/s and >= 30 % of raw COPY: "
-                f"{rate:,.0f}/s, {100 * rate / raw_rate:.0f} % -> {'PASS' if ok else 'FAIL'}"
-            )
-        if not args.no_estimate:
-            for label in [k for k in times if k.startswith("  estimate")]:
-                rate = n / statistics.median(times[label])
-                print(f"  {label.strip():<22} alone: {statistics.median(times[label]):7.3f} s, "
-                      f"{rate:,.0f} records/s")
+        with serving(url) as base:
+            measure(url, base, key, where, operator_id, args)
     finally:
-        if server is not None:
-            server.should_exit = True
-            time.sleep(0.5)
         with admin.connect() as connection:
             connection.execute(text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
         admin.dispose()
+
+
+def measure(
+    url: str, base: str, key: str, where: dict[tuple[str, int], tuple[int, int]],
+    operator_id: int, args: argparse.Namespace,
+) -> None:
+    """Every measurement against the server at ``base``, then the table of results."""
+
+    # A placeholder upload row for the raw COPY's foreign key.
+    with create_engine(url).begin() as connection:
+        upload_id = connection.execute(
+            text(
+                "INSERT INTO uploads (operator_id, created_at, kind, content_format, checksum,"
+                " status, rows_received, rows_stored, rows_duplicate, bytes_received,"
+                " message, errors, affected) VALUES (:o, now(), 'snapshots', 'csv', 'raw',"
+                " 'stored', 0, 0, 0, 0, 'raw COPY peer', '[]', '[]') RETURNING id"
+            ),
+            {"o": operator_id},
+        ).scalar_one()
+
+    n = args.rows
+    print(
+        f"bulk snapshot ingest: {n} snapshots per request, {2 * args.tails} engines, "
+        f"PostgreSQL, fleethealth serve at {base}"
+    )
+    times: dict[str, list[float]] = {
+        "http csv": [],
+        "http parquet": [],
+        "raw COPY csv": [],
+        "raw COPY bin": [],
+    }
+    sizes: dict[str, int] = {}
+    with httpx.Client(base_url=base, timeout=600, headers={"X-API-Key": key}) as client:
+        warm = snapshots(1000, args.tails, T0 - timedelta(hours=12), seed=99)
+        sink = io.BytesIO()
+        pacsv.write_csv(warm, sink)
+        client.post(
+            "/api/v1/snapshots/file",
+            content=sink.getvalue(),
+            headers={"Content-Type": "text/csv"},
+        ).raise_for_status()
+        epoch = 0
+        for rep in range(args.repeat):
+            for label in times:
+                epoch += 1
+                rows = snapshots(n, args.tails, T0 + timedelta(days=400 * epoch), seed=epoch)
+                if label.startswith("raw COPY"):
+                    fmt = "binary" if label.endswith("bin") else "csv"
+                    body = raw_copy_body(rows, where, operator_id, upload_id, fmt)
+                    sizes[label] = len(body)
+                    times[label].append(raw_copy(url, body, fmt))
+                    continue
+                sink = io.BytesIO()
+                if label == "http csv":
+                    pacsv.write_csv(rows, sink)
+                    media = "text/csv"
+                else:
+                    pq.write_table(rows, sink)
+                    media = "application/vnd.apache.parquet"
+                body = sink.getvalue()
+                sizes[label] = len(body)
+                started = time.perf_counter()
+                response = client.post(
+                    "/api/v1/snapshots/file", content=body, headers={"Content-Type": media}
+                )
+                elapsed = time.perf_counter() - started
+                response.raise_for_status()
+                stored = response.json()["rows_stored"]
+                if stored != n:
+                    raise SystemExit(f"{label}: stored {stored} of {n} rows")
+                times[label].append(elapsed)
+            print(
+                f"  repetition {rep + 1}: "
+                + ", ".join(f"{k} {v[-1]:.3f} s" for k, v in times.items())
+            )
+    with create_engine(url).connect() as connection:
+        total = connection.execute(text("SELECT count(*) FROM snapshots")).scalar_one()
+    expected = 1000 + len(times) * args.repeat * n
+    if total != expected:
+        raise SystemExit(f"table holds {total} rows, expected {expected}")
+    if not args.no_estimate:
+        end_to_end(url, base, args, times, epoch)
+        if args.sustained:
+            sustained(url, args, times, epoch + 10 * args.repeat)
+
+    # The peer is the faster raw COPY of the two formats.
+    raw_rate = max(n / statistics.median(times[k]) for k in ("raw COPY csv", "raw COPY bin"))
+    print(
+        f"  {'path':<13} {'median s':>9} {'best s':>8} {'snapshots/s':>12} "
+        f"{'% of COPY':>9} {'body MB':>8}"
+    )
+    results = {}
+    for label, values in times.items():
+        if label.startswith("  "):
+            continue  # parts of the end-to-end figure, shown below
+        rate = n / statistics.median(values)
+        results[label] = rate
+        print(
+            f"  {label:<13} {statistics.median(values):9.3f} {min(values):8.3f} "
+            f"{rate:12,.0f} {100 * rate / raw_rate:8.1f}% {sizes.get(label, 0) / 1e6:8.1f}"
+        )
+    for label in [k for k in results if k.startswith("http")]:
+        rate = results[label]
+        ok = rate >= 50_000 and rate >= 0.3 * raw_rate
+        print(
+            f"target {label}: >= 50,000 snapshots/s and >= 30 % of raw COPY: "
+            f"{rate:,.0f}/s, {100 * rate / raw_rate:.0f} % -> {'PASS' if ok else 'FAIL'}"
+        )
+    if not args.no_estimate:
+        for label in [k for k in times if k.startswith("  estimate")]:
+            rate = n / statistics.median(times[label])
+            print(f"  {label.strip():<22} alone: {statistics.median(times[label]):7.3f} s, "
+                  f"{rate:,.0f} records/s")
 
 
 if __name__ == "__main__":

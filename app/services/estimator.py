@@ -70,6 +70,7 @@ class ScheduledGains(NamedTuple):
     G_z: np.ndarray
     noise_std: np.ndarray | None = None  # [S, ny] sensor noise, percent of y_trim (None: the
     # design model's)
+    constant: bool = False  # the same trims and gains at every condition (a linear model)
 
 
 Schedule = Callable[[np.ndarray], ScheduledGains]  # conditions [S, 4] -> gains
@@ -112,6 +113,7 @@ def single_point_schedule(model: LinearModel) -> Schedule:
             np.broadcast_to(G_y, (S, *G_y.shape)),
             np.broadcast_to(G_u, (S, *G_u.shape)),
             np.broadcast_to(G_z, (S, *G_z.shape)),
+            constant=True,
         )
 
     return schedule

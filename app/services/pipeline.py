@@ -41,10 +41,13 @@ from estimation.shift_scan import level_scan, sliding_baselines
 from estimation.snapshot import SnapshotState, snapshot_deviation, snapshot_filter
 
 NEW_FLIGHT_S = 3600.0  # records further apart than this are different flights
-CHECKPOINT_EVERY = 256
-# Records of all engines per filter call (bounds the scheduled-gain arrays, ~120 MB for the
-# built-in engine): a call takes max(64, RECORD_SLOTS // engines) records of each engine.
-RECORD_SLOTS = 32_768
+# A checkpoint (the whole pipeline state, a few kB of JSON) every this many records of an
+# engine: a re-run redoes at most this many records before the late one.
+CHECKPOINT_EVERY = 1024
+# Bytes of per-record arrays per filter call: a call takes max(64, CHUNK_BYTES // (engines x
+# bytes per record)) records of each engine (``_record_bytes``: 2.3 kB a record for a six-tuner
+# design of the reference model, about 29,000 records a call; larger calls measured no faster).
+CHUNK_BYTES = 64 * 2**20
 
 
 @dataclass
@@ -127,7 +130,7 @@ def run_filters(
     s = est.layout.slices()
     E = len(runs)
     ny = len(est.sensor_columns)
-    chunk = max(64, RECORD_SLOTS // max(E, 1))
+    chunk = max(64, CHUNK_BYTES // (max(E, 1) * _record_bytes(est)))
     for c0 in range(0, longest, chunk):
         c1 = min(c0 + chunk, longest)
         S = c1 - c0
@@ -145,12 +148,8 @@ def run_filters(
         u_dev = np.where(np.isfinite(u_dev), u_dev, 0.0)  # a missing actuator: at trim
         dy = np.full((E, S, ny), np.nan)
         dy[slot_e, slot_j] = snapshot_deviation(y, g.y_trim, g.G_u, u_dev)
-        G_y = np.zeros((E, S, ny, est.Vp.shape[0]))
-        G_y[slot_e, slot_j] = g.G_y
-        G_u = np.zeros((E, S, *g.G_u.shape[1:]))
-        G_u[slot_e, slot_j] = g.G_u
-        G_z = np.zeros((E, S, len(est.layout.aux), est.Vp.shape[0]))
-        G_z[slot_e, slot_j] = g.G_z
+        G_y, G_u, G_z = (_per_slot(G, (E, S), slot_e, slot_j, g.constant)
+                         for G in (g.G_y, g.G_u, g.G_z))
         noise = np.broadcast_to(est.noise_std, (E, S, ny)).copy()
         if g.noise_std is not None:
             noise[slot_e, slot_j] = np.sqrt(g.noise_std**2 + MODEL_ERROR**2)
@@ -178,7 +177,8 @@ def run_filters(
         )
         assert result.P is not None
         q_all, P_all = result.q_hat, result.P
-        Gz_Vp = G_z @ est.Vp  # [E, S, nz, m]
+        Gz_Vp = (np.broadcast_to(g.G_z[0] @ est.Vp, (*G_z.shape[:-1], est.m)) if g.constant
+                 else G_z @ est.Vp)  # [E, S, nz, m]
         values_all = np.empty((E, S, est.layout.width))
         values_all[..., s["q"]] = q_all
         values_all[..., s["q_sigma"]] = np.sqrt(
@@ -214,6 +214,30 @@ def run_filters(
             out.state = {"filter": filt[e].to_dict(), "detector": det.to_dict(),
                          "last_epoch": last[e]}
     return outputs
+
+
+def _record_bytes(est: SnapshotEstimator) -> int:
+    """Bytes of a chunk's per-record arrays for one record (float64): deviations, noise,
+    q_hat, P, estimates, innovations and 1-sigma, and the gains (which a constant-gain design
+    does not lay out per record: there it is an upper bound)."""
+    ny, (p, m) = len(est.sensor_columns), est.Vp.shape
+    nu, nz = len(est.input_columns), len(est.layout.aux)
+    per_record = 3 * ny + m + m * m + est.layout.width + p + ny
+    per_record += ny * p + ny * nu + nz * p + nz * m
+    return 8 * per_record
+
+
+def _per_slot(
+    G: np.ndarray, shape: tuple[int, int], slot_e: np.ndarray, slot_j: np.ndarray,
+    constant: bool,
+) -> np.ndarray:
+    """Scheduled gains [n, a, b] of the chunk's records laid out [E, S, a, b] (padding rows
+    zero), or one gain broadcast over every slot when the schedule is constant."""
+    if constant:
+        return np.broadcast_to(G[0], (*shape, *G.shape[1:]))
+    out = np.zeros((*shape, *G.shape[1:]))
+    out[slot_e, slot_j] = G
+    return out
 
 
 def _wssr_filled(

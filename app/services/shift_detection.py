@@ -22,6 +22,7 @@ the records there are, with the covariance from before the action.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -75,14 +76,18 @@ class Detector:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> Detector:
         s_mean = d.get("s_mean")
-        return cls([list(map(float, q)) for q in d["history"]], float(d["S"]), d.get("pending"),
+        return cls([list(map(float, q)) for q in d["history"]], float(d["S"]),
+                   copy.deepcopy(d.get("pending")),
                    None if s_mean is None else float(s_mean), int(d.get("s_count", 0)),
                    int(d.get("warm", 0)))
 
     def to_dict(self) -> dict[str, Any]:
-        # Only the outer list is copied: a history's entries are never changed in place
+        # A snapshot of the state, not a view: a pending alarm's fit and wait change in place
+        # as records arrive (a checkpoint taken during an alarm must keep the values it had).
+        # Of the history only the outer list is copied: its entries are never changed in place
         # (records are appended and dropped, runs assign new lists).
-        return {"history": list(self.history), "S": self.S, "pending": self.pending,
+        return {"history": list(self.history), "S": self.S,
+                "pending": copy.deepcopy(self.pending),
                 "s_mean": self.s_mean, "s_count": self.s_count, "warm": self.warm}
 
     def reset(self) -> None:

@@ -8,12 +8,13 @@ from __future__ import annotations
 from datetime import UTC, datetime, timedelta
 
 import numpy as np
+import pytest
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.models import EngineModel, MaintenanceAction, Snapshot
 from app.models.estimates import Estimate, Event, FilterState
-from app.services import backlog, estimation_runs, estimator
+from app.services import backlog, estimation_runs, estimator, pipeline
 from estimation import isolation
 from estimation.model import LinearModel
 from estimation.tuners import svd_vstar
@@ -148,6 +149,26 @@ def test_split_and_late_uploads_equal_one_uninterrupted_run(session: Session) ->
         select(func.count()).select_from(Estimate).where(Estimate.engine_id == whole.id)
     )
     assert count == N
+
+
+def test_a_late_record_restarts_from_the_checkpoint_before_it(
+    session: Session, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With a checkpoint every 256 records, records 600-699 arriving last re-run the engine
+    from the checkpoint after record 511, and the rows still equal one uninterrupted run."""
+    monkeypatch.setattr(pipeline, "CHECKPOINT_EVERY", 256)
+    fleet = _fleet_with_design(session)
+    aircraft = add_aircraft(session, fleet, "F-CKP")
+    times, y = _records(seed=9, fault="HPC", at=500)
+    whole, late = add_engine(session, fleet, "CK0"), add_engine(session, fleet, "CK1")
+    start = _store(session, fleet, whole.id, aircraft.id, times, y, range(N))
+    estimation_runs.estimate_engines(session, fleet.operator_id, {whole.id: start})
+    for part in (range(0, 600), range(700, N), range(600, 700)):
+        start = _store(session, fleet, late.id, aircraft.id, times, y, part)
+        summary = estimation_runs.estimate_engines(session, fleet.operator_id, {late.id: start})
+    assert summary["reruns"] == 1 and summary["records"] == N - 512
+    assert _rows(session, late.id) == _rows(session, whole.id)
+    assert _events(session, late.id) == _events(session, whole.id)
 
 
 def test_library_fault_opens_an_event_isolated_to_it(session: Session) -> None:
