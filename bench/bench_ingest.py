@@ -259,8 +259,14 @@ def end_to_end(
                 raise SystemExit("end to end: upload incomplete")
             times.setdefault("http csv + estimate", []).append(done - started)
             times.setdefault("  estimate", []).append(done - stored)
-            print(f"  end to end {rep + 1}: ingest {stored - started:.3f} s + estimation job "
-                  f"{done - stored:.3f} s")
+            with engine.connect() as connection:
+                queued, ran = connection.execute(text(
+                    "SELECT extract(epoch FROM started_at - created_at), "
+                    "extract(epoch FROM finished_at - started_at) FROM jobs "
+                    "WHERE operator_id = :o ORDER BY id DESC LIMIT 1"), {"o": operator_id}).one()
+            print(f"  end to end {rep + 1}: {done - started:.3f} s: response after "
+                  f"{stored - started:.3f} s, the job waited {queued:.3f} s to start and ran "
+                  f"{ran:.3f} s")
     with engine.connect() as connection:
         estimated = connection.execute(text(
             "SELECT count(*) FROM estimates WHERE operator_id = :o"), {"o": operator_id}

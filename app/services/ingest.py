@@ -269,10 +269,10 @@ def resolve_rows(session: Session, *, operator_id: int, parsed: ParsedTable) -> 
     aircraft_ids = aircraft_of_code[codes]
     positions = table["position"].to_numpy(zero_copy_only=False).astype(np.int64)
     times = table["recorded_at"].to_numpy(zero_copy_only=False).astype("datetime64[us]")
-    tail_values = np.asarray(names, dtype=object)[codes] if n else np.empty(0, dtype=object)
-    engine_ids = fleet.resolve_engines(session, operator_id, tail_values, positions, times)
+    engine_ids = fleet.resolve_engines_coded(session, operator_id, names, codes, positions, times)
     unresolved = engine_ids == fleet.NO_ENGINE
     if unresolved.any():
+        tail_values = np.asarray(names, dtype=object)[codes]
         log = ErrorLog()
         try:
             for index in np.flatnonzero(unresolved):

@@ -31,6 +31,7 @@ import numpy as np
 from scipy import stats
 
 from app.services.estimator import SHIFT_LEVEL, SnapshotEstimator
+from estimation.shift_scan import level_scan
 from estimation.snapshot import SnapshotState
 
 # Detector settings (records are snapshots; a flight gives one to three).
@@ -120,16 +121,10 @@ def wssr_and_distance(
     shift: np.ndarray, P: np.ndarray, H: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """``wssr_all`` and the shift's squared Mahalanobis distance shift^T P^-1 shift (the
-    detector's level statistic) from one solve with P."""
-    X = np.linalg.solve(P, np.column_stack([shift, H]))
-    Pinv_s, Pinv_H = X[:, 0], X[:, 1:]
-    distance = float(shift @ Pinv_s)
-    if H.shape[1] == 0:
-        return np.zeros(0), np.zeros(0), distance
-    norm2 = np.einsum("ij,ij->j", H, Pinv_H)  # H_i^T P^-1 H_i
-    proj = H.T @ Pinv_s  # H_i^T P^-1 q
-    f = proj / norm2
-    return np.maximum(distance - proj * f, 0.0), f, distance
+    detector's level statistic): ``level_scan`` of one record, so the record-by-record
+    detector and the batched one compute the same numbers."""
+    scan = level_scan(np.asarray(shift, float)[None], np.asarray(P, float)[None], H)
+    return scan.wssr[0], scan.f[0], float(scan.distance[0])
 
 
 def tuner_update_statistic(
