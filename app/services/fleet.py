@@ -287,7 +287,9 @@ def delete_engine(session: Session, *, operator_id: int, engine_id: int) -> None
     # Snapshots keep no foreign key (a per-row check on every bulk COPY, migration 0008):
     # their presence is checked here, under the engine's row lock.
     _locked(session, row)
-    if session.scalar(select(Snapshot.id).where(Snapshot.engine_id == row.id).limit(1)):
+    if session.scalar(
+        select(Snapshot.engine_id).where(Snapshot.engine_id == row.id).limit(1)
+    ):
         raise Conflict(f"engine {row.esn!r} still has data (snapshots)")
     delete_or_conflict(
         session, row, f"engine {row.esn!r} still has installations, maintenance actions or data"

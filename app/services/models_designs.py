@@ -367,7 +367,7 @@ def activate_design(session: Session, *, operator_id: int, design_id: int) -> Es
             select(Engine.id).where(
                 Engine.operator_id == operator_id,
                 Engine.engine_type_id == design.engine_type_id,
-                select(Snapshot.id).where(Snapshot.engine_id == Engine.id).exists(),
+                select(Snapshot.engine_id).where(Snapshot.engine_id == Engine.id).exists(),
             )
         ))
     return design
