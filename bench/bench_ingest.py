@@ -498,13 +498,17 @@ def measure(
             f"  {label:<13} {statistics.median(values):9.3f} {min(values):8.3f} "
             f"{rate:12,.0f} {100 * rate / raw_rate:8.1f}% {sizes.get(label, 0) / 1e6:8.1f}"
         )
+    # Both peers: the CSV COPY loads the rows as uploaded; the binary COPY loads them
+    # re-encoded in PostgreSQL's own format, the fastest a table can be filled.
+    peers = {k: n / statistics.median(times[k]) for k in ("raw COPY csv", "raw COPY bin")}
     for label in [k for k in results if k.startswith("http")]:
         rate = results[label]
-        ok = rate >= 50_000 and rate >= 0.3 * raw_rate
-        print(
-            f"target {label}: >= 50,000 snapshots/s and >= 30 % of raw COPY: "
-            f"{rate:,.0f}/s, {100 * rate / raw_rate:.0f} % -> {'PASS' if ok else 'FAIL'}"
-        )
+        for peer, peer_rate in peers.items():
+            ok = rate >= 50_000 and rate >= 0.3 * peer_rate
+            print(
+                f"target {label}: >= 50,000 snapshots/s and >= 30 % of {peer}: "
+                f"{rate:,.0f}/s, {100 * rate / peer_rate:.0f} % -> {'PASS' if ok else 'FAIL'}"
+            )
     if not args.no_estimate:
         for label in [k for k in times if k.startswith("  estimate")]:
             rate = n / statistics.median(times[label])

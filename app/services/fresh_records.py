@@ -7,10 +7,10 @@ database: on 100,000 records that read is 0.3-0.6 s, a third of the job.
 
 Kept rows are exactly the stored rows (the upload's new rows after deduplication, the
 columns of the ``snapshots`` table, values as COPYed), registered only once their transaction
-has committed. A job uses them for an engine only when they are complete: it counts the
-engine's stored records after its restart point, and takes the kept ones only if there are as
-many (kept rows are stored rows, so equal counts mean the same rows); otherwise it reads the
-database, as a job in another process always does. What a job takes is dropped; the rest is
+has committed. A job uses them for an engine only when they are complete: as many as the
+engine's backlog marks count when it continues from its filter state, else as many as the
+database counts after its restart point (kept rows are stored rows, so equal counts mean the
+same rows); otherwise it reads the database, as a job in another process always does. What a job takes is dropped; the rest is
 bounded (``MAX_RECORDS``, oldest uploads dropped first) and gone with the process.
 """
 
