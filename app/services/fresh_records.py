@@ -10,8 +10,9 @@ columns of the ``snapshots`` table, values as COPYed), registered only once thei
 has committed. A job uses them for an engine only when they are complete: as many as the
 engine's backlog marks count when it continues from its filter state, else as many as the
 database counts after its restart point (kept rows are stored rows, so equal counts mean the
-same rows); otherwise it reads the database, as a job in another process always does. What a job takes is dropped; the rest is
-bounded (``MAX_RECORDS``, oldest uploads dropped first) and gone with the process.
+same rows); otherwise it reads the database, as a job in another process always does. What a
+job takes is dropped; the rest is bounded (``MAX_RECORDS``, oldest uploads dropped first) and
+gone with the process.
 """
 
 from __future__ import annotations

@@ -5,8 +5,10 @@ rows no mark covers, and that migration 0009 marks what an older database left u
 from __future__ import annotations
 
 import io
+from collections.abc import Iterable
 from datetime import datetime, timedelta
 from pathlib import Path
+from typing import NamedTuple
 
 import pyarrow as pa
 import pyarrow.csv as pacsv
@@ -47,6 +49,28 @@ def marks(session: Session, operator_id: int) -> dict[int, list[tuple]]:
     return out
 
 
+class Case(NamedTuple):
+    """An operator with the pipeline tests' design, an aircraft, one engine and its records."""
+
+    fleet: pipeline_case.Fleet
+    aircraft_id: int
+    engine_id: int
+    times: list[datetime]
+    y: pipeline_case.np.ndarray
+
+    def store(self, session: Session, idx: range) -> None:
+        pipeline_case._store(session, self.fleet, self.engine_id, self.aircraft_id, self.times,
+                             self.y, idx)
+
+
+def one_engine(session: Session, tail: str, seed: int) -> Case:
+    fleet = pipeline_case._fleet_with_design(session)
+    aircraft = add_aircraft(session, fleet, tail)
+    times, y = pipeline_case._records(seed=seed)
+    engine = add_engine(session, fleet, f"{tail}-1")
+    return Case(fleet, aircraft.id, engine.id, times, y)
+
+
 def test_an_upload_marks_its_engines_with_their_earliest_record_and_count(
     client: TestClient, session: Session
 ) -> None:
@@ -81,26 +105,26 @@ def test_marks_combine_earliest_first_and_unknown_counts_stay_unknown(
 
 
 def test_the_job_clears_only_marks_nobody_made_since_it_looked(session: Session) -> None:
-    fleet = pipeline_case._fleet_with_design(session)
-    aircraft = add_aircraft(session, fleet, "F-BL")
-    times, y = pipeline_case._records(seed=3)
-    engine = add_engine(session, fleet, "BL1")
-    pipeline_case._store(session, fleet, engine.id, aircraft.id, times, y, range(0, 100))
+    case = one_engine(session, "F-BL", seed=3)
+    fleet, engine_id, times = case.fleet, case.engine_id, case.times
+    case.store(session, range(0, 100))
     seen = backlog.pending(session, fleet.operator_id)
     assert [(m.earliest, m.rows, len(m.ids)) for m in seen.values()] == [(times[0], 100, 1)]
     # The job reads the batch's marks again once it took the kept rows: an upload committed
     # after that waits with its own mark.
     pending = backlog.pending
 
-    def upload_meanwhile(session: Session, operator_id: int, engine_ids: object = None) -> dict:
+    def upload_meanwhile(
+        session: Session, operator_id: int, engine_ids: Iterable[int] | None = None
+    ) -> dict[int, backlog.Mark]:
         found = pending(session, operator_id, engine_ids)
-        pipeline_case._store(session, fleet, engine.id, aircraft.id, times, y, range(100, 150))
+        case.store(session, range(100, 150))
         return found
 
     backlog.pending = upload_meanwhile  # type: ignore[assignment]
     try:
         summary = estimation_runs.estimate_engines(
-            session, fleet.operator_id, {engine.id: times[0]}, from_backlog=True
+            session, fleet.operator_id, {engine_id: times[0]}, from_backlog=True
         )
     finally:
         backlog.pending = pending  # type: ignore[assignment]
@@ -111,7 +135,7 @@ def test_the_job_clears_only_marks_nobody_made_since_it_looked(session: Session)
     second = estimation_runs.catch_up(session, fleet.operator_id)
     assert summary["records"] == 150 and second["records"] == 150 and second["reruns"] == 1
     assert backlog.pending(session, fleet.operator_id) == {}
-    assert [r[0] for r in pipeline_case._rows(session, engine.id)] == list(range(150))
+    assert [r[0] for r in pipeline_case._rows(session, engine_id)] == list(range(150))
 
 
 def _upload(session: Session, fleet: pipeline_case.Fleet, aircraft_id: int, times: list,
@@ -227,22 +251,20 @@ def test_activating_a_design_marks_the_engines_of_its_type_that_have_data(
 
 
 def test_the_audit_marks_rows_stored_without_a_mark(session: Session) -> None:
-    fleet = pipeline_case._fleet_with_design(session)
-    aircraft = add_aircraft(session, fleet, "F-AUD")
-    times, y = pipeline_case._records(seed=6)
-    engine = add_engine(session, fleet, "AU1")
-    pipeline_case._store(session, fleet, engine.id, aircraft.id, times, y, range(0, 30))
+    case = one_engine(session, "F-AUD", seed=6)
+    fleet, engine_id, times = case.fleet, case.engine_id, case.times
+    case.store(session, range(0, 30))
     estimation_runs.catch_up(session, fleet.operator_id)
     # Rows that reached the table by a path that marked nothing.
     session.add_all(
-        Snapshot(operator_id=fleet.operator_id, engine_id=engine.id, aircraft_id=aircraft.id,
+        Snapshot(operator_id=fleet.operator_id, engine_id=engine_id, aircraft_id=case.aircraft_id,
                  position=1, upload_id=fleet.upload.id, recorded_at=times[i], phase="cruise",
                  alt_ft=0.0, mach=0.0, dtamb_k=0.0, power_pct=100.0)
         for i in range(30, 35)
     )
     session.flush()
     assert estimation_runs.catch_up(session, fleet.operator_id)["records"] == 0
-    assert estimation_runs.audit(session, fleet.operator_id) == {engine.id: times[30]}
+    assert estimation_runs.audit(session, fleet.operator_id) == {engine_id: times[30]}
     assert estimation_runs.catch_up(session, fleet.operator_id)["records"] == 5
     assert estimation_runs.audit(session, fleet.operator_id) == {}
 
