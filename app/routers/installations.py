@@ -7,6 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Query, status
 from pydantic import AwareDatetime
 
+from app.jobs.queue import Jobs
 from app.schemas.fleet import (
     Deleted,
     InstallationCreate,
@@ -47,9 +48,13 @@ def list_installations(
 
 @router.post("", response_model=InstallationOut, status_code=status.HTTP_201_CREATED)
 def create_installation(
-    body: InstallationCreate, session: DbSession, principal: Analyst
+    body: InstallationCreate, session: DbSession, principal: Analyst, jobs: Jobs
 ) -> InstallationOut:
+    """Record an installation. Snapshots stored at that tail position over its period become
+    this engine's, and the engines they came from and went to are estimated again in the
+    background (an estimation job)."""
     row = fleet.install(session, operator_id=principal.operator_id, **body.model_dump())
+    jobs.estimate(session, operator_id=principal.operator_id)
     return InstallationOut.of(row)
 
 
@@ -65,15 +70,19 @@ def get_installation(
 
 @router.patch("/{installation_id}", response_model=InstallationOut)
 def update_installation(
-    installation_id: int, body: InstallationUpdate, session: DbSession, principal: Analyst
+    installation_id: int, body: InstallationUpdate, session: DbSession, principal: Analyst,
+    jobs: Jobs,
 ) -> InstallationOut:
-    """Change the period or position; send ``removed_at`` when the engine comes off."""
+    """Change the period or position; send ``removed_at`` when the engine comes off. Stored
+    snapshots follow the corrected history, as on creation; those no installation covers any
+    more stay with their engine."""
     row = fleet.update_installation(
         session,
         operator_id=principal.operator_id,
         installation_id=installation_id,
         changes=body.model_dump(exclude_unset=True),
     )
+    jobs.estimate(session, operator_id=principal.operator_id)
     return InstallationOut.of(row)
 
 

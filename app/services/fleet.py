@@ -23,6 +23,7 @@ from app.models import Aircraft, Engine, EngineType, Installation, Snapshot
 from app.models.base import Base
 from app.models.fleet import MAX_POSITIONS
 from app.services import backlog
+from app.services.installation_records import follow_installations
 
 RowT = TypeVar("RowT", bound=Base)
 
@@ -397,7 +398,8 @@ def install(
     installed_at: datetime,
     removed_at: datetime | None = None,
 ) -> Installation:
-    """Record that an engine sat at a tail position over [installed_at, removed_at)."""
+    """Record that an engine sat at a tail position over [installed_at, removed_at); the
+    snapshots stored there over that period become the engine's (``installation_records``)."""
     engine = referenced(session, Engine, operator_id, engine_id, "engine_id", "engine")
     aircraft = referenced(session, Aircraft, operator_id, aircraft_id, "aircraft_id", "aircraft")
     engine, aircraft = _locked(session, engine), _locked(session, aircraft)
@@ -420,6 +422,7 @@ def install(
     )
     session.add(row)
     flush_or_conflict(session, "the installation overlaps another one")
+    follow_installations(session, operator_id, [(aircraft.id, position, installed_at, removed_at)])
     return row
 
 
@@ -430,7 +433,8 @@ def get_installation(session: Session, *, operator_id: int, installation_id: int
 def update_installation(
     session: Session, *, operator_id: int, installation_id: int, changes: Mapping[str, Any]
 ) -> Installation:
-    """Change position or period (e.g. set ``removed_at`` when the engine comes off)."""
+    """Change position or period (e.g. set ``removed_at`` when the engine comes off); stored
+    snapshots follow the new history (``installation_records``)."""
     row = get_installation(session, operator_id=operator_id, installation_id=installation_id)
     engine = _locked(session, row.engine)
     aircraft = _locked(session, row.aircraft)
@@ -449,8 +453,11 @@ def update_installation(
         end=merged["removed_at"],
         exclude_id=row.id,
     )
+    before = (aircraft.id, row.position, row.installed_at, row.removed_at)
     apply_changes(row, changes)
     flush_or_conflict(session, "the installation overlaps another one")
+    after = (aircraft.id, row.position, row.installed_at, row.removed_at)
+    follow_installations(session, operator_id, [before, after])
     return row
 
 
