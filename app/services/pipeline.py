@@ -285,62 +285,86 @@ def _wssr_filled(
         stop = end
         # The CUSUM and its running mean, record by record on Python floats, with the same
         # operations as ``detect_step`` (``b if b > a else a`` is ``max(a, b)``, NaN
-        # included); records from ``armed`` on (run index) carry their WSSR, those before it
-        # NaN. Run index i is a checkpoint when its seq + 1 is a multiple of CHECKPOINT_EVERY.
+        # included), in three stretches of the run (run index i): no baseline yet (the CUSUM
+        # rests at 0), a baseline while the detector warms up (the running mean learns, the
+        # CUSUM rests), armed (both run; from ``armed`` on, records carry their WSSR). Run
+        # index i is a checkpoint when its seq + 1 is a multiple of CHECKPOINT_EVERY.
         distance = scan.distance.tolist() if scan is not None else []
-        S, s_mean, s_count, warm = det.S, det.s_mean, det.s_count, det.warm
+        S, s_mean0, s_count, warm0 = det.S, det.s_mean, det.s_count, det.warm
+        s_mean = float(m) if s_mean0 is None else s_mean0  # set at the first baseline
         threshold, reference = est.cusum.threshold, est.cusum.reference
         cap = S_MEAN_CAP * m
-        armed = end - j
+        count = end - j
+        learning = min(first, count)  # first record with a baseline
+        armed = min(count, max(first, WARMUP - warm0 - 1))  # first with warm >= WARMUP
         next_checkpoint = -(r.seq0 + c0 + j + 1) % CHECKPOINT_EVERY
-        for i in range(end - j):
-            warm += 1
-            if i < first:
-                S = 0.0
-            else:
+
+        if learning > 0:
+            S = 0.0
+            while next_checkpoint < learning:
+                _keep_state(det, series, L, warm0, next_checkpoint, S, s_mean0, s_count)
+                _checkpoint(det, r, c0, j + next_checkpoint, q, P, out)
+                next_checkpoint += CHECKPOINT_EVERY
+        for i in range(learning, armed):
+            if S == 0.0:
                 s_k = distance[i - first]
-                if s_mean is None:
-                    s_mean = float(m)
-                scaled = s_k * m / (m if m > s_mean else s_mean)
-                if S == 0.0:
-                    s_count += 1
-                    inverse = 1.0 / s_count
-                    rate = S_MEAN_RATE if S_MEAN_RATE > inverse else inverse
-                    s_mean += ((cap if cap < s_k else s_k) - s_mean) * rate
-                if warm < WARMUP:
-                    S = 0.0
-                else:
-                    if armed > i:
-                        armed = i
-                    S = S + scaled - m - reference
-                    S = S if S > 0.0 else 0.0
-                    if S > threshold:
-                        assert scan is not None
-                        jj = j + i
-                        det.pending = {
-                            "seq": r.seq0 + c0 + jj, "epoch": float(r.epoch[c0 + jj]),
-                            "statistic": S, "wait": N_CONFIRM,
-                            "baseline": with_base[i - first].tolist(), "P": P[jj].tolist(),
-                        }
-                        if records is not None:
-                            accumulate_sensor_fit(est, det.pending, records.observation(est, jj))
-                        S = 0.0
-                        stop = jj + 1
-            if i == next_checkpoint or stop < end:
-                det.S, det.s_mean, det.s_count, det.warm = S, s_mean, s_count, warm
-                det.history = series[max(L + i + 1 - depth, 0) : L + i + 1].tolist()
+                s_count += 1
+                inverse = 1.0 / s_count
+                rate = S_MEAN_RATE if S_MEAN_RATE > inverse else inverse
+                s_mean += ((cap if cap < s_k else s_k) - s_mean) * rate
+            S = 0.0
+            if i == next_checkpoint:
+                _keep_state(det, series, L, warm0, i, S, s_mean, s_count)
+                _checkpoint(det, r, c0, j + i, q, P, out)
+                next_checkpoint += CHECKPOINT_EVERY
+        for i in range(armed, count):
+            s_k = distance[i - first]
+            scaled = s_k * m / (m if m > s_mean else s_mean)
+            if S == 0.0:
+                s_count += 1
+                inverse = 1.0 / s_count
+                rate = S_MEAN_RATE if S_MEAN_RATE > inverse else inverse
+                s_mean += ((cap if cap < s_k else s_k) - s_mean) * rate
+            S = S + scaled - m - reference
+            S = S if S > 0.0 else 0.0
+            if S > threshold:
+                assert scan is not None
+                jj = j + i
+                det.pending = {
+                    "seq": r.seq0 + c0 + jj, "epoch": float(r.epoch[c0 + jj]),
+                    "statistic": S, "wait": N_CONFIRM,
+                    "baseline": with_base[i - first].tolist(), "P": P[jj].tolist(),
+                }
+                if records is not None:
+                    accumulate_sensor_fit(est, det.pending, records.observation(est, jj))
+                S = 0.0
+                stop = jj + 1
                 if i == next_checkpoint:
-                    _checkpoint(det, r, c0, j + i, q, P, out)
-                    next_checkpoint += CHECKPOINT_EVERY
-                if stop < end:
-                    break
-        det.S, det.s_mean, det.s_count, det.warm = S, s_mean, s_count, warm
-        det.history = series[max(L + stop - j - depth, 0) : L + stop - j].tolist()
+                    _keep_state(det, series, L, warm0, i, S, s_mean, s_count)
+                    _checkpoint(det, r, c0, jj, q, P, out)
+                break
+            if i == next_checkpoint:
+                _keep_state(det, series, L, warm0, i, S, s_mean, s_count)
+                _checkpoint(det, r, c0, j + i, q, P, out)
+                next_checkpoint += CHECKPOINT_EVERY
+        last = stop - j - 1
+        _keep_state(det, series, L, warm0, last, S, s_mean if last >= learning else s_mean0,
+                    s_count)
         values[j:stop, s] = np.nan
         if scan is not None and j + armed < stop:
             values[j + armed : stop, s] = scan.wssr[armed - first : stop - j - first]
         j = stop
     return values
+
+
+def _keep_state(
+    det: Detector, series: np.ndarray, L: int, warm0: int, i: int, S: float,
+    s_mean: float | None, s_count: int,
+) -> None:
+    """Set the detector's state after run record i of ``_wssr_filled`` (its history: the last
+    N_BASE + GAP estimates up to ``series[L + i]``; L history records came before the run)."""
+    det.S, det.s_mean, det.s_count, det.warm = S, s_mean, s_count, warm0 + i + 1
+    det.history = series[max(L + i + 1 - N_BASE - GAP, 0) : L + i + 1].tolist()
 
 
 def _checkpoint(
