@@ -301,3 +301,19 @@ def test_migration_0009_marks_what_was_left_unestimated(backend: str, tmp_path: 
         engine.dispose()
     finally:
         urls.close()
+
+
+def test_a_change_of_engine_type_marks_the_engine(session: Session) -> None:
+    """Its records are to be estimated under the new type's design (unknown count); the same
+    type again marks nothing."""
+    case = one_engine(session, "F-TYP", seed=9)
+    fleet = case.fleet
+    case.store(session, range(0, 10))
+    estimation_runs.catch_up(session, fleet.operator_id)
+    fleet_service.update_engine(session, operator_id=fleet.operator_id, engine_id=case.engine_id,
+                                changes={"engine_type_id": fleet.engine_type.id})
+    assert marks(session, fleet.operator_id) == {}
+    other = fleet_service.create_engine_type(session, operator_id=fleet.operator_id, name="b")
+    fleet_service.update_engine(session, operator_id=fleet.operator_id, engine_id=case.engine_id,
+                                changes={"engine_type_id": other.id})
+    assert marks(session, fleet.operator_id) == {case.engine_id: [(None, None)]}
