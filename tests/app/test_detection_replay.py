@@ -25,7 +25,7 @@ from app.services.estimator import (
     exact_nominal_trims,
 )
 from app.services.models_designs import design_step
-from app.services.shift_detection import GAP, N_BASE
+from app.services.shift_detection import GAP, N_BASE, Detector
 from estimation.engine.fleet import fleet_snapshots, plan_fleet
 from estimation.engine.schedule import EngineSchedule, build_schedule
 from estimation.engine.sensors import SENSOR_NAMES
@@ -216,3 +216,22 @@ def test_an_actuator_bias_in_the_health_vector_is_one_fault_column(
     est = build_estimator(0, LinearModel.from_dict(result["model"]), result)
     assert len(est.bias_inputs) == len(embedded.input_names)
     assert est.S_full.shape[0] == len(demo_fleet.HEALTH) + len(est.bias_inputs)
+
+
+def test_a_detector_state_round_trips_bit_for_bit_and_old_states_still_read() -> None:
+    """The history is stored as its float64 bytes (base64); states written before, with the
+    history as lists of numbers, read the same."""
+    import json
+
+    rng = np.random.default_rng(3)
+    history = (rng.normal(size=(45, 6)) * 10.0 ** rng.integers(-300, 300, (45, 6))).tolist()
+    history[0][0], history[1][1] = -0.0, 5e-324
+    detector = Detector(history, 1.25, {"seq": 4, "fit": {"a": [1.0]}}, 6.5, 12, 80)
+    stored = json.loads(json.dumps(detector.to_dict()))
+    back = Detector.from_dict(stored)
+    assert [[x.hex() for x in q] for q in back.history] == [[x.hex() for x in q] for q in history]
+    assert (back.S, back.pending, back.s_mean, back.s_count, back.warm) == (
+        1.25, {"seq": 4, "fit": {"a": [1.0]}}, 6.5, 12, 80)
+    old = dict(stored, history=history)
+    assert Detector.from_dict(old).history == history
+    assert Detector.from_dict(Detector([], 0.0, None).to_dict()).history == []
