@@ -93,3 +93,24 @@ def settle(session: Session, marks: Iterable[Mark]) -> None:
             delete(EstimationBacklog).where(EstimationBacklog.id.in_(ids))
             .execution_options(synchronize_session=False)
         )
+
+
+def drop_undesigned(session: Session, operator_id: int) -> None:
+    """Delete the marks of engines whose type has no active design: activating one (or moving
+    the engine to a type that has one) marks them again from the start, so these would only
+    pile up, one per upload, in front of every later read of the backlog."""
+    designed = (
+        select(EstimatorDesign.id)
+        .where(EstimatorDesign.engine_type_id == Engine.engine_type_id,
+               EstimatorDesign.active.is_(True))
+        .exists()
+    )
+    undesigned = (
+        select(EstimationBacklog.id)
+        .join(Engine, Engine.id == EstimationBacklog.engine_id)
+        .where(EstimationBacklog.operator_id == operator_id, ~designed)
+    )
+    session.execute(
+        delete(EstimationBacklog).where(EstimationBacklog.id.in_(undesigned))
+        .execution_options(synchronize_session=False)
+    )

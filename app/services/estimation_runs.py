@@ -458,7 +458,9 @@ def catch_up(
             totals[key] += result[key]
         if result["records"] == 0:
             break  # nothing could be estimated (no ready design): stop rather than spin
-    # Rows uploads kept in memory that no pass took (engines without an active design).
+    # Marks and rows uploads kept in memory that no pass took (engines without an active
+    # design: an activation marks them again).
+    backlog.drop_undesigned(session, operator_id)
     fresh_records.discard(
         session, session.scalars(select(Engine.id).where(Engine.operator_id == operator_id))
     )

@@ -317,3 +317,19 @@ def test_a_change_of_engine_type_marks_the_engine(session: Session) -> None:
     fleet_service.update_engine(session, operator_id=fleet.operator_id, engine_id=case.engine_id,
                                 changes={"engine_type_id": other.id})
     assert marks(session, fleet.operator_id) == {case.engine_id: [(None, None)]}
+
+
+def test_marks_of_engines_without_a_design_go_and_an_activation_brings_them_back(
+    session: Session,
+) -> None:
+    case = one_engine(session, "F-NOD", seed=10)
+    fleet = case.fleet
+    fleet.design.active = False
+    session.flush()
+    case.store(session, range(0, 20))
+    assert estimation_runs.catch_up(session, fleet.operator_id)["records"] == 0
+    assert marks(session, fleet.operator_id) == {}
+    models_designs.activate_design(session, operator_id=fleet.operator_id,
+                                   design_id=fleet.design.id)
+    assert estimation_runs.catch_up(session, fleet.operator_id)["records"] == 20
+    assert marks(session, fleet.operator_id) == {}
