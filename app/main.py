@@ -40,7 +40,7 @@ from app.routers import (
     uploads,
 )
 from app.routers import jobs as jobs_router
-from app.services import fresh_records
+from app.services.uploads import fresh_records
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
 

@@ -11,7 +11,7 @@ from sqlalchemy.orm import Session
 
 from app.db import transaction
 from app.errors import Forbidden, Unauthorized
-from app.services.tenancy import Principal, authenticate
+from app.services.tenancy.service import Principal, authenticate
 
 api_key_header = APIKeyHeader(
     name="X-API-Key", auto_error=False, description="Your operator's API key"

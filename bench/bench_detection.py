@@ -1,8 +1,8 @@
 """Shift detection and fault isolation on a simulated fleet, scored against the simulator's truth.
 
-Simulates the demo fleet (``app.services.demo_fleet``: seed, size, design) or a larger one
+Simulates the demo fleet (``app.services.demo.fleet``: seed, size, design) or a larger one
 with more faults, runs the pipeline's estimation functions over every engine's take-off and
-cruise snapshots (``app.services.detection_replay``), and prints the confusion table of
+cruise snapshots (``tests.support.detection_replay``), and prints the confusion table of
 isolated vs injected fault, detection delays in flights and false alarms per 1000
 engine-flights. The truth is the fleet plan's fault list, never typed-in numbers.
 
@@ -21,17 +21,19 @@ import _common  # noqa: F401  (import path)
 import numpy as np
 
 from app.engine_cache import engine_schedule
-from app.services import demo_fleet, detection_replay, shift_detection
+from app.services.demo import fleet
+from app.services.snapshots import detector
 from estimation.engine.fleet import fleet_snapshots, plan_fleet
+from tests.support import detection_replay
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    default = demo_fleet.DemoSize()
+    default = fleet.DemoSize()
     ap.add_argument("--aircraft", type=int, default=default.aircraft)
     ap.add_argument("--flights", type=int, default=default.flights)
     ap.add_argument("--fault-rate", type=float, default=default.fault_rate)
-    ap.add_argument("--seed", type=int, default=demo_fleet.SEED)
+    ap.add_argument("--seed", type=int, default=fleet.SEED)
     ap.add_argument("--tuners", type=int, default=10)
     ap.add_argument("--method", default="subset")
     ap.add_argument("--biases", action="store_true",
@@ -40,13 +42,13 @@ def main() -> None:
     args = ap.parse_args()
 
     t0 = time.perf_counter()
-    est = demo_fleet.design_estimator(engine_schedule(args.cache), args.method, args.tuners,
+    est = fleet.design_estimator(engine_schedule(args.cache), args.method, args.tuners,
                                       args.biases)
     t1 = time.perf_counter()
-    size = demo_fleet.DemoSize(aircraft=args.aircraft, flights=args.flights,
+    size = fleet.DemoSize(aircraft=args.aircraft, flights=args.flights,
                                fault_rate=args.fault_rate)
     plan_rng, snap_rng = np.random.default_rng(args.seed).spawn(2)
-    plan = plan_fleet(demo_fleet.fleet_config(size), plan_rng)
+    plan = plan_fleet(fleet.fleet_config(size), plan_rng)
     snaps = fleet_snapshots(plan, snap_rng)
     t2 = time.perf_counter()
     engines = detection_replay.engine_runs(plan, snaps, est)
@@ -59,7 +61,7 @@ def main() -> None:
     print(f"time: design {t1 - t0:.1f} s, simulation {t2 - t1:.1f} s, "
           f"estimation {t3 - t2:.1f} s")
     print(result.report())
-    wanted = result.detectable(3, shift_detection.N_BASE + shift_detection.GAP, 60.0)
+    wanted = result.detectable(3, detector.N_BASE + detector.GAP, 60.0)
     correct = [f for f in wanted if f.isolated == f.fault]
     delays = [f.delay_flights for f in correct if f.delay_flights is not None]
     print(f"detectable faults (alone on their engine, >= 3 flights with it, baseline in place, "

@@ -1,9 +1,9 @@
 """Estimated health trends of a simulated fleet against the simulator's truth, per design.
 
-Simulates the demo fleet (``app.services.demo_fleet``: seed, size, configuration) or a
+Simulates the demo fleet (``app.services.demo.fleet``: seed, size, configuration) or a
 smaller one, runs the pipeline's snapshot filter over every engine's take-off and cruise
 snapshots exactly as after an upload (``pipeline.run_filters`` through
-``app.services.health_accuracy``) and prints, per health parameter and design: bias and RMS
+``tests.support.health_accuracy``) and prints, per health parameter and design: bias and RMS
 of h_hat - h against the plan's true health, the filter's own mean 1-sigma, the error at each
 engine's last record and the fleet-average deterioration slope estimated vs true. Also prints
 the rank of G_y at cruise alone, take-off alone, and both stacked (what a snapshot filter over
@@ -23,12 +23,13 @@ import _common  # noqa: F401  (import path)
 import numpy as np
 
 from app.engine_cache import engine_schedule
-from app.services import demo_fleet, health_accuracy
-from app.services.estimator import (
+from app.services.demo import fleet
+from app.services.snapshots.estimator import (
     MODEL_ERROR,
     SnapshotEstimator,
 )
 from estimation.engine.fleet import fleet_snapshots, plan_fleet
+from tests.support import health_accuracy
 
 # method:m, "+bias": the tuners also span the three actuator biases (13 health parameters).
 DESIGNS = ("subset:10", "subset:8", "svd:9", "svd:8", "svd:6", "optimal:8", "svd:8+bias",
@@ -82,19 +83,19 @@ def fleet_average(est: SnapshotEstimator, tracks, flights: int) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    default = demo_fleet.DemoSize()
+    default = fleet.DemoSize()
     ap.add_argument("--aircraft", type=int, default=default.aircraft)
     ap.add_argument("--flights", type=int, default=default.flights)
-    ap.add_argument("--seed", type=int, default=demo_fleet.SEED)
+    ap.add_argument("--seed", type=int, default=fleet.SEED)
     ap.add_argument("--designs", default=",".join(DESIGNS))
     ap.add_argument("--cache", type=Path, default=Path("/tmp/fh/cache"))
     args = ap.parse_args()
 
     sched = engine_schedule(args.cache)
-    size = demo_fleet.DemoSize(aircraft=args.aircraft, flights=args.flights)
+    size = fleet.DemoSize(aircraft=args.aircraft, flights=args.flights)
     plan_rng, snap_rng = np.random.default_rng(args.seed).spawn(2)
     t0 = time.perf_counter()
-    plan = plan_fleet(demo_fleet.fleet_config(size), plan_rng)
+    plan = plan_fleet(fleet.fleet_config(size), plan_rng)
     snaps = fleet_snapshots(plan, snap_rng)
     print(f"fleet: {args.aircraft} aircraft, {len(plan.esns)} engines, {args.flights} flights, "
           f"seed {args.seed}, {len(plan.faults)} faults; simulated in "
@@ -103,7 +104,7 @@ def main() -> None:
         method, m = item.split(":")
         biases = m.endswith("+bias")
         try:
-            est = demo_fleet.design_estimator(sched, method, int(m.removesuffix("+bias")),
+            est = fleet.design_estimator(sched, method, int(m.removesuffix("+bias")),
                                               biases)
         except Exception as exc:  # an unobservable choice
             print(f"\n== {method} m = {m}: design failed ({exc})")

@@ -56,9 +56,11 @@ from app.db import make_engine, make_sessionmaker, transaction  # noqa: E402
 from app.migrate import upgrade  # noqa: E402
 from app.models import EngineModel, EstimatorDesign  # noqa: E402
 from app.models.ingest import SNAPSHOT_COLUMNS  # noqa: E402
-from app.services import estimator, fleet, tenancy  # noqa: E402
-from app.services.ingest import SNAPSHOT_PG_TYPES, snapshot_table  # noqa: E402
-from app.services.pgcopy import binary_copy_payload  # noqa: E402
+from app.services.encoding.pgcopy import binary_copy_payload  # noqa: E402
+from app.services.fleet import service as fleet  # noqa: E402
+from app.services.snapshots import estimator  # noqa: E402
+from app.services.tenancy import service as tenancy  # noqa: E402
+from app.services.uploads.store import SNAPSHOT_PG_TYPES, snapshot_table  # noqa: E402
 from estimation.tuners import svd_vstar  # noqa: E402
 from tests.estimation.models import reference_model  # noqa: E402
 

@@ -26,7 +26,8 @@ from sqlalchemy.orm import Session
 
 from app.db import make_engine
 from app.migrate import upgrade
-from app.services import fleet, tenancy
+from app.services.fleet import service as fleet
+from app.services.tenancy import service as tenancy
 
 T0 = datetime(2025, 1, 1, tzinfo=UTC)
 

@@ -46,8 +46,9 @@ from app.models import (  # noqa: E402
     Upload,
 )
 from app.models.estimates import Estimate, EstimateLayout, FilterState  # noqa: E402
-from app.services import fleet_status, trends  # noqa: E402
-from app.services.tenancy import create_operator, issue_api_key  # noqa: E402
+from app.services.fleet import status as fleet_status
+from app.services.tenancy.service import create_operator, issue_api_key  # noqa: E402
+from app.services.trends import service as trends
 
 ADMIN_URL = os.environ.get(
     "FLEETHEALTH_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test"

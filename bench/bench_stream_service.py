@@ -38,8 +38,10 @@ from app.db import make_engine, make_sessionmaker
 from app.main import create_app
 from app.migrate import upgrade
 from app.models import EngineModel, EstimatorDesign
-from app.services import estimator, fleet, stream_estimation
-from app.services.tenancy import create_operator, issue_api_key
+from app.services.fleet import service as fleet
+from app.services.snapshots import estimator
+from app.services.streams import estimation
+from app.services.tenancy.service import create_operator, issue_api_key
 from estimation.design import design_to_dict
 from estimation.kalman import filter_stream_states
 from estimation.tuners import design_filter, svd_vstar
@@ -136,7 +138,7 @@ def main() -> None:
             rec_id = r.json()["recording"]["id"]
             t0 = time.perf_counter()
             with factory() as session, session.begin():
-                summary = stream_estimation.estimate_recording(
+                summary = estimation.estimate_recording(
                     session, operator_id=operator_id, recording_id=rec_id,
                     data_dir=settings.data_dir)
             t_est = time.perf_counter() - t0
@@ -159,7 +161,7 @@ def main() -> None:
                                 content=part, headers=headers)
                 assert r.status_code == 201, r.text[:300]
                 with factory() as session, session.begin():
-                    stream_estimation.estimate_recording(
+                    estimation.estimate_recording(
                         session, operator_id=operator_id, recording_id=live_id,
                         data_dir=settings.data_dir)
                 latencies.append(time.perf_counter() - t0)
@@ -174,11 +176,11 @@ def main() -> None:
             states = {s.recording_id: s for s in session.scalars(select(StreamFilterState))}
             x_whole = np.asarray(states[rec_id].state["x_end"])
             x_live = np.asarray(states[live_id].state["x_end"])
-            est = stream_estimation._ESTIMATORS[next(iter(stream_estimation._ESTIMATORS))]
+            est = estimation._ESTIMATORS[next(iter(estimation._ESTIMATORS))]
         engine.dispose()
 
     # Peers on the same samples: deviations once, then the filter alone.
-    cond, dy, du = stream_estimation.deviations(est, table)
+    cond, dy, du = estimation.deviations(est, table)
     g = est.gain(est.snapped(cond[0]), DT)
 
     def core() -> np.ndarray:
@@ -245,7 +247,7 @@ def scheduled(minutes: float) -> None:
     cols = {"time_s": np.arange(n) * DT, "alt_ft": alt, "mach": mach, "dtamb_k": np.zeros(n),
             "power_pct": power}
     for s_ in model.sensors:
-        a, b = stream_estimation._stored_affine(s_.name, s_.unit)
+        a, b = estimation._stored_affine(s_.name, s_.unit)
         cols[s_.name] = (a * trims[s_.name] + b) * (1 + rng.normal(size=n) * 0.002)
     body = csv_bytes(pa.table(cols))
     with tempfile.TemporaryDirectory() as tmp:
@@ -264,7 +266,7 @@ def scheduled(minutes: float) -> None:
             rec_id = r.json()["recording"]["id"]
         t0 = time.perf_counter()
         with factory() as session, session.begin():
-            summary = stream_estimation.estimate_recording(
+            summary = estimation.estimate_recording(
                 session, operator_id=operator_id, recording_id=rec_id,
                 data_dir=settings.data_dir)
         t_est = time.perf_counter() - t0

@@ -53,7 +53,7 @@ def serve(
     from app.db import make_engine, make_sessionmaker, transaction
     from app.main import create_app
     from app.migrate import upgrade
-    from app.services.demo import ensure_demo_operator
+    from app.services.demo.operator import ensure_demo_operator
 
     settings = get_settings()
     host = host or settings.host
@@ -65,7 +65,7 @@ def serve(
     if demo:
         with transaction(make_sessionmaker(engine)) as session:
             key = ensure_demo_operator(session, settings.data_dir)
-        from app.services.demo_fleet import ensure_demo_fleet
+        from app.services.demo.fleet import ensure_demo_fleet
 
         ensure_demo_fleet(make_sessionmaker(engine), echo=typer.echo)
         from app.jobs.demo import queue_demo_evaluations
@@ -115,7 +115,7 @@ def create_operator(
 ) -> None:
     """Create an operator and print its first API key (shown once)."""
     from app.db import make_engine, make_sessionmaker, transaction
-    from app.services import tenancy
+    from app.services.tenancy import service as tenancy
 
     settings = get_settings()
     with transaction(make_sessionmaker(make_engine(settings.resolved_database_url))) as session:

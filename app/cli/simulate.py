@@ -9,7 +9,7 @@ from typing import Annotated
 import numpy as np
 import typer
 
-from app.services import simulate_io
+from app.services.demo import simulation_files
 from estimation.engine.fleet import FleetConfig, fleet_snapshots, plan_fleet, stream_flights
 
 
@@ -35,21 +35,21 @@ def simulate(
     ),
 ) -> None:
     """Simulate a fleet and write snapshots or stream flights plus truth.json."""
-    file_format = list(file_format or simulate_io.FORMATS)
+    file_format = list(file_format or simulation_files.FORMATS)
     if mode not in ("snapshot", "stream"):
         raise typer.BadParameter("must be 'snapshot' or 'stream'", param_hint="--mode")
     for fmt in file_format:
-        if fmt not in simulate_io.FORMATS:
+        if fmt not in simulation_files.FORMATS:
             raise typer.BadParameter(f"unknown format {fmt!r}", param_hint="--format")
     config = FleetConfig(n_aircraft=aircraft, n_flights=flights, positions=positions)
     plan_rng, snap_rng, stream_rng = np.random.default_rng(seed).spawn(3)
     started = time.perf_counter()
     plan = plan_fleet(config, plan_rng)
-    written = simulate_io.write_truth(plan, out)
+    written = simulation_files.write_truth(plan, out)
     if mode == "snapshot":
         with typer.progressbar(length=flights, label="snapshot rounds") as bar:
             snaps = fleet_snapshots(plan, snap_rng, on_round=lambda _j: bar.update(1))
-        written += simulate_io.write_snapshots(snaps, out, file_format)
+        written += simulation_files.write_snapshots(snaps, out, file_format)
         what = f"{snaps.recorded_at.size} snapshots"
     else:
         n_streams = aircraft * positions * flights
@@ -62,7 +62,7 @@ def simulate(
                     bar.update(step)
                     done[0] += step
 
-            manifest = simulate_io.write_streams(
+            manifest = simulation_files.write_streams(
                 stream_flights(plan, stream_rng, rate_hz, stream_seconds, on_progress=advance),
                 out, file_format,
             )

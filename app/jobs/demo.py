@@ -11,8 +11,8 @@ from app.jobs.registry import JobRegistry, load_kinds
 from app.jobs.store import submit
 from app.models import Operator
 from app.models.designs import EstimatorDesign
-from app.services.demo import DEMO_OPERATOR
-from app.services.design_evaluation import JOB_KIND, latest_evaluation
+from app.services.demo.operator import DEMO_OPERATOR
+from app.services.designs.evaluation import JOB_KIND, latest_evaluation
 
 
 def queue_demo_evaluations(session: Session, registry: JobRegistry | None = None) -> list[int]:

@@ -21,7 +21,7 @@ from app.schemas.fleet import (
     PositionEngine,
 )
 from app.security import Analyst, CurrentPrincipal, DbSession
-from app.services import fleet
+from app.services.fleet import service as fleet
 
 router = APIRouter(prefix="/api/v1/aircraft", tags=["fleet"])
 

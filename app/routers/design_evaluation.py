@@ -6,7 +6,7 @@ from fastapi import APIRouter
 
 from app.schemas.design_evaluation import DesignEvaluation
 from app.security import CurrentPrincipal, DbSession
-from app.services import design_evaluation
+from app.services.designs import evaluation
 
 router = APIRouter(prefix="/api/v1", tags=["designs"])
 
@@ -17,7 +17,7 @@ def latest_evaluation(
 ) -> DesignEvaluation | None:
     """The newest succeeded evaluation of the design, or null when it was never evaluated.
     Submit ``{"kind": "evaluate_design", "parameters": {"design_id": ...}}`` to /api/v1/jobs."""
-    job = design_evaluation.latest_evaluation(
+    job = evaluation.latest_evaluation(
         session, operator_id=principal.operator_id, design_id=design_id
     )
     if job is None or job.result is None:

@@ -10,7 +10,8 @@ from app.jobs.queue import Jobs
 from app.schemas.designs import DesignCreate, DesignDetail, DesignOut
 from app.schemas.fleet import Page, PageParams
 from app.security import Analyst, CurrentPrincipal, DbSession
-from app.services import fleet, models_designs
+from app.services.designs import service as designs
+from app.services.fleet import service as fleet
 
 router = APIRouter(prefix="/api/v1", tags=["designs"])
 
@@ -25,7 +26,7 @@ def list_designs(
     active: bool | None = None,
 ) -> Page[DesignOut]:
     """Designs, newest first, with their analytic errors (SSEE of health and aux outputs)."""
-    rows, total = models_designs.list_designs(
+    rows, total = designs.list_designs(
         session,
         operator_id=principal.operator_id,
         limit=page.limit,
@@ -56,7 +57,7 @@ def create_design(
     """Run the estimation core's design step on the engine model and store the result (201);
     with ``background=true`` the spec is checked, the design stored pending and a
     ``create_design`` job queued (202; follow it at /api/v1/jobs/{job_id})."""
-    design = models_designs.create_design(
+    design = designs.create_design(
         session,
         operator_id=principal.operator_id,
         engine_model_id=body.engine_model_id,
@@ -64,13 +65,13 @@ def create_design(
         spec=body.spec,
     )
     if not background:
-        design = models_designs.run_design(session, design, models_designs.design_step)
+        design = designs.run_design(session, design, designs.design_step)
         return DesignDetail.model_validate(design)
-    models_designs.check_spec(session, design)
+    designs.check_spec(session, design)
     job, _created = jobs.submit(
         session,
         operator_id=principal.operator_id,
-        kind=models_designs.DESIGN_JOB,
+        kind=designs.DESIGN_JOB,
         parameters={"design_id": design.id},
     )
     response.status_code = status.HTTP_202_ACCEPTED
@@ -79,7 +80,7 @@ def create_design(
 
 @router.get("/designs/{design_id}", response_model=DesignDetail)
 def get_design(design_id: int, session: DbSession, principal: CurrentPrincipal) -> DesignDetail:
-    row = models_designs.get_design(session, operator_id=principal.operator_id, design_id=design_id)
+    row = designs.get_design(session, operator_id=principal.operator_id, design_id=design_id)
     return DesignDetail.model_validate(row)
 
 
@@ -89,7 +90,7 @@ def activate_design(
 ) -> DesignOut:
     """Put the design in service for its engine type; the previously active one retires. The
     type's engines are then estimated under it in the background (an estimation job)."""
-    row = models_designs.activate_design(
+    row = designs.activate_design(
         session, operator_id=principal.operator_id, design_id=design_id
     )
     jobs.estimate(session, operator_id=principal.operator_id)
@@ -98,7 +99,7 @@ def activate_design(
 
 @router.post("/designs/{design_id}/deactivate", response_model=DesignOut)
 def deactivate_design(design_id: int, session: DbSession, principal: Analyst) -> DesignOut:
-    row = models_designs.deactivate_design(
+    row = designs.deactivate_design(
         session, operator_id=principal.operator_id, design_id=design_id
     )
     return DesignOut.model_validate(row)
@@ -112,7 +113,7 @@ def active_design(
     engine_type = fleet.get_engine_type(
         session, operator_id=principal.operator_id, engine_type_id=engine_type_id
     )
-    row = models_designs.active_design(
+    row = designs.active_design(
         session, operator_id=principal.operator_id, engine_type_id=engine_type.id
     )
     return DesignOut.model_validate(row) if row else None

@@ -14,7 +14,7 @@ from app.schemas.designs import (
 )
 from app.schemas.fleet import Deleted, Page, PageParams
 from app.security import Analyst, CurrentPrincipal, DbSession
-from app.services import models_designs
+from app.services.designs import engine_models
 
 router = APIRouter(prefix="/api/v1/engine-models", tags=["engine models"])
 
@@ -27,7 +27,7 @@ def list_engine_models(
     engine_type_id: int | None = None,
     name: str | None = None,
 ) -> Page[EngineModelOut]:
-    rows, total = models_designs.list_engine_models(
+    rows, total = engine_models.list_engine_models(
         session,
         operator_id=principal.operator_id,
         limit=page.limit,
@@ -49,7 +49,7 @@ def import_engine_model(
 ) -> EngineModelOut:
     """Validate and store a model as the next version of ``name`` (201); identical content
     to a stored version returns that version (200) and stores nothing."""
-    row, created = models_designs.import_engine_model(
+    row, created = engine_models.import_engine_model(
         session,
         operator_id=principal.operator_id,
         engine_type_id=body.engine_type_id,
@@ -72,7 +72,7 @@ def build_builtin_model(
 ) -> EngineModelOut:
     """Linearise the built-in engine at the operating condition and store the model as the
     next version of ``name`` (201; an identical stored version answers 200)."""
-    row, created = models_designs.build_builtin_model(
+    row, created = engine_models.build_builtin_model(
         session, operator_id=principal.operator_id, **body.model_dump()
     )
     if not created:
@@ -84,7 +84,7 @@ def build_builtin_model(
 def get_engine_model(
     engine_model_id: int, session: DbSession, principal: CurrentPrincipal
 ) -> EngineModelOut:
-    row = models_designs.get_engine_model(
+    row = engine_models.get_engine_model(
         session, operator_id=principal.operator_id, engine_model_id=engine_model_id
     )
     return EngineModelOut.model_validate(row)
@@ -95,7 +95,7 @@ def get_engine_model_content(
     engine_model_id: int, session: DbSession, principal: CurrentPrincipal
 ) -> EngineModelContent:
     """The stored fleethealth.linear-model/1 document."""
-    row = models_designs.get_engine_model(
+    row = engine_models.get_engine_model(
         session, operator_id=principal.operator_id, engine_model_id=engine_model_id
     )
     return EngineModelContent(id=row.id, version=row.version, model=row.content)
@@ -104,7 +104,7 @@ def get_engine_model_content(
 @router.delete("/{engine_model_id}", response_model=Deleted)
 def delete_engine_model(engine_model_id: int, session: DbSession, principal: Analyst) -> Deleted:
     """Delete a model no design uses (409 once used: it is immutable from then on)."""
-    models_designs.delete_engine_model(
+    engine_models.delete_engine_model(
         session, operator_id=principal.operator_id, engine_model_id=engine_model_id
     )
     return Deleted(id=engine_model_id)

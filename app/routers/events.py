@@ -16,7 +16,7 @@ from app.schemas.estimates import (
     EventStatus,
 )
 from app.security import Analyst, CurrentPrincipal, DbSession
-from app.services import events as service
+from app.services.events import service as events
 
 router = APIRouter(prefix="/api/v1/events", tags=["events"])
 
@@ -34,7 +34,7 @@ def list_events(
     offset: Annotated[int, Query(ge=0)] = 0,
 ) -> object:
     """Detected shifts and isolated faults, newest first."""
-    return service.list_events(
+    return events.list_events(
         session, principal.operator_id, status=status, engine_id=engine_id, kind=kind,
         since=since, until=until, limit=limit, offset=offset,
     )
@@ -43,7 +43,7 @@ def list_events(
 @router.get("/{event_id}", response_model=EventOut)
 def show_event(event_id: int, session: DbSession, principal: CurrentPrincipal) -> object:
     """One event with the WSSR of every fault hypothesis and its comments."""
-    return service.show_event(session, principal.operator_id, event_id)
+    return events.show_event(session, principal.operator_id, event_id)
 
 
 @router.post("/{event_id}/ack", response_model=EventOut)
@@ -51,13 +51,13 @@ def acknowledge(
     event_id: int, session: DbSession, principal: Analyst, body: EventAction | None = None
 ) -> object:
     """Acknowledge an open event (a repeat is a no-op), optionally with a comment."""
-    return service.acknowledge(session, principal, event_id, None if body is None else body.comment)
+    return events.acknowledge(session, principal, event_id, None if body is None else body.comment)
 
 
 @router.post("/{event_id}/comments", response_model=EventOut, status_code=201)
 def comment(event_id: int, body: CommentIn, session: DbSession, principal: Analyst) -> object:
     """Add a comment to an event."""
-    return service.add_comment(session, principal, event_id, body.body)
+    return events.add_comment(session, principal, event_id, body.body)
 
 
 @router.post("/{event_id}/close", response_model=EventOut)
@@ -65,4 +65,4 @@ def close(
     event_id: int, session: DbSession, principal: Analyst, body: EventAction | None = None
 ) -> object:
     """Close an event, optionally with a comment."""
-    return service.close(session, principal, event_id, None if body is None else body.comment)
+    return events.close(session, principal, event_id, None if body is None else body.comment)

@@ -8,8 +8,8 @@ from fastapi import APIRouter, Response
 
 from app.schemas.estimates import FleetDeterioration, FleetStatus
 from app.security import CurrentPrincipal, DbSession
-from app.services import fleet_status as service
-from app.services.trends import to_json
+from app.services.fleet import status
+from app.services.trends.service import to_json
 
 router = APIRouter(prefix="/api/v1/fleet", tags=["fleet status"])
 
@@ -19,7 +19,7 @@ def fleet_status(session: DbSession, principal: CurrentPrincipal) -> object:
     """Every engine with its current tail and position, type, last data, latest health summary
     and open events."""
     return Response(
-        to_json(service.fleet_status(session, principal.operator_id)),
+        to_json(status.fleet_status(session, principal.operator_id)),
         media_type="application/json",
     )
 
@@ -29,4 +29,4 @@ def fleet_deterioration(
     session: DbSession, principal: CurrentPrincipal, bucket: Literal["week", "month"] = "month"
 ) -> object:
     """Fleet-average health-parameter and auxiliary estimates per week or month."""
-    return service.fleet_deterioration(session, principal.operator_id, bucket)
+    return status.fleet_deterioration(session, principal.operator_id, bucket)

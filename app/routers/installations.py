@@ -17,7 +17,7 @@ from app.schemas.fleet import (
     PageParams,
 )
 from app.security import Analyst, CurrentPrincipal, DbSession
-from app.services import fleet
+from app.services.fleet import service as fleet
 
 router = APIRouter(prefix="/api/v1/installations", tags=["fleet"])
 

@@ -8,7 +8,7 @@ from fastapi import APIRouter, Query, status
 
 from app.schemas.fleet import ApiKeyCreate, ApiKeyCreated, ApiKeyOut, Page, PageParams
 from app.security import Admin, DbSession
-from app.services import keys
+from app.services.tenancy import keys
 
 router = APIRouter(prefix="/api/v1/keys", tags=["identity"])
 

@@ -18,7 +18,7 @@ from app.schemas.fleet import (
     PageParams,
 )
 from app.security import Analyst, CurrentPrincipal, DbSession
-from app.services import maintenance
+from app.services.fleet import maintenance
 
 router = APIRouter(prefix="/api/v1/maintenance-actions", tags=["maintenance"])
 

@@ -14,7 +14,7 @@ from app.jobs import store
 from app.models import StreamRecording
 from app.schemas.stream_estimates import StreamEstimatesOut
 from app.security import CurrentPrincipal, DbSession, Principal
-from app.services import stream_estimation
+from app.services.streams import estimation
 
 router = APIRouter(prefix="/api/v1/streams", tags=["streams"])
 
@@ -65,7 +65,7 @@ def recording_estimates(
 ) -> StreamEstimatesOut | Response:
     """q_hat, h_hat, z_hat with 1-sigma and sensor residuals against recording time, as
     window means (one second each, averaged further down to ``max_points``)."""
-    series = stream_estimation.read_estimates(
+    series = estimation.read_estimates(
         session, operator_id=principal.operator_id, recording_id=recording_id,
         design_id=design_id, max_points=max_points,
     )

@@ -29,7 +29,7 @@ from app.schemas.uploads import (
     UploadOut,
 )
 from app.security import Analyst, CurrentPrincipal, DbSession
-from app.services import streams
+from app.services.streams import recordings
 
 router = APIRouter(prefix="/api/v1/streams", tags=["streams"])
 
@@ -76,7 +76,7 @@ def upload_stream(
     outcome: dict[str, Any] = {}
 
     def store() -> Any:
-        upload, recording, replayed = streams.upload_recording(
+        upload, recording, replayed = recordings.upload_recording(
             session,
             operator_id=principal.operator_id,
             api_key_id=principal.key_id,
@@ -114,10 +114,10 @@ def open_live_recording(
     body: LiveRecordingCreate, session: DbSession, principal: Analyst
 ) -> RecordingOut:
     """Open a recording that live chunks append to (``POST /streams/{id}/chunks``)."""
-    recording = streams.open_recording(
+    recording = recordings.open_recording(
         session,
         operator_id=principal.operator_id,
-        meta=streams.StreamMeta(body.tail, body.position, body.started_at, body.flight_id),
+        meta=recordings.StreamMeta(body.tail, body.position, body.started_at, body.flight_id),
         dt_s=body.dt_s,
     )
     return RecordingOut.model_validate(recording)
@@ -138,7 +138,7 @@ def append_chunk(
     outcome: dict[str, Any] = {}
 
     def store() -> Any:
-        outcome["result"] = streams.append_chunk(
+        outcome["result"] = recordings.append_chunk(
             session,
             operator_id=principal.operator_id,
             api_key_id=principal.key_id,
@@ -153,7 +153,7 @@ def append_chunk(
     run_upload(
         session, principal, kind="stream_chunk", payload=payload, idempotency_key=None, store=store
     )
-    result: streams.ChunkResult = outcome["result"]
+    result: recordings.ChunkResult = outcome["result"]
     if not result.replayed:
         queue_recording_estimation(request, session, principal, result.recording)
     response.status_code = status.HTTP_200_OK if result.replayed else status.HTTP_201_CREATED
@@ -168,7 +168,7 @@ def append_chunk(
 
 @router.post("/{recording_id}/close", response_model=RecordingOut)
 def close_recording(recording_id: int, session: DbSession, principal: Analyst) -> RecordingOut:
-    recording = streams.close_recording(
+    recording = recordings.close_recording(
         session, operator_id=principal.operator_id, recording_id=recording_id
     )
     return RecordingOut.model_validate(recording)
@@ -181,7 +181,7 @@ def list_recordings(
     page: Annotated[PageParams, Query()],
     engine_id: int | None = None,
 ) -> Page[RecordingOut]:
-    rows, total = streams.list_recordings(
+    rows, total = recordings.list_recordings(
         session,
         operator_id=principal.operator_id,
         limit=page.limit,
@@ -195,7 +195,7 @@ def list_recordings(
 def get_recording(
     recording_id: int, session: DbSession, principal: CurrentPrincipal
 ) -> RecordingOut:
-    recording = streams.get_recording(
+    recording = recordings.get_recording(
         session, operator_id=principal.operator_id, recording_id=recording_id
     )
     return RecordingOut.model_validate(recording)
@@ -214,10 +214,10 @@ def recording_samples(
     fmt: Annotated[str, Query(alias="format", pattern="^(csv|parquet)$")] = "csv",
 ) -> Response:
     """The recording's samples in stored units, as CSV or Parquet."""
-    recording = streams.get_recording(
+    recording = recordings.get_recording(
         session, operator_id=principal.operator_id, recording_id=recording_id
     )
-    table = streams.read_samples(data_dir(request), recording)
+    table = recordings.read_samples(data_dir(request), recording)
     sink = io.BytesIO()
     if fmt == "csv":
         pacsv.write_csv(table, sink)

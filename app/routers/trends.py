@@ -9,7 +9,7 @@ from fastapi import APIRouter, Query, Response
 
 from app.schemas.estimates import AircraftTrend, EngineTrend
 from app.security import CurrentPrincipal, DbSession
-from app.services import trends
+from app.services.trends import service as trends
 
 router = APIRouter(prefix="/api/v1", tags=["trends"])
 

@@ -18,9 +18,9 @@ from app.limits import BodyTooLarge
 from app.schemas.fleet import Page, PageParams
 from app.schemas.uploads import EngineSnapshots, SnapshotBatch, UploadDetail, UploadOut
 from app.security import Analyst, CurrentPrincipal, DbSession
-from app.services import ingest
-from app.services.ingest import UploadResult
-from app.services.tenancy import Principal
+from app.services.tenancy.service import Principal
+from app.services.uploads import store as uploads_store
+from app.services.uploads.store import UploadResult
 
 router = APIRouter(prefix="/api/v1", tags=["uploads"])
 
@@ -121,13 +121,13 @@ def run_upload(
         if isinstance(exc, NotFound):
             raise
         session.rollback()
-        upload = ingest.record_rejection(
+        upload = uploads_store.record_rejection(
             session,
             operator_id=principal.operator_id,
             api_key_id=principal.key_id,
             kind=kind,
             content_format=payload.content_format or "unknown",
-            checksum=ingest.content_checksum(
+            checksum=uploads_store.content_checksum(
                 payload.body, kind=kind, content_format=payload.content_format or "unknown"
             ),
             idempotency_key=idempotency_key,
@@ -168,7 +168,7 @@ def _store_snapshots(
         kind="snapshots",
         payload=payload,
         idempotency_key=idempotency_key,
-        store=lambda: ingest.ingest_snapshots(
+        store=lambda: uploads_store.ingest_snapshots(
             session,
             operator_id=principal.operator_id,
             api_key_id=principal.key_id,
@@ -263,7 +263,7 @@ def list_uploads(
     kind: Annotated[str | None, Query(pattern="^(snapshots|stream|stream_chunk)$")] = None,
 ) -> Page[UploadOut]:
     """Upload history, newest first."""
-    rows, total = ingest.list_uploads(
+    rows, total = uploads_store.list_uploads(
         session,
         operator_id=principal.operator_id,
         limit=page.limit,
@@ -277,7 +277,7 @@ def list_uploads(
 @router.get("/uploads/{upload_id}", response_model=UploadDetail)
 def get_upload(upload_id: int, session: DbSession, principal: CurrentPrincipal) -> UploadDetail:
     """One upload with its row-level errors."""
-    row = ingest.get_upload(session, operator_id=principal.operator_id, upload_id=upload_id)
+    row = uploads_store.get_upload(session, operator_id=principal.operator_id, upload_id=upload_id)
     return UploadDetail.model_validate(row)
 
 
@@ -299,7 +299,7 @@ def engine_snapshots(
     for name, value in (("start", start), ("end", end)):
         if value is not None and value.tzinfo is None:
             raise InvalidInput(f"{name}: give a time zone (e.g. Z)")
-    engine, table = ingest.engine_snapshots(
+    engine, table = uploads_store.engine_snapshots(
         session,
         operator_id=principal.operator_id,
         engine_id=engine_id,

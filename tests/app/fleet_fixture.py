@@ -16,7 +16,8 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.models import Snapshot, Upload
-from app.services import fleet, tenancy
+from app.services.fleet import service as fleet
+from app.services.tenancy import service as tenancy
 
 T0 = datetime(2026, 3, 1, tzinfo=UTC)
 

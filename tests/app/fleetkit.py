@@ -10,7 +10,7 @@ from typing import Any
 from fastapi.testclient import TestClient
 from sqlalchemy.orm import Session
 
-from app.services import tenancy
+from app.services.tenancy import service as tenancy
 
 T0 = datetime(2026, 1, 1, tzinfo=UTC)
 

@@ -18,7 +18,7 @@ from app.db import make_engine, make_sessionmaker, transaction
 from app.jobs.registry import JobRegistry, Progress
 from app.migrate import upgrade
 from app.models import ApiKey, Job, JobSchedule, Operator
-from app.services import tenancy
+from app.services.tenancy import service as tenancy
 from tests.conftest import BACKENDS, _backend_use, fresh_database_url
 
 

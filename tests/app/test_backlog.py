@@ -21,16 +21,13 @@ from app.db import make_engine, make_sessionmaker, transaction
 from app.migrate import upgrade
 from app.models import Snapshot
 from app.models.estimates import EstimationBacklog
-from app.services import (
-    backlog,
-    estimate_rows,
-    estimation_runs,
-    fresh_records,
-    ingest,
-    maintenance,
-    models_designs,
-)
-from app.services import fleet as fleet_service
+from app.services.designs import service as designs
+from app.services.fleet import maintenance
+from app.services.fleet import service as fleet_service
+from app.services.snapshots import backlog, store
+from app.services.snapshots import rows as snapshots_rows
+from app.services.uploads import fresh_records
+from app.services.uploads import store as uploads_store
 from tests.app import test_pipeline as pipeline_case
 from tests.app.fleet_fixture import T0, csv_bytes, snapshot_rows
 from tests.app.fleet_fixture import make_fleet as make_upload_fleet
@@ -123,7 +120,7 @@ def test_the_job_clears_only_marks_nobody_made_since_it_looked(session: Session)
 
     backlog.pending = upload_meanwhile  # type: ignore[assignment]
     try:
-        summary = estimation_runs.estimate_engines(
+        summary = store.estimate_engines(
             session, fleet.operator_id, {engine_id: times[0]}, from_backlog=True
         )
     finally:
@@ -132,7 +129,7 @@ def test_the_job_clears_only_marks_nobody_made_since_it_looked(session: Session)
     assert [(m.earliest, m.rows, len(m.ids)) for m in left.values()] == [(times[100], 50, 1)]
     # Its rows were read after the marks, so this pass did them too; the next pass redoes
     # them from the mark's time (a re-run, never a gap) and the rows end as one run's.
-    second = estimation_runs.catch_up(session, fleet.operator_id)
+    second = store.catch_up(session, fleet.operator_id)
     assert summary["records"] == 150 and second["records"] == 150 and second["reruns"] == 1
     assert backlog.pending(session, fleet.operator_id) == {}
     assert [r[0] for r in pipeline_case._rows(session, engine_id)] == list(range(150))
@@ -152,7 +149,7 @@ def _upload(session: Session, fleet: pipeline_case.Fleet, aircraft_id: int, time
     })
     sink = io.BytesIO()
     pacsv.write_csv(table, sink)
-    ingest.ingest_snapshots(session, operator_id=fleet.operator_id, api_key_id=None,
+    uploads_store.ingest_snapshots(session, operator_id=fleet.operator_id, api_key_id=None,
                             body=sink.getvalue(), content_format="csv")
     session.commit()
 
@@ -170,27 +167,27 @@ def test_after_an_upload_the_job_takes_its_rows_without_counting_the_database(
                           aircraft_id=aircraft.id, position=1,
                           installed_at=times[0] - timedelta(days=1))
     _upload(session, fleet, aircraft.id, times, y, range(0, 50))
-    estimation_runs.catch_up(session, fleet.operator_id)
+    store.catch_up(session, fleet.operator_id)
     counted: list[object] = []
-    count_after = estimate_rows._count_after
+    count_after = snapshots_rows._count_after
 
     def counting(session: Session, wants: list) -> dict[int, int]:
         counted.extend(wants)
         return count_after(session, wants)
 
-    monkeypatch.setattr(estimate_rows, "_count_after", counting)
+    monkeypatch.setattr(snapshots_rows, "_count_after", counting)
     _upload(session, fleet, aircraft.id, times, y, range(50, 80))
     assert fresh_records.kept_rows(session) == 30
-    assert estimation_runs.catch_up(session, fleet.operator_id)["records"] == 30
+    assert store.catch_up(session, fleet.operator_id)["records"] == 30
     assert counted == [] and fresh_records.kept_rows(session) == 0
 
     _upload(session, fleet, aircraft.id, times, y, range(80, 90))
     backlog.mark_from_start(session, fleet.operator_id, [engine.id])
-    assert estimation_runs.catch_up(session, fleet.operator_id)["records"] == 10
+    assert store.catch_up(session, fleet.operator_id)["records"] == 10
     assert len(counted) == 1
     reference = add_engine(session, fleet, "KC0")
     pipeline_case._store(session, fleet, reference.id, aircraft.id, times, y, range(0, 90))
-    estimation_runs.catch_up(session, fleet.operator_id)
+    store.catch_up(session, fleet.operator_id)
     assert [r[2] for r in pipeline_case._rows(session, engine.id)] == [
         r[2] for r in pipeline_case._rows(session, reference.id)
     ]
@@ -214,14 +211,14 @@ def test_a_maintenance_action_recorded_later_redoes_the_estimates_from_it(
     for engine in (early, late):
         pipeline_case._store(session, fleet, engine.id, aircraft.id, times, y,
                              range(pipeline_case.N))
-    estimation_runs.catch_up(session, fleet.operator_id)
+    store.catch_up(session, fleet.operator_id)
     assert [e[0] >= 600 for e in pipeline_case._events(session, late.id)] == [True]
 
     maintenance.record_action(session, operator_id=fleet.operator_id, engine_id=late.id,
                               kind="shop_visit", performed_at=visit)
     assert [(e, m.earliest, m.rows) for e, m in backlog.pending(session, fleet.operator_id).items()
             ] == [(late.id, visit, 0)]
-    summary = estimation_runs.catch_up(session, fleet.operator_id)
+    summary = store.catch_up(session, fleet.operator_id)
     assert summary["reruns"] == 1  # from the start: no checkpoint before record 600
     assert pipeline_case._events(session, late.id) == []
     assert [r[2] for r in pipeline_case._rows(session, late.id)] == [
@@ -237,14 +234,14 @@ def test_activating_a_design_marks_the_engines_of_its_type_that_have_data(
     times, y = pipeline_case._records(seed=5)
     with_data, without = add_engine(session, fleet, "AC1"), add_engine(session, fleet, "AC2")
     pipeline_case._store(session, fleet, with_data.id, aircraft.id, times, y, range(0, 40))
-    estimation_runs.catch_up(session, fleet.operator_id)
+    store.catch_up(session, fleet.operator_id)
     assert marks(session, fleet.operator_id) == {}
-    models_designs.activate_design(session, operator_id=fleet.operator_id,
+    designs.activate_design(session, operator_id=fleet.operator_id,
                                    design_id=fleet.design.id)
     assert marks(session, fleet.operator_id) == {}  # already active: nothing changes
     fleet.design.active = False
     session.flush()
-    models_designs.activate_design(session, operator_id=fleet.operator_id,
+    designs.activate_design(session, operator_id=fleet.operator_id,
                                    design_id=fleet.design.id)
     assert marks(session, fleet.operator_id) == {with_data.id: [(None, None)]}
     assert without.id not in marks(session, fleet.operator_id)
@@ -254,7 +251,7 @@ def test_the_audit_marks_rows_stored_without_a_mark(session: Session) -> None:
     case = one_engine(session, "F-AUD", seed=6)
     fleet, engine_id, times = case.fleet, case.engine_id, case.times
     case.store(session, range(0, 30))
-    estimation_runs.catch_up(session, fleet.operator_id)
+    store.catch_up(session, fleet.operator_id)
     # Rows that reached the table by a path that marked nothing.
     session.add_all(
         Snapshot(operator_id=fleet.operator_id, engine_id=engine_id, aircraft_id=case.aircraft_id,
@@ -263,10 +260,10 @@ def test_the_audit_marks_rows_stored_without_a_mark(session: Session) -> None:
         for i in range(30, 35)
     )
     session.flush()
-    assert estimation_runs.catch_up(session, fleet.operator_id)["records"] == 0
-    assert estimation_runs.audit(session, fleet.operator_id) == {engine_id: times[30]}
-    assert estimation_runs.catch_up(session, fleet.operator_id)["records"] == 5
-    assert estimation_runs.audit(session, fleet.operator_id) == {}
+    assert store.catch_up(session, fleet.operator_id)["records"] == 0
+    assert store.audit(session, fleet.operator_id) == {engine_id: times[30]}
+    assert store.catch_up(session, fleet.operator_id)["records"] == 5
+    assert store.audit(session, fleet.operator_id) == {}
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -284,7 +281,7 @@ def test_migration_0009_marks_what_was_left_unestimated(backend: str, tmp_path: 
             for e in (done, behind):
                 pipeline_case._store_rows(session, fleet, e.id, aircraft.id, times, y,
                                           range(0, 20))
-            estimation_runs.estimate_engines(session, fleet.operator_id,
+            store.estimate_engines(session, fleet.operator_id,
                                              {done.id: times[0], behind.id: times[0]})
             pipeline_case._store_rows(session, fleet, behind.id, aircraft.id, times, y,
                                       range(20, 25))
@@ -309,7 +306,7 @@ def test_a_change_of_engine_type_marks_the_engine(session: Session) -> None:
     case = one_engine(session, "F-TYP", seed=9)
     fleet = case.fleet
     case.store(session, range(0, 10))
-    estimation_runs.catch_up(session, fleet.operator_id)
+    store.catch_up(session, fleet.operator_id)
     fleet_service.update_engine(session, operator_id=fleet.operator_id, engine_id=case.engine_id,
                                 changes={"engine_type_id": fleet.engine_type.id})
     assert marks(session, fleet.operator_id) == {}
@@ -327,9 +324,9 @@ def test_marks_of_engines_without_a_design_go_and_an_activation_brings_them_back
     fleet.design.active = False
     session.flush()
     case.store(session, range(0, 20))
-    assert estimation_runs.catch_up(session, fleet.operator_id)["records"] == 0
+    assert store.catch_up(session, fleet.operator_id)["records"] == 0
     assert marks(session, fleet.operator_id) == {}
-    models_designs.activate_design(session, operator_id=fleet.operator_id,
+    designs.activate_design(session, operator_id=fleet.operator_id,
                                    design_id=fleet.design.id)
-    assert estimation_runs.catch_up(session, fleet.operator_id)["records"] == 20
+    assert store.catch_up(session, fleet.operator_id)["records"] == 20
     assert marks(session, fleet.operator_id) == {}

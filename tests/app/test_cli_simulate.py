@@ -13,8 +13,8 @@ import typer
 from typer.testing import CliRunner
 
 from app.cli.simulate import register
-from app.services import simulate_io
-from app.services.ingest_parse import parse_body
+from app.services.demo import simulation_files
+from app.services.uploads.parse import parse_body
 from estimation.engine.fleet import FleetConfig, fleet_snapshots, plan_fleet, stream_flights
 from estimation.engine.sensors import SENSOR_NAMES
 
@@ -61,7 +61,7 @@ def test_snapshot_files_load_back_and_match(snapshot_dir: Path) -> None:
     assert csv_table.num_rows == pq_table.num_rows == n
     first_row = (snapshot_dir / "snapshots.csv").read_text().splitlines()[1]
     text = first_row.split(",")[0].strip('"')
-    assert text == simulate_io.iso_utc(snaps.recorded_at[0]) and text.endswith("Z")
+    assert text == simulation_files.iso_utc(snaps.recorded_at[0]) and text.endswith("Z")
     stamps = [t.timestamp() for t in pq_table["recorded_at"].to_pylist()]
     np.testing.assert_array_equal(stamps, np.round(snaps.recorded_at))
     for table in (csv_table, pq_table):
@@ -114,7 +114,7 @@ def test_stream_files_and_manifest(tmp_path: Path) -> None:
     expected = list(stream_flights(plan, stream_rng, 4.0, 3.0))
     for entry, fl in zip(manifest["flights"], expected, strict=True):
         assert entry["tail"] == fl.tail and entry["position"] == fl.position
-        assert entry["started_at"] == simulate_io.iso_utc(fl.started_at)
+        assert entry["started_at"] == simulation_files.iso_utc(fl.started_at)
         assert entry["rate_hz"] == pytest.approx(4.0) and entry["samples"] == 13
         table = pacsv.read_csv(tmp_path / entry["files"][0])
         np.testing.assert_array_equal(table["time_s"].to_numpy(), fl.time_s)

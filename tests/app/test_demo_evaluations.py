@@ -11,8 +11,8 @@ from sqlalchemy.orm import Session, sessionmaker
 from app.jobs.demo import queue_demo_evaluations
 from app.jobs.runner import run_pending
 from app.models import Job
-from app.services import tenancy
-from app.services.demo import DEMO_OPERATOR
+from app.services.demo.operator import DEMO_OPERATOR
+from app.services.tenancy import service as tenancy
 from tests.app.fleetkit import Tenant, make_tenant, post
 from tests.estimation.models import reference_model
 

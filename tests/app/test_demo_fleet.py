@@ -13,11 +13,13 @@ from sqlalchemy.orm import Session, sessionmaker
 from app.models import Engine, EngineType, Installation, Snapshot
 from app.models.estimates import Estimate
 from app.models.jobs import JobSchedule
-from app.services import demo_fleet, estimation_runs, estimator, fleet_status
-from app.services.demo import ensure_demo_operator
+from app.services.demo import fleet
+from app.services.demo.operator import ensure_demo_operator
+from app.services.fleet import status as fleet_status
+from app.services.snapshots import estimator, store
 from estimation.engine.schedule import EngineSchedule, build_schedule
 
-SMALL = demo_fleet.DemoSize(aircraft=2, flights=40, fault_rate=0.0)
+SMALL = fleet.DemoSize(aircraft=2, flights=40, fault_rate=0.0)
 
 
 @pytest.fixture(scope="module")
@@ -35,9 +37,9 @@ def test_demo_fleet_is_seeded_once_and_estimated(
         ensure_demo_operator(s, tmp_path)
         s.commit()
     messages: list[str] = []
-    first = demo_fleet.ensure_demo_fleet(session_factory, SMALL, echo=messages.append)
+    first = fleet.ensure_demo_fleet(session_factory, SMALL, echo=messages.append)
     operator_id = session.scalar(
-        select(EngineType.operator_id).where(EngineType.name == demo_fleet.ENGINE_TYPE)
+        select(EngineType.operator_id).where(EngineType.name == fleet.ENGINE_TYPE)
     )
     assert operator_id is not None
     engines = session.scalar(
@@ -64,7 +66,7 @@ def test_demo_fleet_is_seeded_once_and_estimated(
         select(func.count()).select_from(Estimate).where(Estimate.operator_id == operator_id)
     )
     assert estimates == snapshots
-    assert estimation_runs.pending_work(session, operator_id) == {}
+    assert store.pending_work(session, operator_id) == {}
     status = fleet_status.fleet_status(session, operator_id)
     installed = session.scalar(
         select(func.count()).select_from(Installation).where(
@@ -78,7 +80,7 @@ def test_demo_fleet_is_seeded_once_and_estimated(
     ) == "fleet_diagnostics"
     assert any("demo fleet ready" in m for m in messages)
 
-    again = demo_fleet.ensure_demo_fleet(session_factory, SMALL, echo=messages.append)
+    again = fleet.ensure_demo_fleet(session_factory, SMALL, echo=messages.append)
     assert again == first
     assert session.scalar(
         select(func.count()).select_from(Estimate).where(Estimate.operator_id == operator_id)

@@ -13,7 +13,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from app.models import EngineModel, EstimatorDesign, Job
-from app.services import models_designs
+from app.services.designs import service as designs
 from estimation import tuners
 from tests.app.fleetkit import (
     Tenant,
@@ -149,7 +149,7 @@ def test_one_active_design_per_engine_type(
 def test_only_a_ready_design_can_be_active(
     client: TestClient, session: Session, tenant: Tenant
 ) -> None:
-    pending = models_designs.create_design(
+    pending = designs.create_design(
         session,
         operator_id=tenant.operator_id,
         engine_model_id=tenant.ids["model"],

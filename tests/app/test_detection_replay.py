@@ -1,7 +1,7 @@
 """Shift detection and fault isolation on the built-in engine, scored against the simulator.
 
 A seeded simulated fleet (``estimation.engine.fleet``) with abrupt faults of the seed 002
-library goes through the pipeline's estimation functions (``app.services.detection_replay``);
+library goes through the pipeline's estimation functions (``tests.support.detection_replay``);
 its events are compared with the fault list the simulator made, not with typed-in results.
 The faults a detector can be asked to find are chosen by the truth and the physics: the engine
 flew with the fault for a few flights, its baseline existed (enough records since its last
@@ -18,19 +18,21 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.services import demo_fleet, detection_replay, pipeline
-from app.services.estimator import (
+from app.services.demo import fleet
+from app.services.designs.service import design_step
+from app.services.snapshots import run as snapshots_run
+from app.services.snapshots.detector import GAP, N_BASE, Detector
+from app.services.snapshots.estimator import (
     SnapshotEstimator,
     build_estimator,
     exact_nominal_trims,
 )
-from app.services.models_designs import design_step
-from app.services.shift_detection import GAP, N_BASE, Detector
 from estimation.engine.fleet import fleet_snapshots, plan_fleet
 from estimation.engine.schedule import EngineSchedule, build_schedule
 from estimation.engine.sensors import SENSOR_NAMES
 from estimation.engine.steady import steady_state
 from estimation.model import LinearModel
+from tests.support import detection_replay
 
 MIN_FLIGHTS = 3
 MIN_NONCENTRALITY = 60.0
@@ -47,14 +49,14 @@ def schedule() -> EngineSchedule:
 @pytest.fixture(scope="module")
 def estimator(schedule: EngineSchedule) -> SnapshotEstimator:
     """The demo's active design (all ten health parameters as tuners) on the built-in engine."""
-    return demo_fleet.design_estimator(schedule, *demo_fleet.ACTIVE_DESIGN)
+    return fleet.design_estimator(schedule, *fleet.ACTIVE_DESIGN)
 
 
 def _score(
-    est: SnapshotEstimator, size: demo_fleet.DemoSize, seed: int
+    est: SnapshotEstimator, size: fleet.DemoSize, seed: int
 ) -> detection_replay.Score:
     plan_rng, snap_rng = np.random.default_rng(seed).spawn(2)
-    plan = plan_fleet(demo_fleet.fleet_config(size), plan_rng)
+    plan = plan_fleet(fleet.fleet_config(size), plan_rng)
     snaps = fleet_snapshots(plan, snap_rng)
     engines = detection_replay.engine_runs(plan, snaps, est)
     events = detection_replay.replay(est, engines)
@@ -78,7 +80,7 @@ def _check_targets(result: detection_replay.Score, min_faults: int) -> None:
 def test_faults_are_detected_and_isolated_on_a_simulated_fleet(
     estimator: SnapshotEstimator,
 ) -> None:
-    size = demo_fleet.DemoSize(aircraft=8, flights=400, fault_rate=1.0 / 150.0)
+    size = fleet.DemoSize(aircraft=8, flights=400, fault_rate=1.0 / 150.0)
     _check_targets(_score(estimator, size, seed=11), min_faults=10)
 
 
@@ -86,12 +88,12 @@ def test_faults_are_detected_and_isolated_on_a_simulated_fleet(
 def test_faults_are_detected_and_isolated_on_a_large_fleet(
     estimator: SnapshotEstimator,
 ) -> None:
-    size = demo_fleet.DemoSize(aircraft=20, flights=730, fault_rate=1.0 / 500.0)
+    size = fleet.DemoSize(aircraft=20, flights=730, fault_rate=1.0 / 500.0)
     _check_targets(_score(estimator, size, seed=7), min_faults=30)
 
 
 def test_no_alarm_on_a_fleet_without_faults(estimator: SnapshotEstimator) -> None:
-    size = demo_fleet.DemoSize(aircraft=6, flights=300, fault_rate=0.0)
+    size = fleet.DemoSize(aircraft=6, flights=300, fault_rate=0.0)
     result = _score(estimator, size, seed=5)
     assert result.faults == []
     # Deterioration, washes, shop visits and swaps but no fault: nothing to report.
@@ -145,20 +147,20 @@ def test_split_run_on_the_built_in_engine_equals_one_run(
 ) -> None:
     """Exact trims and per-record noise keep a run split over uploads bit-identical to one
     uninterrupted run (records grouped differently into solver batches and chunks)."""
-    size = demo_fleet.DemoSize(aircraft=1, flights=200, fault_rate=1.0 / 100.0)
+    size = fleet.DemoSize(aircraft=1, flights=200, fault_rate=1.0 / 100.0)
     plan_rng, snap_rng = np.random.default_rng(17).spawn(2)
-    plan = plan_fleet(demo_fleet.fleet_config(size), plan_rng)
+    plan = plan_fleet(fleet.fleet_config(size), plan_rng)
     engine = detection_replay.engine_runs(plan, fleet_snapshots(plan, snap_rng), estimator)[0]
     run = engine.run
-    whole = pipeline.run_filters(estimator, [run])[0]
+    whole = snapshots_run.run_filters(estimator, [run])[0]
     rows, events, state, seq0 = [], [], run.state, 0
     for k0, k1 in ((0, 137), (137, 138), (138, len(run.epoch))):
-        part = pipeline.EngineRun(
+        part = snapshots_run.EngineRun(
             run.engine_id, run.operator_id, seq0, state,
             run.epoch[k0:k1], run.phase[k0:k1], run.conditions[k0:k1], run.y[k0:k1],
             run.u[k0:k1], run.maintenance,
         )
-        out = pipeline.run_filters(estimator, [part])[0]
+        out = snapshots_run.run_filters(estimator, [part])[0]
         rows += out.blobs()
         events += out.events
         state, seq0 = out.state, k1
@@ -173,14 +175,14 @@ def test_batched_detector_equals_the_per_record_detector(
     """The detector's batched run (baselines, level statistics and WSSR of a run of records
     at once) gives byte for byte the rows, events, checkpoints and end states of
     ``detect_step`` record by record, on a seeded fleet with faults, washes and swaps."""
-    size = demo_fleet.DemoSize(aircraft=3, flights=300, fault_rate=1.0 / 60.0)
+    size = fleet.DemoSize(aircraft=3, flights=300, fault_rate=1.0 / 60.0)
     plan_rng, snap_rng = np.random.default_rng(23).spawn(2)
-    plan = plan_fleet(demo_fleet.fleet_config(size), plan_rng)
+    plan = plan_fleet(fleet.fleet_config(size), plan_rng)
     runs = [e.run for e in detection_replay.engine_runs(plan, fleet_snapshots(plan, snap_rng),
                                                         estimator)]
-    batched = pipeline.run_filters(estimator, runs)
-    monkeypatch.setattr(pipeline, "_wssr_filled", pipeline._wssr_filled_per_record)
-    per_record = pipeline.run_filters(estimator, runs)
+    batched = snapshots_run.run_filters(estimator, runs)
+    monkeypatch.setattr(snapshots_run, "_wssr_filled", snapshots_run._wssr_filled_per_record)
+    per_record = snapshots_run.run_filters(estimator, runs)
     assert sum(len(o.events) for o in per_record) >= 2  # alarms and isolations were exercised
     assert sum(len(r.maintenance) for r in runs) >= 2  # and resets
     for a, b in zip(batched, per_record, strict=True):
@@ -195,11 +197,11 @@ def test_an_actuator_bias_in_the_health_vector_is_one_fault_column(
 ) -> None:
     """With the actuator biases among the design's health parameters, an actuator fault's
     signature comes from its health column alone (not that and its input column again)."""
-    p = demo_fleet.DESIGN_POINT
+    p = fleet.DESIGN_POINT
     model = schedule.model_at(p["alt"], p["mach"], p["power"])
     sensors = [n for n in model.sensor_names if n != "Wf"]
-    spec = demo_fleet.design_spec("svd", 8, sensors,
-                                  demo_fleet.HEALTH + demo_fleet.ACTUATOR_BIASES)
+    spec = fleet.design_spec("svd", 8, sensors,
+                                  fleet.HEALTH + fleet.ACTUATOR_BIASES)
     result = design_step(model, spec)
     embedded = LinearModel.from_dict(result["model"])
     est = build_estimator(0, embedded, result)
@@ -211,11 +213,11 @@ def test_an_actuator_bias_in_the_health_vector_is_one_fault_column(
         column = est.S_full[:, faults.index(fault)]
         assert np.flatnonzero(column).tolist() == [health.index(bias)]
     # Without them in the health vector, the same faults act through the input columns.
-    plain = demo_fleet.design_spec("svd", 8, sensors)
+    plain = fleet.design_spec("svd", 8, sensors)
     result = design_step(model, plain)
     est = build_estimator(0, LinearModel.from_dict(result["model"]), result)
     assert len(est.bias_inputs) == len(embedded.input_names)
-    assert est.S_full.shape[0] == len(demo_fleet.HEALTH) + len(est.bias_inputs)
+    assert est.S_full.shape[0] == len(fleet.HEALTH) + len(est.bias_inputs)
 
 
 def test_a_detector_state_round_trips_bit_for_bit_and_old_states_still_read() -> None:

@@ -13,7 +13,8 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.models import EngineModel
-from app.services import models_designs
+from app.services.designs import engine_models
+from app.services.designs import service as designs
 from estimation.model import LinearModel
 from tests.app.fleetkit import (
     Tenant,
@@ -52,7 +53,7 @@ def test_import_stores_the_model_the_core_reads_back(
     out = response.json()
     assert (out["version"], out["source"], out["locked_at"]) == (1, "imported", None)
     assert out["sensor_names"] == model.sensor_names and out["health_names"] == model.health_names
-    assert out["checksum"] == models_designs.checksum(model.to_dict())
+    assert out["checksum"] == engine_models.checksum(model.to_dict())
 
     content = client.get(f"{API}/{out['id']}/content", headers=tenant.headers("viewer")).json()
     back = LinearModel.from_dict(content["model"])
@@ -153,7 +154,7 @@ def test_a_model_used_by_a_design_cannot_be_deleted(
 ) -> None:
     unused = _import(client, tenant, random_model(np.random.default_rng(1)).to_dict()).json()
     used = _import(client, tenant, GOOD, name="used").json()
-    models_designs.create_design(
+    designs.create_design(
         session, operator_id=tenant.operator_id, engine_model_id=used["id"], name="d", spec={}
     )
     session.commit()

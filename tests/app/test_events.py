@@ -10,7 +10,7 @@ from sqlalchemy.orm import Session
 
 from app.models import ApiKey, Operator
 from app.models.estimates import Event
-from app.services.tenancy import issue_api_key
+from app.services.tenancy.service import issue_api_key
 from tests.app.test_trends import T0, Fleet, add_engine, make_fleet
 
 

@@ -16,7 +16,11 @@ from sqlalchemy.orm import Session
 
 from app.cli.importers import CMAPSS_SENSORS, ENGINE_TYPE, import_cmapss
 from app.models import Engine, EngineType
-from app.services import estimation_runs, estimator, models_designs, tenancy, trends
+from app.services.designs import engine_models
+from app.services.designs import service as designs
+from app.services.snapshots import estimator, store
+from app.services.tenancy import service as tenancy
+from app.services.trends import service as trends
 from estimation.engine.schedule import EngineSchedule, build_schedule
 
 FD001 = Path(__file__).resolve().parents[3] / "shared" / "data" / "cmapss" / "train_FD001.txt"
@@ -49,11 +53,11 @@ def test_hpc_carries_the_largest_deterioration_at_end_of_life(
     )
     assert engine_type is not None
     model = fd001_schedule.model_at(0.0, 0.0, 100.0)
-    row, _ = models_designs.register_builtin_model(
+    row, _ = engine_models.register_builtin_model(
         session, operator_id=operator.id, engine_type_id=engine_type.id, name="FD001 point",
         model=model,
     )
-    design = models_designs.create_design(
+    design = designs.create_design(
         session, operator_id=operator.id, engine_model_id=row.id, name="svd 7",
         spec={
             "format": "fleethealth.design-spec/1", "method": "svd", "tuners": 7,
@@ -61,9 +65,9 @@ def test_hpc_carries_the_largest_deterioration_at_end_of_life(
             "noise": {"Q": 1e-4, "Qh": 1e-4, "Ph": 4.0},
         },
     )
-    models_designs.run_design(session, design, models_designs.design_step)
-    models_designs.activate_design(session, operator_id=operator.id, design_id=design.id)
-    summary = estimation_runs.catch_up(session, operator.id)
+    designs.run_design(session, design, designs.design_step)
+    designs.activate_design(session, operator_id=operator.id, design_id=design.id)
+    summary = store.catch_up(session, operator.id)
     assert summary["engines"] == UNITS
 
     engines = session.scalars(select(Engine).where(Engine.operator_id == operator.id)).all()

@@ -11,7 +11,7 @@ from sqlalchemy.orm import Session
 
 from app.models import Installation
 from app.models.estimates import Event
-from app.services import fleet_status
+from app.services.fleet import status
 from tests.app.test_trends import LAYOUT, T0, add_aircraft, add_engine, add_estimates, make_fleet
 
 
@@ -67,7 +67,7 @@ def test_deterioration_is_the_mean_over_engines_of_engine_means(session: Session
         times = [start + timedelta(hours=12 * k) for k in range(n)]  # March only
         add_estimates(session, fleet, engine, aircraft, v, times)
         per_engine.append(v.astype(np.float32).astype(float)[:, LAYOUT.slices()["h"]].mean(0))
-    out = fleet_status.fleet_deterioration(session, fleet.operator_id, "month")
+    out = status.fleet_deterioration(session, fleet.operator_id, "month")
     group = out["groups"][0]
     assert group["time"] == ["2026-03-01T00:00:00Z"] and group["n_engines"] == [2]
     expected = np.mean(per_engine, axis=0)
@@ -109,9 +109,9 @@ def test_status_summaries_equal_the_one_engine_reference(
     for item in body["engines"]:
         layout = renamed if item["engine_id"] == min(lasts) else LAYOUT
         last = lasts[item["engine_id"]]
-        expected = fleet_status.health_summary(
+        expected = status.health_summary(
             layout, last, datetime.fromisoformat(item["last_data"]), 3
         )
         expected["recorded_at"] = item["last_data"]
         assert item["health"] == expected
-        assert item["state"] == fleet_status._state(expected, 0, layout, last)
+        assert item["state"] == status._state(expected, 0, layout, last)

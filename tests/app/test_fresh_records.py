@@ -1,5 +1,5 @@
 """Records kept in memory from a committed upload are exactly what the database holds, and are
-used only when complete (``app.services.fresh_records`` through ``estimate_rows``)."""
+used only when complete (``app.services.uploads.fresh_records`` through ``estimate_rows``)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,9 @@ from sqlalchemy import delete
 from sqlalchemy.orm import Session
 
 from app.models import Snapshot
-from app.services import estimate_rows, estimation_runs, fresh_records
+from app.services.snapshots import rows as snapshots_rows
+from app.services.snapshots import store
+from app.services.uploads import fresh_records
 from tests.app.fleet_fixture import T0, csv_bytes, make_fleet, snapshot_rows
 
 SENSORS = ("nf", "nc", "t30", "p30", "t50", "t24")  # t24 is never uploaded: all NaN
@@ -27,7 +29,7 @@ def upload(client: TestClient, headers: dict[str, str], rows: object) -> None:
     assert response.status_code == 201, response.text
 
 
-def assert_same(a: estimate_rows.Records, b: estimate_rows.Records) -> None:
+def assert_same(a: snapshots_rows.Records, b: snapshots_rows.Records) -> None:
     assert np.array_equal(a.epoch, b.epoch)
     assert a.phase == b.phase
     for x, y in ((a.conditions, b.conditions), (a.y, b.y), (a.u, b.u)):
@@ -35,10 +37,10 @@ def assert_same(a: estimate_rows.Records, b: estimate_rows.Records) -> None:
         assert np.array_equal(x, y, equal_nan=True)
 
 
-def load(session: Session, wants: list) -> dict[int, estimate_rows.Records]:
+def load(session: Session, wants: list) -> dict[int, snapshots_rows.Records]:
     """As the pipeline loads: what is kept for these engines, completed from the database."""
     kept = fresh_records.take(session, [engine_id for engine_id, _after in wants])
-    return estimate_rows.load_records(session, wants, SENSORS, INPUTS, kept=kept)
+    return snapshots_rows.load_records(session, wants, SENSORS, INPUTS, kept=kept)
 
 
 def test_kept_records_equal_the_stored_ones(client: TestClient, session: Session) -> None:
@@ -99,6 +101,6 @@ def test_the_estimation_job_drops_what_it_cannot_use(client: TestClient, session
     fleet = make_fleet(session)
     upload(client, fleet.analyst, snapshot_rows(40, seed=5))
     assert fresh_records.kept_rows(session) == 40
-    totals = estimation_runs.catch_up(session, fleet.operator_id)
+    totals = store.catch_up(session, fleet.operator_id)
     assert totals["records"] == 0
     assert fresh_records.kept_rows(session) == 0

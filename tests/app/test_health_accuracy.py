@@ -1,7 +1,7 @@
 """Estimated health of the demo's designs against the fleet simulator's truth.
 
 A reduced seeded fleet (``estimation.engine.fleet``) goes through the pipeline's own filter
-(``app.services.health_accuracy``, i.e. ``pipeline.run_filters``) and each record's h_hat is
+(``tests.support.health_accuracy``, i.e. ``pipeline.run_filters``) and each record's h_hat is
 compared with the plan's true health of its engine and round. Thresholds come from the
 filter's own 1-sigma, never from a run:
 
@@ -26,11 +26,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from app.services import demo_fleet, estimator, health_accuracy
+from app.services.demo import fleet
+from app.services.snapshots import estimator
 from estimation.engine.fleet import FleetPlan, Snapshots, fleet_snapshots, plan_fleet
 from estimation.engine.schedule import EngineSchedule, build_schedule
+from tests.support import health_accuracy
 
-SIZE = demo_fleet.DemoSize(aircraft=3, flights=240)
+SIZE = fleet.DemoSize(aircraft=3, flights=240)
 SEED = 2
 
 
@@ -41,11 +43,11 @@ def schedule() -> EngineSchedule:
 
 @pytest.fixture(scope="module")
 def active(schedule: EngineSchedule) -> estimator.SnapshotEstimator:
-    return demo_fleet.design_estimator(schedule, *demo_fleet.ACTIVE_DESIGN)
+    return fleet.design_estimator(schedule, *fleet.ACTIVE_DESIGN)
 
 
 def _fleet(**changes: object) -> tuple[FleetPlan, Snapshots]:
-    config = dataclasses.replace(demo_fleet.fleet_config(SIZE), **changes)
+    config = dataclasses.replace(fleet.fleet_config(SIZE), **changes)
     plan_rng, snap_rng = np.random.default_rng(SEED).spawn(2)
     plan = plan_fleet(config, plan_rng)
     return plan, fleet_snapshots(plan, snap_rng)
@@ -91,10 +93,10 @@ def test_spanning_the_actuator_biases_brings_the_levels_closer_to_the_truth(
 ) -> None:
     plan, snaps = _fleet()
     mine = health_accuracy.accuracy(active, health_accuracy.tracks(active, plan, snaps))
-    wider = demo_fleet.design_estimator(schedule, "svd", 8, biases=True)
+    wider = fleet.design_estimator(schedule, "svd", 8, biases=True)
     peer = health_accuracy.accuracy(wider, health_accuracy.tracks(wider, plan, snaps))
     turbo = [peer.names.index(n) for n in mine.names]
-    assert mine.names == demo_fleet.HEALTH
+    assert mine.names == fleet.HEALTH
     assert np.mean(peer.rms[turbo] ** 2) < np.mean(mine.rms**2), (mine.report(), peer.report())
     # Without actuator biases in the fleet the active design's offsets shrink as well.
     plan0, snaps0 = _fleet(bias_std=(0.0, 0.0, 0.0))

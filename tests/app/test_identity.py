@@ -7,7 +7,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.models import ApiKey
-from app.services import tenancy
+from app.services.tenancy import service as tenancy
 
 
 def test_key_is_stored_only_as_digest_and_resolves_to_its_operator(session: Session) -> None:

@@ -12,7 +12,7 @@ from sqlalchemy.orm import Session
 
 from app.cli.importers import CMAPSS_START, esn_of, import_cmapss
 from app.models import Engine, Snapshot
-from app.services import tenancy
+from app.services.tenancy import service as tenancy
 
 FD001 = Path(__file__).resolve().parents[3] / "shared" / "data" / "cmapss" / "train_FD001.txt"
 UNITS = 3

@@ -13,7 +13,7 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 import pytest
 
-from app.services.ingest_parse import (
+from app.services.uploads.parse import (
     MAX_ERRORS,
     UploadRejected,
     parse_body,

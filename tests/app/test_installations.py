@@ -13,7 +13,7 @@ from sqlalchemy.orm import Session
 
 from app.errors import Conflict
 from app.models import Installation
-from app.services import fleet
+from app.services.fleet import service as fleet
 from tests.app.fleetkit import (
     T0,
     Tenant,

@@ -8,7 +8,7 @@ from datetime import UTC, datetime
 import numpy as np
 import pytest
 
-from app.services.json_numbers import RawJSON, dumps, float_rows
+from app.services.encoding.json_numbers import RawJSON, dumps, float_rows
 
 
 def _reference(matrix: np.ndarray, decimals: int) -> list[str]:

@@ -8,7 +8,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.models import ApiKey
-from app.services.tenancy import digest
+from app.services.tenancy.service import digest
 from tests.app.fleetkit import (
     Tenant,
     error_of,

@@ -11,7 +11,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.models import MaintenanceAction
-from app.services import maintenance
+from app.services.fleet import maintenance
 from tests.app.fleetkit import (
     T0,
     Tenant,

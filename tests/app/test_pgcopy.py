@@ -9,7 +9,7 @@ import pyarrow as pa
 import pytest
 from sqlalchemy import Connection
 
-from app.services.pgcopy import binary_copy_payload
+from app.services.encoding.pgcopy import binary_copy_payload
 
 TYPES = {
     "a": "int4",

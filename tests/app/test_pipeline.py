@@ -14,7 +14,7 @@ from sqlalchemy.orm import Session
 
 from app.models import EngineModel, MaintenanceAction, Snapshot
 from app.models.estimates import Estimate, Event, FilterState
-from app.services import backlog, estimation_runs, estimator, pipeline
+from app.services.snapshots import backlog, estimator, run, store
 from estimation import isolation
 from estimation.model import LinearModel
 from estimation.tuners import svd_vstar
@@ -115,17 +115,17 @@ def test_split_and_late_uploads_equal_one_uninterrupted_run(session: Session) ->
     whole, split, late = (add_engine(session, fleet, esn) for esn in ("W1", "S1", "L1"))
 
     start = _store(session, fleet, whole.id, aircraft.id, times, y, range(N))
-    estimation_runs.estimate_engines(session, fleet.operator_id, {whole.id: start})
+    store.estimate_engines(session, fleet.operator_id, {whole.id: start})
 
     # The same records in three uploads, the pipeline running after each (a restart each time).
     for part in (range(0, 300), range(300, 301), range(301, N)):
         start = _store(session, fleet, split.id, aircraft.id, times, y, part)
-        estimation_runs.estimate_engines(session, fleet.operator_id, {split.id: start})
+        store.estimate_engines(session, fleet.operator_id, {split.id: start})
 
     # Out of order: the middle arrives last and re-runs the engine from before it.
     for part in (range(0, 250), range(700, N), range(250, 700)):
         start = _store(session, fleet, late.id, aircraft.id, times, y, part)
-        summary = estimation_runs.estimate_engines(session, fleet.operator_id, {late.id: start})
+        summary = store.estimate_engines(session, fleet.operator_id, {late.id: start})
     assert summary["reruns"] == 1
 
     reference = _rows(session, whole.id)
@@ -143,7 +143,7 @@ def test_split_and_late_uploads_equal_one_uninterrupted_run(session: Session) ->
     assert states[split.id] == states[whole.id] == states[late.id]
 
     # Running again with nothing new changes nothing and duplicates nothing.
-    estimation_runs.estimate_engines(session, fleet.operator_id, {whole.id: times[0]})
+    store.estimate_engines(session, fleet.operator_id, {whole.id: times[0]})
     assert _rows(session, whole.id) == reference
     count = session.scalar(
         select(func.count()).select_from(Estimate).where(Estimate.engine_id == whole.id)
@@ -156,16 +156,16 @@ def test_a_late_record_restarts_from_the_checkpoint_before_it(
 ) -> None:
     """With a checkpoint every 256 records, records 600-699 arriving last re-run the engine
     from the checkpoint after record 511, and the rows still equal one uninterrupted run."""
-    monkeypatch.setattr(pipeline, "CHECKPOINT_EVERY", 256)
+    monkeypatch.setattr(run, "CHECKPOINT_EVERY", 256)
     fleet = _fleet_with_design(session)
     aircraft = add_aircraft(session, fleet, "F-CKP")
     times, y = _records(seed=9, fault="HPC", at=500)
     whole, late = add_engine(session, fleet, "CK0"), add_engine(session, fleet, "CK1")
     start = _store(session, fleet, whole.id, aircraft.id, times, y, range(N))
-    estimation_runs.estimate_engines(session, fleet.operator_id, {whole.id: start})
+    store.estimate_engines(session, fleet.operator_id, {whole.id: start})
     for part in (range(0, 600), range(700, N), range(600, 700)):
         start = _store(session, fleet, late.id, aircraft.id, times, y, part)
-        summary = estimation_runs.estimate_engines(session, fleet.operator_id, {late.id: start})
+        summary = store.estimate_engines(session, fleet.operator_id, {late.id: start})
     assert summary["reruns"] == 1 and summary["records"] == N - 512
     assert _rows(session, late.id) == _rows(session, whole.id)
     assert _events(session, late.id) == _events(session, whole.id)
@@ -182,7 +182,7 @@ def test_library_fault_opens_an_event_isolated_to_it(session: Session) -> None:
         times, y = _records(seed=seed, fault=fault, at=450)
         affected[engine.id] = _store(session, fleet, engine.id, aircraft.id, times, y, range(N))
         engines[fault] = engine
-    estimation_runs.estimate_engines(session, fleet.operator_id, affected)
+    store.estimate_engines(session, fleet.operator_id, affected)
     for fault, engine in engines.items():
         events = session.scalars(select(Event).where(Event.engine_id == engine.id)).all()
         if fault is None:
@@ -214,7 +214,7 @@ def test_maintenance_action_restarts_the_baseline(session: Session) -> None:
         e.id: _store(session, fleet, e.id, aircraft.id, times, y, range(N))
         for e in (without, with_action)
     }
-    estimation_runs.estimate_engines(session, fleet.operator_id, affected)
+    store.estimate_engines(session, fleet.operator_id, affected)
     # Unannounced, the recovery is a shift; after the recorded shop visit it is the new normal.
     assert [e[0] >= 600 for e in _events(session, without.id)] == [True]
     assert _events(session, with_action.id) == []
@@ -226,16 +226,16 @@ def test_catch_up_estimates_exactly_the_snapshots_without_estimates(session: Ses
     times, y = _records(seed=31)
     engine = add_engine(session, fleet, "CU1")
     _store(session, fleet, engine.id, aircraft.id, times, y, range(0, 200))
-    assert estimation_runs.pending_work(session, fleet.operator_id) == {engine.id: times[0]}
-    first = estimation_runs.catch_up(session, fleet.operator_id)
+    assert store.pending_work(session, fleet.operator_id) == {engine.id: times[0]}
+    first = store.catch_up(session, fleet.operator_id)
     assert (
-        first["records"] == 200 and estimation_runs.pending_work(session, fleet.operator_id) == {}
+        first["records"] == 200 and store.pending_work(session, fleet.operator_id) == {}
     )
     _store(session, fleet, engine.id, aircraft.id, times, y, range(200, 260))
-    assert estimation_runs.pending_work(session, fleet.operator_id) == {engine.id: times[200]}
-    second = estimation_runs.catch_up(session, fleet.operator_id)
+    assert store.pending_work(session, fleet.operator_id) == {engine.id: times[200]}
+    second = store.catch_up(session, fleet.operator_id)
     assert second["records"] == 60 and second["reruns"] == 0
-    assert estimation_runs.catch_up(session, fleet.operator_id)["records"] == 0
+    assert store.catch_up(session, fleet.operator_id)["records"] == 0
     assert [r[0] for r in _rows(session, engine.id)] == list(range(260))
 
 
@@ -248,7 +248,7 @@ def test_fleet_diagnostics_summarises_and_queues_estimation(session: Session) ->
     times, y = _records(seed=41, fault="HPC", at=450)
     engine = add_engine(session, fleet, "DX1")
     _store(session, fleet, engine.id, aircraft.id, times, y, range(0, 800))
-    estimation_runs.catch_up(session, fleet.operator_id)
+    store.catch_up(session, fleet.operator_id)
     summary = fleet_diagnostics(session, FleetDiagnostics(), lambda *a: None,
                                 operator_id=fleet.operator_id)
     events = _events(session, engine.id)
@@ -271,10 +271,10 @@ def test_rerun_keeps_what_people_did_with_an_event(session: Session) -> None:
     times, y = _records(seed=7, fault="HPC", at=500)
     reference, engine = add_engine(session, fleet, "ACK0"), add_engine(session, fleet, "ACK1")
     start = _store(session, fleet, reference.id, aircraft.id, times, y, range(N))
-    estimation_runs.estimate_engines(session, fleet.operator_id, {reference.id: start})
+    store.estimate_engines(session, fleet.operator_id, {reference.id: start})
     start = _store(session, fleet, engine.id, aircraft.id, times, y,
                    [i for i in range(N) if i != 100])
-    estimation_runs.estimate_engines(session, fleet.operator_id, {engine.id: start})
+    store.estimate_engines(session, fleet.operator_id, {engine.id: start})
     event = session.scalars(select(Event).where(Event.engine_id == engine.id)).one()
     event.status = "acknowledged"
     session.add(EventComment(event_id=event.id, author="test", body="borescope booked"))
@@ -282,7 +282,7 @@ def test_rerun_keeps_what_people_did_with_an_event(session: Session) -> None:
 
     late = _store(session, fleet, engine.id, aircraft.id, times, y, [100])
     assert (
-        estimation_runs.estimate_engines(session, fleet.operator_id, {engine.id: late})["reruns"]
+        store.estimate_engines(session, fleet.operator_id, {engine.id: late})["reruns"]
         == 1
     )
     session.expire_all()

@@ -10,7 +10,7 @@ from app.jobs.kinds.estimation import queue_estimation
 from app.jobs.registry import load_kinds
 from app.jobs.runner import claim_job, claim_next
 from app.models import Job
-from app.services import tenancy
+from app.services.tenancy import service as tenancy
 
 
 def test_an_estimation_queued_while_one_runs_starts_after_it(

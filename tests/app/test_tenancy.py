@@ -47,8 +47,11 @@ from sqlalchemy.types import TypeDecorator
 from starlette.routing import BaseRoute, Mount
 
 from app.models import Base
-from app.services import fleet, maintenance, models_designs
-from app.services.keys import create_key
+from app.services.designs import engine_models
+from app.services.designs import service as designs
+from app.services.fleet import maintenance
+from app.services.fleet import service as fleet
+from app.services.tenancy.keys import create_key
 from tests.app.fleetkit import (
     T0,
     Tenant,
@@ -159,18 +162,18 @@ def build_world(session: Session, tenant: Tenant, marker: str) -> dict[str, int]
         performed_at=T0,
         notes=marker,
     )
-    model, _ = models_designs.import_engine_model(
+    model, _ = engine_models.import_engine_model(
         session,
         operator_id=op,
         engine_type_id=et.id,
         name=f"{marker} model",
         content=reference_model().to_dict(),
     )
-    design = models_designs.create_design(
+    design = designs.create_design(
         session, operator_id=op, engine_model_id=model.id, name=f"{marker} design", spec=SPEC
     )
-    models_designs.run_design(session, design, models_designs.design_step)
-    models_designs.activate_design(session, operator_id=op, design_id=design.id)
+    designs.run_design(session, design, designs.design_step)
+    designs.activate_design(session, operator_id=op, design_id=design.id)
     key, _plain = create_key(session, operator_id=op, role="viewer", name=f"{marker} key")
     session.commit()
     return {

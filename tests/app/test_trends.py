@@ -25,8 +25,8 @@ from app.models import (
     Upload,
 )
 from app.models.estimates import Estimate, EstimateLayout, FilterState
-from app.services import trends
-from app.services.tenancy import create_operator, issue_api_key
+from app.services.tenancy.service import create_operator, issue_api_key
+from app.services.trends import service as trends
 
 T0 = datetime(2026, 1, 1, tzinfo=UTC)
 LAYOUT = EstimateLayout(

@@ -67,7 +67,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     from app.db import make_engine, make_sessionmaker
     from app.main import create_app
     from app.migrate import upgrade
-    from app.services import estimator
+    from app.services.snapshots import estimator
     from estimation.engine.schedule import build_schedule
     from tests.browser.seed import seed
 

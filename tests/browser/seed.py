@@ -24,16 +24,15 @@ from app.jobs import store
 from app.jobs.registry import load_kinds
 from app.jobs.runner import run_pending
 from app.models.estimates import Event
-from app.services import (
-    estimation_runs,
-    estimator,
-    fleet,
-    ingest,
-    maintenance,
-    models_designs,
-    tenancy,
-)
-from app.services.simulate_io import snapshot_table
+from app.services.demo.simulation_files import snapshot_table
+from app.services.designs import engine_models
+from app.services.designs import service as designs
+from app.services.fleet import maintenance
+from app.services.fleet import service as fleet
+from app.services.snapshots import estimator
+from app.services.snapshots import store as snapshots_store
+from app.services.tenancy import service as tenancy
+from app.services.uploads import store as uploads_store
 from estimation.engine.fleet import FleetConfig, fleet_snapshots, plan_fleet
 
 HEALTH = ("fan_eff", "fan_flow", "lpc_eff", "lpc_flow", "hpc_eff", "hpc_flow", "hpt_eff",
@@ -59,7 +58,7 @@ class Seeded:
 
 def _designs(session: Session, operator_id: int, type_id: int) -> tuple[int, list[int]]:
     model = estimator.builtin_schedule().model_at(*DESIGN_POINT)
-    row, _ = models_designs.register_builtin_model(
+    row, _ = engine_models.register_builtin_model(
         session, operator_id=operator_id, engine_type_id=type_id, name="built-in cruise",
         model=model,
     )
@@ -71,13 +70,13 @@ def _designs(session: Session, operator_id: int, type_id: int) -> tuple[int, lis
     }
     ids = []
     for name, method, m in (("subset m = 8", "subset", 8), ("SVD m = 6", "svd", 6)):
-        design = models_designs.create_design(
+        design = designs.create_design(
             session, operator_id=operator_id, engine_model_id=row.id, name=name,
             spec=dict(base, method=method, tuners=m),
         )
-        models_designs.run_design(session, design, models_designs.design_step)
+        designs.run_design(session, design, designs.design_step)
         ids.append(design.id)
-    models_designs.activate_design(session, operator_id=operator_id, design_id=ids[0])
+    designs.activate_design(session, operator_id=operator_id, design_id=ids[0])
     return row.id, ids
 
 
@@ -152,12 +151,12 @@ def seed(factory: sessionmaker[Session]) -> Seeded:
     sink = io.BytesIO()
     pq.write_table(snaps, sink)
     with transaction(factory) as session:
-        ingest.ingest_snapshots(
+        uploads_store.ingest_snapshots(
             session, operator_id=op_id, api_key_id=None, body=sink.getvalue(),
             content_format="parquet",
         )
     with transaction(factory) as session:
-        estimation_runs.catch_up(session, op_id)
+        snapshots_store.catch_up(session, op_id)
     _evaluate(factory, op_id, out.design_ids[0])
     with transaction(factory) as session:
         event = session.scalars(

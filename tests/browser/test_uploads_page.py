@@ -10,7 +10,7 @@ from typing import Any
 import httpx
 import pytest
 
-from app.services.simulate_io import write_table
+from app.services.demo.simulation_files import write_table
 from tests.browser.conftest import Console, Server, screenshot, sign_in
 
 pytestmark = pytest.mark.browser

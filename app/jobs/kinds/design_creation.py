@@ -9,7 +9,7 @@ from pydantic import BaseModel, ConfigDict
 from sqlalchemy.orm import Session
 
 from app.jobs.registry import Progress, registry
-from app.services import models_designs
+from app.services.designs import service as designs
 
 
 class CreateDesign(BaseModel):
@@ -19,7 +19,7 @@ class CreateDesign(BaseModel):
 
 
 @registry.job(
-    models_designs.DESIGN_JOB,
+    designs.DESIGN_JOB,
     parameters=CreateDesign,
     description="Design the tuners and steady-state gain of a pending estimator design.",
     role="analyst",
@@ -28,7 +28,7 @@ def create_design(
     session: Session, parameters: CreateDesign, progress: Progress, *, operator_id: int
 ) -> dict[str, Any]:
     progress(0.0, "designing")
-    design = models_designs.run_pending_design(
+    design = designs.run_pending_design(
         session, operator_id=operator_id, design_id=parameters.design_id
     )
     return {

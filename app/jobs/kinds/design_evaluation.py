@@ -9,7 +9,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.orm import Session
 
 from app.jobs.registry import Progress, registry
-from app.services import design_evaluation
+from app.services.designs import evaluation
 
 
 class EvaluateDesign(BaseModel):
@@ -32,7 +32,7 @@ class EvaluateDesign(BaseModel):
 
 
 @registry.job(
-    design_evaluation.JOB_KIND,
+    evaluation.JOB_KIND,
     parameters=EvaluateDesign,
     description="Monte Carlo SSEE next to the design's theory, and WSSR confusion matrices.",
     role="analyst",
@@ -40,13 +40,13 @@ class EvaluateDesign(BaseModel):
 def evaluate_design(
     session: Session, parameters: EvaluateDesign, progress: Progress, *, operator_id: int
 ) -> dict[str, Any]:
-    data = design_evaluation.evaluation_input(
+    data = evaluation.evaluation_input(
         session, operator_id=operator_id, design_id=parameters.design_id
     )
     # End the read transaction before the long run: on SQLite a transaction that read before
     # a progress report committed could not write the result afterwards.
     session.commit()
-    return design_evaluation.run_evaluation(
+    return evaluation.run_evaluation(
         data, n_cases=parameters.n_cases, duration_s=parameters.duration_s,
         window_s=parameters.window_s, fault_duration_s=parameters.fault_duration_s,
         seed=parameters.seed, start=parameters.start, progress=progress,

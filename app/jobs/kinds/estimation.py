@@ -11,7 +11,8 @@ from sqlalchemy.orm import Session
 from app.jobs import store
 from app.jobs.registry import JobRegistry, Progress, registry
 from app.models import Job
-from app.services import diagnostics, estimation_runs
+from app.services.fleet import diagnostics
+from app.services.snapshots import store as snapshots_store
 
 # The default schedule of the fleet-wide diagnostic job (seconds): once a day.
 FLEET_DIAGNOSTICS_INTERVAL = 24 * 3600
@@ -38,7 +39,7 @@ class EstimateEngines(BaseModel):
 def estimate_engines(
     session: Session, parameters: EstimateEngines, progress: Progress, *, operator_id: int
 ) -> dict[str, Any]:
-    return estimation_runs.catch_up(session, operator_id, progress=progress, commit=session.commit)
+    return snapshots_store.catch_up(session, operator_id, progress=progress, commit=session.commit)
 
 
 def queue_estimation(session: Session, *, operator_id: int, job_registry: JobRegistry) -> Job:

@@ -9,7 +9,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.orm import Session
 
 from app.jobs.registry import Progress, registry
-from app.services import stream_estimation
+from app.services.streams import estimation
 
 
 class EstimateRecording(BaseModel):
@@ -34,7 +34,7 @@ def estimate_recording(
 ) -> dict[str, Any]:
     from app.config import get_settings
 
-    return stream_estimation.estimate_recording(
+    return estimation.estimate_recording(
         session,
         operator_id=operator_id,
         recording_id=parameters.recording_id,

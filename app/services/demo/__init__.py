@@ -1,0 +1,1 @@
+"""The demo operator and its simulated fleet."""

@@ -1,0 +1,1 @@
+"""Engine models, estimator designs and their evaluation."""

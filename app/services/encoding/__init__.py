@@ -1,0 +1,1 @@
+"""Wire formats of bulk data: PostgreSQL binary COPY and JSON numbers."""

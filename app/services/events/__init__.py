@@ -1,0 +1,1 @@
+"""Events raised by the pipelines: list, acknowledge, comment, close."""

@@ -1,0 +1,213 @@
+"""Events: list, acknowledge, comment, close. The pipeline opens them
+(app/services/snapshots/store.py).
+
+Status moves open -> acknowledged -> closed (open -> closed directly is allowed too); a closed
+event cannot be acknowledged again, and acknowledging twice is a no-op, so a retried request does
+not fail. Every action is scoped to the caller's operator: another operator's event is not found.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any
+
+from sqlalchemy import and_, func, or_, select
+from sqlalchemy.orm import Session, selectinload
+
+from app.errors import Conflict, NotFound
+from app.models import Aircraft, Engine, Installation
+from app.models.base import utcnow
+from app.models.estimates import Event, EventComment
+from app.services.tenancy.service import Principal
+
+
+def get_event(session: Session, operator_id: int, event_id: int) -> Event:
+    event = session.get(Event, event_id)
+    if event is None or event.operator_id != operator_id:
+        raise NotFound(f"event {event_id} not found")
+    return event
+
+
+def _installed(session: Session, events: list[Event]) -> dict[int, tuple[str, int]]:
+    """event id -> (tail, position) of the engine at the time the event was detected."""
+    if not events:
+        return {}
+    out: dict[int, tuple[str, int]] = {}
+    engine_ids = {e.engine_id for e in events}
+    rows = session.execute(
+        select(Installation.engine_id, Installation.installed_at, Installation.removed_at,
+               Installation.position, Aircraft.tail)
+        .join(Aircraft, Aircraft.id == Installation.aircraft_id)
+        .where(Installation.engine_id.in_(engine_ids))
+    ).all()
+    for event in events:
+        for engine_id, installed, removed, position, tail in rows:
+            if engine_id != event.engine_id:
+                continue
+            if installed <= event.detected_at and (removed is None or event.detected_at < removed):
+                out[event.id] = (tail, position)
+                break
+    return out
+
+
+def event_out(event: Event, esn: str, where: tuple[str, int] | None) -> dict[str, Any]:
+    shift = event.shift or {}
+    return {
+        "id": event.id,
+        "engine_id": event.engine_id,
+        "esn": esn,
+        "tail": None if where is None else where[0],
+        "position": None if where is None else where[1],
+        "design_id": event.design_id,
+        "seq": event.seq,
+        "detected_at": event.detected_at,
+        "kind": event.kind,
+        "fault": event.fault,
+        "magnitude": event.magnitude,
+        "statistic": event.statistic,
+        "wssr": event.wssr,
+        "wssr_threshold": shift.get("wssr_threshold"),
+        "tuner_shift": shift.get("tuners", {}),
+        "health_shift": shift.get("health", {}),
+        "fault_shift": shift.get("fault", {}),
+        "status": event.status,
+        "acknowledged_at": event.acknowledged_at,
+        "acknowledged_by": event.acknowledged_by,
+        "closed_at": event.closed_at,
+        "closed_by": event.closed_by,
+        "comments": list(event.comments),
+    }
+
+
+def list_events(
+    session: Session,
+    operator_id: int,
+    *,
+    status: str | None = None,
+    engine_id: int | None = None,
+    kind: str | None = None,
+    since: datetime | None = None,
+    until: datetime | None = None,
+    limit: int = 100,
+    offset: int = 0,
+) -> dict[str, Any]:
+    """Events newest first, filtered; a page of ``EventOut`` dicts."""
+    conditions = [Event.operator_id == operator_id]
+    if status is not None:
+        conditions.append(Event.status == status)
+    if engine_id is not None:
+        conditions.append(Event.engine_id == engine_id)
+    if kind is not None:
+        conditions.append(Event.kind == kind)
+    if since is not None:
+        conditions.append(Event.detected_at >= since)
+    if until is not None:
+        conditions.append(Event.detected_at < until)
+    total = session.scalar(select(func.count()).select_from(Event).where(*conditions)) or 0
+    rows = session.execute(
+        select(Event, Engine.esn)
+        .join(Engine, Engine.id == Event.engine_id)
+        .where(*conditions)
+        .options(selectinload(Event.comments))
+        .order_by(Event.detected_at.desc(), Event.id.desc())
+        .limit(limit)
+        .offset(offset)
+    ).all()
+    events = [e for e, _ in rows]
+    where = _installed(session, events)
+    return {
+        "items": [event_out(e, esn, where.get(e.id)) for e, esn in rows],
+        "total": total,
+        "limit": limit,
+        "offset": offset,
+    }
+
+
+def show_event(session: Session, operator_id: int, event_id: int) -> dict[str, Any]:
+    event = get_event(session, operator_id, event_id)
+    engine = session.get(Engine, event.engine_id)
+    assert engine is not None
+    return event_out(event, engine.esn, _installed(session, [event]).get(event.id))
+
+
+def _comment(session: Session, event: Event, principal: Principal, body: str) -> None:
+    session.add(
+        EventComment(
+            event_id=event.id,
+            author_key_id=principal.key_id,
+            author=principal.operator_name + f" (key {principal.key_id})",
+            body=body,
+        )
+    )
+
+
+def add_comment(
+    session: Session, principal: Principal, event_id: int, body: str
+) -> dict[str, Any]:
+    event = get_event(session, principal.operator_id, event_id)
+    _comment(session, event, principal, body)
+    session.flush()
+    session.refresh(event, ["comments"])
+    return show_event(session, principal.operator_id, event_id)
+
+
+def acknowledge(
+    session: Session, principal: Principal, event_id: int, comment: str | None = None
+) -> dict[str, Any]:
+    event = get_event(session, principal.operator_id, event_id)
+    if event.status == "closed":
+        raise Conflict(f"event {event_id} is closed; it cannot be acknowledged")
+    if event.status == "open":
+        event.status = "acknowledged"
+        event.acknowledged_at = utcnow()
+        event.acknowledged_by = principal.key_id
+    if comment:
+        _comment(session, event, principal, comment)
+    session.flush()
+    session.refresh(event, ["comments"])
+    return show_event(session, principal.operator_id, event_id)
+
+
+def close(
+    session: Session, principal: Principal, event_id: int, comment: str | None = None
+) -> dict[str, Any]:
+    event = get_event(session, principal.operator_id, event_id)
+    if event.status != "closed":
+        if event.acknowledged_at is None:
+            event.acknowledged_at = utcnow()
+            event.acknowledged_by = principal.key_id
+        event.status = "closed"
+        event.closed_at = utcnow()
+        event.closed_by = principal.key_id
+    if comment:
+        _comment(session, event, principal, comment)
+    session.flush()
+    session.refresh(event, ["comments"])
+    return show_event(session, principal.operator_id, event_id)
+
+
+def open_event_counts(session: Session, operator_id: int) -> dict[int, int]:
+    """engine id -> number of events not closed."""
+    rows = session.execute(
+        select(Event.engine_id, func.count())
+        .where(Event.operator_id == operator_id, Event.status != "closed")
+        .group_by(Event.engine_id)
+    ).all()
+    return {engine_id: int(n) for engine_id, n in rows}
+
+
+def latest_open_events(session: Session, operator_id: int) -> dict[int, Event]:
+    """engine id -> its most recent event that is not closed."""
+    newest = (
+        select(Event.engine_id, func.max(Event.detected_at).label("at"))
+        .where(Event.operator_id == operator_id, Event.status != "closed")
+        .group_by(Event.engine_id)
+        .subquery()
+    )
+    rows = session.scalars(
+        select(Event).join(
+            newest,
+            and_(Event.engine_id == newest.c.engine_id, Event.detected_at == newest.c.at),
+        ).where(or_(Event.status == "open", Event.status == "acknowledged"))
+    ).all()
+    return {e.engine_id: e for e in rows}

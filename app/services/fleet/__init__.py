@@ -1,0 +1,1 @@
+"""Engine types, aircraft, engines, installations, maintenance and fleet status."""

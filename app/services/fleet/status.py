@@ -1,0 +1,361 @@
+"""Fleet status (every engine with its latest state) and fleet-average deterioration.
+
+The status page reads a fixed number of queries whatever the fleet size: engines with their
+current installation, the active designs, each engine's filter state and the one estimate it
+points at (``seq = n_records - 1`` through the unique (engine, design, seq) index), and the
+open events. An engine's state is ``alert`` with an event not closed, ``watch`` when a health
+parameter has moved more than ``WATCH_PERCENT`` and 3 sigma from zero, else ``normal``.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from datetime import UTC, datetime
+from typing import Any
+
+import numpy as np
+from sqlalchemy import and_, select
+from sqlalchemy.orm import Session
+
+from app.errors import InvalidInput
+from app.models import Aircraft, Engine, EngineType, EstimatorDesign, Installation, Operator
+from app.models.estimates import Estimate, EstimateLayout, FilterState
+from app.services.events.service import latest_open_events, open_event_counts
+
+WATCH_PERCENT = 1.5
+WATCH_SIGMAS = 3.0
+THRUST_NAMES = ("fn", "thrust", "f_n")
+
+
+def thrust_index(aux: tuple[str, ...]) -> int | None:
+    for j, name in enumerate(aux):
+        if name.lower() in THRUST_NAMES:
+            return j
+    return None
+
+
+def health_summary(
+    layout: EstimateLayout, values: np.ndarray, recorded_at: datetime, seq: int
+) -> dict[str, Any]:
+    """Brief of one estimate: the worst health parameter and the thrust deficit.
+
+    The one-engine statement of what ``_summaries`` computes for a whole fleet at once (the
+    tests compare the two)."""
+    s = layout.slices()
+    h, h_sigma, z = values[s["h"]], values[s["h_sigma"]], values[s["z"]]
+    worst = int(np.argmax(np.abs(h))) if len(h) else None
+    k = thrust_index(layout.aux)
+    return {
+        "recorded_at": recorded_at,
+        "seq": seq,
+        "worst_health": None if worst is None else layout.health[worst],
+        "worst_health_value": None if worst is None else round(float(h[worst]), 4),
+        "worst_health_sigma": None if worst is None else round(float(h_sigma[worst]), 4),
+        "thrust_deficit": None if k is None else round(float(-z[k]), 4),
+        "health": dict(zip(layout.health, np.round(h, 4).tolist(), strict=True)),
+        "aux": dict(zip(layout.aux, np.round(z, 4).tolist(), strict=True)),
+    }
+
+
+def _state(summary: dict[str, Any] | None, n_open: int, layout: EstimateLayout | None,
+           values: np.ndarray | None) -> str:
+    if n_open:
+        return "alert"
+    if summary is None or layout is None or values is None:
+        return "no_data"
+    s = layout.slices()
+    h, sigma = np.abs(values[s["h"]]), values[s["h_sigma"]]
+    if np.any((h > WATCH_PERCENT) & (h > WATCH_SIGMAS * sigma)):
+        return "watch"
+    return "normal"
+
+
+def _layouts(
+    session: Session, operator_id: int, pairs: set[tuple[int, int]]
+) -> dict[tuple[int, int], EstimateLayout]:
+    """(engine id, design id) -> layout, for the given pairs. A layout comes from its design,
+    so one distinct document per design is read and decoded once; a design whose engines
+    carry different documents falls back to reading theirs one by one."""
+    designs = {design_id for _engine_id, design_id in pairs}
+    docs: dict[int, list[Any]] = defaultdict(list)
+    for design_id, doc in session.execute(
+        select(FilterState.design_id, FilterState.layout)
+        .where(FilterState.operator_id == operator_id, FilterState.design_id.in_(designs))
+        .distinct()
+    ).all():
+        docs[design_id].append(doc)
+    single = {
+        design_id: EstimateLayout.from_dict(found[0])
+        for design_id, found in docs.items()
+        if len(found) == 1
+    }
+    out = {pair: single[pair[1]] for pair in pairs if pair[1] in single}
+    mixed = designs - set(single)
+    if mixed:
+        for engine_id, design_id, doc in session.execute(
+            select(FilterState.engine_id, FilterState.design_id, FilterState.layout).where(
+                FilterState.operator_id == operator_id, FilterState.design_id.in_(mixed)
+            )
+        ).all():
+            if (engine_id, design_id) in pairs:
+                out[(engine_id, design_id)] = EstimateLayout.from_dict(doc)
+    return out
+
+
+def _summaries(
+    session: Session, operator_id: int, rows: list[Any]
+) -> list[tuple[dict[str, Any] | None, bool]]:
+    """Per chosen filter-state row (or None): the ``health_summary`` of its latest estimate
+    (None without one) and whether it is on watch. The blobs of each design are decoded with
+    one ``numpy.frombuffer`` and summarised with array operations."""
+    out: list[tuple[dict[str, Any] | None, bool]] = [(None, False)] * len(rows)
+    with_data = [i for i, row in enumerate(rows) if row is not None and row.packed is not None]
+    if not with_data:
+        return out
+    layouts = _layouts(
+        session, operator_id, {(rows[i].engine_id, rows[i].design_id) for i in with_data}
+    )
+    by_layout: dict[int, tuple[EstimateLayout, list[int]]] = {}
+    for i in with_data:
+        layout = layouts[(rows[i].engine_id, rows[i].design_id)]
+        by_layout.setdefault(id(layout), (layout, []))[1].append(i)
+    for layout, members in by_layout.values():
+        values = layout.unpack([rows[i].packed for i in members])
+        s = layout.slices()
+        h, h_sigma, z = values[:, s["h"]], values[:, s["h_sigma"]], values[:, s["z"]]
+        n_health = h.shape[1]
+        abs_h = np.abs(h)
+        # The same tests as ``health_summary`` and the watch rule, row by row.
+        watch = np.any((abs_h > WATCH_PERCENT) & (abs_h > WATCH_SIGMAS * h_sigma), axis=1)
+        worst = np.argmax(abs_h, axis=1) if n_health else None
+        k = thrust_index(layout.aux)
+        health_lists = np.round(h, 4).tolist()
+        aux_lists = np.round(z, 4).tolist()
+        if worst is not None:
+            picked = np.arange(len(members))
+            worst_values = h[picked, worst].tolist()
+            worst_sigmas = h_sigma[picked, worst].tolist()
+            worst_list = worst.tolist()
+        thrust = None if k is None else (-z[:, k]).tolist()
+        for r, i in enumerate(members):
+            row = rows[i]
+            summary = {
+                "recorded_at": row.recorded_at,
+                "seq": row.seq,
+                "worst_health": None if worst is None else layout.health[worst_list[r]],
+                "worst_health_value": None if worst is None else round(worst_values[r], 4),
+                "worst_health_sigma": None if worst is None else round(worst_sigmas[r], 4),
+                "thrust_deficit": None if thrust is None else round(thrust[r], 4),
+                "health": dict(zip(layout.health, health_lists[r], strict=True)),
+                "aux": dict(zip(layout.aux, aux_lists[r], strict=True)),
+            }
+            out[i] = (summary, bool(watch[r]))
+    return out
+
+
+def fleet_status(session: Session, operator_id: int) -> dict[str, Any]:
+    """Every engine of the operator with current tail/position, type, last data, latest health
+    summary and open events (``app.schemas.estimates.FleetStatus``)."""
+    operator = session.get(Operator, operator_id)
+    engines = session.execute(
+        select(Engine.id, Engine.esn, Engine.engine_type_id, EngineType.name)
+        .join(EngineType, EngineType.id == Engine.engine_type_id)
+        .where(Engine.operator_id == operator_id)
+        .order_by(Engine.esn)
+    ).all()
+    installed = {
+        engine_id: (aircraft_id, tail, position)
+        for engine_id, aircraft_id, tail, position in session.execute(
+            select(Installation.engine_id, Aircraft.id, Aircraft.tail, Installation.position)
+            .join(Aircraft, Aircraft.id == Installation.aircraft_id)
+            .where(Installation.operator_id == operator_id, Installation.removed_at.is_(None))
+        ).all()
+    }
+    active: dict[int, int] = {
+        type_id: design_id
+        for type_id, design_id in session.execute(
+            select(EstimatorDesign.engine_type_id, EstimatorDesign.id).where(
+                EstimatorDesign.operator_id == operator_id, EstimatorDesign.active.is_(True)
+            )
+        ).all()
+    }
+    f, est = FilterState.__table__, Estimate.__table__
+    latest = session.connection().execute(
+        select(
+            f.c.engine_id, f.c.design_id, f.c.n_records, f.c.last_recorded_at, est.c.recorded_at,
+            est.c.seq, est.c.packed,
+        )
+        .outerjoin(
+            est,
+            and_(
+                est.c.engine_id == f.c.engine_id,
+                est.c.design_id == f.c.design_id,
+                est.c.seq == f.c.n_records - 1,
+            ),
+        )
+        .where(f.c.operator_id == operator_id)
+    ).all()
+    by_engine: dict[int, dict[int, Any]] = defaultdict(dict)
+    for state_row in latest:
+        by_engine[state_row.engine_id][state_row.design_id] = state_row
+    counts = open_event_counts(session, operator_id)
+    newest_events = latest_open_events(session, operator_id)
+
+    # The row each engine shows: its type's active design, else its latest filter state.
+    chosen: list[Any] = []
+    for engine_id, _esn, type_id, _type_name in engines:
+        states = by_engine.get(engine_id, {})
+        design_id = active.get(type_id)
+        row: Any = states.get(design_id) if design_id is not None else None
+        if row is None and states:
+            row = max(states.values(), key=lambda r: (r.last_recorded_at is not None,
+                                                      r.last_recorded_at, r.design_id))
+        chosen.append(row)
+    summaries = _summaries(session, operator_id, chosen)
+
+    out = []
+    for (engine_id, esn, _type_id, type_name), row, (summary, watch) in zip(
+        engines, chosen, summaries, strict=True
+    ):
+        n_open = counts.get(engine_id, 0)
+        event = newest_events.get(engine_id)
+        where = installed.get(engine_id)
+        if n_open:
+            state = "alert"
+        elif summary is None:
+            state = "no_data"
+        else:
+            state = "watch" if watch else "normal"
+        out.append(
+            {
+                "engine_id": engine_id,
+                "esn": esn,
+                "engine_type": type_name,
+                "aircraft_id": None if where is None else where[0],
+                "tail": None if where is None else where[1],
+                "position": None if where is None else where[2],
+                "design_id": None if row is None else row.design_id,
+                "last_data": None if row is None else row.last_recorded_at,
+                "n_records": 0 if row is None else row.n_records,
+                "state": state,
+                "health": summary,
+                "open_events": n_open,
+                "latest_event": None
+                if event is None
+                else {
+                    "id": event.id,
+                    "detected_at": event.detected_at,
+                    "kind": event.kind,
+                    "fault": event.fault,
+                    "magnitude": event.magnitude,
+                    "status": event.status,
+                },
+            }
+        )
+    return {
+        "operator": "" if operator is None else operator.name,
+        "n_engines": len(out),
+        "n_open_events": sum(counts.values()),
+        "engines": out,
+    }
+
+
+def _series(
+    names: tuple[str, ...], units: list[str] | None, mean: np.ndarray, spread: np.ndarray,
+    offset: int,
+) -> list[dict[str, Any]]:
+    unit_list = units or ["%"] * len(names)
+    return [
+        {
+            "name": name,
+            "unit": unit_list[j],
+            "mean": np.round(mean[:, offset + j], 4).tolist(),
+            "sigma": np.round(spread[:, offset + j], 4).tolist(),
+        }
+        for j, name in enumerate(names)
+    ]
+
+
+def _bucket_starts(epoch: np.ndarray, bucket: str) -> np.ndarray:
+    """Start (epoch seconds) of the week (Monday) or calendar month of each time."""
+    days = np.floor(epoch / 86400.0).astype("datetime64[D]")
+    if bucket == "week":
+        # 1970-01-01 was a Thursday: shift so weeks start on Monday.
+        weeks = (days - np.datetime64("1969-12-29")).astype(np.int64) // 7
+        starts = np.datetime64("1969-12-29") + weeks * 7
+    else:
+        starts = days.astype("datetime64[M]").astype("datetime64[D]")
+    return starts.astype("datetime64[s]").astype(np.int64).astype(float)
+
+
+def fleet_deterioration(
+    session: Session, operator_id: int, bucket: str = "month"
+) -> dict[str, Any]:
+    """Fleet-average health and auxiliary estimates per week or month, per active design.
+
+    Each engine first counts once per bucket (the mean of its estimates there), then the
+    fleet mean and spread are taken over engines, so a busy engine does not dominate.
+    """
+    if bucket not in ("week", "month"):
+        raise InvalidInput(
+            "bucket must be week or month",
+            details=[{"row": None, "column": "bucket", "reason": f"unknown bucket {bucket!r}"}],
+        )
+    designs = session.execute(
+        select(EstimatorDesign.id, EngineType.name)
+        .join(EngineType, EngineType.id == EstimatorDesign.engine_type_id)
+        .where(EstimatorDesign.operator_id == operator_id, EstimatorDesign.active.is_(True))
+        .order_by(EngineType.name)
+    ).all()
+    groups = []
+    for design_id, type_name in designs:
+        layout_doc = session.scalar(
+            select(FilterState.layout).where(FilterState.design_id == design_id).limit(1)
+        )
+        if layout_doc is None:
+            continue
+        layout = EstimateLayout.from_dict(layout_doc)
+        rows = session.execute(
+            select(Estimate.engine_id, Estimate.recorded_at, Estimate.packed)
+            .where(Estimate.design_id == design_id, Estimate.operator_id == operator_id)
+        ).all()
+        if not rows:
+            continue
+        engine_ids = np.fromiter((r[0] for r in rows), np.int64, len(rows))
+        epoch = np.fromiter((r[1].timestamp() for r in rows), float, len(rows))
+        values = layout.unpack([r[2] for r in rows])
+        s = layout.slices()
+        hz = np.concatenate([values[:, s["h"]], values[:, s["z"]]], axis=1)
+        starts = _bucket_starts(epoch, bucket)
+        buckets, b_index = np.unique(starts, return_inverse=True)
+        # Per (engine, bucket) mean, then mean and spread over engines.
+        keys, k_index = np.unique(np.stack([b_index, engine_ids]), axis=1, return_inverse=True)
+        k_index = np.ravel(k_index)
+        sums = np.zeros((keys.shape[1], hz.shape[1]))
+        np.add.at(sums, k_index, hz)
+        per_engine = sums / np.bincount(k_index, minlength=keys.shape[1])[:, None]
+        n_engines = np.bincount(keys[0], minlength=len(buckets))
+        mean = np.zeros((len(buckets), hz.shape[1]))
+        np.add.at(mean, keys[0], per_engine)
+        mean /= n_engines[:, None]
+        sq = np.zeros_like(mean)
+        np.add.at(sq, keys[0], (per_engine - mean[keys[0]]) ** 2)
+        spread = np.sqrt(sq / n_engines[:, None])
+        p = len(layout.health)
+        units = layout.units
+
+
+        groups.append(
+            {
+                "engine_type": type_name,
+                "design_id": design_id,
+                "time": [
+                    datetime.fromtimestamp(t, UTC).isoformat().replace("+00:00", "Z")
+                    for t in buckets
+                ],
+                "n_engines": n_engines.tolist(),
+                "health": _series(layout.health, units.get("health"), mean, spread, 0),
+                "aux": _series(layout.aux, units.get("aux"), mean, spread, p),
+            }
+        )
+    return {"bucket": bucket, "groups": groups}

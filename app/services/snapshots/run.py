@@ -1,0 +1,440 @@
+"""The filter run: snapshots -> tuner filter -> estimates, shift detection, isolation, for
+a batch of engines in memory (``estimation_runs`` reads their records and stores what it
+computes).
+
+Per record the pipeline stores q_hat, h_hat = V*^+ q_hat and z_hat = G_z V*^+ q_hat with their
+1-sigma (from the filter covariance P), the innovation per sensor, and the WSSR of every
+library fault (seed 002 eq. 21-23) for the tuner change against the baseline.
+
+Between a reset and an alarm the detector's baselines, level statistics and WSSR are computed
+for a run of records at once (``estimation.shift_scan``, the same sums as one record alone),
+and only the CUSUM and its running mean go record by record (``_wssr_filled``; byte for byte
+``detect_step`` record by record, tests/app/test_detection_replay.py).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from app.models.estimates import VALUE_DTYPE, Event
+from app.services.snapshots import rows
+from app.services.snapshots.detector import (
+    DETECTOR_INPUT,
+    GAP,
+    N_BASE,
+    N_CONFIRM,
+    S_MEAN_CAP,
+    S_MEAN_RATE,
+    WARMUP,
+    Detector,
+    EventDraft,
+    RecordObservation,
+    accumulate_sensor_fit,
+    detect_step,
+)
+from app.services.snapshots.estimator import FLEET_STD, MODEL_ERROR, WALK_STD, SnapshotEstimator
+from estimation.shift_scan import level_scan, sliding_baselines
+from estimation.snapshot import SnapshotState, snapshot_deviation, snapshot_filter
+
+NEW_FLIGHT_S = 3600.0  # records further apart than this are different flights
+# A checkpoint (the whole pipeline state, a few kB of JSON) every this many records of an
+# engine: a re-run redoes at most this many records before the late one.
+CHECKPOINT_EVERY = 1024
+# Bytes of per-record arrays per filter call: a call takes max(64, CHUNK_BYTES // (engines x
+# bytes per record)) records of each engine (``_record_bytes``: 2.3 kB a record for a six-tuner
+# design of the reference model, about 29,000 records a call; larger calls measured no faster).
+CHUNK_BYTES = 64 * 2**20
+
+
+@dataclass
+class EngineRun:
+    """One engine's records to process and where it starts."""
+
+    engine_id: int
+    operator_id: int
+    seq0: int
+    state: dict[str, Any]
+    epoch: np.ndarray  # [S]
+    phase: list[str]
+    conditions: np.ndarray  # [S, 4]
+    y: np.ndarray  # [S, ny] stored units, NaN = missing
+    u: np.ndarray  # [S, nu]
+    maintenance: np.ndarray  # epochs of the engine's maintenance actions
+    redo: dict[float, Event] = field(default_factory=dict)  # events the run recomputes
+
+
+@dataclass
+class EngineOutput:
+    """What a run computed for one engine: its records' estimate numbers (the ``packed``
+    blobs' values, one row per record from ``EngineRun.seq0``), events, checkpoints and the
+    state after its last record."""
+
+    values: list[np.ndarray]  # per chunk [n, width] as VALUE_DTYPE (empty with a sink)
+    events: list[EventDraft]
+    checkpoints: list[tuple[int, float, dict[str, Any]]]  # seq, epoch, state
+    state: dict[str, Any]
+    width: int = 0
+    n_records: int = 0
+
+    @property
+    def packed(self) -> np.ndarray:
+        """[S, width] the numbers of every record's blob (``VALUE_DTYPE``)."""
+        if not self.values:
+            return np.empty((0, self.width), dtype=VALUE_DTYPE)
+        return np.concatenate(self.values)
+
+    def blobs(self) -> list[bytes]:
+        """Each record's ``packed`` blob, as stored."""
+        return [row.tobytes() for row in self.packed]
+
+
+class ChunkRecords(NamedTuple):
+    """One engine's records of a chunk, for isolation in sensor space: dy [n, ny] (percent
+    of trim, NaN = missing), G_y [n, ny, p], G_u [n, ny, nu] and var [n, ny] (noise
+    variance, percent^2)."""
+
+    dy: np.ndarray
+    G_y: np.ndarray
+    G_u: np.ndarray
+    var: np.ndarray
+
+    def observation(self, est: SnapshotEstimator, j: int) -> RecordObservation:
+        """Record ``j`` with each library fault's sensor change at its own condition (health
+        columns through G_y, actuator-bias columns through G_u; MATH.md section 4, in sensor
+        space), computed only for the records an alarm fits."""
+        signatures = est.fault_signatures(self.G_y[j], self.G_u[j])
+        return RecordObservation(self.dy[j], self.G_y[j], signatures, self.var[j])
+
+
+def run_filters(
+    est: SnapshotEstimator, runs: Sequence[EngineRun],
+    sink: Callable[[rows.Block], None] | None = None,
+) -> list[EngineOutput]:
+    """Filter, detect and pack every engine's records; engines are batched in the filter.
+
+    Per chunk the records of every engine are laid out [engine, record] (padding rows NaN),
+    scheduled in one call, filtered in one call, and their estimates derived in one pass;
+    only the detector goes engine by engine. With a ``sink`` (an ``EstimateWriter``'s
+    ``add``) each engine's estimates of a chunk go there as soon as they are computed instead
+    of into ``EngineOutput.values``.
+    """
+    outputs = [EngineOutput([], [], [], r.state, est.layout.width) for r in runs]
+    filt = [SnapshotState.from_dict(r.state["filter"]) for r in runs]
+    dets = [Detector.from_dict(r.state["detector"]) for r in runs]
+    last = [r.state.get("last_epoch") for r in runs]
+    longest = max((len(r.epoch) for r in runs), default=0)
+    s = est.layout.slices()
+    E = len(runs)
+    ny = len(est.sensor_columns)
+    chunk = max(64, CHUNK_BYTES // (max(E, 1) * _record_bytes(est)))
+    for c0 in range(0, longest, chunk):
+        c1 = min(c0 + chunk, longest)
+        S = c1 - c0
+        counts = np.array([max(0, min(c1, len(r.epoch)) - c0) for r in runs], dtype=np.int64)
+        # Slot (engine, record) of each of the chunk's records, engine by engine.
+        slot_e = np.repeat(np.arange(E), counts)
+        slot_j = np.arange(len(slot_e)) - np.repeat(np.cumsum(counts) - counts, counts)
+        present = [(r, n) for r, n in zip(runs, counts, strict=True) if n]
+        y = np.concatenate([r.y[c0 : c0 + n] for r, n in present])
+        u = np.concatenate([r.u[c0 : c0 + n] for r, n in present])
+        # One schedule call for the chunk's records of every engine: the steady-state trims
+        # are solved in one batch (a record's trim does not depend on its batch).
+        g = est.schedule(np.concatenate([r.conditions[c0 : c0 + n] for r, n in present]))
+        u_dev = 100.0 * (u - g.u_trim) / g.u_trim
+        u_dev = np.where(np.isfinite(u_dev), u_dev, 0.0)  # a missing actuator: at trim
+        dy = np.full((E, S, ny), np.nan)
+        dy[slot_e, slot_j] = snapshot_deviation(y, g.y_trim, g.G_u, u_dev)
+        G_y, G_u, G_z = (_per_slot(G, (E, S), slot_e, slot_j, g.constant)
+                         for G in (g.G_y, g.G_u, g.G_z))
+        noise = np.broadcast_to(est.noise_std, (E, S, ny)).copy()
+        if g.noise_std is not None:
+            noise[slot_e, slot_j] = np.sqrt(g.noise_std**2 + MODEL_ERROR**2)
+        resets = np.zeros((E, S), dtype=bool)
+        scale = np.zeros((E, S))
+        for e, r in enumerate(runs):
+            n = int(counts[e])
+            if n == 0:
+                continue
+            epochs = r.epoch[c0 : c0 + n]
+            prev = np.concatenate([[np.nan if last[e] is None else last[e]], epochs[:-1]])
+            new_flight = ~(epochs - prev < NEW_FLIGHT_S)  # NaN (first record) counts as new
+            maint = np.zeros(n, dtype=bool)
+            for t in r.maintenance:
+                maint |= (t <= epochs) & (t > prev)  # NaN prev (first record): no reset
+            resets[e, :n] = maint
+            # A maintenance action may move the health: widen P to the fleet spread.
+            scale[e, :n] = new_flight.astype(float) + maint * (FLEET_STD / WALK_STD) ** 2
+            last[e] = float(epochs[-1])
+        state = SnapshotState(
+            np.concatenate([f.q_hat for f in filt]), np.concatenate([f.P for f in filt])
+        )
+        result = snapshot_filter(
+            state, dy, G_y, est.vstar, est.Qq, noise, scale, keep_covariance=True
+        )
+        assert result.P is not None
+        q_all, P_all = result.q_hat, result.P
+        Gz_Vp = (np.broadcast_to(g.G_z[0] @ est.Vp, (*G_z.shape[:-1], est.m)) if g.constant
+                 else G_z @ est.Vp)  # [E, S, nz, m]
+        values_all = np.empty((E, S, est.layout.width))
+        values_all[..., s["q"]] = q_all
+        values_all[..., s["q_sigma"]] = np.sqrt(
+            np.maximum(np.diagonal(P_all, axis1=2, axis2=3), 0.0)
+        )
+        values_all[..., s["h"]] = q_all @ est.Vp.T
+        values_all[..., s["h_sigma"]] = result.h_std
+        values_all[..., s["z"]] = (Gz_Vp @ q_all[..., None])[..., 0]
+        z_var = ((Gz_Vp @ P_all) * Gz_Vp).sum(axis=-1)
+        values_all[..., s["z_sigma"]] = np.sqrt(np.maximum(z_var, 0.0))
+        values_all[..., s["residual"]] = result.innovation
+        for e, r in enumerate(runs):
+            n = int(counts[e])
+            if n == 0:
+                continue
+            q = q_all[e, :n]
+            P = P_all[e, :n]
+            values = values_all[e, :n]
+            out = outputs[e]
+            det = dets[e]
+            q_prev = np.concatenate([filt[e].q_hat, q[:-1]])
+            P_prior = np.concatenate([filt[e].P, P[:-1]]) + scale[e, :n, None, None] * est.Qq
+            _wssr_filled(est, det, r, c0, n, q, P, q_prev, P_prior, resets[e], values, out,
+                         ChunkRecords(dy[e, :n], G_y[e, :n], G_u[e, :n], noise[e, :n] ** 2))
+            packed = values.astype(VALUE_DTYPE)
+            out.n_records += n
+            if sink is None:
+                out.values.append(packed)
+            else:
+                sink((r.engine_id, r.seq0 + c0, r.epoch[c0 : c0 + n], r.phase[c0 : c0 + n],
+                      packed))
+            filt[e] = SnapshotState(q[-1:], P[-1:])
+            out.state = {"filter": filt[e].to_dict(), "detector": det.to_dict(),
+                         "last_epoch": last[e]}
+    return outputs
+
+
+def _record_bytes(est: SnapshotEstimator) -> int:
+    """Bytes of a chunk's per-record arrays for one record (float64): deviations, noise,
+    q_hat, P, estimates, innovations and 1-sigma, and the gains (which a constant-gain design
+    does not lay out per record: there it is an upper bound)."""
+    ny, (p, m) = len(est.sensor_columns), est.Vp.shape
+    nu, nz = len(est.input_columns), len(est.layout.aux)
+    per_record = 3 * ny + m + m * m + est.layout.width + p + ny
+    per_record += ny * p + ny * nu + nz * p + nz * m
+    return 8 * per_record
+
+
+def _per_slot(
+    G: np.ndarray, shape: tuple[int, int], slot_e: np.ndarray, slot_j: np.ndarray,
+    constant: bool,
+) -> np.ndarray:
+    """Scheduled gains [n, a, b] of the chunk's records laid out [E, S, a, b] (padding rows
+    zero), or one gain broadcast over every slot when the schedule is constant."""
+    if constant:
+        return np.broadcast_to(G[0], (*shape, *G.shape[1:]))
+    out = np.zeros((*shape, *G.shape[1:]))
+    out[slot_e, slot_j] = G
+    return out
+
+
+def _wssr_filled(
+    est: SnapshotEstimator, det: Detector, r: EngineRun, c0: int, n: int, q: np.ndarray,
+    P: np.ndarray, q_prev: np.ndarray, P_prior: np.ndarray, resets: np.ndarray,
+    values: np.ndarray, out: EngineOutput,
+    records: ChunkRecords | None = None,
+) -> np.ndarray:
+    """Run the detector over the chunk, fill the WSSR block, collect events and checkpoints.
+
+    records: the chunk's records of the engine, for isolation in sensor space.
+
+    Same results as ``_wssr_filled_per_record`` (``detect_step`` record by record): between a
+    reset and an alarm the baselines, level statistics and WSSR of a run of records are
+    computed at once (``estimation.shift_scan``) and only the CUSUM and its running mean go
+    record by record; a reset, a pending alarm or the "update" statistic take the per-record
+    step.
+    """
+    if DETECTOR_INPUT != "level":
+        return _wssr_filled_per_record(est, det, r, c0, n, q, P, q_prev, P_prior, resets,
+                                       values, out, records)
+    s = est.layout.slices()["wssr"]
+    depth = N_BASE + GAP
+    m = est.m
+    reset_at = np.flatnonzero(resets)
+    j = 0
+    while j < n:
+        if det.pending is not None or resets[j]:
+            _detect_one(est, det, r, c0, j, q, P, q_prev, P_prior, resets, values, out,
+                        records)
+            j += 1
+            continue
+        # A run of records with neither reset nor pending alarm, up to the next reset or the
+        # chunk's end (an alarm ends it early).
+        later = reset_at[reset_at > j]
+        end = int(later[0]) if len(later) else n
+        L = len(det.history)
+        series = np.concatenate([np.asarray(det.history, float).reshape(L, m), q[j:end]])
+        first = max(depth - L, 0)  # run index of the first record with a baseline
+        bases = sliding_baselines(series[: max(len(series) - GAP, 0)], N_BASE)
+        # record i (run index) has history series[L + i - depth : L + i] before its append
+        k_idx = np.arange(j + first, end)
+        with_base = bases[L + first - depth : L + first - depth + len(k_idx)]
+        scan = level_scan(q[k_idx] - with_base, P[k_idx], est.H) if len(k_idx) else None
+        stop = end
+        # The CUSUM and its running mean, record by record on Python floats, with the same
+        # operations as ``detect_step`` (``b if b > a else a`` is ``max(a, b)``, NaN
+        # included), in three stretches of the run (run index i): no baseline yet (the CUSUM
+        # rests at 0), a baseline while the detector warms up (the running mean learns, the
+        # CUSUM rests), armed (both run; from ``armed`` on, records carry their WSSR). Run
+        # index i is a checkpoint when its seq + 1 is a multiple of CHECKPOINT_EVERY.
+        distance = scan.distance.tolist() if scan is not None else []
+        S, s_mean0, s_count, warm0 = det.S, det.s_mean, det.s_count, det.warm
+        s_mean = float(m) if s_mean0 is None else s_mean0  # set at the first baseline
+        threshold, reference = est.cusum.threshold, est.cusum.reference
+        cap = S_MEAN_CAP * m
+        count = end - j
+        learning = min(first, count)  # first record with a baseline
+        armed = min(count, max(first, WARMUP - warm0 - 1))  # first with warm >= WARMUP
+        next_checkpoint = -(r.seq0 + c0 + j + 1) % CHECKPOINT_EVERY
+
+        if learning > 0:
+            S = 0.0
+            while next_checkpoint < learning:
+                _keep_state(det, series, L, warm0, next_checkpoint, S, s_mean0, s_count)
+                _checkpoint(det, r, c0, j + next_checkpoint, q, P, out)
+                next_checkpoint += CHECKPOINT_EVERY
+        for i in range(learning, armed):
+            if S == 0.0:
+                s_k = distance[i - first]
+                s_count += 1
+                inverse = 1.0 / s_count
+                rate = S_MEAN_RATE if S_MEAN_RATE > inverse else inverse
+                s_mean += ((cap if cap < s_k else s_k) - s_mean) * rate
+            S = 0.0
+            if i == next_checkpoint:
+                _keep_state(det, series, L, warm0, i, S, s_mean, s_count)
+                _checkpoint(det, r, c0, j + i, q, P, out)
+                next_checkpoint += CHECKPOINT_EVERY
+        for i in range(armed, count):
+            s_k = distance[i - first]
+            scaled = s_k * m / (m if m > s_mean else s_mean)
+            if S == 0.0:
+                s_count += 1
+                inverse = 1.0 / s_count
+                rate = S_MEAN_RATE if S_MEAN_RATE > inverse else inverse
+                s_mean += ((cap if cap < s_k else s_k) - s_mean) * rate
+            S = S + scaled - m - reference
+            S = S if S > 0.0 else 0.0
+            if S > threshold:
+                assert scan is not None
+                jj = j + i
+                det.pending = {
+                    "seq": r.seq0 + c0 + jj, "epoch": float(r.epoch[c0 + jj]),
+                    "statistic": S, "wait": N_CONFIRM,
+                    "baseline": with_base[i - first].tolist(), "P": P[jj].tolist(),
+                }
+                if records is not None:
+                    accumulate_sensor_fit(est, det.pending, records.observation(est, jj))
+                S = 0.0
+                stop = jj + 1
+                if i == next_checkpoint:
+                    _keep_state(det, series, L, warm0, i, S, s_mean, s_count)
+                    _checkpoint(det, r, c0, jj, q, P, out)
+                break
+            if i == next_checkpoint:
+                _keep_state(det, series, L, warm0, i, S, s_mean, s_count)
+                _checkpoint(det, r, c0, j + i, q, P, out)
+                next_checkpoint += CHECKPOINT_EVERY
+        last = stop - j - 1
+        _keep_state(det, series, L, warm0, last, S, s_mean if last >= learning else s_mean0,
+                    s_count)
+        values[j:stop, s] = np.nan
+        if scan is not None and j + armed < stop:
+            values[j + armed : stop, s] = scan.wssr[armed - first : stop - j - first]
+        j = stop
+    return values
+
+
+def _keep_state(
+    det: Detector, series: np.ndarray, L: int, warm0: int, i: int, S: float,
+    s_mean: float | None, s_count: int,
+) -> None:
+    """Set the detector's state after run record i of ``_wssr_filled`` (its history: the last
+    N_BASE + GAP estimates up to ``series[L + i]``; L history records came before the run)."""
+    det.S, det.s_mean, det.s_count, det.warm = S, s_mean, s_count, warm0 + i + 1
+    det.history = series[max(L + i + 1 - N_BASE - GAP, 0) : L + i + 1].tolist()
+
+
+def _checkpoint(
+    det: Detector, r: EngineRun, c0: int, j: int, q: np.ndarray, P: np.ndarray,
+    out: EngineOutput,
+) -> None:
+    epoch = float(r.epoch[c0 + j])
+    out.checkpoints.append(
+        (
+            r.seq0 + c0 + j + 1,
+            epoch,
+            {
+                "filter": SnapshotState(q[j : j + 1], P[j : j + 1]).to_dict(),
+                "detector": det.to_dict(),
+                "last_epoch": epoch,
+            },
+        )
+    )
+
+
+def _detect_one(
+    est: SnapshotEstimator, det: Detector, r: EngineRun, c0: int, j: int, q: np.ndarray,
+    P: np.ndarray, q_prev: np.ndarray, P_prior: np.ndarray, resets: np.ndarray,
+    values: np.ndarray, out: EngineOutput,
+    records: ChunkRecords | None,
+) -> None:
+    """Record ``j`` of the chunk through ``detect_step``, with its event and checkpoint."""
+    seq = r.seq0 + c0 + j
+    epoch = float(r.epoch[c0 + j])
+    obs = None if records is None else records.observation(est, j)
+    wssr, draft = detect_step(
+        est, det, seq, epoch, q[j], P[j], q_prev[j], P_prior[j], bool(resets[j]), obs
+    )
+    values[j, est.layout.slices()["wssr"]] = wssr
+    if draft is not None:
+        out.events.append(draft)
+    if (seq + 1) % CHECKPOINT_EVERY == 0:
+        _checkpoint(det, r, c0, j, q, P, out)
+
+
+def _wssr_filled_per_record(
+    est: SnapshotEstimator, det: Detector, r: EngineRun, c0: int, n: int, q: np.ndarray,
+    P: np.ndarray, q_prev: np.ndarray, P_prior: np.ndarray, resets: np.ndarray,
+    values: np.ndarray, out: EngineOutput,
+    records: ChunkRecords | None = None,
+) -> np.ndarray:
+    """``_wssr_filled`` one record at a time through ``detect_step`` (the reference the
+    batched run is tested against, and the path of the "update" statistic)."""
+    s = est.layout.slices()["wssr"]
+    for j in range(n):
+        seq = r.seq0 + c0 + j
+        epoch = float(r.epoch[c0 + j])
+        obs = None if records is None else records.observation(est, j)
+        wssr, draft = detect_step(
+            est, det, seq, epoch, q[j], P[j], q_prev[j], P_prior[j], bool(resets[j]), obs
+        )
+        values[j, s] = wssr
+        if draft is not None:
+            out.events.append(draft)
+        done = seq + 1  # records processed once this one is
+        if done % CHECKPOINT_EVERY == 0:
+            out.checkpoints.append(
+                (
+                    done,
+                    epoch,
+                    {
+                        "filter": SnapshotState(q[j : j + 1], P[j : j + 1]).to_dict(),
+                        "detector": det.to_dict(),
+                        "last_epoch": epoch,
+                    },
+                )
+            )
+    return values

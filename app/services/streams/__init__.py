@@ -1,0 +1,1 @@
+"""Stream recordings and their estimation."""

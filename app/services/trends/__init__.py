@@ -1,0 +1,1 @@
+"""Trends per engine serial number and per tail."""

@@ -1,0 +1,1 @@
+"""Snapshot uploads: parse and validate a body, store it all or nothing."""

@@ -1,0 +1,555 @@
+"""Store a validated snapshot batch, all or nothing, and keep uploads idempotent.
+
+An upload is identified twice: by the SHA-256 of its body and options (the same bytes twice
+replay the first upload's result and store nothing) and by the client's ``Idempotency-Key``
+(the same key with other content is a 409). Rows are resolved to the engine installed at their
+tail, position and time (``fleet.resolve_engines``); a row that resolves nowhere rejects the
+batch. Rows already stored under ``(engine_id, recorded_at)`` with the same values are skipped;
+with other values they are a 409. New rows go in by COPY on PostgreSQL and executemany on
+SQLite, inside the caller's transaction: the caller commits or rolls back everything.
+
+The estimation pipeline starts from ``UploadResult.affected`` (stored on the upload row):
+every engine with new rows and the earliest new ``recorded_at`` of each.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sqlite3
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+import numpy as np
+import psycopg
+import pyarrow as pa
+import pyarrow.compute as pc
+from psycopg.copy import QueuedLibpqWriter
+from sqlalchemy import DateTime, select, type_coerce
+from sqlalchemy import exc as sa_exc
+from sqlalchemy.orm import Session
+
+from app.errors import Conflict, ServiceError
+from app.models import Aircraft, Engine, Snapshot, Upload
+from app.models.ingest import SIGNALS, SNAPSHOT_COLUMNS
+from app.services import common
+from app.services.encoding.pgcopy import HEADER, TRAILER, binary_copy_rows
+from app.services.fleet import service as fleet
+from app.services.snapshots import backlog
+from app.services.uploads import fresh_records
+from app.services.uploads.parse import (
+    MAX_ERRORS,
+    ErrorLimitReached,
+    ErrorLog,
+    ParsedTable,
+    RowError,
+    UploadRejected,
+    parse_body,
+)
+
+COPY_BATCH_ROWS = 20_000
+# Unique violations surface from SQLAlchemy, or from the drivers under COPY / executemany.
+INTEGRITY_ERRORS = (sa_exc.IntegrityError, psycopg.IntegrityError, sqlite3.IntegrityError)
+_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
+_US = timedelta(microseconds=1)
+
+
+@dataclass(frozen=True)
+class AffectedEngine:
+    """An engine that received new snapshots: the pipeline re-runs it from ``earliest``."""
+
+    engine_id: int
+    esn: str
+    rows: int
+    earliest: datetime
+    latest: datetime
+
+    def as_json(self) -> dict[str, Any]:
+        data = asdict(self)
+        data["earliest"] = self.earliest.isoformat()
+        data["latest"] = self.latest.isoformat()
+        return data
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> AffectedEngine:
+        return cls(
+            engine_id=int(data["engine_id"]),
+            esn=str(data["esn"]),
+            rows=int(data["rows"]),
+            earliest=datetime.fromisoformat(data["earliest"]),
+            latest=datetime.fromisoformat(data["latest"]),
+        )
+
+
+@dataclass(frozen=True)
+class UploadResult:
+    """The stored upload and whether this request replayed an earlier identical one."""
+
+    upload: Upload
+    replayed: bool
+
+    @property
+    def affected(self) -> list[AffectedEngine]:
+        return [AffectedEngine.from_json(a) for a in self.upload.affected or []]
+
+
+# ------------------------------------------------------------------------- idempotency
+
+
+def content_checksum(body: bytes, *, kind: str, content_format: str, options: Any = None) -> str:
+    """SHA-256 over the kind, format, options (column mapping, metadata) and the body."""
+    digest = hashlib.sha256()
+    header = json.dumps([kind, content_format, options], sort_keys=True, default=str)
+    digest.update(header.encode())
+    digest.update(b"\0")
+    digest.update(body)
+    return digest.hexdigest()
+
+
+def find_replay(
+    session: Session,
+    *,
+    operator_id: int,
+    kind: str,
+    checksum: str,
+    idempotency_key: str | None,
+) -> Upload | None:
+    """The stored upload this request repeats, or None; 409 for a reused key on new content."""
+    if idempotency_key is not None:
+        earlier = session.scalar(
+            select(Upload).where(
+                Upload.operator_id == operator_id,
+                Upload.idempotency_key == idempotency_key,
+                Upload.status == "stored",
+            )
+        )
+        if earlier is not None:
+            if earlier.checksum != checksum:
+                raise Conflict(
+                    f"Idempotency-Key {idempotency_key!r} was used for different content "
+                    f"(upload {earlier.id}); nothing was stored",
+                    details=[{"upload_id": earlier.id, "reason": "idempotency key reused"}],
+                )
+            return earlier
+    return session.scalar(
+        select(Upload)
+        .where(
+            Upload.operator_id == operator_id,
+            Upload.checksum == checksum,
+            Upload.kind == kind,
+            Upload.status == "stored",
+        )
+        .order_by(Upload.id)
+        .limit(1)
+    )
+
+
+def record_rejection(
+    session: Session,
+    *,
+    operator_id: int,
+    api_key_id: int | None,
+    kind: str,
+    content_format: str,
+    checksum: str,
+    idempotency_key: str | None,
+    bytes_received: int,
+    error: ServiceError,
+) -> Upload:
+    """Keep a refused upload in the history (its rows are not stored), with its errors."""
+    details = [d for d in error.details if isinstance(d, dict)][:MAX_ERRORS]
+    upload = Upload(
+        operator_id=operator_id,
+        api_key_id=api_key_id,
+        kind=kind,
+        content_format=content_format,
+        checksum=checksum,
+        idempotency_key=idempotency_key,
+        status="rejected",
+        bytes_received=bytes_received,
+        message=error.message[:500],
+        errors=details,
+        affected=[],
+    )
+    session.add(upload)
+    session.flush()
+    return upload
+
+
+# ------------------------------------------------------------------------------ ingest
+
+
+def ingest_snapshots(
+    session: Session,
+    *,
+    operator_id: int,
+    api_key_id: int | None,
+    body: bytes,
+    content_format: str,
+    mapping: Mapping[str, str | None] | None = None,
+    idempotency_key: str | None = None,
+) -> UploadResult:
+    """Parse, validate, resolve, deduplicate and store one snapshot upload.
+
+    Raises UploadRejected (422) naming rows, columns and reasons, or Conflict (409); in
+    both cases nothing is stored (the caller rolls back and may ``record_rejection``).
+    """
+    options = {"mapping": dict(mapping)} if mapping else None
+    checksum = content_checksum(
+        body, kind="snapshots", content_format=content_format, options=options
+    )
+    earlier = find_replay(
+        session,
+        operator_id=operator_id,
+        kind="snapshots",
+        checksum=checksum,
+        idempotency_key=idempotency_key,
+    )
+    if earlier is not None:
+        return UploadResult(earlier, replayed=True)
+    parsed = parse_body(body, content_format, kind="snapshots", mapping=mapping)
+    rows = resolve_rows(session, operator_id=operator_id, parsed=parsed)
+    fresh, duplicates = drop_stored(session, rows)
+    upload = Upload(
+        operator_id=operator_id,
+        api_key_id=api_key_id,
+        kind="snapshots",
+        content_format=content_format,
+        checksum=checksum,
+        idempotency_key=idempotency_key,
+        status="stored",
+        rows_received=parsed.num_rows,
+        rows_stored=fresh.num_rows,
+        rows_duplicate=duplicates,
+        bytes_received=len(body),
+        message=f"stored {fresh.num_rows} of {parsed.num_rows} snapshots"
+        + (f" ({duplicates} were stored already)" if duplicates else ""),
+        errors=[],
+    )
+    try:
+        session.add(upload)
+        session.flush()
+        affected = summarise(session, fresh)
+        upload.affected = [a.as_json() for a in affected]
+        if fresh.num_rows:
+            insert_snapshots(session, fresh, operator_id=operator_id, upload_id=upload.id)
+            backlog.mark(session, operator_id, {a.engine_id: (a.earliest, a.rows)
+                                                for a in affected})
+        session.flush()
+    except INTEGRITY_ERRORS as exc:
+        # A concurrent upload stored some of these rows (or took the key) first.
+        raise Conflict(
+            "another upload stored some of these snapshots or used this Idempotency-Key at "
+            "the same time; nothing was stored, send it again",
+            details=[{"reason": str(exc).splitlines()[0][:300]}],
+        ) from None
+    return UploadResult(upload, replayed=False)
+
+
+def resolve_rows(session: Session, *, operator_id: int, parsed: ParsedTable) -> pa.Table:
+    """Add ``engine_id`` and ``aircraft_id`` to every row (and its 1-based ``row``).
+
+    A tail the operator does not have (another operator's tails included: they are not
+    visible) or a position with no engine installed at the row's time rejects the upload.
+    """
+    table = parsed.table
+    n = table.num_rows
+    tails = table["tail"].combine_chunks()
+    encoded = pc.dictionary_encode(tails)
+    names = encoded.dictionary.to_pylist()
+    codes = encoded.indices.to_numpy(zero_copy_only=False)
+    aircraft: dict[str, int] = {
+        tail: aircraft_id
+        for tail, aircraft_id in session.execute(
+            select(Aircraft.tail, Aircraft.id).where(
+                Aircraft.operator_id == operator_id, Aircraft.tail.in_(names)
+            )
+        )
+    }
+    aircraft_of_code = np.array([aircraft.get(name, -1) for name in names], dtype=np.int64)
+    aircraft_ids = aircraft_of_code[codes]
+    positions = table["position"].to_numpy(zero_copy_only=False).astype(np.int64)
+    times = table["recorded_at"].to_numpy(zero_copy_only=False).astype("datetime64[us]")
+    engine_ids = fleet.resolve_engines_coded(session, operator_id, names, codes, positions, times)
+    unresolved = engine_ids == fleet.NO_ENGINE
+    if unresolved.any():
+        tail_values = np.asarray(names, dtype=object)[codes]
+        log = ErrorLog()
+        try:
+            for index in np.flatnonzero(unresolved):
+                tail = tail_values[index]
+                if aircraft_ids[index] < 0:
+                    reason = f"no aircraft with tail {tail!r} in your fleet"
+                    column = "tail"
+                else:
+                    when = _iso(times[index])
+                    reason = (
+                        f"no engine installed at {tail!r} position {positions[index]} at {when}"
+                    )
+                    column = "position"
+                log.add(int(index) + 1, column, reason)
+        except ErrorLimitReached:
+            pass
+        raise UploadRejected(log.errors, truncated=log.truncated)
+    return (
+        table.append_column("engine_id", pa.array(engine_ids))
+        .append_column("aircraft_id", pa.array(aircraft_ids))
+        .append_column("row", pa.array(np.arange(1, n + 1)))
+    )
+
+
+def _iso(value: np.datetime64) -> str:
+    return np.datetime_as_string(value, unit="s") + "Z"
+
+
+_COMPARED = ("aircraft_id", "position", "phase", "flight_id") + tuple(s.name for s in SIGNALS)
+_ID_CHUNK = 5000
+
+
+def drop_stored(session: Session, rows: pa.Table) -> tuple[pa.Table, int]:
+    """Rows not stored yet, and how many were stored already with the same values.
+
+    A stored row under the same (engine_id, recorded_at) with any other value is a 409: the
+    upload would silently lose a correction, so the client has to say what it means.
+    """
+    engine_ids = rows["engine_id"].to_numpy(zero_copy_only=False)
+    unique_ids = np.unique(engine_ids).tolist()
+    lo = pc.min(rows["recorded_at"]).as_py()
+    hi = pc.max(rows["recorded_at"]).as_py()
+    columns = [getattr(Snapshot, s.column) for s in SIGNALS]
+    stored: dict[tuple[int, int], tuple[Any, ...]] = {}
+    for start in range(0, len(unique_ids), _ID_CHUNK):
+        result = session.execute(
+            select(
+                Snapshot.engine_id,
+                Snapshot.recorded_at,
+                Snapshot.upload_id,
+                Snapshot.aircraft_id,
+                Snapshot.position,
+                Snapshot.phase,
+                Snapshot.flight_id,
+                *columns,
+            ).where(
+                Snapshot.engine_id.in_(unique_ids[start : start + _ID_CHUNK]),
+                Snapshot.recorded_at >= lo,
+                Snapshot.recorded_at <= hi,
+            )
+        )
+        for row in result:
+            stored[(row[0], (row[1] - _EPOCH) // _US)] = tuple(row[2:])
+    if not stored:
+        return rows, 0
+    micros = pc.cast(rows["recorded_at"], pa.int64()).to_numpy(zero_copy_only=False)
+    keys = list(zip(engine_ids.tolist(), micros.tolist(), strict=True))
+    matched = [i for i, key in enumerate(keys) if key in stored]
+    if not matched:
+        return rows, 0
+    present = [name for name in _COMPARED if name in rows.column_names]
+    mine = rows.take(pa.array(matched)).select(present).to_pylist()
+    conflicts: list[RowError] = []
+    for index, values in zip(matched, mine, strict=True):
+        theirs = stored[keys[index]]
+        upload_id, their_values = theirs[0], dict(zip(_COMPARED, theirs[1:], strict=True))
+        # A column the upload does not have says nothing; one it has must match (null too).
+        different = [name for name in present if values[name] != their_values[name]]
+        if different and len(conflicts) < MAX_ERRORS:
+            conflicts.append(
+                RowError(
+                    index + 1,
+                    different[0],
+                    f"a different snapshot of this engine at this time is stored already "
+                    f"(upload {upload_id}; differs in {', '.join(different[:5])})",
+                )
+            )
+    if conflicts:
+        raise Conflict(
+            f"upload conflicts with stored snapshots: row {conflicts[0].row}: "
+            f"{conflicts[0].reason}; nothing was stored",
+            details=[c.as_dict() for c in conflicts],
+        )
+    keep = np.ones(rows.num_rows, dtype=bool)
+    keep[matched] = False
+    return rows.filter(pa.array(keep)), len(matched)
+
+
+def summarise(session: Session, rows: pa.Table) -> list[AffectedEngine]:
+    """Per engine with new rows: count, earliest and latest recorded_at."""
+    if rows.num_rows == 0:
+        return []
+    engine_ids = rows["engine_id"].to_numpy(zero_copy_only=False)
+    micros = pc.cast(rows["recorded_at"], pa.int64()).to_numpy(zero_copy_only=False)
+    ids, inverse, counts = np.unique(engine_ids, return_inverse=True, return_counts=True)
+    earliest = np.full(ids.shape, np.iinfo(np.int64).max)
+    latest = np.full(ids.shape, np.iinfo(np.int64).min)
+    np.minimum.at(earliest, inverse, micros)
+    np.maximum.at(latest, inverse, micros)
+    esn: dict[int, str] = {
+        engine_id: serial
+        for engine_id, serial in session.execute(
+            select(Engine.id, Engine.esn).where(Engine.id.in_(ids.tolist()))
+        )
+    }
+    return [
+        AffectedEngine(
+            engine_id=int(i),
+            esn=esn[int(i)],
+            rows=int(c),
+            earliest=_EPOCH + int(e) * _US,
+            latest=_EPOCH + int(la) * _US,
+        )
+        for i, c, e, la in zip(ids, counts, earliest, latest, strict=True)
+    ]
+
+
+def snapshot_table(rows: pa.Table, *, operator_id: int, upload_id: int) -> pa.Table:
+    """The rows as the ``snapshots`` table's columns, in ``SNAPSHOT_COLUMNS`` order."""
+    n = rows.num_rows
+    columns: dict[str, pa.Array | pa.ChunkedArray] = {
+        "operator_id": pa.array(np.full(n, operator_id, dtype=np.int64)),
+        "engine_id": rows["engine_id"],
+        "aircraft_id": rows["aircraft_id"],
+        "position": rows["position"],
+        "upload_id": pa.array(np.full(n, upload_id, dtype=np.int64)),
+        "recorded_at": rows["recorded_at"],
+        "phase": rows["phase"],
+        "flight_id": rows["flight_id"]
+        if "flight_id" in rows.column_names
+        else pa.nulls(n, pa.string()),
+    }
+    for signal in SIGNALS:
+        columns[signal.column] = (
+            rows[signal.name] if signal.name in rows.column_names else pa.nulls(n, pa.float64())
+        )
+    return pa.table({name: columns[name] for name in SNAPSHOT_COLUMNS})
+
+
+def insert_snapshots(session: Session, rows: pa.Table, *, operator_id: int, upload_id: int) -> None:
+    """Insert new rows in the caller's transaction: COPY on PostgreSQL, executemany on SQLite;
+    once it commits, the rows are kept in memory for the estimation job (``fresh_records``)."""
+    table = snapshot_table(rows, operator_id=operator_id, upload_id=upload_id)
+    fresh_records.keep_after_commit(session, upload_id, table)
+    connection = session.connection()
+    if connection.dialect.name == "postgresql":
+        copy_binary(connection.connection.driver_connection, "snapshots", table, SNAPSHOT_PG_TYPES)
+    else:
+        executemany_rows(connection.connection.driver_connection, "snapshots", table)
+
+
+# PostgreSQL types of SNAPSHOT_COLUMNS, for binary COPY.
+SNAPSHOT_PG_TYPES = {
+    "operator_id": "int4",
+    "engine_id": "int4",
+    "aircraft_id": "int4",
+    "position": "int2",
+    "upload_id": "int4",
+    "recorded_at": "timestamptz",
+    "phase": "text",
+    "flight_id": "text",
+    **{s.column: "float8" for s in SIGNALS},
+}
+
+
+def copy_binary(
+    driver_connection: Any, table_name: str, table: pa.Table, pg_types: Mapping[str, str]
+) -> None:
+    """Binary COPY of ``table`` through psycopg 3 (the server parses no text). psycopg's
+    queued writer sends each batch from a thread while the next one is encoded, so the
+    server stores rows while Python encodes the following ones."""
+    names = ", ".join(table.column_names)
+    statement = f"COPY {table_name} ({names}) FROM STDIN (FORMAT binary)"
+    with driver_connection.cursor() as cursor:
+        with cursor.copy(statement, writer=QueuedLibpqWriter(cursor)) as copy:
+            copy.write(HEADER)
+            for batch in table.to_batches(max_chunksize=COPY_BATCH_ROWS):
+                copy.write(binary_copy_rows(pa.Table.from_batches([batch]), pg_types))
+            copy.write(TRAILER)
+
+
+def executemany_rows(driver_connection: Any, table_name: str, table: pa.Table) -> None:
+    """Insert ``table`` with one executemany (sqlite3); timestamps in SQLAlchemy's format."""
+    columns: list[list[Any]] = []
+    for name in table.column_names:
+        column = table[name]
+        if pa.types.is_timestamp(column.type):
+            column = pc.strftime(column, "%Y-%m-%d %H:%M:%S")  # %S carries the microseconds
+        columns.append(column.to_pylist())
+    marks = ", ".join("?" for _ in table.column_names)
+    cursor = driver_connection.cursor()
+    try:
+        cursor.executemany(
+            f"INSERT INTO {table_name} ({', '.join(table.column_names)}) VALUES ({marks})",
+            zip(*columns, strict=True),
+        )
+    finally:
+        cursor.close()
+
+
+# ------------------------------------------------------------------------------ reading
+
+
+def list_uploads(
+    session: Session,
+    *,
+    operator_id: int,
+    limit: int,
+    offset: int,
+    status: str | None = None,
+    kind: str | None = None,
+) -> tuple[list[Upload], int]:
+    stmt = select(Upload).where(Upload.operator_id == operator_id)
+    if status is not None:
+        stmt = stmt.where(Upload.status == status)
+    if kind is not None:
+        stmt = stmt.where(Upload.kind == kind)
+    return common.paginate(session, stmt.order_by(Upload.id.desc()), limit=limit, offset=offset)
+
+
+def get_upload(session: Session, *, operator_id: int, upload_id: int) -> Upload:
+    return common.owned(session, Upload, operator_id, upload_id, "upload")
+
+
+SNAPSHOT_OUTPUT = ("recorded_at", "tail", "position", "phase", "flight_id") + tuple(
+    s.name for s in SIGNALS
+)
+
+
+def engine_snapshots(
+    session: Session,
+    *,
+    operator_id: int,
+    engine_id: int,
+    start: datetime | None = None,
+    end: datetime | None = None,
+    limit: int = 10_000,
+) -> tuple[Engine, pa.Table]:
+    """The engine's snapshots in [start, end), oldest first, at most ``limit``, as columns
+    named as uploaded (``SNAPSHOT_OUTPUT``), in stored units."""
+    engine = fleet.get_engine(session, operator_id=operator_id, engine_id=engine_id)
+    stmt = (
+        select(
+            # Plain DateTime: Arrow takes the driver's values in bulk (aware on PostgreSQL,
+            # naive UTC on SQLite) without a per-row Python conversion.
+            type_coerce(Snapshot.recorded_at, DateTime(timezone=True)),
+            Aircraft.tail,
+            Snapshot.position,
+            Snapshot.phase,
+            Snapshot.flight_id,
+            *[getattr(Snapshot, s.column) for s in SIGNALS],
+        )
+        .outerjoin(Aircraft, Aircraft.id == Snapshot.aircraft_id)
+        .where(Snapshot.engine_id == engine.id)
+        .order_by(Snapshot.recorded_at)
+        .limit(limit)
+    )
+    if start is not None:
+        stmt = stmt.where(Snapshot.recorded_at >= start)
+    if end is not None:
+        stmt = stmt.where(Snapshot.recorded_at < end)
+    rows = session.connection().execute(stmt).all()  # Core: no ORM row loading
+    columns = list(zip(*rows, strict=True)) if rows else [() for _ in SNAPSHOT_OUTPUT]
+    types = [pa.timestamp("us", tz="UTC"), pa.string(), pa.int16(), pa.string(), pa.string()]
+    types += [pa.float64()] * len(SIGNALS)
+    arrays = [pa.array(list(c), t) for c, t in zip(columns, types, strict=True)]
+    return engine, pa.table(dict(zip(SNAPSHOT_OUTPUT, arrays, strict=True)))

@@ -1,0 +1,1 @@
+"""Validation harnesses: the product's pipeline scored against simulated truth."""
