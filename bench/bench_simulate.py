@@ -41,7 +41,7 @@ What changed: both stages' gas-path unknowns are predicted through dz/dv in
 the states and commands (noise moves the commands, so the old extrapolation
 in time missed by the noise and fell back to full solves), and the first
 stage of an unrecorded step is the last second stage moved through dk/dv, so
-a step costs one gas-path evaluation. Accuracy (tests/engine/test_transient_one.py):
+a step costs one gas-path evaluation. Accuracy (tests/estimation/engine/test_transient_one.py):
 against the gas path converged at every stage, every sensor stays within 0.07
 noise standard deviations over seed 001's busiest 300 s with noise, 0.06 through
 a slam; halving the step moves the sensors by up to 0.24 std there (1.25 std

@@ -246,7 +246,7 @@ def scalar_control_law(
     The returned ``law(integrator, sensed, power_pct, mach, theta2, delta2, nf, nc, t24,
     ps30)`` gives ``(integrator, sensed, u, limited)``: the same formulas in the same
     order as ``control_step`` (and the schedules of ``actuators.py``), so the same
-    floats (tests/engine/test_controller.py).
+    floats (tests/estimation/engine/test_controller.py).
     """
     d = design or engine_design()
     ru_d = design_ratio_units(d)

@@ -35,7 +35,7 @@ Jacobian-reusing first stage; the error is second order in the change, mostly
 the command change of one step). A step then costs about one gas-path
 evaluation; against the gas path converged at both stages it keeps every
 sensor within 0.06 noise standard deviations through a slam to take-off
-(tests/engine/test_transient_one.py).
+(tests/estimation/engine/test_transient_one.py).
 
 Sensors are recorded at t_k, at the states and commands of the first stage.
 Only recorded stages compute every station; the others stop at the state

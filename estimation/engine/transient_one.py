@@ -6,7 +6,7 @@ cycle (``turbofan.gas_path_columns``), atmosphere and control law
 (``controller.control_step``) run with the ``SCALAR`` namespace of ``xp.py``,
 and the integration, the chord iteration and its Jacobian refresh follow
 ``transient.simulate`` and its ``_GasPathSolver`` step by step, so the
-trajectory equals the batched one to rounding (tests/engine/test_transient_one.py).
+trajectory equals the batched one to rounding (tests/estimation/engine/test_transient_one.py).
 The 5 x 5 inverse Jacobian is applied as nested lists; it is computed with
 numpy (one call per refresh).
 

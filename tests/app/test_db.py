@@ -136,7 +136,7 @@ def test_json_columns_read_back_what_was_written_floats_bit_for_bit(
 
 def make_fleet_for_state(session: Session) -> tuple[int, int, int]:
     """An operator, an engine and a design to hang a filter state on."""
-    from tests.app.test_trends import add_engine, make_fleet
+    from tests.app.services.trends.test_trends import add_engine, make_fleet
 
     fleet = make_fleet(session, "JSON Air")
     engine = add_engine(session, fleet, "J1")

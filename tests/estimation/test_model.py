@@ -10,6 +10,7 @@ import pytest
 from estimation.errors import DimensionError, ModelFormatError, UnknownSignalError
 from estimation.model import MODEL_FORMAT, LinearModel, Signal
 from tests.estimation.models import random_model, reference_model
+from tests.support.paths import ROOT
 
 
 def test_round_trip_through_json_keeps_everything():
@@ -118,9 +119,8 @@ def test_arrays_are_read_only_and_signals_are_values():
 
 def test_documented_example_loads():
     import re
-    from pathlib import Path
 
-    text = (Path(__file__).parents[2] / "docs" / "model-format.md").read_text()
+    text = (ROOT / "docs" / "model-format.md").read_text()
     block = re.search(r"```json\n(.*?)```", text, re.S).group(1)
     m = LinearModel.from_dict(json.loads(block))
     Gy, Gz = m.steady_state_gains()

@@ -47,7 +47,7 @@ DIAGNOSTICS_INTERVAL_S = 24 * 3600
 DESIGN_POINT = {"alt": 35000.0, "mach": 0.8, "power": 80.0}
 # The active design: every turbomachinery health parameter a tuner (m = 10, fewer if
 # unobservable). Against the fleet simulator's true health (bench/bench_health_accuracy.py,
-# tests/app/test_health_accuracy.py) an SVD design over the ten health parameters and the three
+# tests/support/test_health_accuracy.py) an SVD design over the ten health parameters and the three
 # actuator biases (m = 8) halves the level error (RMS 1.06 % against 2.05 %), but on the demo
 # fleet it isolates 3 of 6 detectable faults with 4 false alarms where this design isolates 5
 # of 6 with 1 (bench/bench_detection.py --method svd --tuners 8 --biases; each actuator bias

@@ -6,7 +6,7 @@ with the filter covariance P; q_0 is the mean of ``N_BASE`` tuner estimates endi
 records before the current one. The estimates are correlated from record to record, so the
 run-length theory only orders the settings; the statistic is rescaled by its running
 in-control mean (model error raises it above m) and the false-alarm rate is measured on
-simulated fleets (bench/bench_detection.py, tests/app/test_detection_replay.py). After an
+simulated fleets (bench/bench_detection.py, tests/support/test_detection_replay.py). After an
 alarm the ``N_CONFIRM`` records that follow are fitted in sensor space: each record against
 the baseline tuners, r_j = dy_j - G_y,j V*^+ q_0, and each library fault's signature at the
 record's own condition (health columns through G_y, actuator biases through G_u, so a fuel-flow

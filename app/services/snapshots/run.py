@@ -9,7 +9,7 @@ library fault (seed 002 eq. 21-23) for the tuner change against the baseline.
 Between a reset and an alarm the detector's baselines, level statistics and WSSR are computed
 for a run of records at once (``estimation.shift_scan``, the same sums as one record alone),
 and only the CUSUM and its running mean go record by record (``_wssr_filled``; byte for byte
-``detect_step`` record by record, tests/app/test_detection_replay.py).
+``detect_step`` record by record, tests/support/test_detection_replay.py).
 """
 
 from __future__ import annotations

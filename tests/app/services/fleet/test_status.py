@@ -1,0 +1,124 @@
+"""Fleet status and deterioration: every engine with its current installation, the latest
+estimate decoded, open events; fleet averages equal a direct per-engine-then-fleet mean."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime, timedelta
+
+import numpy as np
+from fastapi.testclient import TestClient
+from sqlalchemy.orm import Session
+
+from app.models import Installation
+from app.models.estimates import Event
+from app.services.fleet import status
+from tests.app.services.trends.test_trends import (
+    LAYOUT,
+    T0,
+    add_aircraft,
+    add_engine,
+    add_estimates,
+    make_fleet,
+)
+
+
+def test_status_lists_every_engine_with_its_latest_state(
+    client: TestClient, session: Session
+) -> None:
+    fleet = make_fleet(session, "Status Air")
+    aircraft = add_aircraft(session, fleet, "F-STAT")
+    rng = np.random.default_rng(5)
+    engines = [add_engine(session, fleet, f"S{i}") for i in range(3)]
+    session.add(Installation(operator_id=fleet.operator_id, engine_id=engines[0].id,
+                             aircraft_id=aircraft.id, position=2, installed_at=T0))
+    values = {}
+    for engine in engines[:2]:
+        v = rng.normal(size=(30, LAYOUT.width))
+        v[:, LAYOUT.slices()["h_sigma"]] = 0.1
+        values[engine.id] = v
+        add_estimates(session, fleet, engine, aircraft, v,
+                      [T0 + timedelta(days=i) for i in range(30)])
+    session.add(Event(operator_id=fleet.operator_id, engine_id=engines[1].id,
+                      design_id=fleet.design.id, seq=20, detected_at=T0 + timedelta(days=20),
+                      kind="isolated_fault", fault="HPC", magnitude=1.0, statistic=40.0,
+                      wssr={}, shift={}))
+    session.commit()
+
+    body = client.get("/api/v1/fleet/status", headers={"X-API-Key": fleet.key}).json()
+    by_esn = {e["esn"]: e for e in body["engines"]}
+    assert set(by_esn) == {"S0", "S1", "S2"} and body["n_open_events"] == 1
+    assert (by_esn["S0"]["tail"], by_esn["S0"]["position"]) == ("F-STAT", 2)
+    assert by_esn["S1"]["tail"] is None and by_esn["S2"]["state"] == "no_data"
+    assert by_esn["S1"]["state"] == "alert" and by_esn["S1"]["latest_event"]["fault"] == "HPC"
+    h = LAYOUT.slices()["h"]
+    last = values[engines[0].id][-1].astype(np.float32).astype(float)
+    worst = int(np.argmax(np.abs(last[h])))
+    health = by_esn["S0"]["health"]
+    assert health["worst_health"] == LAYOUT.health[worst]
+    assert abs(health["worst_health_value"] - last[h][worst]) < 1e-3
+    assert abs(health["thrust_deficit"] + last[LAYOUT.slices()["z"]][0]) < 1e-3  # Fn first
+    expected = "watch" if np.any(np.abs(last[h]) > 1.5) else "normal"
+    assert by_esn["S0"]["state"] == expected
+    assert by_esn["S0"]["last_data"].startswith("2026-01-30")
+
+
+def test_deterioration_is_the_mean_over_engines_of_engine_means(session: Session) -> None:
+    fleet = make_fleet(session, "Fleet Avg Air")
+    aircraft = add_aircraft(session, fleet, "F-AVG")
+    rng = np.random.default_rng(6)
+    start = datetime(2026, 3, 1, tzinfo=UTC)
+    per_engine = []
+    for i, n in enumerate((40, 10)):  # a busy engine must not outweigh a quiet one
+        engine = add_engine(session, fleet, f"A{i}")
+        v = rng.normal(size=(n, LAYOUT.width))
+        times = [start + timedelta(hours=12 * k) for k in range(n)]  # March only
+        add_estimates(session, fleet, engine, aircraft, v, times)
+        per_engine.append(v.astype(np.float32).astype(float)[:, LAYOUT.slices()["h"]].mean(0))
+    out = status.fleet_deterioration(session, fleet.operator_id, "month")
+    group = out["groups"][0]
+    assert group["time"] == ["2026-03-01T00:00:00Z"] and group["n_engines"] == [2]
+    expected = np.mean(per_engine, axis=0)
+    spread = np.std(per_engine, axis=0)
+    got = [s["mean"][0] for s in group["health"]]
+    np.testing.assert_allclose(got, expected, atol=1e-4)
+    np.testing.assert_allclose([s["sigma"][0] for s in group["health"]], spread, atol=1e-4)
+
+
+def test_status_summaries_equal_the_one_engine_reference(
+    client: TestClient, session: Session
+) -> None:
+    """The array summaries of many engines equal ``health_summary`` and the watch rule applied
+    to each engine's latest estimate alone, also when a design's engines carry different
+    layout documents."""
+    from app.models.estimates import EstimateLayout, FilterState
+
+    fleet = make_fleet(session, "Status Ref Air")
+    aircraft = add_aircraft(session, fleet, "F-REF")
+    rng = np.random.default_rng(9)
+    lasts = {}
+    for i in range(12):
+        engine = add_engine(session, fleet, f"R{i:02d}")
+        v = rng.normal(size=(4, LAYOUT.width)) * 2.0
+        v[:, LAYOUT.slices()["h_sigma"]] = rng.uniform(0.05, 1.0, size=(4, len(LAYOUT.health)))
+        add_estimates(session, fleet, engine, aircraft, v,
+                      [T0 + timedelta(days=k, hours=i) for k in range(4)])
+        lasts[engine.id] = v[-1].astype(np.float32).astype(float)
+    # One engine's layout document differs (its own health names): read for that engine.
+    renamed = EstimateLayout.from_dict(
+        dict(LAYOUT.to_dict(), health=[f"x_{n}" for n in LAYOUT.health])
+    )
+    state = session.query(FilterState).filter_by(engine_id=min(lasts)).one()
+    state.layout = renamed.to_dict()
+    session.commit()
+
+    body = client.get("/api/v1/fleet/status", headers={"X-API-Key": fleet.key}).json()
+    assert body["n_engines"] == 12
+    for item in body["engines"]:
+        layout = renamed if item["engine_id"] == min(lasts) else LAYOUT
+        last = lasts[item["engine_id"]]
+        expected = status.health_summary(
+            layout, last, datetime.fromisoformat(item["last_data"]), 3
+        )
+        expected["recorded_at"] = item["last_data"]
+        assert item["health"] == expected
+        assert item["state"] == status._state(expected, 0, layout, last)
