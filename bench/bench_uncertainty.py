@@ -74,6 +74,8 @@ def main() -> None:
             f"{n}={v:.2f}" for n, v in zip(calib.names, calib.level_std, strict=True)))
         print("analytic bias [%]: " + " ".join(
             f"{n}={v:.2f}" for n, v in zip(calib.names, np.sqrt(calib.bias2), strict=True)))
+        print("calibration slope error: " + " ".join(
+            f"{n}={v:.0%}" for n, v in zip(calib.names, calib.slope_error, strict=True)))
         print(sc.report())
         print(f"shown {s['shown']} of {len(sc.names)}: 1-sigma coverage "
               f"{s['cover1_min']:.2f}-{s['cover1_max']:.2f} (target 0.55-0.85), 2-sigma min "

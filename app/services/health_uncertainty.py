@@ -29,6 +29,10 @@ PRIOR_VAR = 4.0
 # Slopes are compared relative to max(|true slope|, SLOPE_FLOOR) (percent per 1000 cycles).
 SLOPE_FLOOR = 0.1
 MIN_SEGMENT_RECORDS = 20
+# Observability rule (uncertainty.observable): honest sigma at most this fraction of the prior
+# sigma, and the calibration fleet's slope within this relative error of the truth.
+REDUCTION = 0.6
+SLOPE_TOLERANCE = 0.3
 
 
 @dataclass(frozen=True)
@@ -98,17 +102,31 @@ def _slopes(segs: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray]:
             uncertainty.fleet_slopes(x, [s.h_true for s in long]))
 
 
+def fleet_prior(segs: Sequence[Segment]) -> np.ndarray:
+    """The fleet prior P_h [p, p] of a simulated fleet: the second moment E[h h^T] of the true
+    health over its settled records (the mean deterioration is a bias of a design as much as
+    the spread around it)."""
+    h = np.concatenate([s.h_true for s in segs])
+    return (h.T @ h) / h.shape[0]
+
+
 def calibrate(
     est: SnapshotEstimator, plan: FleetPlan, snaps: Snapshots, design: str = "",
     prior_var: float = PRIOR_VAR, seed: int | None = None,
+    reduction: float = REDUCTION, slope_tolerance: float = SLOPE_TOLERANCE,
 ) -> uncertainty.Calibration:
-    """Fit the model-error term of ``est`` on one simulated fleet (module docstring)."""
+    """Fit the model-error term of ``est`` on one simulated fleet (module docstring).
+
+    The analytic bias^2 is taken under the simulated fleet's own prior (``fleet_prior``); a
+    parameter is shown when its honest steady-state sigma is at most ``reduction`` times the
+    design's prior sigma sqrt(prior_var) and its fleet-average slope on this fleet is within
+    ``slope_tolerance`` of the truth (``uncertainty.observable``).
+    """
     tr = health_accuracy.tracks(est, plan, snaps)
     segs = segments(plan, tr)
     B_h = bias_matrix(est, plan, snaps)
     p = B_h.shape[0]
-    Ph = np.eye(p) * prior_var
-    bias2 = uncertainty.analytic_bias2(B_h, Ph)
+    bias2 = uncertainty.analytic_bias2(B_h, fleet_prior(segs))
     slope_hat, slope_true = _slopes(segs)
     drift = uncertainty.drift_bias(B_h, slope_true)
     st = _stack(segs, drift)
@@ -116,14 +134,15 @@ def calibrate(
     change_std = uncertainty.fit_model_std(st["change_err"], st["change_var"])
     slope_error = (slope_hat - slope_true) / np.maximum(np.abs(slope_true), SLOPE_FLOOR)
     shown = uncertainty.observable(
-        np.diag(Ph), bias2, np.median(st["filter_var"], axis=0), level_std,
-        slope_error=slope_error)
+        np.full(p, prior_var), bias2, np.median(st["filter_var"], axis=0), level_std,
+        slope_error=slope_error, reduction=reduction, slope_tolerance=slope_tolerance)
     return uncertainty.Calibration(
         names=tuple(est.layout.health), level_std=level_std, change_std=change_std,
         slope_error=slope_error, bias2=bias2, drift=drift, observable=shown,
         source={"design": design, "seed": seed, "engines": len(plan.esns),
                 "flights": plan.config.n_flights, "records": int(st["level_err"].shape[0]),
-                "prior_var": prior_var},
+                "prior_var": prior_var, "reduction": reduction,
+                "slope_tolerance": slope_tolerance},
     )
 
 
