@@ -111,10 +111,10 @@ class Calibration:
     """Model-error term of one design, fitted on the nonlinear fleet simulator.
 
     names [p]: health parameters; level_std [p]: s_k, percent; change_std [p]: s_delta_k,
-    percent; slope_error [p]: (estimated - true) fleet-average slope over max(|true|, a floor) on
-    the calibration fleet; bias2 [p]: the
-    analytic bias^2 used with it; observable [p]: the rule's verdict; source: how it was made
-    (seed, fleet size, design).
+    percent; slope_error [p]: (estimated - true) fleet-average slope over max(|true|, a
+    floor) on the calibration fleet; bias2 [p]: the analytic bias^2 (a^2 bias2 is used,
+    a = bias_scale); observable [p]: the rule's verdict; source: how it was made (seed,
+    fleet size, design).
     """
 
     names: tuple[str, ...]
@@ -124,11 +124,15 @@ class Calibration:
     bias2: np.ndarray
     drift: np.ndarray  # d = B_h r, percent per 1000 cycles
     observable: np.ndarray  # bool
+    bias_scale: np.ndarray | None = None  # [p] a of a^2 bias2 (fit_bias_scale); None: 1
     source: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         p = len(self.names)
-        for name in ("level_std", "change_std", "slope_error", "bias2", "drift", "observable"):
+        if self.bias_scale is None:
+            object.__setattr__(self, "bias_scale", np.ones(p))
+        for name in ("bias_scale", "level_std", "change_std", "slope_error", "bias2", "drift",
+                     "observable"):
             value = np.asarray(getattr(self, name), bool if name == "observable" else float)
             if value.shape != (p,):
                 raise DimensionError(
@@ -153,6 +157,7 @@ class Calibration:
             "bias2": listed(self.bias2),
             "drift": listed(self.drift),
             "observable": [bool(x) for x in self.observable],
+            "bias_scale": listed(np.asarray(self.bias_scale)),
             "source": dict(self.source),
         }
 
@@ -167,7 +172,9 @@ class Calibration:
         return cls(
             names=tuple(d["names"]), level_std=arr("level_std"), change_std=arr("change_std"),
             slope_error=arr("slope_error"), bias2=arr("bias2"), drift=arr("drift"),
-            observable=np.array(d["observable"], bool), source=dict(d.get("source", {})),
+            observable=np.array(d["observable"], bool),
+            bias_scale=arr("bias_scale") if "bias_scale" in d else None,
+            source=dict(d.get("source", {})),
         )
 
 
@@ -230,6 +237,31 @@ def fit_model_std(
             rank = min(e.size - 1, max(0, int(np.ceil(level * e.size)) - 1))
             need = max(need, float(s_i[rank]))
         out[k] = need
+    return out
+
+
+def fit_bias_scale(
+    err: np.ndarray, bias2: np.ndarray, filter_var: np.ndarray, one_sigma: float = ONE_SIGMA_TARGET,
+) -> np.ndarray:
+    """Scale a [p] in (0, 1] of the analytic bias^2 where it alone over-covers.
+
+    The analytic bias^2 is a fleet average under the prior; where bias2 + filter variance
+    already holds more than ``one_sigma`` of the calibration errors err [N, p], the smallest
+    a with a^2 bias2 + filter_var holding ``one_sigma`` of them (an order statistic of
+    (e_i^2 - v_i) / bias2, as in ``fit_model_std``); 1 elsewhere.
+    """
+    err = np.asarray(err, float)
+    var = np.broadcast_to(np.asarray(filter_var, float), err.shape)
+    b = np.asarray(bias2, float)
+    out = np.ones(err.shape[1])
+    for k in range(err.shape[1]):
+        ok = np.isfinite(err[:, k]) & np.isfinite(var[:, k])
+        e, v = err[ok, k], var[ok, k]
+        if e.size == 0 or b[k] <= 0.0:
+            continue
+        a2 = np.sort(np.maximum(e**2 - v, 0.0) / b[k])
+        rank = min(e.size - 1, max(0, int(np.ceil(one_sigma * e.size)) - 1))
+        out[k] = min(1.0, float(np.sqrt(a2[rank])))
     return out
 
 

@@ -29,6 +29,9 @@ PRIOR_VAR = 4.0
 # Slopes are compared relative to max(|true slope|, SLOPE_FLOOR) (percent per 1000 cycles).
 SLOPE_FLOOR = 0.1
 MIN_SEGMENT_RECORDS = 20
+# A slope needs a stretch of at least this many thousand cycles (each segment weighs the same
+# in the fleet average, and a short one's slope is mostly filter noise).
+MIN_SLOPE_SPAN = 0.2
 # Observability rule (uncertainty.observable): honest sigma at most this fraction of the prior
 # sigma, and the calibration fleet's slope within this relative error of the truth.
 REDUCTION = 0.6
@@ -46,7 +49,8 @@ class Segment:
 
 
 def segments(plan: FleetPlan, tracks: Sequence[health_accuracy.HealthTrack]) -> list[Segment]:
-    """Split each track at the engine's shop visits; keep each piece's settled records."""
+    """Split each track at the engine's shop visits and abrupt faults (a fault is a step the
+    shift detector reports, not deterioration); keep each piece's settled records."""
     cfg = plan.config
     round_s = 86400.0 / cfg.flights_per_day
     shop: dict[str, list[int]] = {}
@@ -56,6 +60,9 @@ def segments(plan: FleetPlan, tracks: Sequence[health_accuracy.HealthTrack]) -> 
             shop.setdefault(inst.esn, []).append(
                 int(np.floor((inst.installed_at - cfg.start_epoch_s) / round_s + 1e-6)))
         seen.add(inst.esn)
+    for fault in plan.faults:  # an abrupt fault starts a new trend (the shift detector's)
+        shop.setdefault(fault.esn, []).append(
+            int(np.floor((fault.occurred_at - cfg.start_epoch_s) / round_s + 1e-6)) + 1)
     out = []
     for t in tracks:
         piece = np.searchsorted(np.array(sorted(shop.get(t.esn, [])), dtype=float),
@@ -96,7 +103,7 @@ def _stack(segs: Sequence[Segment], drift: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def _slopes(segs: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray]:
-    long = [s for s in segs if np.ptp(s.kcycles) >= 0.01]
+    long = [s for s in segs if np.ptp(s.kcycles) >= MIN_SLOPE_SPAN]
     x = [s.kcycles for s in long]
     return (uncertainty.fleet_slopes(x, [s.h_hat for s in long]),
             uncertainty.fleet_slopes(x, [s.h_true for s in long]))
@@ -130,15 +137,16 @@ def calibrate(
     slope_hat, slope_true = _slopes(segs)
     drift = uncertainty.drift_bias(B_h, slope_true)
     st = _stack(segs, drift)
-    level_std = uncertainty.fit_model_std(st["level_err"], bias2 + st["filter_var"])
+    scale = uncertainty.fit_bias_scale(st["level_err"], bias2, st["filter_var"])
+    level_std = uncertainty.fit_model_std(st["level_err"], scale**2 * bias2 + st["filter_var"])
     change_std = uncertainty.fit_model_std(st["change_err"], st["change_var"])
     slope_error = (slope_hat - slope_true) / np.maximum(np.abs(slope_true), SLOPE_FLOOR)
     shown = uncertainty.observable(
-        np.full(p, prior_var), bias2, np.median(st["filter_var"], axis=0), level_std,
+        np.full(p, prior_var), scale**2 * bias2, np.median(st["filter_var"], axis=0), level_std,
         slope_error=slope_error, reduction=reduction, slope_tolerance=slope_tolerance)
     return uncertainty.Calibration(
         names=tuple(est.layout.health), level_std=level_std, change_std=change_std,
-        slope_error=slope_error, bias2=bias2, drift=drift, observable=shown,
+        slope_error=slope_error, bias2=bias2, drift=drift, observable=shown, bias_scale=scale,
         source={"design": design, "seed": seed, "engines": len(plan.esns),
                 "flights": plan.config.n_flights, "records": int(st["level_err"].shape[0]),
                 "prior_var": prior_var, "reduction": reduction,
@@ -208,7 +216,8 @@ def score(
     tr = health_accuracy.tracks(est, plan, snaps)
     segs = segments(plan, tr)
     st = _stack(segs, calib.drift)
-    sigma = np.sqrt(calib.bias2 + st["filter_var"] + calib.level_std**2)
+    sigma = np.sqrt(np.asarray(calib.bias_scale) ** 2 * calib.bias2 + st["filter_var"]
+                    + calib.level_std**2)
     d_sigma = np.sqrt(st["change_var"] + calib.change_std**2)
     slope_hat, slope_true = _slopes(segs)
     ends = np.array([(s.h_hat[-1] - s.h_hat[0]) - (s.h_true[-1] - s.h_true[0]) for s in segs])

@@ -171,3 +171,14 @@ def test_calibration_json_round_trip() -> None:
                         observable=np.ones(1, bool))
     with pytest.raises(ValueError, match="format"):
         unc.Calibration.from_dict({"format": "other"})
+
+
+def test_fit_bias_scale_shrinks_an_over_covering_bias_only() -> None:
+    # Errors N(0, 1) with an analytic bias^2 of 4: a = 1/2 gives the Gaussian's coverage;
+    # a bias^2 of 0.25 under-covers and keeps a = 1.
+    rng = np.random.default_rng(9)
+    err = rng.normal(size=(200_000, 2))
+    a = unc.fit_bias_scale(err, np.array([4.0, 0.25]), np.zeros_like(err),
+                           one_sigma=stats.norm.cdf(1) * 2 - 1)
+    assert a[0] == pytest.approx(0.5, rel=0.02)
+    assert a[1] == 1.0
