@@ -1,0 +1,155 @@
+"""Wear (gradual deterioration) detection on NASA C-MAPSS FD001 and on the demo fleet.
+
+FD001 train (100 engines, HPC degradation run to failure): the product's filter
+(``pipeline.run_filters`` on the design of tests/app/test_fd001.py) and the wear detector
+(``estimation.wear.wear_scan``) on its tuner estimates, next to a naive per-engine signature
+CUSUM on the sensor deviations (``estimation.wear.signature_cusum``, HPC signature, no alarm
+before cycle 50) computed in the same run: engines alerted before failure, median lead (cycles
+before failure), share of alerts attributed to HPC; the product's own shift detector too.
+Demo fleet (``app.services.demo_fleet``, simulated, built-in engine): wear alerts outside the
+injected faults' windows per engine-year.
+
+    .venv/bin/python bench/bench_wear.py [--rate 1.5e-3 --margin 6 --floor 0.03 --limit 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import _common  # noqa: F401  (import path)
+import numpy as np
+
+from app.engine_cache import engine_schedule
+from app.services import demo_fleet, detection_replay, fd001_replay, pipeline
+from estimation import wear
+from estimation.engine.fleet import fleet_snapshots, plan_fleet
+
+FD001 = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmapss" / "train_FD001.txt"
+YEAR_S = 365.25 * 86400.0
+
+
+def health_candidates(S_full: np.ndarray, p: int) -> np.ndarray:
+    """Library faults that are module deteriorations (no actuator-bias rows): wear candidates."""
+    return np.all(S_full[p:] == 0.0, axis=0)
+
+
+def fd001(path: Path, cfg: wear.WearSettings, units: int | None) -> None:
+    t0 = time.perf_counter()
+    est = fd001_replay.fd001_estimator(fd001_replay.fd001_schedule())
+    engines = fd001_replay.fd001_runs(path, est, units)
+    tracks = fd001_replay.filter_tracks(est, [e.run for e in engines])
+    W = wear.health_weight(est.Vp)
+    cand = health_candidates(est.S_full, len(est.layout.health))
+    hpc = est.layout.faults.index("HPC")
+    ours, naive, product, kinds = [], [], [], []
+    hpc_hits = 0
+    for e, tr in zip(engines, tracks, strict=True):
+        scan = wear.wear_scan(tr.q, est.H, W, e.cycle.astype(float), candidates=cand,
+                              settings=cfg)
+        if scan.alerts:
+            a = scan.alerts[0]
+            ours.append(int(e.cycle[-1] - e.cycle[a.index]))
+            hpc_hits += a.fault == hpc
+            kinds.append(a.kind)
+        dy, var, sig = fd001_replay.sensor_deviations(est, e.run)
+        k = wear.signature_cusum(dy, var, sig[0, :, hpc])
+        if k is not None:
+            naive.append(int(e.cycle[-1] - e.cycle[k]))
+        if tr.events:
+            product.append((tr.events[0], int(e.cycle[-1]) - _cycle_at(e, tr.events[0].epoch)))
+    n = len(engines)
+    print(f"FD001 train, {n} engines ({time.perf_counter() - t0:.1f} s); settings {cfg}")
+    print(f"{'':34s}{'alerted':>10s}{'median lead':>13s}{'HPC share':>11s}")
+    print(f"{'target':34s}{n:>7d}/{n:<3d}{'>= naive':>13s}{'>= 90 %':>11s}")
+    print(f"{'filter + wear detector':34s}{len(ours):>7d}/{n:<3d}"
+          f"{_median(ours):>13s}{_share(hpc_hits, len(ours)):>11s}")
+    print(f"{'naive signature CUSUM (HPC)':34s}{len(naive):>7d}/{n:<3d}{_median(naive):>13s}"
+          f"{'(given)':>11s}")
+    hpc_product = sum(ev.fault == "HPC" for ev, _ in product)
+    print(f"{'product shift detector':34s}{len(product):>7d}/{n:<3d}"
+          f"{_median([lead for _, lead in product]):>13s}{_share(hpc_product, len(product)):>11s}")
+    print(f"wear alert kinds: {dict(zip(*np.unique(kinds, return_counts=True), strict=True))}")
+
+
+def _cycle_at(e: fd001_replay.Fd001Engine, epoch: float) -> int:
+    return int(e.cycle[np.searchsorted(e.run.epoch, epoch)])
+
+
+def _median(values: list[int]) -> str:
+    return f"{np.median(values):.1f}" if values else "-"
+
+
+def _share(k: int, n: int) -> str:
+    return f"{100.0 * k / n:.0f} %" if n else "-"
+
+
+def demo(cfg: wear.WearSettings, cache: Path) -> None:
+    t0 = time.perf_counter()
+    est = demo_fleet.design_estimator(engine_schedule(cache), *demo_fleet.ACTIVE_DESIGN)
+    size = demo_fleet.DemoSize()
+    plan_rng, snap_rng = np.random.default_rng(demo_fleet.SEED).spawn(2)
+    plan = plan_fleet(demo_fleet.fleet_config(size), plan_rng)
+    snaps = fleet_snapshots(plan, snap_rng)
+    engines = detection_replay.engine_runs(plan, snaps, est)
+    W = wear.health_weight(est.Vp)
+    cand = health_candidates(est.S_full, len(est.layout.health))
+    s = est.layout.slices()
+    false, in_fault, years = [], 0, 0.0
+    outs = pipeline.run_filters(est, [e.run for e in engines])
+    for data, out in zip(engines, outs, strict=True):
+        q = out.packed.astype(np.float64)[:, s["q"]]
+        t = data.run.epoch
+        fid = data.flight_id
+        cycles = np.cumsum(np.r_[True, fid[1:] != fid[:-1]]).astype(float)
+        prev = np.r_[-np.inf, t[:-1]]
+        resets = np.zeros(len(t), bool)
+        for m in data.run.maintenance:
+            resets |= (m <= t) & (m > prev)
+        # Faulty windows: from a fault's flight to its engine's removal (or the data's end).
+        windows = [(f.occurred_at, detection_replay._removal_after(plan, f.esn, f.occurred_at))
+                   for f in plan.faults if f.esn == data.esn]
+        faulty = np.zeros(len(t), bool)
+        for a, b in windows:
+            faulty |= (t >= a) & (t <= b)
+        healthy_t = t[~faulty]
+        if len(healthy_t) > 1:
+            gaps = np.diff(healthy_t)
+            years += float(np.sum(gaps[gaps < 30 * 86400.0])) / YEAR_S  # time flown healthy
+        scan = wear.wear_scan(q, est.H, W, cycles, resets, cand, cfg)
+        for a in scan.alerts:
+            if faulty[a.index]:
+                in_fault += 1
+            else:
+                false.append((data.esn, a.kind, est.layout.faults[a.fault]
+                              if a.fault is not None else None, round(a.magnitude, 2)))
+    rate = len(false) / years if years else float("nan")
+    print(f"demo fleet ({len(engines)} engines, {time.perf_counter() - t0:.1f} s): "
+          f"{len(false)} false wear alerts in {years:.1f} healthy engine-years = "
+          f"{rate:.2f} per engine-year (target <= 1); {in_fault} alerts in fault windows")
+    for item in false[:10]:
+        print("  ", item)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    d = wear.WearSettings()
+    ap.add_argument("--rate", type=float, default=d.rate)
+    ap.add_argument("--margin", type=float, default=d.margin)
+    ap.add_argument("--floor", type=float, default=d.margin_floor)
+    ap.add_argument("--limit", type=float, default=d.limit)
+    ap.add_argument("--units", type=int, default=None)
+    ap.add_argument("--fd001", type=Path, default=FD001)
+    ap.add_argument("--cache", type=Path, default=Path("/tmp/fh/cache"))
+    ap.add_argument("--skip-demo", action="store_true")
+    args = ap.parse_args()
+    cfg = wear.WearSettings(limit=args.limit, rate=args.rate, margin=args.margin,
+                            margin_floor=args.floor)
+    fd001(args.fd001, cfg, args.units)
+    if not args.skip_demo:
+        demo(cfg, args.cache)
+
+
+if __name__ == "__main__":
+    main()

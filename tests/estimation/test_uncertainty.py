@@ -1,0 +1,184 @@
+"""Closed-form and invariant tests of estimation.uncertainty."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from estimation import uncertainty as unc
+from estimation.errors import DimensionError
+
+
+def _gains(rng: np.random.Generator, J: int = 40, ny: int = 8, p: int = 5) -> np.ndarray:
+    base = rng.normal(size=(ny, p))
+    return base + 0.2 * rng.normal(size=(J, ny, p))
+
+
+def test_bias_matrix_zero_when_tuners_are_the_observable_health() -> None:
+    rng = np.random.default_rng(1)
+    G = _gains(rng)
+    noise = rng.uniform(0.5, 2.0, size=G.shape[:2])
+    B = unc.snapshot_bias_matrix(G, noise, np.eye(5))
+    np.testing.assert_allclose(B, 0.0, atol=1e-10)
+
+
+def test_bias_matrix_is_weighted_least_squares_of_a_constant_health() -> None:
+    # m < p: the steady state is the R^-1-weighted least-squares tuner fit of dy = G h over
+    # all records; compare with numpy's lstsq on the stacked, noise-scaled system.
+    rng = np.random.default_rng(2)
+    G = _gains(rng, p=6)
+    noise = rng.uniform(0.5, 2.0, size=G.shape[:2])
+    V = rng.normal(size=(3, 6))
+    Vp = np.linalg.solve(V @ V.T, V).T
+    B = unc.snapshot_bias_matrix(G, noise, Vp)
+    h = rng.normal(size=6)
+    A = (G / noise[:, :, None] @ Vp).reshape(-1, 3)
+    y = ((G / noise[:, :, None]) @ h).reshape(-1)
+    q = np.linalg.lstsq(A, y, rcond=None)[0]
+    np.testing.assert_allclose(B @ h, Vp @ q - h, atol=1e-9)
+
+
+def test_unresolved_direction_keeps_the_prior() -> None:
+    # The sensors see only the first health parameter: the second stays at its prior 0, so
+    # its bias is -h (B = -1) and its analytic bias^2 its prior variance.
+    J = 10
+    G = np.zeros((J, 3, 2))
+    G[:, :, 0] = 1.0
+    B = unc.snapshot_bias_matrix(G, np.ones((J, 3)), np.eye(2))
+    np.testing.assert_allclose(B, [[0.0, 0.0], [0.0, -1.0]], atol=1e-12)
+    Ph = np.diag([4.0, 9.0])
+    np.testing.assert_allclose(unc.analytic_bias2(B, Ph), [0.0, 9.0])
+
+
+def test_analytic_bias2_matches_monte_carlo() -> None:
+    rng = np.random.default_rng(3)
+    B = rng.normal(size=(4, 4))
+    L = rng.normal(size=(4, 4))
+    Ph = L @ L.T
+    h = rng.multivariate_normal(np.zeros(4), Ph, size=200_000)
+    mc = np.mean((h @ B.T) ** 2, axis=0)
+    np.testing.assert_allclose(unc.analytic_bias2(B, Ph), mc, rtol=0.02)
+
+
+def test_bias_matrix_checks_shapes() -> None:
+    with pytest.raises(DimensionError, match="noise_std"):
+        unc.snapshot_bias_matrix(np.zeros((3, 4, 2)), np.ones((3, 5)), np.eye(2))
+
+
+def test_fit_model_std_recovers_a_gaussian_std() -> None:
+    # Errors N(0, 0.3^2 + 0.4^2) with a known base variance 0.3^2: s = 0.4 gives the
+    # Gaussian coverage; targets at the Gaussian's own 1 and 2 sigma fractions recover it.
+    rng = np.random.default_rng(4)
+    err = rng.normal(scale=0.5, size=(200_000, 1))
+    s = unc.fit_model_std(err, np.full_like(err, 0.09), one_sigma=stats.norm.cdf(1) * 2 - 1,
+                          two_sigma=stats.norm.cdf(2) * 2 - 1)
+    assert s[0] == pytest.approx(0.4, rel=0.02)
+
+
+def test_fit_model_std_reaches_its_targets_exactly() -> None:
+    rng = np.random.default_rng(5)
+    err = rng.standard_t(3, size=(5000, 3)) * [0.2, 1.0, 3.0]
+    base = rng.uniform(0.0, 0.5, size=err.shape)
+    s = unc.fit_model_std(err, base, one_sigma=0.7, two_sigma=0.95)
+    sigma = np.sqrt(base + s**2)
+    assert np.all(unc.coverage(err, sigma, 1.0) >= 0.7)
+    assert np.all(unc.coverage(err, sigma, 2.0) >= 0.95)
+    # The smallest such s: a little less misses one of the two targets.
+    smaller = np.sqrt(base + (0.99 * s) ** 2)
+    assert np.all((unc.coverage(err, smaller, 1.0) < 0.7)
+                  | (unc.coverage(err, smaller, 2.0) < 0.95))
+
+
+def test_fit_model_std_zero_when_the_base_covers() -> None:
+    rng = np.random.default_rng(6)
+    err = rng.normal(scale=0.1, size=(1000, 2))
+    assert np.all(unc.fit_model_std(err, np.ones_like(err)) == 0.0)
+
+
+def test_coverage_of_a_gaussian() -> None:
+    rng = np.random.default_rng(7)
+    err = rng.normal(scale=2.0, size=(100_000, 2))
+    c1 = unc.coverage(err, np.full_like(err, 2.0), 1.0)
+    c2 = unc.coverage(err, np.full_like(err, 2.0), 2.0)
+    np.testing.assert_allclose(c1, stats.norm.cdf(1) * 2 - 1, atol=0.01)
+    np.testing.assert_allclose(c2, stats.norm.cdf(2) * 2 - 1, atol=0.01)
+
+
+def test_level_and_change_sigma_add_in_quadrature() -> None:
+    f = np.array([[0.3, 0.4]])
+    np.testing.assert_allclose(unc.level_sigma(f, np.array([0.16, 0.0]), np.array([0.0, 0.3])),
+                               [[0.5, 0.5]])
+    d = unc.change_sigma(np.array([[0.3, 0.0]]), np.array([[0.4, 0.0]]), np.array([2.0]),
+                         drift=np.array([0.0, 0.15]), change_std=np.array([0.0, 0.4]))
+    np.testing.assert_allclose(d, [[0.5, 0.5]])
+
+
+def test_change_sigma_matches_monte_carlo_of_independent_ends() -> None:
+    # h_hat(t) - h_hat(0) with independent filter errors at both ends, a drift bias d c and a
+    # model error s_delta: the simulated spread equals the formula.
+    rng = np.random.default_rng(8)
+    n = 200_000
+    ft, f0, c, d, s = 0.2, 0.3, 1.5, 0.1, 0.25
+    err = (rng.normal(scale=ft, size=n) - rng.normal(scale=f0, size=n) + d * c
+           + rng.normal(scale=s, size=n))
+    rms = np.sqrt(np.mean(err**2))
+    sig = unc.change_sigma(np.array([ft]), np.array([f0]), np.array(c), np.array([d]),
+                           np.array([s]))
+    assert rms == pytest.approx(float(sig[0]), rel=0.01)
+
+
+def test_drift_bias_of_a_fully_observed_design_is_zero() -> None:
+    rate = np.array([-0.2, 0.45])
+    assert np.all(unc.drift_bias(np.zeros((2, 2)), rate) == 0.0)
+    np.testing.assert_allclose(unc.drift_bias(-np.eye(2), rate), -rate)
+
+
+def test_observable_rule() -> None:
+    prior = np.full(4, 4.0)  # prior sigma 2 %
+    bias2 = np.array([0.0, 3.9, 0.0, 0.0])
+    filt = np.array([0.01, 0.01, 0.01, 0.01])
+    model = np.array([0.3, 0.0, 1.2, 0.3])
+    slope = np.array([0.1, 0.0, 0.0, -0.5])
+    ok = unc.observable(prior, bias2, filt, model, slope_error=slope)
+    # 2: bias dominates; 3: model error above half the prior sigma; 4: slope off by 50 %.
+    assert ok.tolist() == [True, False, False, False]
+    assert unc.observable(prior, bias2, filt, model).tolist() == [True, False, False, True]
+
+
+def test_fleet_slopes_of_lines() -> None:
+    x = [np.linspace(0, 1, 20), np.linspace(0.2, 0.7, 30)]
+    y = [np.outer(xe, [1.0, -2.0]) + 5.0 for xe in x]
+    np.testing.assert_allclose(unc.fleet_slopes(x, y), [1.0, -2.0])
+
+
+def test_calibration_json_round_trip() -> None:
+    cal = unc.Calibration(
+        names=("a", "b"), level_std=np.array([0.1, 0.2]), change_std=np.array([0.0, 0.3]),
+        slope_error=np.array([np.nan, -0.1]), bias2=np.array([0.01, 1.0]),
+        drift=np.array([0.0, 0.05]), observable=np.array([True, False]),
+        source={"seed": 1, "design": "svd:6"},
+    )
+    back = unc.Calibration.from_dict(json.loads(json.dumps(cal.to_dict())))
+    assert back.names == cal.names and back.source == cal.source
+    for name in ("level_std", "change_std", "slope_error", "bias2", "drift", "observable"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(cal, name))
+    with pytest.raises(DimensionError):
+        unc.Calibration(names=("a",), level_std=np.zeros(2), change_std=np.zeros(1),
+                        slope_error=np.zeros(1), bias2=np.zeros(1), drift=np.zeros(1),
+                        observable=np.ones(1, bool))
+    with pytest.raises(ValueError, match="format"):
+        unc.Calibration.from_dict({"format": "other"})
+
+
+def test_fit_bias_scale_shrinks_an_over_covering_bias_only() -> None:
+    # Errors N(0, 1) with an analytic bias^2 of 4: a = 1/2 gives the Gaussian's coverage;
+    # a bias^2 of 0.25 under-covers and keeps a = 1.
+    rng = np.random.default_rng(9)
+    err = rng.normal(size=(200_000, 2))
+    a = unc.fit_bias_scale(err, np.array([4.0, 0.25]), np.zeros_like(err),
+                           one_sigma=stats.norm.cdf(1) * 2 - 1)
+    assert a[0] == pytest.approx(0.5, rel=0.02)
+    assert a[1] == 1.0
