@@ -2,7 +2,7 @@
 
 For each design (method:m, "+bias": the tuners also span the three actuator biases) the
 model-error term of ``estimation.uncertainty`` is fitted on a demo-like fleet simulated with
-``--calibrate-seed`` (``app.services.health_uncertainty.calibrate``) and scored on a fleet
+``--calibrate-seed`` (``tests.support.health_uncertainty.calibrate``) and scored on a fleet
 simulated with ``--seed``: coverage of the honest 1-sigma and 2-sigma of the level (and of the
 filter's own 1-sigma), level RMS, change since the baseline (RMS over all settled records and
 at each segment's end) and fleet-average slopes against the simulator's truth, next to the
@@ -23,8 +23,9 @@ import _common  # noqa: F401  (import path)
 import numpy as np
 
 from app.engine_cache import engine_schedule
-from app.services import demo_fleet, health_uncertainty
+from app.services.demo import fleet as demo_fleet
 from estimation.engine.fleet import fleet_snapshots, plan_fleet
+from tests.support import health_uncertainty
 
 DESIGNS = ("subset:10", "svd:8+bias", "svd:6")
 TARGETS = ("targets: shown parameters 1-sigma coverage 55-85 %, 2-sigma >= 85 %; change RMS "

@@ -6,7 +6,7 @@ FD001 train (100 engines, HPC degradation run to failure): the product's filter
 CUSUM on the sensor deviations (``estimation.wear.signature_cusum``, HPC signature, no alarm
 before cycle 50) computed in the same run: engines alerted before failure, median lead (cycles
 before failure), share of alerts attributed to HPC; the product's own shift detector too.
-Demo fleet (``app.services.demo_fleet``, simulated, built-in engine): wear alerts outside the
+Demo fleet (``app.services.demo.fleet``, simulated, built-in engine): wear alerts outside the
 injected faults' windows per engine-year.
 
     .venv/bin/python bench/bench_wear.py [--rate 1.5e-3 --margin 6 --floor 0.03 --limit 1]
@@ -22,9 +22,11 @@ import _common  # noqa: F401  (import path)
 import numpy as np
 
 from app.engine_cache import engine_schedule
-from app.services import demo_fleet, detection_replay, fd001_replay, pipeline
+from app.services.demo import fleet
+from app.services.snapshots import run
 from estimation import wear
 from estimation.engine.fleet import fleet_snapshots, plan_fleet
+from tests.support import detection_replay, fd001_replay
 
 FD001 = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmapss" / "train_FD001.txt"
 YEAR_S = 365.25 * 86400.0
@@ -87,17 +89,17 @@ def _share(k: int, n: int) -> str:
 
 def demo(cfg: wear.WearSettings, cache: Path) -> None:
     t0 = time.perf_counter()
-    est = demo_fleet.design_estimator(engine_schedule(cache), *demo_fleet.ACTIVE_DESIGN)
-    size = demo_fleet.DemoSize()
-    plan_rng, snap_rng = np.random.default_rng(demo_fleet.SEED).spawn(2)
-    plan = plan_fleet(demo_fleet.fleet_config(size), plan_rng)
+    est = fleet.design_estimator(engine_schedule(cache), *fleet.ACTIVE_DESIGN)
+    size = fleet.DemoSize()
+    plan_rng, snap_rng = np.random.default_rng(fleet.SEED).spawn(2)
+    plan = plan_fleet(fleet.fleet_config(size), plan_rng)
     snaps = fleet_snapshots(plan, snap_rng)
     engines = detection_replay.engine_runs(plan, snaps, est)
     W = wear.health_weight(est.Vp)
     cand = health_candidates(est.S_full, len(est.layout.health))
     s = est.layout.slices()
     false, in_fault, years = [], 0, 0.0
-    outs = pipeline.run_filters(est, [e.run for e in engines])
+    outs = run.run_filters(est, [e.run for e in engines])
     for data, out in zip(engines, outs, strict=True):
         q = out.packed.astype(np.float64)[:, s["q"]]
         t = data.run.epoch

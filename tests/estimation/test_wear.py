@@ -133,7 +133,7 @@ def test_signature_cusum_is_the_recursion_on_the_matched_filter() -> None:
 
 @pytest.fixture(scope="module")
 def fd001_figures() -> dict[str, object]:
-    from app.services import fd001_replay
+    from tests.support import fd001_replay
 
     est = fd001_replay.fd001_estimator(fd001_replay.fd001_schedule())
     engines = fd001_replay.fd001_runs(FD001, est, 20)

@@ -15,12 +15,13 @@ import json
 import numpy as np
 import pytest
 
-from app.services import demo_fleet, health_uncertainty
+from app.services.demo import fleet
 from estimation.engine.fleet import FleetPlan, Snapshots, fleet_snapshots, plan_fleet
 from estimation.engine.schedule import EngineSchedule, build_schedule
 from estimation.uncertainty import Calibration
+from tests.support import health_uncertainty
 
-SIZE = demo_fleet.DemoSize(aircraft=3, flights=400)
+SIZE = fleet.DemoSize(aircraft=3, flights=400)
 
 
 @pytest.fixture(scope="module")
@@ -30,12 +31,12 @@ def schedule() -> EngineSchedule:
 
 def _fleet(seed: int) -> tuple[FleetPlan, Snapshots]:
     plan_rng, snap_rng = np.random.default_rng(seed).spawn(2)
-    plan = plan_fleet(demo_fleet.fleet_config(SIZE), plan_rng)
+    plan = plan_fleet(fleet.fleet_config(SIZE), plan_rng)
     return plan, fleet_snapshots(plan, snap_rng)
 
 
 def test_calibrated_uncertainty_on_an_independent_seed(schedule: EngineSchedule) -> None:
-    est = demo_fleet.design_estimator(schedule, "svd", 6)
+    est = fleet.design_estimator(schedule, "svd", 6)
     plan, snaps = _fleet(11)
     calib = health_uncertainty.calibrate(est, plan, snaps, design="svd:6", seed=11)
     # Stored with the design as JSON and read back unchanged.

@@ -18,7 +18,10 @@ from typing import Any
 import numpy as np
 
 from app.cli.importers import CMAPSS_SENSORS, cmapss_snapshots, read_cmapss, select_units
-from app.services import estimator, models_designs, pipeline, shift_detection, units
+from app.services.designs import service as designs
+from app.services.snapshots import detector, estimator
+from app.services.snapshots import run as snapshots_run
+from app.services.uploads import units
 from estimation.engine.schedule import EngineSchedule, build_schedule
 from estimation.model import LinearModel
 from estimation.snapshot import snapshot_deviation
@@ -49,7 +52,7 @@ def fd001_estimator(
 ) -> estimator.SnapshotEstimator:
     """The design's estimator, as ``estimator_for_design`` builds it for a built-in model."""
     model = sched.model_at(*FD001_POINT)
-    result = models_designs.design_step(model, fd001_design_spec(model, tuners))
+    result = designs.design_step(model, fd001_design_spec(model, tuners))
     embedded = LinearModel.from_dict(result["model"])
     return estimator.build_estimator(
         0, embedded, result, estimator.engine_schedule_for(embedded, sched)
@@ -62,7 +65,7 @@ class Fd001Engine:
 
     unit: int
     cycle: np.ndarray
-    run: pipeline.EngineRun
+    run: snapshots_run.EngineRun
 
 
 def fd001_runs(
@@ -88,8 +91,8 @@ def fd001_runs(
     out = []
     for k, unit_id in enumerate(unit_ids):
         idx = np.flatnonzero(data[:, 0].astype(int) == unit_id)
-        run = pipeline.EngineRun(
-            engine_id=k, operator_id=0, seq0=0, state=shift_detection.initial_state(est),
+        run = snapshots_run.EngineRun(
+            engine_id=k, operator_id=0, seq0=0, state=detector.initial_state(est),
             epoch=epoch[idx], phase=["takeoff"] * len(idx), conditions=cond[idx], y=y[idx],
             u=u[idx], maintenance=np.zeros(0),
         )
@@ -105,17 +108,17 @@ class FilterTrack:
     q: np.ndarray
     P: np.ndarray
     h: np.ndarray
-    events: tuple[shift_detection.EventDraft, ...]
+    events: tuple[detector.EventDraft, ...]
 
 
 def filter_tracks(
-    est: estimator.SnapshotEstimator, runs: Sequence[pipeline.EngineRun], batch: int = 64
+    est: estimator.SnapshotEstimator, runs: Sequence[snapshots_run.EngineRun], batch: int = 64
 ) -> list[FilterTrack]:
     """``pipeline.run_filters`` over the runs, in batches, unpacked per engine."""
     s = est.layout.slices()
     out: list[FilterTrack] = []
     for start in range(0, len(runs), batch):
-        for res in pipeline.run_filters(est, list(runs[start : start + batch])):
+        for res in snapshots_run.run_filters(est, list(runs[start : start + batch])):
             values = res.packed.astype(np.float64)
             P = np.asarray(res.state["filter"]["P"], float).reshape(-1, est.m, est.m)[-1]
             out.append(FilterTrack(values[:, s["q"]], P, values[:, s["h"]], tuple(res.events)))
@@ -123,7 +126,7 @@ def filter_tracks(
 
 
 def sensor_deviations(
-    est: estimator.SnapshotEstimator, run: pipeline.EngineRun
+    est: estimator.SnapshotEstimator, run: snapshots_run.EngineRun
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A run's sensor deviations dy [S, ny] (percent of trim, as the filter sees them), the
     noise variance [S, ny] (percent^2, with the model error) and each library fault's sensor

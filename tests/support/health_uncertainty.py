@@ -19,10 +19,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.services import health_accuracy
-from app.services.estimator import MODEL_ERROR, SnapshotEstimator
+from app.services.snapshots.estimator import MODEL_ERROR, SnapshotEstimator
 from estimation import uncertainty
 from estimation.engine.fleet import FleetPlan, Snapshots
+from tests.support import health_accuracy
 
 # The demo designs' fleet prior: P_h = 4 I (percent^2, design_spec "Ph").
 PRIOR_VAR = 4.0
