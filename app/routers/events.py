@@ -13,7 +13,7 @@ from app.schemas.estimates import (
     EventKind,
     EventOut,
     EventPage,
-    EventStatus,
+    EventStatusFilter,
 )
 from app.security import Analyst, CurrentPrincipal, DbSession
 from app.services.events import service as events
@@ -25,7 +25,10 @@ router = APIRouter(prefix="/api/v1/events", tags=["events"])
 def list_events(
     session: DbSession,
     principal: CurrentPrincipal,
-    status: EventStatus | None = None,
+    status: Annotated[
+        EventStatusFilter | None,
+        Query(description='"active": open or acknowledged (not closed), as the fleet page counts'),
+    ] = None,
     engine_id: int | None = None,
     kind: EventKind | None = None,
     since: Annotated[datetime | None, Query(description="detected at or after (ISO 8601)")] = None,

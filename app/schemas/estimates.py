@@ -14,6 +14,9 @@ from pydantic import BaseModel, ConfigDict, Field
 
 EventKind = Literal["shift", "isolated_fault"]
 EventStatus = Literal["open", "acknowledged", "closed"]
+# A list filter: "active" is every event not closed (open or acknowledged), the events that
+# the fleet page counts.
+EventStatusFilter = Literal["open", "acknowledged", "closed", "active"]
 
 
 class TrendSeries(BaseModel):

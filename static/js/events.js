@@ -9,9 +9,10 @@ const BASELINE_RECORDS = 20;
 
 async function showList() {
   const content = $("#content");
-  const status = params().get("status") ?? "open";
-  const filter = h("select", { id: "status" }, ["open", "acknowledged", "closed", ""].map((s) =>
-    h("option", { value: s, selected: s === status }, s || "all")));
+  const status = params().get("status") ?? "active";
+  const labels = { active: "active (open or acknowledged)", open: "open", acknowledged: "acknowledged", closed: "closed", "": "all" };
+  const filter = h("select", { id: "status" }, Object.keys(labels).map((s) =>
+    h("option", { value: s, selected: s === status }, labels[s])));
   filter.addEventListener("change", () => location.assign(`/events.html?status=${filter.value}`));
   const page = await api("/api/v1/events", { query: { status: status || undefined, limit: 500 } });
   const columns = [

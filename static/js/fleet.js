@@ -18,7 +18,7 @@ function columns() {
       cell: (e) => (e.health && e.health.worst_health ? `${e.health.worst_health} ${fmtNum(e.health.worst_health_value)} ± ${fmtNum(e.health.worst_health_sigma)}` : "–") },
     { key: "thrust", label: "Thrust deficit [%]", numeric: true, value: (e) => e.health?.thrust_deficit ?? null, cell: (e) => fmtNum(e.health?.thrust_deficit) },
     { key: "n_records", label: "Records", numeric: true },
-    { key: "open_events", label: "Open events", numeric: true,
+    { key: "open_events", label: "Active events", numeric: true,
       cell: (e) => (e.latest_event ? h("span", {}, `${e.open_events} `, h("a", { href: `/events.html?id=${e.latest_event.id}` },
         `${e.latest_event.fault || e.latest_event.kind} ${fmtTime(e.latest_event.detected_at).slice(0, 10)}`)) : String(e.open_events)) },
   ];
@@ -41,7 +41,7 @@ async function loadStatus() {
   const by = (s) => engines.filter((e) => e.state === s).length;
   $("#summary").replaceChildren(
     h("div", { class: "card" }, h("div", { class: "muted" }, "Engines"), h("div", { class: "big" }, status.n_engines)),
-    h("div", { class: "card" }, h("div", { class: "muted" }, "Open events"), h("div", { class: "big" }, status.n_open_events)),
+    h("div", { class: "card" }, h("div", { class: "muted" }, "Active events"), h("a", { class: "big", href: "/events.html?status=active" }, status.n_open_events)),
     h("div", { class: "card" }, h("div", { class: "muted" }, "Alert / watch"), h("div", { class: "big" }, `${by("alert")} / ${by("watch")}`)),
     h("div", { class: "card" }, h("div", { class: "muted" }, "Operator"), h("div", { class: "big" }, status.operator)));
   drawTable();

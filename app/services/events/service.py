@@ -79,6 +79,11 @@ def event_out(event: Event, esn: str, where: tuple[str, int] | None) -> dict[str
     }
 
 
+# Events not closed: open or acknowledged. The fleet page counts these, and the events page lists
+# them by default, so the two always agree.
+ACTIVE = "active"
+
+
 def list_events(
     session: Session,
     operator_id: int,
@@ -93,7 +98,9 @@ def list_events(
 ) -> dict[str, Any]:
     """Events newest first, filtered; a page of ``EventOut`` dicts."""
     conditions = [Event.operator_id == operator_id]
-    if status is not None:
+    if status == ACTIVE:
+        conditions.append(Event.status != "closed")
+    elif status is not None:
         conditions.append(Event.status == status)
     if engine_id is not None:
         conditions.append(Event.engine_id == engine_id)

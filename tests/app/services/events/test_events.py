@@ -80,3 +80,39 @@ def test_tenancy_and_roles(client: TestClient, session: Session) -> None:
     assert client.post(f"/api/v1/events/{event.id}/comments", json={"body": "x"},
                        headers=v).status_code == 403
     assert session.query(ApiKey).filter_by(operator_id=theirs.operator_id).count() == 2
+
+
+def test_fleet_and_events_pages_count_the_same_events_after_ack_and_close(
+    client: TestClient, session: Session
+) -> None:
+    """The fleet page's active-event count (total and per engine) is what the events page lists
+    by default (status=active), before and after an acknowledgement and a close."""
+    fleet = make_fleet(session, "Count Air")
+    one, two = add_engine(session, fleet, "C1"), add_engine(session, fleet, "C2")
+    a = _event(session, fleet, one.id, 1)
+    _event(session, fleet, one.id, 2, kind="shift", fault=None, magnitude=None)
+    c = _event(session, fleet, two.id, 3)
+    session.commit()
+    h = {"X-API-Key": fleet.key}
+
+    def counts() -> tuple[int, dict[str, int], int, dict[str, int]]:
+        status = client.get("/api/v1/fleet/status", headers=h).json()
+        per_engine = {e["esn"]: e["open_events"] for e in status["engines"] if e["open_events"]}
+        listed = client.get("/api/v1/events", params={"status": "active"}, headers=h).json()
+        by_esn: dict[str, int] = {}
+        for e in listed["items"]:
+            by_esn[e["esn"]] = by_esn.get(e["esn"], 0) + 1
+        return status["n_open_events"], per_engine, listed["total"], by_esn
+
+    assert counts() == (3, {"C1": 2, "C2": 1}, 3, {"C1": 2, "C2": 1})
+    assert client.post(f"/api/v1/events/{a.id}/ack", headers=h).status_code == 200
+    assert counts() == (3, {"C1": 2, "C2": 1}, 3, {"C1": 2, "C2": 1})
+    assert client.post(f"/api/v1/events/{c.id}/close", headers=h).status_code == 200
+    assert counts() == (2, {"C1": 2}, 2, {"C1": 2})
+    assert client.post(f"/api/v1/events/{a.id}/close", headers=h).status_code == 200
+    assert counts() == (1, {"C1": 1}, 1, {"C1": 1})
+    # The plain statuses still filter exactly.
+    acked = client.get("/api/v1/events", params={"status": "acknowledged"}, headers=h).json()
+    assert acked["total"] == 0
+    bad = client.get("/api/v1/events", params={"status": "pending"}, headers=h)
+    assert bad.status_code == 422
