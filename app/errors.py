@@ -9,6 +9,7 @@ from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from sqlalchemy.exc import DataError, DBAPIError, OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 log = logging.getLogger("fleethealth.errors")
@@ -58,6 +59,37 @@ class Unauthorized(ServiceError):
     code = "unauthorized"
 
 
+class ServiceUnavailable(ServiceError):
+    """The database cannot be reached (or is locked past its busy timeout): try again later."""
+
+    status_code = 503
+    code = "service_unavailable"
+
+
+# Seconds a client should wait before retrying after a 503 (sent as Retry-After).
+RETRY_AFTER_S = 5
+# SQLite's answer when another writer holds the file past the busy timeout.
+_SQLITE_BUSY = ("database is locked", "database is busy")
+
+
+def database_unavailable(exc: DBAPIError) -> bool:
+    """True when ``exc`` says the database could not be reached or was busy, not that the
+    statement was wrong: a lost or refused connection (PostgreSQL down, restarting, a network
+    cut: psycopg's OperationalError, or a connection SQLAlchemy invalidated), or SQLite locked
+    past its busy timeout. A statement error (no such table, syntax) stays a 500: retrying it
+    cannot help."""
+    if exc.connection_invalidated:
+        return True
+    if not isinstance(exc, OperationalError):
+        return False
+    orig = exc.orig
+    module = type(orig).__module__ if orig is not None else ""
+    if module.startswith("psycopg"):
+        return True
+    message = str(orig).lower()
+    return any(text in message for text in _SQLITE_BUSY) or "unable to open database" in message
+
+
 def error_body(
     code: str, message: str, details: list[dict[str, Any]] | None = None
 ) -> dict[str, Any]:
@@ -94,6 +126,34 @@ def install_error_handlers(app: FastAPI) -> None:
         )
         return JSONResponse(
             error_body(code, str(exc.detail)), status_code=exc.status_code, headers=exc.headers
+        )
+
+    @app.exception_handler(DBAPIError)
+    async def _database_error(request: Request, exc: DBAPIError) -> JSONResponse:
+        if database_unavailable(exc):
+            log.warning("database unavailable on %s %s: %s", request.method, request.url.path,
+                        exc.orig)
+            return JSONResponse(
+                error_body(ServiceUnavailable.code,
+                           "the database is unavailable; nothing was stored, retry later"),
+                status_code=503, headers={"Retry-After": str(RETRY_AFTER_S)},
+            )
+        if isinstance(exc, DataError):
+            # A value the database cannot hold (an integer beyond its range, a NUL byte in
+            # text): the request's fault, refused whole by the rolled-back transaction.
+            return JSONResponse(
+                error_body("invalid_input", f"a value is out of the database's range: "
+                           f"{str(exc.orig).splitlines()[0] if exc.orig else 'invalid value'}"),
+                status_code=422,
+            )
+        log.exception("database error on %s %s", request.method, request.url.path)
+        return JSONResponse(error_body("internal_error", "internal server error"), status_code=500)
+
+    @app.exception_handler(OverflowError)
+    async def _overflow(_request: Request, exc: OverflowError) -> JSONResponse:
+        # SQLite's driver refuses Python integers beyond 64 bits before the statement runs.
+        return JSONResponse(
+            error_body("invalid_input", f"a number is out of range: {exc}"), status_code=422
         )
 
     @app.exception_handler(Exception)

@@ -77,6 +77,13 @@ def create_app(
         version=__version__,
         summary="Aircraft engine fleet health trending",
         lifespan=lifespan,
+        responses={503: {
+            "description": "The database is unavailable (down, restarting or busy): nothing was "
+            "stored; retry after the Retry-After header's seconds (uploads safely, with the "
+            "same Idempotency-Key).",
+            "headers": {"Retry-After": {"schema": {"type": "integer"},
+                                        "description": "seconds to wait before retrying"}},
+        }},
     )
     app.state.settings = settings
     app.state.engine = engine

@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import uuid
 from collections.abc import Iterator
+from pathlib import Path
 
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from pydantic import BaseModel
+from sqlalchemy.orm import Session
 
-from app.errors import Conflict, install_error_handlers
+from app.errors import RETRY_AFTER_S, Conflict, install_error_handlers
 from app.limits import BodyLimitMiddleware
+from app.services.tenancy.service import create_operator, issue_api_key
 
 
 class Reading(BaseModel):
@@ -80,3 +84,56 @@ def test_body_under_the_limit_passes() -> None:
 def test_unknown_route_is_json_404(client: TestClient) -> None:
     response = client.get("/api/v1/no-such-thing")
     assert response.status_code == 404
+
+
+def test_database_outage_answers_503_with_retry_after(tmp_path: Path) -> None:
+    """A database that refuses connections (PostgreSQL down or restarting) is a retryable 503,
+    not a 500, on reads and on uploads alike."""
+    from app.config import Settings
+    from app.db import make_engine
+    from app.main import create_app
+
+    settings = Settings(data_dir=tmp_path)
+    # Nothing listens on port 9 of the loopback: every connection is refused.
+    engine = make_engine("postgresql+psycopg://postgres@127.0.0.1:9/none",
+                         connect_args={"connect_timeout": 2})
+    client = TestClient(create_app(settings, engine=engine), raise_server_exceptions=False)
+    headers = {"X-API-Key": "fh_anything"}
+    for method, path, body in (("get", "/api/v1/aircraft", None),
+                               ("post", "/api/v1/snapshots", b"[]")):
+        kwargs = {"headers": headers}
+        if body is not None:
+            kwargs["content"] = body
+            kwargs["headers"] = {**headers, "Content-Type": "application/json"}
+        response = getattr(client, method)(path, **kwargs)
+        assert response.status_code == 503, response.text
+        assert response.headers["Retry-After"] == str(RETRY_AFTER_S)
+        assert response.json()["error"]["code"] == "service_unavailable"
+    health = client.get("/health")
+    assert health.status_code == 503
+
+
+def test_ids_and_offsets_beyond_the_integer_range_are_422(
+    client: TestClient, session: Session
+) -> None:
+    """Path ids and query offsets past int64 answer 4xx on both databases, never 500."""
+    operator = create_operator(session, name=f"Range Air {uuid.uuid4().hex[:8]}")
+    _row, key = issue_api_key(session, operator=operator, role="admin", name="range")
+    session.commit()
+    client.headers["X-API-Key"] = key
+    for path in ("/api/v1/aircraft/9223372036854775808", "/api/v1/engines/99999999999999999999",
+                 "/api/v1/events/-9223372036854775809"):
+        response = client.get(path)
+        assert 400 <= response.status_code < 500, (path, response.status_code, response.text)
+    response = client.get("/api/v1/aircraft", params={"offset": 10**20})
+    assert 400 <= response.status_code < 500, response.text
+
+
+def test_openapi_documents_the_retryable_503_on_every_route(client: TestClient) -> None:
+    paths = client.get("/openapi.json").json()["paths"]
+    operations = [(path, op) for path, item in paths.items() for op in item.values()]
+    assert len(operations) > 20
+    for path, op in operations:
+        assert "503" in op["responses"], op.get("operationId")
+        if path != "/health":  # the probe's 503 is its own answer: the database is down
+            assert "Retry-After" in op["responses"]["503"]["headers"], path
