@@ -184,7 +184,10 @@ def _store_snapshots(
     "/snapshots",
     response_model=UploadOut,
     status_code=status.HTTP_201_CREATED,
-    responses={200: {"description": "a repeat of an earlier upload: nothing new stored"}},
+    responses={
+        200: {"description": "a repeat of an earlier upload: nothing new stored"},
+        415: {"description": "the body is not declared as application/json"},
+    },
     openapi_extra={
         "requestBody": {
             "required": True,
@@ -201,9 +204,11 @@ def upload_snapshots(
     idempotency_key: IdempotencyKey = None,
 ) -> UploadOut:
     """Upload snapshots as JSON ``{"units"?, "columns"?, "snapshots": [...]}``, all or nothing."""
-    if payload.content_format not in (None, "json"):
-        raise UnsupportedMediaType("POST /api/v1/snapshots takes JSON; files go to /snapshots/file")
-    payload.content_format = "json"
+    if payload.content_format != "json":
+        raise UnsupportedMediaType(
+            "POST /api/v1/snapshots takes Content-Type application/json; "
+            "CSV and Parquet files go to /api/v1/snapshots/file"
+        )
     result = _store_snapshots(session, principal, payload, idempotency_key, None)
     queue_estimation(request, session, principal, result)
     return upload_out(result, response)

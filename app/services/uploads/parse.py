@@ -317,22 +317,46 @@ def _looks_like_time(text: str) -> bool:
     return True
 
 
-def coerce_string(array: pa.ChunkedArray, column: str, log: ErrorLog) -> pa.ChunkedArray:
+# Longest text each column may hold (the table's column widths); longer values are refused by
+# name instead of failing at the database (PostgreSQL) or being stored whole (SQLite).
+MAX_TEXT = {"tail": 32, "phase": 8, "flight_id": 64}
+
+
+def coerce_string(
+    array: pa.ChunkedArray, column: str, log: ErrorLog, *, max_length: int | None = None
+) -> pa.ChunkedArray:
+    """Text: trimmed, empty as missing; NUL characters and values over ``max_length``
+    characters are refused per row (neither database stores them as given)."""
+    strings = _as_text(array, column, log)
+    if strings is None:
+        return pa.chunked_array([pa.nulls(len(array), pa.string())])
+    values = _string_values(strings)
+    log.add_rows(_mask(pc.match_substring(strings, "\x00")), column,
+                 "contains a NUL character")
+    if max_length is not None:
+        too_long = _mask(pc.greater(pc.utf8_length(strings), max_length))
+        log.add_rows(too_long, column,
+                     lambda v: f"is {len(v)} characters long, over the limit of {max_length}",
+                     values)
+    return strings
+
+
+def _as_text(array: pa.ChunkedArray, column: str, log: ErrorLog) -> pa.ChunkedArray | None:
     kind = array.type
     if pa.types.is_string(kind) or pa.types.is_large_string(kind):
         strings = pc.utf8_trim_whitespace(pc.cast(array, pa.string()))
     elif pa.types.is_integer(kind) or pa.types.is_null(kind):
         strings = pc.cast(array, pa.string())
     elif pa.types.is_dictionary(kind):
-        return coerce_string(pc.cast(array, pa.string()), column, log)
+        return _as_text(pc.cast(array, pa.string()), column, log)
     else:
         log.add(None, column, f"column {column!r} must hold text, not {kind}")
-        return pa.chunked_array([pa.nulls(len(array), pa.string())])
+        return None
     return pc.if_else(pc.equal(strings, ""), pa.scalar(None, pa.string()), strings)
 
 
 def coerce_position(array: pa.ChunkedArray, column: str, log: ErrorLog) -> pa.ChunkedArray:
-    """Engine position: an integer 1..4."""
+    """Engine position: an integer 1..4 (text digits, integers, or integral floats)."""
     kind = array.type
     if pa.types.is_string(kind) or pa.types.is_large_string(kind):
         strings = pc.utf8_trim_whitespace(array)
@@ -346,21 +370,20 @@ def coerce_position(array: pa.ChunkedArray, column: str, log: ErrorLog) -> pa.Ch
             _string_values(strings),
         )
         strings = pc.if_else(pa.array(valid & digits), strings, pa.scalar(None, pa.string()))
-        values = pc.cast(strings, pa.int64())
-    elif pa.types.is_integer(kind) or pa.types.is_null(kind):
-        values = pc.cast(array, pa.int64())
-    elif pa.types.is_floating(kind):
-        numbers = array.to_numpy(zero_copy_only=False)
+        # Through float64: digits beyond int64 become a large number refused below by range.
+        numbers = pc.cast(strings, pa.float64()).to_numpy(zero_copy_only=False)
+    elif pa.types.is_integer(kind) or pa.types.is_null(kind) or pa.types.is_floating(kind):
+        numbers = pc.cast(array, pa.float64()).to_numpy(zero_copy_only=False)
         integral = np.isnan(numbers) | (numbers == np.round(numbers))
         log.add_rows(~integral, column, lambda v: f"{v} is not an engine position (1..4)", numbers)
-        values = pc.cast(pc.if_else(pa.array(integral), array, pa.scalar(None, kind)), pa.int64())
+        numbers = np.where(integral, numbers, np.nan)
     else:
         log.add(None, column, f"column {column!r} must hold integers 1..4, not {kind}")
         return pa.chunked_array([pa.nulls(len(array), pa.int16())])
-    numbers = values.to_numpy(zero_copy_only=False)
-    out = _mask(pc.or_(pc.less(values, 1), pc.greater(values, MAX_POSITION)))
-    log.add_rows(out, column, lambda v: f"position {int(v)} is outside 1..{MAX_POSITION}", numbers)
-    return pc.cast(pc.if_else(pa.array(out), pa.scalar(None, pa.int64()), values), pa.int16())
+    out = ~np.isnan(numbers) & ((numbers < 1) | (numbers > MAX_POSITION))
+    log.add_rows(out, column, lambda v: f"position {v:.0f} is outside 1..{MAX_POSITION}", numbers)
+    keep = np.where(out, np.nan, numbers)
+    return pa.chunked_array([pa.array(keep, pa.float64(), from_pandas=True).cast(pa.int16())])
 
 
 # ---------------------------------------------------------------- validation
@@ -464,7 +487,8 @@ def _build(
         elif spec.target == "position":
             coerced[spec.target] = coerce_position(raw, spec.source, log)
         elif spec.target in ("tail", "flight_id"):
-            coerced[spec.target] = coerce_string(raw, spec.source, log)
+            coerced[spec.target] = coerce_string(raw, spec.source, log,
+                                                 max_length=MAX_TEXT[spec.target])
         elif spec.target == "phase":
             phases = coerce_string(raw, spec.source, log)
             bad = ~_mask(pc.is_in(phases, pa.array(PHASES))) & _mask(pc.is_valid(phases))
@@ -654,6 +678,8 @@ def parse_json(body: bytes, *, kind: str = "snapshots") -> ParsedTable:
         document = json.loads(body, parse_constant=_reject_constant)
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise UploadRejected([RowError(None, None, f"malformed JSON: {exc}")]) from None
+    except RecursionError:
+        raise UploadRejected([RowError(None, None, "malformed JSON: nested too deeply")]) from None
     records_key = "snapshots" if kind == "snapshots" else "samples"
     if not isinstance(document, dict) or not isinstance(document.get(records_key), list):
         raise UploadRejected(
@@ -705,7 +731,12 @@ def _json_column(records: list[dict[str, Any]], spec: ColumnSpec, log: ErrorLog)
     # The set of Python types in the column decides; pyarrow alone would take true as 1.0.
     allowed = {int, float, type(None)} if numeric else {str, type(None)}
     if set(map(type, values)) <= allowed:
-        return pa.chunked_array([pa.array(values, type=pa.float64() if numeric else pa.string())])
+        try:
+            return pa.chunked_array(
+                [pa.array(values, type=pa.float64() if numeric else pa.string())]
+            )
+        except (pa.ArrowInvalid, OverflowError, UnicodeEncodeError):
+            pass  # an integer beyond 64 bits or a lone surrogate: found value by value below
     return pa.chunked_array([_json_column_with_errors(values, spec, numeric, log)])
 
 
@@ -718,9 +749,35 @@ def _json_column_with_errors(
     for index, value in enumerate(values):
         ok = value is None or (isinstance(value, expect) and not isinstance(value, bool))
         if not ok:
-            log.add(index + 1, spec.source, f"{json.dumps(value)} is not {word}")
+            log.add(index + 1, spec.source, f"{_shown(value)} is not {word}")
+        elif isinstance(value, int):
+            try:
+                value = float(value)
+            except OverflowError:
+                log.add(index + 1, spec.source, f"{_shown(value)} is out of range")
+                ok, value = False, None
+        elif isinstance(value, str) and not _encodable(value):
+            log.add(index + 1, spec.source, "is not valid Unicode text (a lone surrogate)")
+            ok, value = False, None
         clean.append(value if ok else None)
     return pa.array(clean, type=pa.float64() if numeric else pa.string())
+
+
+def _encodable(text: str) -> bool:
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+def _shown(value: Any, limit: int = 40) -> str:
+    """A value as the error message quotes it: JSON, cut to ``limit`` characters."""
+    try:
+        text = json.dumps(value)
+    except (ValueError, TypeError):
+        text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def parse_body(
