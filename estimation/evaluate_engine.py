@@ -250,23 +250,32 @@ def _gains(schedule: EngineSchedule, rec: EngineRecords, wf: str) -> tuple[np.nd
 
 
 def _secant_signatures(
-    rec: EngineRecords, h0: np.ndarray, S: np.ndarray, sensors: np.ndarray
+    rec: EngineRecords, schedule: EngineSchedule, h0: np.ndarray, S: np.ndarray, wf: str
 ) -> np.ndarray:
-    """Nonlinear fault signatures at each post-fault record [E, n_after, ny, n_f], percent of
-    the nominal trim: sensors(h0 + s_i) - sensors(h0) at the record's condition, at the
-    power setting (closed loop: the fuel-flow command moves, corrected fan speed holds)."""
+    """Nonlinear fault signatures at each post-fault record [E, n_after, 12, n_f], in the
+    deviation form of ``_gains``: the engine's change from h0 to h0 + s_i at the record's
+    condition and power setting (closed loop: the fuel-flow command moves, corrected fan
+    speed holds), percent of the nominal trim, less the measured inputs' change through G_u
+    (VSV and VBV commands; the fuel-flow command too when ``wf="input"``)."""
     E, K = rec.fault.shape[0], rec.conditions.shape[1]
     nb = rec.n_before
     cond = rec.conditions[:, nb:, :].reshape(-1, 4)
     env = cond[:, [0, 1, 3]]
+    Gu = schedule.interpolate("Guy", cond)  # [EKa, 12, 3]
+    inputs = slice(0, 3) if wf == "input" else slice(1, 3)
     base_h = np.repeat(h0[:, None, :], K - nb, axis=1).reshape(-1, N_HEALTH)
     base = steady_state(env, power=cond[:, 2], health=base_h)
     yt = rec.y_trim[:, nb:, :].reshape(-1, 12)
-    out = np.empty((E, K - nb, len(sensors), S.shape[1]))
+    ut = rec.u_trim[:, nb:, :].reshape(-1, 3)
+    out = np.empty((E, K - nb, 12, S.shape[1]))
     for i in range(S.shape[1]):
         hit = steady_state(env, power=cond[:, 2], health=base_h + S[:, i])
         d = 100.0 * (hit.sensors - base.sensors) / yt
-        out[:, :, :, i] = d.reshape(E, K - nb, 12)[:, :, sensors]
+        du = np.where(np.abs(ut) > 1e-9, 100.0 * (hit.u - base.u) / np.where(
+            np.abs(ut) > 1e-9, ut, 1.0), 0.0)
+        du[:, 0] = d[:, WF]  # the fuel-flow command as its sensor measures it
+        d = d - np.einsum("kij,kj->ki", Gu[:, :, inputs], du[:, inputs])
+        out[:, :, :, i] = d.reshape(E, K - nb, 12)
     return out
 
 
@@ -294,15 +303,7 @@ def evaluate_design(
     h0 = q0 @ Vp.T  # [E, 13]
     S = isolation.signature_matrix(rec.faults, HEALTH_NAMES)
     if design.signatures == "secant":
-        if design.wf == "input":
-            # the closed-loop change of every sensor less the fuel-flow command's effect
-            # through G_u (the product subtracts it from the measurement)
-            g_cl = _secant_signatures(rec, h0, S, np.arange(12))
-            Gu_wf = _wf_input_gain(schedule, rec)  # [E, Ka, 12]
-            g = g_cl - Gu_wf[..., None] * g_cl[:, :, WF:WF + 1, :]
-            g = g[:, :, sensors, :]
-        else:
-            g = _secant_signatures(rec, h0, S, sensors)
+        g = _secant_signatures(rec, schedule, h0, S, design.wf)[:, :, sensors, :]
     else:
         g = G[:, nb:] @ S  # [E, Ka, ny, n_f]
     r = dy[:, nb:] - np.einsum("ekih,eh->eki", G[:, nb:], h0)
@@ -330,11 +331,3 @@ def evaluate_design(
     dof = np.full(len(rec.fault), (rec.conditions.shape[1] - nb) * len(sensors) - 1)
     return EngineEvaluation(design.name, rec.fault_names, conf, wssr, dof, f, rec.fault,
                             isolated, rms, coverage)
-
-
-def _wf_input_gain(schedule: EngineSchedule, rec: EngineRecords) -> np.ndarray:
-    """G_u[:, Wf] at the post-fault records [E, Ka, 12]."""
-    nb = rec.n_before
-    E, K = rec.fault.shape[0], rec.conditions.shape[1]
-    Gu = schedule.interpolate("Guy", rec.conditions[:, nb:, :].reshape(-1, 4))
-    return Gu[:, :, 0].reshape(E, K - nb, 12)
