@@ -41,8 +41,6 @@ def designs() -> list[ee.EngineDesign]:
                         wf="sensor", signatures="secant"),
         ee.EngineDesign("subset m=11 (+wf_bias), 12 sensors, Wf sensor, secant", SENSOR_NAMES,
                         sub11, wf="sensor", signatures="secant"),
-        ee.EngineDesign("all 13 m=13, 12 sensors, Wf sensor, secant", SENSOR_NAMES,
-                        np.eye(13), wf="sensor", signatures="secant"),
     ]
 
 
