@@ -3,10 +3,11 @@
 The Monte Carlo of ``estimation.evaluate`` runs on the linear model the design was made
 from, where theory and experiment agree by construction. Here the truth is the nonlinear
 engine (``estimation.engine.steady``): a fleet of engines with manufacturing scatter,
-deterioration and actuator biases, each flying ``n_before`` snapshots (take-off and cruise of
-random flights of ``flight.random_parameters``) before a library fault and ``n_after`` with
-it. The sensors carry the engine's noise (constant in sensor units, seed 001 Table 2); the
-fuel-flow command is the noisy Wf sensor, as in ``fleet.fleet_snapshots``.
+deterioration and actuator biases, each flying ``n_before`` snapshots (by default take-off
+and cruise of random flights of ``flight.random_parameters``; climb and ground idle on
+request, ``RECORD_PHASES``) before a library fault and ``n_after`` with it. The sensors
+carry the engine's noise (constant in sensor units, seed 001 Table 2); the fuel-flow command
+is the noisy Wf sensor, as in ``fleet.fleet_snapshots``.
 
 Each design is scored the way the product isolates (``app.services.shift_detection``): the
 baseline tuners q_0 are the R^-1-weighted least-squares fit of the records before the fault
@@ -33,6 +34,13 @@ puts correlated error on every sensor) or as a sensor at the closed-loop gain (p
 as the condition: the Wf row and all others from the constraint that corrected fan speed
 holds its demand).
 
+How much of each fault the data can show: ``signature_sigmas`` (a fault's sensor change at
+given conditions in noise sigmas) and ``fault_sigmas`` (per simulated record). On the built-in
+engine the VBV bias stays below 0.1 sigma per snapshot over the whole envelope: the bleed
+flow is small wherever the valve is open (ground idle, P24 / Pamb about 1.1), so a -10 % bias
+of it moves nothing, and a VSV bias is largest (0.7 sigma, on Nc) with the stators open at
+high power.
+
 Pure: numpy and the engine model; randomness from the ``rng`` passed in.
 """
 
@@ -45,7 +53,12 @@ import numpy as np
 
 from estimation import isolation
 from estimation.engine.fleet import DETERIORATION_RATES, N_TURBO, engine_noise_std
-from estimation.engine.flight import flight_profile, random_parameters, snapshot_points
+from estimation.engine.flight import (
+    condition_at,
+    flight_profile,
+    random_parameters,
+    snapshot_points,
+)
 from estimation.engine.health import HEALTH_NAMES, N_HEALTH
 from estimation.engine.schedule import EngineSchedule
 from estimation.engine.sensors import SENSOR_NAMES
@@ -56,6 +69,10 @@ NF = SENSOR_NAMES.index("Nf")
 MODEL_ERROR = 0.2  # percent of trim added in quadrature to the noise (as the product's)
 SIGNATURES = ("linear", "secant")
 WF_MODES = ("input", "sensor")
+# Record phases: the flight's steady snapshot points and ground idle (flight.PHASE_WINDOWS).
+RECORD_PHASES = ("ground_idle", "takeoff", "climb", "cruise")
+DEFAULT_PHASES = ("takeoff", "cruise")  # the product's replay
+GROUND_IDLE_S = 60.0  # the ground-idle snapshot's time from the start of the flight
 
 
 class EngineEvaluationError(ValueError):
@@ -91,16 +108,23 @@ class EngineRecords:
         return tuple(f.name for f in self.faults)
 
 
-def _snapshot_conditions(n: int, rng: np.random.Generator) -> np.ndarray:
-    """n take-off or cruise snapshot conditions of random flights [n, 4] (alt, Mach, power,
-    dTamb); the phases the product's replay uses, half each."""
-    points = {p.phase: p.condition for p in snapshot_points(flight_profile(random_parameters(n,
-                                                                                        rng)))}
-    takeoff = rng.random(n) < 0.5
+def _snapshot_conditions(
+    n: int, rng: np.random.Generator, phases: Sequence[str] = DEFAULT_PHASES
+) -> np.ndarray:
+    """n snapshot conditions of random flights [n, 4] (alt, Mach, power, dTamb), each at a
+    phase drawn uniformly from ``phases`` (``RECORD_PHASES``): the steady points of
+    ``flight.snapshot_points`` and ground idle (field elevation, Mach 0, power 0, a minute
+    into the flight's ground-idle window)."""
+    unknown = [p for p in phases if p not in RECORD_PHASES]
+    if not phases or unknown:
+        raise EngineEvaluationError(f"phases from {RECORD_PHASES}, got {tuple(phases)}")
+    profile = flight_profile(random_parameters(n, rng))
+    points = {p.phase: p.condition for p in snapshot_points(profile)}
+    points["ground_idle"] = condition_at(profile, GROUND_IDLE_S)
+    pick = np.minimum((rng.random(n) * len(phases)).astype(int), len(phases) - 1)
     out = np.empty((n, 4))
     for k, name in enumerate(("alt_ft", "mach", "power_pct", "dtamb_k")):
-        out[:, k] = np.where(takeoff, getattr(points["takeoff"], name),
-                             getattr(points["cruise"], name))
+        out[:, k] = np.choose(pick, [getattr(points[p], name) for p in phases])
     return out
 
 
@@ -116,19 +140,24 @@ def simulate_records(
     rate_spread: float = 0.3,
     bias_std: tuple[float, float, float] = (0.5, 1.0, 2.0),
     noise: bool = True,
+    phases: Sequence[str] = DEFAULT_PHASES,
 ) -> EngineRecords:
     """A fleet of ``n_per_fault`` engines per library fault on the nonlinear engine.
 
     Each engine: scatter N(0, scatter_std) in the ten turbomachinery parameters, deterioration
     U(0, cycles_max) cycles at the fleet simulator's mean rates times a lognormal(rate_spread)
     multiplier per parameter, actuator biases N(0, bias_std); then the fault's shifts from
-    record ``n_before`` on. Every record at its own random take-off or cruise condition.
+    record ``n_before`` on. Every record at its own random flight's condition, of a phase
+    drawn uniformly from ``phases`` (``RECORD_PHASES``; default take-off and cruise, half
+    each).
     Solved in one batched steady-state call for the engines and one for the nominal trims.
     """
     faults = tuple(faults)
     E, K = n_per_fault * len(faults), n_before + n_after
     if n_per_fault < 1 or n_before < 2 or n_after < 1:
         raise EngineEvaluationError("need n_per_fault >= 1, n_before >= 2, n_after >= 1")
+    if not phases or any(p not in RECORD_PHASES for p in phases):
+        raise EngineEvaluationError(f"phases from {RECORD_PHASES}, got {tuple(phases)}")
     S = isolation.signature_matrix(faults, HEALTH_NAMES)  # [13, n_f]
     fault = np.repeat(np.arange(len(faults)), n_per_fault)
     h0 = np.zeros((E, N_HEALTH))
@@ -139,7 +168,7 @@ def simulate_records(
     h0[:, N_TURBO:] = rng.normal(0.0, 1.0, (E, 3)) * np.asarray(bias_std)
     health = np.repeat(h0[:, None, :], K, axis=1)
     health[:, n_before:, :] += S.T[fault][:, None, :]
-    cond = _snapshot_conditions(E * K, rng)
+    cond = _snapshot_conditions(E * K, rng, tuple(phases))
     env = cond[:, [0, 1, 3]]
     ss = steady_state(env, power=cond[:, 2], health=health.reshape(E * K, N_HEALTH))
     nominal = steady_state(env, power=cond[:, 2])
@@ -153,6 +182,49 @@ def simulate_records(
         u.reshape(E, K, 3), nominal.sensors.reshape(E, K, 12), nominal.u.reshape(E, K, 3),
         noise_pct.reshape(E, K, 12), fault,
     )
+
+
+def signature_sigmas(
+    conditions: np.ndarray,
+    faults: Sequence[isolation.Fault] = isolation.SEED_002_FAULTS,
+    health: np.ndarray | None = None,
+) -> np.ndarray:
+    """Each fault's sensor change in noise sigmas at each condition [N, 12, n_f].
+
+    conditions [N, 4] (alt ft, Mach, power %, dTamb K); health [N, 13] or [13] the engine
+    before the fault (default nominal). The change is the nonlinear engine's, closed loop at
+    the power setting (the controller moves the fuel-flow command, which the Wf sensor
+    reads), divided by the sensor noise in sensor units (``fleet.engine_noise_std``). The norm
+    over sensors is what one snapshot shows of the fault; over n snapshots the evidence
+    grows as the root of the sum of squares.
+    """
+    cond = np.atleast_2d(np.asarray(conditions, float))
+    env = cond[:, [0, 1, 3]]
+    h = np.broadcast_to(np.zeros(N_HEALTH) if health is None else np.asarray(health, float),
+                        (cond.shape[0], N_HEALTH))
+    S = isolation.signature_matrix(tuple(faults), HEALTH_NAMES)
+    std = engine_noise_std()
+    base = steady_state(env, power=cond[:, 2], health=h)
+    out = np.empty((cond.shape[0], len(SENSOR_NAMES), S.shape[1]))
+    for i in range(S.shape[1]):
+        hit = steady_state(env, power=cond[:, 2], health=h + S[:, i])
+        out[:, :, i] = (hit.sensors - base.sensors) / std
+    return out
+
+
+def fault_sigmas(rec: EngineRecords) -> np.ndarray:
+    """Per engine and post-fault record, the norm in noise sigmas of the sensor change its
+    own fault makes at that record's condition (true health before and after) [E, n_after].
+    The event's evidence is the root sum of squares over the records."""
+    nb = rec.n_before
+    cond = rec.conditions[:, nb:, :].reshape(-1, 4)
+    env, power = cond[:, [0, 1, 3]], cond[:, 2]
+    after = rec.health[:, nb:, :]
+    before = np.repeat(rec.health[:, :1, :], after.shape[1], axis=1)
+    hit = steady_state(env, power=power, health=after.reshape(-1, N_HEALTH))
+    base = steady_state(env, power=power, health=before.reshape(-1, N_HEALTH))
+    d = np.linalg.norm((hit.sensors - base.sensors) / engine_noise_std(), axis=1)
+    return d.reshape(after.shape[:2])
 
 
 @dataclass(frozen=True)
