@@ -6,7 +6,8 @@ A simulated fleet (scatter, deterioration, actuator biases) gets each library fa
 is a snapshot of a random flight at a phase drawn from the record mix (take-off and cruise as
 the product's replay; climb; ground idle, where the bleed valves open).
 
-Printed per record mix: each fault's signature in noise sigmas (per snapshot, RMS over its
+First each fault's signature per snapshot at a few conditions (``CONDITIONS``). Then,
+printed per record mix: each fault's signature in noise sigmas (per snapshot, RMS over its
 post-fault records, and over the whole event, the root sum of squares; a fault is "visible"
 when its median event signature reaches ``VISIBLE_SIGMAS``); per design the percent correct
 (mean of the confusion diagonal), the same over the visible faults, the health RMS at the
@@ -24,7 +25,7 @@ import time
 import numpy as np
 
 from estimation import evaluate_engine as ee
-from estimation import tuners
+from estimation import isolation, tuners
 from estimation.engine.health import HEALTH_NAMES
 from estimation.engine.linearize import linearize
 from estimation.engine.schedule import build_schedule
@@ -38,6 +39,15 @@ MIXES = {
     "takeoff+cruise": ("takeoff", "cruise"),
     "takeoff+climb+cruise": ("takeoff", "climb", "cruise"),
     "idle+takeoff+cruise": ("ground_idle", "takeoff", "cruise"),
+}
+CONDITIONS = {  # alt ft, Mach, power %, dTamb K
+    "sea level 100 %": (0.0, 0.0, 100.0, 0.0),
+    "sea level 30 %": (0.0, 0.0, 30.0, 0.0),
+    "ground idle": (0.0, 0.0, 0.0, 0.0),
+    "approach 1,500 ft M0.2 20 %": (1500.0, 0.2, 20.0, 0.0),
+    "cruise 35,000 ft M0.8 80 %": (35000.0, 0.8, 80.0, 0.0),
+    "descent 25,000 ft M0.6 idle": (25000.0, 0.6, 0.0, 0.0),
+    "descent 10,000 ft M0.45 30 %": (10000.0, 0.45, 30.0, 0.0),
 }
 M_REDUCED = 8  # fewer tuners than the 9 plant-visible directions: design 3 can differ
 
@@ -56,6 +66,16 @@ def reduced_vstars() -> dict[str, np.ndarray]:
         print(f"  {name} m={M_REDUCED}: SSEE {d.theory.ssee_health:.2f}, PMC sum {pmc:.3f}")
         out[name] = np.hstack([d.vstar, np.zeros((M_REDUCED, 3))])
     return out
+
+
+def condition_table() -> None:
+    """Each library fault's signature per snapshot (noise sigmas) on the nominal engine."""
+    sig = np.linalg.norm(ee.signature_sigmas(np.array(list(CONDITIONS.values()))), axis=1)
+    names = [f.name for f in isolation.SEED_002_FAULTS]
+    print(f"signature per snapshot, noise sigmas (nominal engine)\n{'':30s}"
+          + "".join(n.rjust(7) for n in names))
+    for label, row in zip(CONDITIONS, sig, strict=True):
+        print(f"{label:30s}" + "".join(f"{v:7.2f}" for v in row))
 
 
 def designs(reduced: dict[str, np.ndarray]) -> list[ee.EngineDesign]:
@@ -86,6 +106,7 @@ def main() -> None:
     ap.add_argument("--mixes", default=",".join(MIXES), help=f"comma list of {list(MIXES)}")
     args = ap.parse_args()
     sched = build_schedule()
+    condition_table()
     print("reduced-tuner designs (35,000 ft cruise model):")
     ds = designs(reduced_vstars())
     summary = []
