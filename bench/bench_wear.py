@@ -9,7 +9,11 @@ before failure), share of alerts attributed to HPC; the product's own shift dete
 Demo fleet (``app.services.demo.fleet``, simulated, built-in engine): wear alerts outside the
 injected faults' windows per engine-year.
 
+The wear detector gets the records' sensor deviations too (its directional CUSUM bank);
+``--no-bank`` scans the tuner estimates alone (limit and rate alerts).
+
     .venv/bin/python bench/bench_wear.py [--rate 1.5e-3 --margin 6 --floor 0.03 --limit 1]
+        [--kappa 0.5 --h 3 --bank-rate 1e-3 --confidence 1.6 --hold 3] [--no-bank]
 """
 
 from __future__ import annotations
@@ -37,7 +41,7 @@ def health_candidates(S_full: np.ndarray, p: int) -> np.ndarray:
     return np.all(S_full[p:] == 0.0, axis=0)
 
 
-def fd001(path: Path, cfg: wear.WearSettings, units: int | None) -> None:
+def fd001(path: Path, cfg: wear.WearSettings, units: int | None, use_sensors: bool) -> None:
     t0 = time.perf_counter()
     est = fd001_replay.fd001_estimator(fd001_replay.fd001_schedule())
     engines = fd001_replay.fd001_runs(path, est, units)
@@ -48,14 +52,15 @@ def fd001(path: Path, cfg: wear.WearSettings, units: int | None) -> None:
     ours, naive, product, kinds = [], [], [], []
     hpc_hits = 0
     for e, tr in zip(engines, tracks, strict=True):
+        dy, var, sig = fd001_replay.sensor_deviations(est, e.run)
+        sensors = {"dy": dy, "var": var, "signatures": sig} if use_sensors else {}
         scan = wear.wear_scan(tr.q, est.H, W, e.cycle.astype(float), candidates=cand,
-                              settings=cfg)
+                              settings=cfg, **sensors)
         if scan.alerts:
             a = scan.alerts[0]
             ours.append(int(e.cycle[-1] - e.cycle[a.index]))
             hpc_hits += a.fault == hpc
             kinds.append(a.kind)
-        dy, var, sig = fd001_replay.sensor_deviations(est, e.run)
         k = wear.signature_cusum(dy, var, sig[0, :, hpc])
         if k is not None:
             naive.append(int(e.cycle[-1] - e.cycle[k]))
@@ -87,7 +92,7 @@ def _share(k: int, n: int) -> str:
     return f"{100.0 * k / n:.0f} %" if n else "-"
 
 
-def demo(cfg: wear.WearSettings, cache: Path) -> None:
+def demo(cfg: wear.WearSettings, cache: Path, use_sensors: bool) -> None:
     t0 = time.perf_counter()
     est = fleet.design_estimator(engine_schedule(cache), *fleet.ACTIVE_DESIGN)
     size = fleet.DemoSize()
@@ -119,7 +124,11 @@ def demo(cfg: wear.WearSettings, cache: Path) -> None:
         if len(healthy_t) > 1:
             gaps = np.diff(healthy_t)
             years += float(np.sum(gaps[gaps < 30 * 86400.0])) / YEAR_S  # time flown healthy
-        scan = wear.wear_scan(q, est.H, W, cycles, resets, cand, cfg)
+        sensors = {}
+        if use_sensors:
+            dy, var, sig = fd001_replay.sensor_deviations(est, data.run)
+            sensors = {"dy": dy, "var": var, "signatures": sig}
+        scan = wear.wear_scan(q, est.H, W, cycles, resets, cand, cfg, **sensors)
         for a in scan.alerts:
             if faulty[a.index]:
                 in_fault += 1
@@ -141,16 +150,24 @@ def main() -> None:
     ap.add_argument("--margin", type=float, default=d.margin)
     ap.add_argument("--floor", type=float, default=d.margin_floor)
     ap.add_argument("--limit", type=float, default=d.limit)
+    ap.add_argument("--kappa", type=float, default=d.bank_reference)
+    ap.add_argument("--h", type=float, default=d.bank_threshold)
+    ap.add_argument("--bank-rate", type=float, default=d.bank_rate)
+    ap.add_argument("--confidence", type=float, default=d.confidence)
+    ap.add_argument("--hold", type=int, default=d.hold)
+    ap.add_argument("--no-bank", action="store_true", help="tuner estimates only")
     ap.add_argument("--units", type=int, default=None)
     ap.add_argument("--fd001", type=Path, default=FD001)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/fh/cache"))
     ap.add_argument("--skip-demo", action="store_true")
     args = ap.parse_args()
     cfg = wear.WearSettings(limit=args.limit, rate=args.rate, margin=args.margin,
-                            margin_floor=args.floor)
-    fd001(args.fd001, cfg, args.units)
+                            margin_floor=args.floor, bank_reference=args.kappa,
+                            bank_threshold=args.h, bank_rate=args.bank_rate,
+                            confidence=args.confidence, hold=args.hold)
+    fd001(args.fd001, cfg, args.units, not args.no_bank)
     if not args.skip_demo:
-        demo(cfg, args.cache)
+        demo(cfg, args.cache, not args.no_bank)
 
 
 if __name__ == "__main__":

@@ -40,6 +40,29 @@ Alerts (the first of a stretch; one alert per stretch, the next after a reset):
   is g_k = C_k - min_{j <= k} C_j (j from the record the CUSUM starts at): the change over
   some recent stretch of records exceeds the normal wear over it by delta. Computed for all
   records at once (a running minimum), not record by record.
+- ``directional`` (when the sensor deviations are given): a bank of per-fault matched-filter
+  CUSUMs on the records' sensor deviations dy_k [ny] (noise variances r_k, signatures G_k
+  [ny, n] at each record's condition). Per fault i and record k
+
+      z_i,k = g_i^T R^-1 dy_k / sqrt(g_i^T R^-1 g_i)                   (matched filter)
+      u_i,k = (z_i,k - mu_i) / s_i - kappa - rho_z (c_k - c_b)
+      G_i,k = max(0, G_i,k-1 + u_i,k)
+
+  with mu_i, s_i the mean and standard deviation of z_i over the stretch's first n_base
+  records (the records are not filtered, so no settling is needed), kappa the reference in
+  standard deviations, rho_z an allowed normal drift of z in standard deviations per cycle
+  (from c_b, the baseline's last cycle). The bank has crossed once any candidate's G_i
+  exceeds h (armed, as the other kinds, from the baseline's end). Page's CUSUM per fault;
+  for n independent directions the bank's first crossing comes about n times sooner than
+  one CUSUM's (the family-wise rate), which the tests check against Siegmund's
+  approximation. The threshold is low (h = 2: a crossing alone is no alert); the false
+  alerts are held down by the attribution condition that follows. The sensor signatures
+  of the library faults are too alike for the winning CUSUM to name the fault, so the
+  alert waits, after the crossing, for the WSSR attribution of the tuner change to be
+  confident: the best candidate (f > 0) fits at least ``confidence`` times better than any
+  other candidate (WSSR ratio) on ``hold`` consecutive records, and names that fault.
+  When the bank runs, the rate CUSUM does not alert (``rate_with_bank``): the limit alert
+  stays as the backstop.
 """
 
 from __future__ import annotations
@@ -50,6 +73,7 @@ import numpy as np
 
 LIMIT = "limit"
 RATE = "rate"
+DIRECTIONAL = "directional"
 
 
 @dataclass(frozen=True)
@@ -61,7 +85,13 @@ class WearSettings:
     limit: accumulated magnitude (times the nominal library shift) that alerts;
     rate: CUSUM reference rho, nominal magnitudes per cycle (above the fleet's normal rate);
     margin: CUSUM threshold in baseline standard deviations of f_i;
-    margin_floor: smallest CUSUM threshold (nominal magnitudes), for a very quiet baseline.
+    margin_floor: smallest CUSUM threshold (nominal magnitudes), for a very quiet baseline;
+    bank_reference, bank_threshold: the directional bank's kappa and h (standard deviations);
+    bank_rate: the bank's allowed drift rho_z (standard deviations per cycle);
+    confidence, hold: the WSSR ratio the directional alert's attribution needs, and on how
+    many consecutive records (confidence <= 0: no condition, the alert at the crossing);
+    rate_with_bank: whether the rate CUSUM alerts too when the bank runs (by default the
+    bank replaces it: on the demo fleet the rate alerts were the false ones).
     """
 
     settle: int = 20
@@ -72,15 +102,24 @@ class WearSettings:
     rate: float = 1.0e-3
     margin: float = 10.0
     margin_floor: float = 0.03
+    # Chosen on bench/bench_wear.py (FD001 lead and HPC share, demo fleet false alerts).
+    bank_reference: float = 0.5
+    bank_threshold: float = 2.0
+    bank_rate: float = 1.0e-3
+    confidence: float = 1.6
+    hold: int = 3
+    rate_with_bank: bool = False
 
 
 @dataclass(frozen=True)
 class WearAlert:
     """One wear alert: the record ``index`` (into the sequence given), its ``kind``
-    (``LIMIT`` or ``RATE``), the attributed fault's index in H (None if no candidate fits
-    with a positive magnitude), WSSR per fault [n] and fitted magnitudes f [n] of the
-    accumulated change at that record, the attributed magnitude, the CUSUM value and
-    threshold of the fault that alarmed (rate alerts), and the baseline's first record."""
+    (``LIMIT``, ``RATE`` or ``DIRECTIONAL``), the attributed fault's index in H (None if
+    no candidate fits with a positive magnitude), WSSR per fault [n] and fitted magnitudes
+    f [n] of the accumulated change at that record, the attributed magnitude, the CUSUM value and
+    threshold of the fault that alarmed (rate and directional alerts; for a directional
+    alert the bank's largest CUSUM over the threshold at the crossing), and the baseline's
+    first record."""
 
     index: int
     kind: str
@@ -97,12 +136,14 @@ class WearAlert:
 class WearScan:
     """Per record figures of a scan (S records): accumulated change attribution
     ``f`` [S, n] and ``wssr`` [S, n] (NaN before the baseline exists), the drift CUSUM
-    ``g`` [S, n] (0 until armed), and the alerts (at most one per stretch between resets)."""
+    ``g`` [S, n] (0 until armed), the alerts (at most one per stretch between resets) and,
+    with sensor deviations, the directional bank's CUSUMs ``bank`` [S, n] (0 until armed)."""
 
     f: np.ndarray
     wssr: np.ndarray
     g: np.ndarray
     alerts: tuple[WearAlert, ...]
+    bank: np.ndarray | None = None
 
 
 def attribute(
@@ -140,6 +181,50 @@ def _segments(S: int, resets: np.ndarray) -> list[tuple[int, int]]:
     return [(a, b) for a, b in zip(starts, ends, strict=True) if b > a]
 
 
+def matched_filter(dy: np.ndarray, var: np.ndarray, signatures: np.ndarray) -> np.ndarray:
+    """z_i,k = g_i^T R^-1 dy_k / sqrt(g_i^T R^-1 g_i) of every fault and record.
+
+    dy [S, ny] (NaN = missing: left out of that record's sums), var [ny] or [S, ny],
+    signatures [ny, n] or [S, ny, n] -> z [S, n].
+    """
+    dy = np.asarray(dy, float)
+    S, ny = dy.shape
+    sig = np.broadcast_to(np.asarray(signatures, float), (S, ny, np.shape(signatures)[-1]))
+    w = np.broadcast_to(1.0 / np.asarray(var, float), dy.shape)
+    present = np.isfinite(dy)
+    wg = np.where(present[:, :, None], w[:, :, None] * sig, 0.0)
+    num = np.einsum("sjn,sj->sn", wg, np.where(present, dy, 0.0))
+    den = np.einsum("sjn,sjn->sn", wg, sig)
+    return num / np.sqrt(np.maximum(den, 1e-300))
+
+
+def confident_fault(
+    wssr: np.ndarray, f: np.ndarray, candidates: np.ndarray, ratio: float, hold: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The attributed fault per row (``best_fault``) and whether it is confident there: the
+    other candidates' smallest WSSR is at least ``ratio`` times its WSSR, on this row and the
+    ``hold - 1`` before it, with the same fault. ratio <= 0: every row is (-1: no fault)."""
+    best = best_fault(wssr, f, candidates)
+    rows = np.arange(len(best))
+    if ratio <= 0:
+        return best, np.ones(len(best), bool)
+    w_best = np.where(best >= 0, wssr[rows, np.maximum(best, 0)], np.inf)
+    others = candidates[None, :] & (np.arange(wssr.shape[1])[None, :] != best[:, None])
+    runner_up = np.where(others, wssr, np.inf).min(axis=1)
+    ok = (best >= 0) & (runner_up >= ratio * w_best)
+    held = ok.copy()
+    for lag in range(1, max(hold, 1)):
+        held[lag:] &= ok[:-lag] & (best[:-lag] == best[lag:])
+        held[:lag] = False
+    return best, held
+
+
+def _cusum(u: np.ndarray) -> np.ndarray:
+    """Page's CUSUM max(0, G_k-1 + u_k) from G = 0 of every column, as a running minimum."""
+    C = np.vstack([np.zeros((1, u.shape[1])), np.cumsum(u, axis=0)])
+    return (C - np.minimum.accumulate(C, axis=0))[1:]
+
+
 def wear_scan(
     x: np.ndarray,
     H: np.ndarray,
@@ -148,6 +233,9 @@ def wear_scan(
     resets: np.ndarray | None = None,
     candidates: np.ndarray | None = None,
     settings: WearSettings | None = None,
+    dy: np.ndarray | None = None,
+    var: np.ndarray | None = None,
+    signatures: np.ndarray | None = None,
 ) -> WearScan:
     """Scan one engine's estimates for wear (see the module docstring for the equations).
 
@@ -155,7 +243,10 @@ def wear_scan(
     cycles [S] the engine's cycle count at each record (non-decreasing within a stretch;
     two records of one flight share it); resets [S] bool, True where a maintenance action
     (or a new start) precedes the record; candidates [n] bool, the faults wear may be
-    attributed to and whose drift is watched (default all).
+    attributed to and whose drift is watched (default all). With the records' sensor
+    deviations dy [S, ny], their noise variances var [ny] or [S, ny] and the faults' sensor
+    signatures [ny, n] or [S, ny, n] (the same faults as H's columns), the directional bank
+    runs too; the first alert of a stretch, of whichever kind, is the one reported.
     """
     cfg = settings or WearSettings()
     x = np.asarray(x, float)
@@ -164,9 +255,16 @@ def wear_scan(
     cycles = np.asarray(cycles, float)
     resets = np.zeros(S, bool) if resets is None else np.asarray(resets, bool)
     cand = np.ones(n, bool) if candidates is None else np.asarray(candidates, bool)
+    z = None
+    if dy is not None or var is not None or signatures is not None:
+        if dy is None or var is None or signatures is None:
+            raise ValueError("the directional bank needs dy, var and signatures together")
+        z = matched_filter(dy, var, signatures)
+    use_bank = z is not None
     f_all = np.full((S, n), np.nan)
     wssr_all = np.full((S, n), np.nan)
     g_all = np.zeros((S, n))
+    bank_all = np.zeros((S, n)) if use_bank else None
     alerts: list[WearAlert] = []
     WH = W @ H
     hWh = np.einsum("mn,mn->n", H, WH)
@@ -193,10 +291,40 @@ def wear_scan(
         limit_hit = armed & (mag >= cfg.limit)
         k_rate = int(np.argmax(rate_hit)) + b1 - 1 - s0 if rate_hit.any() else None
         k_limit = int(np.argmax(limit_hit)) if limit_hit.any() else None
+        if z is not None and not cfg.rate_with_bank:
+            k_rate = None  # the bank watches the drift; the limit stays as the backstop
         hits = [(k, kind) for k, kind in ((k_limit, LIMIT), (k_rate, RATE)) if k is not None]
+        bank_fault, bank_stat = None, 0.0
+        if z is not None and bank_all is not None:
+            zs = z[s0:s1]
+            base = zs[: cfg.n_base]  # unfiltered records: no settling
+            sd = base.std(axis=0, ddof=1)
+            u = (zs - base.mean(axis=0)) / np.where(sd > 0, sd, np.inf)
+            u -= cfg.bank_reference + cfg.bank_rate * (cycles[s0:s1, None] - cycles[b1 - 1])
+            G = np.zeros_like(u)
+            G[b1 - s0 :] = _cusum(u[b1 - s0 :])  # from the baseline's end, as the rate CUSUM
+            bank_all[s0:s1] = G
+            crossed = np.maximum.accumulate(armed & np.any((G > cfg.bank_threshold) & cand, 1))
+            named, sure = confident_fault(wssr, f, cand, cfg.confidence, cfg.hold)
+            bank_hit = crossed & sure
+            if bank_hit.any():
+                k = int(np.argmax(bank_hit))
+                hits.append((k, DIRECTIONAL))
+                kc = int(np.argmax(crossed))
+                top = np.where(cand, G[kc], -np.inf)
+                bank_stat = float(np.max(top))
+                # No fault fits with f > 0 (confidence off): the CUSUM that crossed names it.
+                bank_fault = int(named[k]) if named[k] >= 0 else int(np.argmax(top))
         if not hits:
             continue
         k, kind = min(hits)
+        if kind == DIRECTIONAL:
+            alerts.append(WearAlert(
+                index=s0 + k, kind=kind, fault=bank_fault, wssr=wssr[k], f=f[k],
+                magnitude=float(f[k, bank_fault]) if bank_fault is not None else 0.0,
+                statistic=bank_stat, threshold=cfg.bank_threshold, baseline_start=b0,
+            ))
+            continue
         gk = g[k - (b1 - 1 - s0)]
         over = np.where(cand, gk - delta, -np.inf)
         i = int(np.argmax(over))
@@ -205,7 +333,7 @@ def wear_scan(
             wssr=wssr[k], f=f[k], magnitude=float(mag[k]),
             statistic=float(gk[i]), threshold=float(delta[i]), baseline_start=b0,
         ))
-    return WearScan(f_all, wssr_all, g_all, tuple(alerts))
+    return WearScan(f_all, wssr_all, g_all, tuple(alerts), bank_all)
 
 
 def health_weight(Vp: np.ndarray) -> np.ndarray:
