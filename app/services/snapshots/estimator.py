@@ -31,15 +31,15 @@ from estimation import isolation
 from estimation.detection import CusumDesign, design_cusum
 from estimation.engine.schedule import EngineSchedule
 from estimation.model import LinearModel
+from estimation.shift_detector import SHIFT_LEVEL
 
 log = logging.getLogger("fleethealth.pipeline")
 
-# Detector settings an estimator's thresholds are designed from (the detector's own are in
-# shift_detection).
+# Detector settings an estimator's thresholds are designed from (the detector's own, and
+# SHIFT_LEVEL, are in estimation.shift_detector).
 CUSUM_REFERENCE = 1.5  # CUSUM allowance per sample, in units of m (robust to model error)
 ARL0 = 20_000.0  # mean records between false alarms of the CUSUM (theory, independent samples)
 ISOLATION_LEVEL = 0.999  # WSSR quantile below which the best fault explains the change
-SHIFT_LEVEL = 1e-6  # an unexplained change must be this improbable under no change
 # Filter settings: tuner random walk per flight (percent), fleet spread at start (percent).
 WALK_STD = 0.05
 FLEET_STD = 1.5
