@@ -22,6 +22,7 @@ from app.services.snapshots import estimator
 from app.services.uploads import units
 from estimation.engine.schedule import EngineSchedule
 from estimation.model import LinearModel
+from estimation.snapshot_design import DesignResult
 from estimation.stream_filter import ResampleError, SegmentGain, segment_gain
 
 # Re-schedule box and gain lattice, in stored column order (alt ft, Mach, dTamb K, power %).
@@ -146,9 +147,9 @@ def estimator_for(
     if cached is not None:
         return cached
     model = LinearModel.from_dict(embedded if isinstance(embedded, Mapping) else row.content)
-    sensors = result.get("sensors")
-    if isinstance(sensors, list) and sensors and all(isinstance(s, str) for s in sensors):
-        model = model.select_sensors(sensors)
+    doc = DesignResult.from_document(result)
+    if doc.sensors is not None:
+        model = model.select_sensors(list(doc.sensors))
     present = set(signals)
     used = [s for s in model.sensor_names if s in present]
     if not used:
@@ -156,15 +157,12 @@ def estimator_for(
             f"the recording carries none of design {design.id}'s sensors {model.sensor_names}"
         )
     model = model.select_sensors(used)
-    vstar_doc = estimator._find(result, "vstar")
-    if vstar_doc is None:
+    if doc.vstar is None:
         raise StreamEstimationError(f"design {design.id} has no V* (vstar)")
-    vstar = np.asarray(vstar_doc, float)
-    noise = result.get("noise") if isinstance(result.get("noise"), Mapping) else {}
-    assert isinstance(noise, Mapping)
+    vstar = doc.vstar
     nx, p = model.n_states, model.n_health
-    Q = np.asarray(noise["Q"], float) if "Q" in noise else np.eye(nx) * DEFAULT_Q_STD**2
-    Qh = np.asarray(noise["Qh"], float) if "Qh" in noise else np.eye(p) * DEFAULT_QH_STD**2
+    Q = doc.Q if doc.Q is not None else np.eye(nx) * DEFAULT_Q_STD**2
+    Qh = doc.Qh if doc.Qh is not None else np.eye(p) * DEFAULT_QH_STD**2
     Vp = np.linalg.solve(vstar @ vstar.T, vstar).T  # V*^+ (seed 002 eq. 5)
     m = vstar.shape[0]
     layout = EstimateLayout(
