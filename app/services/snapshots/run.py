@@ -62,6 +62,15 @@ class EngineRun:
     redo: dict[float, Event] = field(default_factory=dict)  # events the run recomputes
 
 
+class Checkpoint(NamedTuple):
+    """The pipeline state (as stored) after ``seq`` records of an engine, the last at
+    ``epoch``."""
+
+    seq: int
+    epoch: float
+    state: dict[str, Any]
+
+
 @dataclass
 class EngineOutput:
     """What a run computed for one engine: its records' estimate numbers (the ``packed``
@@ -70,7 +79,7 @@ class EngineOutput:
 
     values: list[np.ndarray]  # per chunk [n, width] as VALUE_DTYPE (empty with a sink)
     events: list[EventDraft]
-    checkpoints: list[tuple[int, float, dict[str, Any]]]  # seq, epoch, state
+    checkpoints: list[Checkpoint]
     state: dict[str, Any]
     width: int = 0
     n_records: int = 0
@@ -273,7 +282,7 @@ def _detected(
             out.events.append(draft)
     for j, state in run.checkpoints:
         at = float(epoch[j])
-        out.checkpoints.append((
+        out.checkpoints.append(Checkpoint(
             r.seq0 + c0 + j + 1, at,
             {"filter": SnapshotState(q[j : j + 1], P[j : j + 1]).to_dict(),
              "detector": detector.document(state), "last_epoch": at},
