@@ -18,17 +18,6 @@ import numpy as np
 
 from app.services.snapshots.estimator import SnapshotEstimator
 from estimation.shift_detector import Isolation, PendingAlarm, Rows, SensorFit, ShiftState
-from estimation.snapshot import SnapshotState
-
-
-def initial_state(est: SnapshotEstimator) -> dict[str, Any]:
-    """Pipeline state before an engine's first record."""
-    return {
-        "filter": SnapshotState.initial(1, est.P0).to_dict(),
-        "detector": document(ShiftState()),
-        "last_epoch": None,
-    }
-
 
 HISTORY_FORMAT = "float64-le-base64"
 

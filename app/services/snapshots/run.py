@@ -18,7 +18,7 @@ from __future__ import annotations
 import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
@@ -45,6 +45,22 @@ CHECKPOINT_EVERY = 1024
 CHUNK_BYTES = 64 * 2**20
 
 
+@dataclass(frozen=True, eq=False)
+class PipelineState:
+    """One engine's pipeline state between records: the snapshot filter's, the shift
+    detector's, and the time of its last record (None before the first). Stored as JSON by
+    ``store`` (``detector.state_document``)."""
+
+    filter: SnapshotState
+    detector: ShiftState
+    last_epoch: float | None
+
+    @classmethod
+    def initial(cls, est: SnapshotEstimator) -> PipelineState:
+        """Before an engine's first record."""
+        return cls(SnapshotState.initial(1, est.P0), ShiftState(), None)
+
+
 @dataclass
 class EngineRun:
     """One engine's records to process and where it starts."""
@@ -52,7 +68,7 @@ class EngineRun:
     engine_id: int
     operator_id: int
     seq0: int
-    state: dict[str, Any]
+    state: PipelineState
     epoch: np.ndarray  # [S]
     phase: list[str]
     conditions: np.ndarray  # [S, 4]
@@ -63,12 +79,12 @@ class EngineRun:
 
 
 class Checkpoint(NamedTuple):
-    """The pipeline state (as stored) after ``seq`` records of an engine, the last at
+    """The pipeline state after ``seq`` records of an engine, the last at
     ``epoch``."""
 
     seq: int
     epoch: float
-    state: dict[str, Any]
+    state: PipelineState
 
 
 @dataclass
@@ -80,7 +96,7 @@ class EngineOutput:
     values: list[np.ndarray]  # per chunk [n, width] as VALUE_DTYPE (empty with a sink)
     events: list[EventDraft]
     checkpoints: list[Checkpoint]
-    state: dict[str, Any]
+    state: PipelineState
     width: int = 0
     n_records: int = 0
 
@@ -127,9 +143,9 @@ def run_filters(
     of into ``EngineOutput.values``.
     """
     outputs = [EngineOutput([], [], [], r.state, est.layout.width) for r in runs]
-    filt = [SnapshotState.from_dict(r.state["filter"]) for r in runs]
-    dets = [detector.from_document(r.state["detector"]) for r in runs]
-    last = [r.state.get("last_epoch") for r in runs]
+    filt = [r.state.filter for r in runs]
+    dets = [r.state.detector for r in runs]
+    last = [r.state.last_epoch for r in runs]
     longest = max((len(r.epoch) for r in runs), default=0)
     s = est.layout.slices()
     E = len(runs)
@@ -214,8 +230,7 @@ def run_filters(
                 sink((r.engine_id, r.seq0 + c0, r.epoch[c0 : c0 + n], r.phase[c0 : c0 + n],
                       packed))
             filt[e] = SnapshotState(q[-1:], P[-1:])
-            out.state = {"filter": filt[e].to_dict(), "detector": detector.document(dets[e]),
-                         "last_epoch": last[e]}
+            out.state = PipelineState(filt[e], dets[e], last[e])
     return outputs
 
 
@@ -283,8 +298,7 @@ def _detected(
     for j, state in run.checkpoints:
         at = float(epoch[j])
         out.checkpoints.append(Checkpoint(
-            r.seq0 + c0 + j + 1, at,
-            {"filter": SnapshotState(q[j : j + 1], P[j : j + 1]).to_dict(),
-             "detector": detector.document(state), "last_epoch": at},
+            r.seq0 + c0 + j + 1, at, PipelineState(SnapshotState(q[j : j + 1], P[j : j + 1]),
+                                                   state, at),
         ))
     return run.state
