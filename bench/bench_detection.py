@@ -22,7 +22,7 @@ import numpy as np
 
 from app.engine_cache import engine_schedule
 from app.services.demo import fleet
-from app.services.snapshots import detector
+from estimation import shift_detector as detector
 from estimation.engine.fleet import fleet_snapshots, plan_fleet
 from tests.support import detection_replay
 

@@ -36,6 +36,10 @@ then raised 0.00204 alarms per sample (theory 0.00200), and a shift with
 lam = 6 was detected after 5.70 samples on average (theory 5.72; P(T > 10) =
 0.104 measured, 0.103 theory).
 
+The recursion is ``cusum_step`` on one sample (the snapshot pipeline's shift detector,
+``estimation.shift_detector``, runs it on a rescaled statistic) and ``cusum_scan`` on a batch
+of sequences; the two do the same operations in the same order.
+
 Samples must be independent for these figures to hold: snapshots a flight
 apart, or a stream decimated by ``decorrelation_stride``, because the
 steady-state filter's q_hat is strongly correlated from one step to the next.
@@ -43,6 +47,7 @@ steady-state filter's q_hat is strongly correlated from one step to the next.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -212,32 +217,68 @@ def normalised_shift(q_hat: np.ndarray, baseline: np.ndarray, P_q: np.ndarray) -
     return np.sum(e**2, axis=-1)
 
 
+def cusum_step(S: float, s: float, m: float, reference: float) -> float:
+    """One sample of the CUSUM on Python floats: S_k = max(0, S_{k-1} + s_k - m - kappa)
+    (NaN counts as 0). The scalar form of ``cusum_scan``, with the same operations."""
+    S = S + s - m - reference
+    return S if S > 0.0 else 0.0
+
+
+def cusum_scan(s: np.ndarray, design: CusumDesign) -> Detection:
+    """The CUSUM over (..., T) statistics s_k, vectorised over the sequences; S restarts
+    from 0 after an alarm. The same operations as ``cusum_step``, sample by sample."""
+    s = np.asarray(s, float)
+    S = np.zeros(s.shape[:-1])
+    stat = np.empty_like(s)
+    alarms = np.zeros(s.shape, dtype=bool)
+    for k in range(s.shape[-1]):
+        S = S + s[..., k] - design.m - design.reference
+        S = np.where(S > 0.0, S, 0.0)
+        hit = S > design.threshold
+        alarms[..., k] = hit
+        stat[..., k] = S
+        S = np.where(hit, 0.0, S)
+    return _detection(stat, alarms)
+
+
+def cusum_steps(s: np.ndarray, design: CusumDesign) -> Detection:
+    """``cusum_scan`` one sample at a time through ``cusum_step`` (the scalar reference)."""
+    s = np.asarray(s, float)
+    flat = s.reshape(-1, s.shape[-1]) if s.ndim else s.reshape(1, 0)
+    stat = np.empty_like(flat)
+    alarms = np.zeros(flat.shape, dtype=bool)
+    for e, row in enumerate(flat.tolist()):
+        S = 0.0
+        for k, s_k in enumerate(row):
+            S = cusum_step(S, s_k, design.m, design.reference)
+            stat[e, k] = S
+            if S > design.threshold:
+                alarms[e, k] = True
+                S = 0.0
+    return _detection(stat.reshape(s.shape), alarms.reshape(s.shape))
+
+
+def _detection(stat: np.ndarray, alarms: np.ndarray) -> Detection:
+    first = np.where(alarms.any(axis=-1), np.argmax(alarms, axis=-1), -1)
+    return Detection(stat, alarms, first)
+
+
 def cusum_detect(
-    q_hat: np.ndarray, baseline: np.ndarray, P_q: np.ndarray, design: CusumDesign
+    q_hat: np.ndarray, baseline: np.ndarray, P_q: np.ndarray, design: CusumDesign,
+    scan: Callable[[np.ndarray, CusumDesign], Detection] = cusum_scan,
 ) -> Detection:
     """Run the chi-squared CUSUM over tuner sequences, batched over engines.
 
     q_hat    : (..., T, m) tuner estimates in time order (independent samples)
     baseline : (..., m) or (m,) archived tuner baseline q_0
     P_q      : (m, m) covariance of a tuner sample about its mean
+    scan     : ``cusum_scan`` (vectorised) or ``cusum_steps`` (sample by sample)
     """
     if np.asarray(q_hat).shape[-1] != design.m:
         raise DetectionError(
             f"q_hat: expected last dimension {design.m} (design.m), found {np.shape(q_hat)}"
         )
-    s = normalised_shift(q_hat, baseline, P_q)
-    incr = s - design.m - design.reference
-    S = np.zeros(s.shape[:-1])
-    stat = np.empty_like(s)
-    alarms = np.zeros(s.shape, dtype=bool)
-    for k in range(s.shape[-1]):
-        S = np.maximum(0.0, S + incr[..., k])
-        hit = S > design.threshold
-        alarms[..., k] = hit
-        stat[..., k] = S
-        S = np.where(hit, 0.0, S)
-    first = np.where(alarms.any(axis=-1), np.argmax(alarms, axis=-1), -1)
-    return Detection(stat, alarms, first)
+    return scan(normalised_shift(q_hat, baseline, P_q), design)
 
 
 def decorrelation_stride(

@@ -1,5 +1,5 @@
-"""Batched pieces of the tuner-level shift detector (``estimation.detection``), many records at
-once.
+"""Batched pieces of the tuner-level shift detector (``estimation.shift_detector``), many records
+at once.
 
 The CUSUM recursion S_k = max(0, S_{k-1} + s_k - m - kappa) is cheap scalar arithmetic; what
 costs is the level statistic s_k = (q_k - q_0,k)^T P_k^-1 (q_k - q_0,k) with its baseline
@@ -54,7 +54,7 @@ def level_scan(shift: np.ndarray, P: np.ndarray, H: np.ndarray) -> LevelScan:
     H [m, n_faults] (tuner change per library fault). With one inverse of P_k per record
     (seed 002 eq. 21-23 with P^-1 formed once): for the 1 + n_faults right-hand sides it is
     2-3 times faster than a solve, and P, a filter covariance, is well conditioned. A single
-    record goes through here too (``app.services.shift_detection``), so a record's figures do
+    record goes through here too (``estimation.shift_detector``), so a record's figures do
     not depend on the records it is computed with.
     """
     shift = np.asarray(shift, float)

@@ -176,7 +176,7 @@ def engine_runs(
         idx = np.flatnonzero(esn == name)
         idx = idx[np.argsort(t[idx], kind="stable")]
         run = snapshots_run.EngineRun(
-            engine_id=k, operator_id=0, seq0=0, state=detector.initial_state(est),
+            engine_id=k, operator_id=0, seq0=0, state=snapshots_run.PipelineState.initial(est),
             epoch=t[idx], phase=list(phase[idx]),
             conditions=cond[idx], y=y_all[idx], u=u_all[idx],
             maintenance=np.array(sorted(maint.get(name, [])), dtype=float),
@@ -194,12 +194,11 @@ def replay(
         runs = [e.run for e in engines[start : start + batch]]
         for out in snapshots_run.run_filters(est, runs):
             drafts = list(out.events)
-            pending = (out.state.get("detector") or {}).get("pending")
+            pending = out.state.detector.pending
             if pending is not None:
                 # An alarm still awaiting its isolation when the data ends: detected, unnamed.
                 drafts.append(detector.EventDraft(
-                    int(pending["seq"]), float(pending["epoch"]), "pending", None, None,
-                    float(pending["statistic"]), {}, {},
+                    pending.seq, pending.epoch, "pending", None, None, pending.statistic, {}, {},
                 ))
             events.append(drafts)
     return events

@@ -20,18 +20,20 @@ import pytest
 
 from app.services.demo import fleet
 from app.services.designs.service import design_step
+from app.services.snapshots import detector as stored_detector
 from app.services.snapshots import run as snapshots_run
-from app.services.snapshots.detector import GAP, N_BASE, Detector
 from app.services.snapshots.estimator import (
     SnapshotEstimator,
     build_estimator,
     exact_nominal_trims,
 )
+from app.services.snapshots.store import state_document
 from estimation.engine.fleet import fleet_snapshots, plan_fleet
 from estimation.engine.schedule import EngineSchedule, build_schedule
 from estimation.engine.sensors import SENSOR_NAMES
 from estimation.engine.steady import steady_state
 from estimation.model import LinearModel
+from estimation.shift_detector import GAP, N_BASE, PendingAlarm, SensorFit, ShiftState
 from tests.support import detection_replay
 
 MIN_FLIGHTS = 3
@@ -166,7 +168,7 @@ def test_split_run_on_the_built_in_engine_equals_one_run(
         state, seq0 = out.state, k1
     assert rows == whole.blobs()
     assert events == whole.events
-    assert state == whole.state
+    assert state_document(state) == state_document(whole.state)
 
 
 def test_batched_detector_equals_the_per_record_detector(
@@ -174,7 +176,7 @@ def test_batched_detector_equals_the_per_record_detector(
 ) -> None:
     """The detector's batched run (baselines, level statistics and WSSR of a run of records
     at once) gives byte for byte the rows, events, checkpoints and end states of
-    ``detect_step`` record by record, on a seeded fleet with faults, washes and swaps."""
+    ``shift_step`` record by record, on a seeded fleet with faults, washes and swaps."""
     size = fleet.DemoSize(aircraft=3, flights=300, fault_rate=1.0 / 60.0)
     plan_rng, snap_rng = np.random.default_rng(23).spawn(2)
     plan = plan_fleet(fleet.fleet_config(size), plan_rng)
@@ -188,8 +190,9 @@ def test_batched_detector_equals_the_per_record_detector(
     for a, b in zip(batched, per_record, strict=True):
         assert a.blobs() == b.blobs()
         assert a.events == b.events
-        assert a.checkpoints == b.checkpoints
-        assert a.state == b.state
+        assert [(c.seq, c.epoch, state_document(c.state)) for c in a.checkpoints] == [
+            (c.seq, c.epoch, state_document(c.state)) for c in b.checkpoints]
+        assert state_document(a.state) == state_document(b.state)
 
 
 def test_an_actuator_bias_in_the_health_vector_is_one_fault_column(
@@ -228,12 +231,20 @@ def test_a_detector_state_round_trips_bit_for_bit_and_old_states_still_read() ->
     rng = np.random.default_rng(3)
     history = (rng.normal(size=(45, 6)) * 10.0 ** rng.integers(-300, 300, (45, 6))).tolist()
     history[0][0], history[1][1] = -0.0, 5e-324
-    detector = Detector(history, 1.25, {"seq": 4, "fit": {"a": [1.0]}}, 6.5, 12, 80)
-    stored = json.loads(json.dumps(detector.to_dict()))
-    back = Detector.from_dict(stored)
+    history = tuple(map(tuple, history))
+    pending = PendingAlarm(4, 7.5, 21.0, 3, (0.5, -1.0), ((2.0,),),
+                           SensorFit((1.0,), (-0.25,), 3.0, 7))
+    state = ShiftState(history, 1.25, pending, 6.5, 12, 80)
+    stored = json.loads(json.dumps(stored_detector.document(state)))
+    back = stored_detector.from_document(stored)
     assert [[x.hex() for x in q] for q in back.history] == [[x.hex() for x in q] for q in history]
     assert (back.S, back.pending, back.s_mean, back.s_count, back.warm) == (
-        1.25, {"seq": 4, "fit": {"a": [1.0]}}, 6.5, 12, 80)
-    old = dict(stored, history=history)
-    assert Detector.from_dict(old).history == history
-    assert Detector.from_dict(Detector([], 0.0, None).to_dict()).history == []
+        1.25, pending, 6.5, 12, 80)
+    old = dict(stored, history=[list(q) for q in history])
+    assert stored_detector.from_document(old).history == history
+    assert stored_detector.from_document(stored_detector.document(ShiftState())).history == ()
+    # A pending alarm written before its covariance and sensor fit were kept.
+    older = dict(stored, pending={"seq": 4, "epoch": 7.5, "statistic": 21.0, "wait": 3,
+                                  "baseline": [0.5, -1.0]})
+    assert stored_detector.from_document(older).pending == PendingAlarm(
+        4, 7.5, 21.0, 3, (0.5, -1.0))

@@ -27,19 +27,19 @@ from app.models import EngineModel, EstimatorDesign
 from app.models.estimates import EstimateLayout
 from app.models.ingest import ACTUATORS, SENSORS, SignalSpec
 from app.services.uploads import units
-from estimation import isolation
 from estimation.detection import CusumDesign, design_cusum
 from estimation.engine.schedule import EngineSchedule
 from estimation.model import LinearModel
+from estimation.shift_detector import SHIFT_LEVEL
+from estimation.snapshot_design import DesignResult, snapshot_design
 
 log = logging.getLogger("fleethealth.pipeline")
 
-# Detector settings an estimator's thresholds are designed from (the detector's own are in
-# shift_detection).
+# Detector settings an estimator's thresholds are designed from (the detector's own, and
+# SHIFT_LEVEL, are in estimation.shift_detector).
 CUSUM_REFERENCE = 1.5  # CUSUM allowance per sample, in units of m (robust to model error)
 ARL0 = 20_000.0  # mean records between false alarms of the CUSUM (theory, independent samples)
 ISOLATION_LEVEL = 0.999  # WSSR quantile below which the best fault explains the change
-SHIFT_LEVEL = 1e-6  # an unexplained change must be this improbable under no change
 # Filter settings: tuner random walk per flight (percent), fleet spread at start (percent).
 WALK_STD = 0.05
 FLEET_STD = 1.5
@@ -119,28 +119,6 @@ def single_point_schedule(model: LinearModel) -> Schedule:
     return schedule
 
 
-def _find(document: Any, key: str, depth: int = 3) -> Any:
-    """``document[key]``, looked up breadth-first in nested dicts (design documents nest)."""
-    if not isinstance(document, Mapping):
-        return None
-    if key in document:
-        return document[key]
-    if depth == 0:
-        return None
-    for value in document.values():
-        found = _find(value, key, depth - 1)
-        if found is not None:
-            return found
-    return None
-
-
-def _covariance(value: Any, n: int, default_std: float) -> np.ndarray:
-    if value is None:
-        return np.eye(n) * default_std**2
-    arr = np.asarray(value, float)
-    return np.diag(arr) if arr.ndim == 1 else arr
-
-
 @dataclass(frozen=True, eq=False)
 class SnapshotEstimator:
     """Everything the pipeline needs of one design, ready to run."""
@@ -188,57 +166,22 @@ def build_estimator(
 ) -> SnapshotEstimator:
     """A runnable estimator from a design document and its engine model.
 
-    The document gives V* (``vstar``), optionally the sensor suite (``sensors``), the fleet
-    health covariance ``Ph`` and the fault library (``faults``); defaults fill the rest.
+    The document (read by ``DesignResult``) gives V*, optionally the sensor suite, the fleet
+    health covariance Ph and the fault library; defaults fill the rest. The numbers are
+    ``estimation.snapshot_design``'s.
     """
-    vstar_doc = _find(result, "vstar")
-    if vstar_doc is None:
+    doc = DesignResult.from_document(result)
+    if doc.vstar is None:
         raise PipelineError(f"design {design_id} has no V* (vstar)")
-    sensors = _find(result, "sensors")
-    if isinstance(sensors, list) and sensors and all(isinstance(s, str) for s in sensors):
-        model = model.select_sensors(sensors)
-    vstar = np.asarray(vstar_doc, float)
+    if doc.sensors is not None:
+        model = model.select_sensors(list(doc.sensors))
+    vstar = doc.vstar
     m, p = vstar.shape
     if p != model.n_health:
         raise PipelineError(f"design {design_id}: V* has {p} columns, the model {model.n_health}")
-    Vp = np.linalg.solve(vstar @ vstar.T, vstar).T  # V*^+ (seed 002 eq. 5)
-    walk = np.eye(p) * WALK_STD**2
-    # Engines join the service deteriorated: start from at least START_STD per parameter.
-    Ph = _covariance(_find(result, "Ph"), p, FLEET_STD)
-    Ph = Ph + np.diag(np.maximum(START_STD**2 - np.diag(Ph), 0.0))
-    Qq = vstar @ walk @ vstar.T
-    P0 = vstar @ Ph @ vstar.T
-
-    # Fault influence in tuner space at the design point: the snapshot filter settles on the
-    # R^-1-weighted least-squares tuner fit of a constant health shift (MATH.md section 4 with
-    # the filter's steady state replaced by that fit; equal to V* S when m = p).
-    G_y, _G_z = model.steady_state_gains()
-    G_u, _ = model.steady_state_input_gains()
-    # An actuator bias is a fault through its input column, unless the design's health
-    # vector already carries it (then its health column is the one, counted once).
-    health_lower = {n.lower() for n in model.health_names}
-    bias_inputs = tuple(
-        j for j, s in enumerate(model.inputs) if f"{s.name.lower()}_bias" not in health_lower
-    )
-    names = list(model.health_names) + [
-        f"{model.inputs[j].name.lower()}_bias" for j in bias_inputs
-    ]
-    G_full = np.concatenate([G_y, G_u[:, list(bias_inputs)]], axis=1)
-    faults_doc = result.get("faults")
-    if isinstance(faults_doc, Mapping):
-        faults_doc = faults_doc.get("library")
-    library = isolation.faults_from_list(faults_doc if isinstance(faults_doc, list) else None)
-    known = {n.lower() for n in names}
-    library = tuple(f for f in library if all(k.lower() in known for k in f.shifts))
-    S = isolation.signature_matrix(library, names)
-    Hd = G_y @ Vp
-    Rinv = 1.0 / (model.sensor_noise_std**2 + MODEL_ERROR**2)
-    normal = Hd.T @ (Rinv[:, None] * Hd)
-    H = np.linalg.solve(normal, Hd.T @ (Rinv[:, None] * (G_full @ S)))
-    usable = np.sum(H**2, axis=0) > 1e-12
-    library = tuple(f for f, ok in zip(library, usable, strict=True) if ok)
-    H = H[:, usable]
-    S = S[:, usable]
+    d = snapshot_design(model, vstar, doc.Ph, doc.faults, WALK_STD, FLEET_STD, START_STD,
+                        MODEL_ERROR)
+    library = d.library
 
     layout = EstimateLayout(
         tuners=tuple(f"q{i + 1}" for i in range(m)),
@@ -272,14 +215,14 @@ def build_estimator(
         sensor_columns=sensor_columns,
         input_columns=input_columns,
         vstar=vstar,
-        Vp=Vp,
-        Qq=0.5 * (Qq + Qq.T),
-        P0=0.5 * (P0 + P0.T),
-        noise_std=np.sqrt(np.asarray(model.sensor_noise_std, float) ** 2 + MODEL_ERROR**2),
-        H=H,
-        S_full=S,
+        Vp=d.Vp,
+        Qq=d.Qq,
+        P0=d.P0,
+        noise_std=d.noise_std,
+        H=d.H,
+        S_full=d.S_full,
         fault_shifts=tuple(dict(f.shifts) for f in library),
-        bias_inputs=bias_inputs,
+        bias_inputs=d.bias_inputs,
         schedule=schedule or single_point_schedule(model),
         cusum=cusum_for(m),
         wssr_threshold=float(stats.chi2.ppf(ISOLATION_LEVEL, max(m - 1, 1))),

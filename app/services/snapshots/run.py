@@ -8,36 +8,31 @@ library fault (seed 002 eq. 21-23) for the tuner change against the baseline.
 
 Between a reset and an alarm the detector's baselines, level statistics and WSSR are computed
 for a run of records at once (``estimation.shift_scan``, the same sums as one record alone),
-and only the CUSUM and its running mean go record by record (``_wssr_filled``; byte for byte
-``detect_step`` record by record, tests/support/test_detection_replay.py).
+and only the CUSUM and its running mean go record by record (``estimation.shift_detector``'s
+``shift_scan``; byte for byte its ``shift_step`` record by record,
+tests/support/test_detection_replay.py).
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
 from app.models.estimates import VALUE_DTYPE, Event
-from app.services.snapshots import rows
-from app.services.snapshots.detector import (
-    DETECTOR_INPUT,
-    GAP,
-    N_BASE,
-    N_CONFIRM,
-    S_MEAN_CAP,
-    S_MEAN_RATE,
-    WARMUP,
-    Detector,
-    EventDraft,
-    RecordObservation,
-    accumulate_sensor_fit,
-    detect_step,
-)
+from app.services.snapshots import detector, rows
+from app.services.snapshots.detector import EventDraft
 from app.services.snapshots.estimator import FLEET_STD, MODEL_ERROR, WALK_STD, SnapshotEstimator
-from estimation.shift_scan import level_scan, sliding_baselines
+from estimation.shift_detector import (
+    RecordObservation,
+    ShiftRun,
+    ShiftState,
+    shift_scan,
+    shift_steps,
+)
 from estimation.snapshot import SnapshotState, snapshot_deviation, snapshot_filter
 
 NEW_FLIGHT_S = 3600.0  # records further apart than this are different flights
@@ -50,6 +45,22 @@ CHECKPOINT_EVERY = 1024
 CHUNK_BYTES = 64 * 2**20
 
 
+@dataclass(frozen=True, eq=False)
+class PipelineState:
+    """One engine's pipeline state between records: the snapshot filter's, the shift
+    detector's, and the time of its last record (None before the first). Stored as JSON by
+    ``store`` (``detector.state_document``)."""
+
+    filter: SnapshotState
+    detector: ShiftState
+    last_epoch: float | None
+
+    @classmethod
+    def initial(cls, est: SnapshotEstimator) -> PipelineState:
+        """Before an engine's first record."""
+        return cls(SnapshotState.initial(1, est.P0), ShiftState(), None)
+
+
 @dataclass
 class EngineRun:
     """One engine's records to process and where it starts."""
@@ -57,7 +68,7 @@ class EngineRun:
     engine_id: int
     operator_id: int
     seq0: int
-    state: dict[str, Any]
+    state: PipelineState
     epoch: np.ndarray  # [S]
     phase: list[str]
     conditions: np.ndarray  # [S, 4]
@@ -65,6 +76,15 @@ class EngineRun:
     u: np.ndarray  # [S, nu]
     maintenance: np.ndarray  # epochs of the engine's maintenance actions
     redo: dict[float, Event] = field(default_factory=dict)  # events the run recomputes
+
+
+class Checkpoint(NamedTuple):
+    """The pipeline state after ``seq`` records of an engine, the last at
+    ``epoch``."""
+
+    seq: int
+    epoch: float
+    state: PipelineState
 
 
 @dataclass
@@ -75,8 +95,8 @@ class EngineOutput:
 
     values: list[np.ndarray]  # per chunk [n, width] as VALUE_DTYPE (empty with a sink)
     events: list[EventDraft]
-    checkpoints: list[tuple[int, float, dict[str, Any]]]  # seq, epoch, state
-    state: dict[str, Any]
+    checkpoints: list[Checkpoint]
+    state: PipelineState
     width: int = 0
     n_records: int = 0
 
@@ -123,9 +143,9 @@ def run_filters(
     of into ``EngineOutput.values``.
     """
     outputs = [EngineOutput([], [], [], r.state, est.layout.width) for r in runs]
-    filt = [SnapshotState.from_dict(r.state["filter"]) for r in runs]
-    dets = [Detector.from_dict(r.state["detector"]) for r in runs]
-    last = [r.state.get("last_epoch") for r in runs]
+    filt = [r.state.filter for r in runs]
+    dets = [r.state.detector for r in runs]
+    last = [r.state.last_epoch for r in runs]
     longest = max((len(r.epoch) for r in runs), default=0)
     s = est.layout.slices()
     E = len(runs)
@@ -198,11 +218,10 @@ def run_filters(
             P = P_all[e, :n]
             values = values_all[e, :n]
             out = outputs[e]
-            det = dets[e]
-            q_prev = np.concatenate([filt[e].q_hat, q[:-1]])
-            P_prior = np.concatenate([filt[e].P, P[:-1]]) + scale[e, :n, None, None] * est.Qq
-            _wssr_filled(est, det, r, c0, n, q, P, q_prev, P_prior, resets[e], values, out,
-                         ChunkRecords(dy[e, :n], G_y[e, :n], G_u[e, :n], noise[e, :n] ** 2))
+            dets[e] = _wssr_filled(
+                est, dets[e], r, c0, q, P, resets[e, :n], values, out,
+                ChunkRecords(dy[e, :n], G_y[e, :n], G_u[e, :n], noise[e, :n] ** 2),
+            )
             packed = values.astype(VALUE_DTYPE)
             out.n_records += n
             if sink is None:
@@ -211,8 +230,7 @@ def run_filters(
                 sink((r.engine_id, r.seq0 + c0, r.epoch[c0 : c0 + n], r.phase[c0 : c0 + n],
                       packed))
             filt[e] = SnapshotState(q[-1:], P[-1:])
-            out.state = {"filter": filt[e].to_dict(), "detector": det.to_dict(),
-                         "last_epoch": last[e]}
+            out.state = PipelineState(filt[e], dets[e], last[e])
     return outputs
 
 
@@ -241,200 +259,46 @@ def _per_slot(
 
 
 def _wssr_filled(
-    est: SnapshotEstimator, det: Detector, r: EngineRun, c0: int, n: int, q: np.ndarray,
-    P: np.ndarray, q_prev: np.ndarray, P_prior: np.ndarray, resets: np.ndarray,
-    values: np.ndarray, out: EngineOutput,
+    est: SnapshotEstimator, det: ShiftState, r: EngineRun, c0: int, q: np.ndarray,
+    P: np.ndarray, resets: np.ndarray, values: np.ndarray, out: EngineOutput,
     records: ChunkRecords | None = None,
-) -> np.ndarray:
-    """Run the detector over the chunk, fill the WSSR block, collect events and checkpoints.
+) -> ShiftState:
+    """Run the detector over the engine's records of the chunk (``shift_scan``): fill the
+    WSSR block of ``values``, collect events and checkpoints; the detector state after.
 
     records: the chunk's records of the engine, for isolation in sensor space.
-
-    Same results as ``_wssr_filled_per_record`` (``detect_step`` record by record): between a
-    reset and an alarm the baselines, level statistics and WSSR of a run of records are
-    computed at once (``estimation.shift_scan``) and only the CUSUM and its running mean go
-    record by record; a reset, a pending alarm or the "update" statistic take the per-record
-    step.
     """
-    if DETECTOR_INPUT != "level":
-        return _wssr_filled_per_record(est, det, r, c0, n, q, P, q_prev, P_prior, resets,
-                                       values, out, records)
-    s = est.layout.slices()["wssr"]
-    depth = N_BASE + GAP
-    m = est.m
-    reset_at = np.flatnonzero(resets)
-    j = 0
-    while j < n:
-        if det.pending is not None or resets[j]:
-            _detect_one(est, det, r, c0, j, q, P, q_prev, P_prior, resets, values, out,
-                        records)
-            j += 1
-            continue
-        # A run of records with neither reset nor pending alarm, up to the next reset or the
-        # chunk's end (an alarm ends it early).
-        later = reset_at[reset_at > j]
-        end = int(later[0]) if len(later) else n
-        L = len(det.history)
-        series = np.concatenate([np.asarray(det.history, float).reshape(L, m), q[j:end]])
-        first = max(depth - L, 0)  # run index of the first record with a baseline
-        bases = sliding_baselines(series[: max(len(series) - GAP, 0)], N_BASE)
-        # record i (run index) has history series[L + i - depth : L + i] before its append
-        k_idx = np.arange(j + first, end)
-        with_base = bases[L + first - depth : L + first - depth + len(k_idx)]
-        scan = level_scan(q[k_idx] - with_base, P[k_idx], est.H) if len(k_idx) else None
-        stop = end
-        # The CUSUM and its running mean, record by record on Python floats, with the same
-        # operations as ``detect_step`` (``b if b > a else a`` is ``max(a, b)``, NaN
-        # included), in three stretches of the run (run index i): no baseline yet (the CUSUM
-        # rests at 0), a baseline while the detector warms up (the running mean learns, the
-        # CUSUM rests), armed (both run; from ``armed`` on, records carry their WSSR). Run
-        # index i is a checkpoint when its seq + 1 is a multiple of CHECKPOINT_EVERY.
-        distance = scan.distance.tolist() if scan is not None else []
-        S, s_mean0, s_count, warm0 = det.S, det.s_mean, det.s_count, det.warm
-        s_mean = float(m) if s_mean0 is None else s_mean0  # set at the first baseline
-        threshold, reference = est.cusum.threshold, est.cusum.reference
-        cap = S_MEAN_CAP * m
-        count = end - j
-        learning = min(first, count)  # first record with a baseline
-        armed = min(count, max(first, WARMUP - warm0 - 1))  # first with warm >= WARMUP
-        next_checkpoint = -(r.seq0 + c0 + j + 1) % CHECKPOINT_EVERY
-
-        if learning > 0:
-            S = 0.0
-            while next_checkpoint < learning:
-                _keep_state(det, series, L, warm0, next_checkpoint, S, s_mean0, s_count)
-                _checkpoint(det, r, c0, j + next_checkpoint, q, P, out)
-                next_checkpoint += CHECKPOINT_EVERY
-        for i in range(learning, armed):
-            if S == 0.0:
-                s_k = distance[i - first]
-                s_count += 1
-                inverse = 1.0 / s_count
-                rate = S_MEAN_RATE if S_MEAN_RATE > inverse else inverse
-                s_mean += ((cap if cap < s_k else s_k) - s_mean) * rate
-            S = 0.0
-            if i == next_checkpoint:
-                _keep_state(det, series, L, warm0, i, S, s_mean, s_count)
-                _checkpoint(det, r, c0, j + i, q, P, out)
-                next_checkpoint += CHECKPOINT_EVERY
-        for i in range(armed, count):
-            s_k = distance[i - first]
-            scaled = s_k * m / (m if m > s_mean else s_mean)
-            if S == 0.0:
-                s_count += 1
-                inverse = 1.0 / s_count
-                rate = S_MEAN_RATE if S_MEAN_RATE > inverse else inverse
-                s_mean += ((cap if cap < s_k else s_k) - s_mean) * rate
-            S = S + scaled - m - reference
-            S = S if S > 0.0 else 0.0
-            if S > threshold:
-                assert scan is not None
-                jj = j + i
-                det.pending = {
-                    "seq": r.seq0 + c0 + jj, "epoch": float(r.epoch[c0 + jj]),
-                    "statistic": S, "wait": N_CONFIRM,
-                    "baseline": with_base[i - first].tolist(), "P": P[jj].tolist(),
-                }
-                if records is not None:
-                    accumulate_sensor_fit(est, det.pending, records.observation(est, jj))
-                S = 0.0
-                stop = jj + 1
-                if i == next_checkpoint:
-                    _keep_state(det, series, L, warm0, i, S, s_mean, s_count)
-                    _checkpoint(det, r, c0, jj, q, P, out)
-                break
-            if i == next_checkpoint:
-                _keep_state(det, series, L, warm0, i, S, s_mean, s_count)
-                _checkpoint(det, r, c0, j + i, q, P, out)
-                next_checkpoint += CHECKPOINT_EVERY
-        last = stop - j - 1
-        _keep_state(det, series, L, warm0, last, S, s_mean if last >= learning else s_mean0,
-                    s_count)
-        values[j:stop, s] = np.nan
-        if scan is not None and j + armed < stop:
-            values[j + armed : stop, s] = scan.wssr[armed - first : stop - j - first]
-        j = stop
-    return values
-
-
-def _keep_state(
-    det: Detector, series: np.ndarray, L: int, warm0: int, i: int, S: float,
-    s_mean: float | None, s_count: int,
-) -> None:
-    """Set the detector's state after run record i of ``_wssr_filled`` (its history: the last
-    N_BASE + GAP estimates up to ``series[L + i]``; L history records came before the run)."""
-    det.S, det.s_mean, det.s_count, det.warm = S, s_mean, s_count, warm0 + i + 1
-    det.history = series[max(L + i + 1 - N_BASE - GAP, 0) : L + i + 1].tolist()
-
-
-def _checkpoint(
-    det: Detector, r: EngineRun, c0: int, j: int, q: np.ndarray, P: np.ndarray,
-    out: EngineOutput,
-) -> None:
-    epoch = float(r.epoch[c0 + j])
-    out.checkpoints.append(
-        (
-            r.seq0 + c0 + j + 1,
-            epoch,
-            {
-                "filter": SnapshotState(q[j : j + 1], P[j : j + 1]).to_dict(),
-                "detector": det.to_dict(),
-                "last_epoch": epoch,
-            },
-        )
-    )
-
-
-def _detect_one(
-    est: SnapshotEstimator, det: Detector, r: EngineRun, c0: int, j: int, q: np.ndarray,
-    P: np.ndarray, q_prev: np.ndarray, P_prior: np.ndarray, resets: np.ndarray,
-    values: np.ndarray, out: EngineOutput,
-    records: ChunkRecords | None,
-) -> None:
-    """Record ``j`` of the chunk through ``detect_step``, with its event and checkpoint."""
-    seq = r.seq0 + c0 + j
-    epoch = float(r.epoch[c0 + j])
-    obs = None if records is None else records.observation(est, j)
-    wssr, draft = detect_step(
-        est, det, seq, epoch, q[j], P[j], q_prev[j], P_prior[j], bool(resets[j]), obs
-    )
-    values[j, est.layout.slices()["wssr"]] = wssr
-    if draft is not None:
-        out.events.append(draft)
-    if (seq + 1) % CHECKPOINT_EVERY == 0:
-        _checkpoint(det, r, c0, j, q, P, out)
+    return _detected(est, shift_scan, det, r, c0, q, P, resets, values, out, records)
 
 
 def _wssr_filled_per_record(
-    est: SnapshotEstimator, det: Detector, r: EngineRun, c0: int, n: int, q: np.ndarray,
-    P: np.ndarray, q_prev: np.ndarray, P_prior: np.ndarray, resets: np.ndarray,
-    values: np.ndarray, out: EngineOutput,
+    est: SnapshotEstimator, det: ShiftState, r: EngineRun, c0: int, q: np.ndarray,
+    P: np.ndarray, resets: np.ndarray, values: np.ndarray, out: EngineOutput,
     records: ChunkRecords | None = None,
-) -> np.ndarray:
-    """``_wssr_filled`` one record at a time through ``detect_step`` (the reference the
-    batched run is tested against, and the path of the "update" statistic)."""
-    s = est.layout.slices()["wssr"]
-    for j in range(n):
-        seq = r.seq0 + c0 + j
-        epoch = float(r.epoch[c0 + j])
-        obs = None if records is None else records.observation(est, j)
-        wssr, draft = detect_step(
-            est, det, seq, epoch, q[j], P[j], q_prev[j], P_prior[j], bool(resets[j]), obs
-        )
-        values[j, s] = wssr
+) -> ShiftState:
+    """``_wssr_filled`` one record at a time (``shift_steps``, the reference the batched run
+    is tested against)."""
+    return _detected(est, shift_steps, det, r, c0, q, P, resets, values, out, records)
+
+
+def _detected(
+    est: SnapshotEstimator, scan: Callable[..., ShiftRun], det: ShiftState, r: EngineRun,
+    c0: int, q: np.ndarray, P: np.ndarray, resets: np.ndarray, values: np.ndarray,
+    out: EngineOutput, records: ChunkRecords | None,
+) -> ShiftState:
+    n = len(q)
+    epoch = r.epoch[c0 : c0 + n]
+    observe = None if records is None else functools.partial(records.observation, est)
+    run = scan(est, det, r.seq0 + c0, epoch, q, P, resets,
+               values[:, est.layout.slices()["wssr"]], observe, CHECKPOINT_EVERY)
+    for iso in run.isolations:
+        draft = detector.event(est, iso)
         if draft is not None:
             out.events.append(draft)
-        done = seq + 1  # records processed once this one is
-        if done % CHECKPOINT_EVERY == 0:
-            out.checkpoints.append(
-                (
-                    done,
-                    epoch,
-                    {
-                        "filter": SnapshotState(q[j : j + 1], P[j : j + 1]).to_dict(),
-                        "detector": det.to_dict(),
-                        "last_epoch": epoch,
-                    },
-                )
-            )
-    return values
+    for j, state in run.checkpoints:
+        at = float(epoch[j])
+        out.checkpoints.append(Checkpoint(
+            r.seq0 + c0 + j + 1, at, PipelineState(SnapshotState(q[j : j + 1], P[j : j + 1]),
+                                                   state, at),
+        ))
+    return run.state

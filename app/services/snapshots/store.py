@@ -40,21 +40,36 @@ from sqlalchemy.orm import Session, defer
 from app.models import Engine, EstimatorDesign, MaintenanceAction, Snapshot
 from app.models.base import utcnow
 from app.models.estimates import Estimate, Event, FilterCheckpoint, FilterState
-from app.services.snapshots import backlog, rows
-from app.services.snapshots.detector import initial_state
+from app.services.snapshots import backlog, detector, rows
 from app.services.snapshots.estimator import SnapshotEstimator, estimator_for_design
-from app.services.snapshots.run import EngineOutput, EngineRun, run_filters
+from app.services.snapshots.run import EngineOutput, EngineRun, PipelineState, run_filters
 from app.services.uploads import fresh_records
+from estimation.snapshot import SnapshotState
+
+
+def state_document(state: PipelineState) -> dict[str, Any]:
+    """An engine's pipeline state as stored (``FilterState.state``, ``FilterCheckpoint.state``):
+    the filter, the detector (``detector.document``) and the last record's time."""
+    return {"filter": state.filter.to_dict(), "detector": detector.document(state.detector),
+            "last_epoch": state.last_epoch}
+
+
+def state_from_document(d: Mapping[str, Any]) -> PipelineState:
+    """A stored pipeline state (``state_document``)."""
+    last = d.get("last_epoch")
+    return PipelineState(SnapshotState.from_dict(d["filter"]),
+                         detector.from_document(d["detector"]),
+                         None if last is None else float(last))
 
 
 def _restart_point(
     session: Session, est: SnapshotEstimator, fs: FilterState | None, earliest: datetime | None
-) -> tuple[int, dict[str, Any], datetime | None]:
+) -> tuple[int, PipelineState, datetime | None]:
     """(seq0, state, after): where the engine's run starts, deleting what it will redo."""
     if fs is None:
-        return 0, initial_state(est), None
+        return 0, PipelineState.initial(est), None
     if earliest is None or fs.last_recorded_at is None or earliest > fs.last_recorded_at:
-        return fs.n_records, fs.state, fs.last_recorded_at
+        return fs.n_records, state_from_document(fs.state), fs.last_recorded_at
     checkpoint = session.scalar(
         select(FilterCheckpoint)
         .where(
@@ -66,15 +81,16 @@ def _restart_point(
         .limit(1)
     )
     if checkpoint is None:
-        seq0, state, after = 0, initial_state(est), None
+        seq0, state, after = 0, PipelineState.initial(est), None
     else:
-        seq0, state, after = checkpoint.seq, checkpoint.state, checkpoint.last_recorded_at
+        seq0, after = checkpoint.seq, checkpoint.last_recorded_at
+        state = state_from_document(checkpoint.state)
     _delete_from(session, fs.engine_id, fs.design_id, seq0, state)
     return seq0, state, after
 
 
 def _delete_from(
-    session: Session, engine_id: int, design_id: int, seq0: int, state: Mapping[str, Any]
+    session: Session, engine_id: int, design_id: int, seq0: int, state: PipelineState
 ) -> None:
     """Remove what a re-run from ``seq0`` recomputes. Events are not deleted here: the re-run
     updates those it detects again (keeping their status and comments) and deletes the rest
@@ -95,13 +111,13 @@ def _delete_from(
 
 
 def _events_to_redo(
-    events: Sequence[Event], seq0: int, state: Mapping[str, Any]
+    events: Sequence[Event], seq0: int, state: PipelineState
 ) -> dict[float, Event]:
     """Of one engine's ``events``, those a run from ``seq0`` (state ``state``) recomputes, by
     detection time (an alarm's record keeps its time when a late record shifts the sequence
     numbers)."""
-    pending = (state.get("detector") or {}).get("pending")
-    pending_seq = None if pending is None else int(pending["seq"])
+    pending = state.detector.pending
+    pending_seq = None if pending is None else pending.seq
     return {e.detected_at.timestamp(): e for e in events
             if e.seq >= seq0 or e.seq == pending_seq}
 
@@ -299,7 +315,7 @@ def _store_batch(
     checkpoints = [
         {"engine_id": run.engine_id, "design_id": est.design_id, "seq": seq,
          "last_recorded_at": datetime.fromtimestamp(epoch, UTC),
-         "state": state}
+         "state": state_document(state)}
         for run, out in zip(runs, outputs, strict=True)
         for seq, epoch, state in out.checkpoints
     ]
@@ -331,9 +347,9 @@ def _store(
             existing.seq = draft.seq
         else:
             fresh.append((draft.seq, detection))
-    pending = (out.state.get("detector") or {}).get("pending")
+    pending = out.state.detector.pending
     for epoch, stale in redo.items():
-        if pending is not None and float(pending["epoch"]) == epoch:
+        if pending is not None and pending.epoch == epoch:
             continue  # still awaiting its isolation: the next run redoes it
         session.delete(stale)
     if run.redo:
@@ -355,7 +371,7 @@ def _store(
         fs = FilterState(operator_id=run.operator_id, engine_id=run.engine_id,
                          design_id=est.design_id, layout=est.layout.to_dict())
         session.add(fs)
-    fs.state = out.state
+    fs.state = state_document(out.state)
     fs.n_records = n_records
     if len(run.epoch) or run.seq0 == 0:
         fs.last_recorded_at = last_time

@@ -1,0 +1,118 @@
+"""The stream filter over samples: deviations from the trim at each sample's condition, and
+the filter scheduled piecewise over the envelope (a segment keeps its anchor's gain until the
+condition leaves the ``TOLERANCE`` box).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pyarrow as pa
+
+from app.models.ingest import CONDITION_COLUMNS
+from app.services.streams.estimator import TOLERANCE, StreamEstimator
+from estimation.stream_filter import filter_run
+
+
+def _first_outside(cond: np.ndarray, start: int, anchor: np.ndarray) -> int:
+    """First index >= start whose condition leaves the box around ``anchor`` (len if none)."""
+    k, step, S = start, 256, cond.shape[0]
+    while k < S:
+        block = cond[k:k + step]
+        out = np.any(np.abs(block - anchor) > TOLERANCE, axis=1)
+        if out.any():
+            return k + int(np.argmax(out))
+        k += step
+        step = min(step * 2, 1 << 16)
+    return S
+
+
+@dataclass
+class Carry:
+    """The filter state between samples: x_hat and du of the last sample, the anchor."""
+
+    x: np.ndarray
+    u_prev: np.ndarray
+    anchor: np.ndarray | None
+    switches: int
+
+
+def filter_piece(
+    est: StreamEstimator, dt: float, cond: np.ndarray, dy: np.ndarray, du: np.ndarray,
+    carry: Carry, capture: int | None = None,
+) -> tuple[np.ndarray, Carry, Carry | None]:
+    """Filter S samples from ``carry``; returns per-sample rows [S, width] (q, q 1-sigma, h,
+    h 1-sigma, z, z 1-sigma, innovations), the carry after the last sample, and the carry
+    after sample ``capture`` (an index into this piece) when given."""
+    S = cond.shape[0]
+    layout = est.layout
+    sl = layout.slices()
+    rows = np.empty((S, layout.width))
+    nx = est.nx
+    anchor = carry.anchor
+    switches = carry.switches
+    x_prev, u_prev = carry.x, carry.u_prev
+    captured: Carry | None = None
+    i = 0
+    while i < S:
+        if anchor is None:
+            anchor, switches = cond[i].copy(), switches + 1
+        j = _first_outside(cond, i, anchor)
+        if j == i:
+            anchor, switches = cond[i].copy(), switches + 1
+            continue
+        g = est.gain(est.snapped(anchor), dt)
+        ys, us = dy[i:j], du[i:j]
+        x = filter_run(g, ys, us, x_prev, u_prev)
+        # Innovation dy - C x_pred - D du with x_pred = A x_hat[k-1] + B du[k-1].
+        xp = np.vstack([x_prev[None, :], x[:-1]])
+        up = np.vstack([u_prev[None, :], us[:-1]])
+        pred = xp @ g.A.T + up @ g.B.T
+        q = x[:, nx:]
+        rows[i:j, sl["q"]] = q
+        rows[i:j, sl["h"]] = q @ est.Vp.T  # seed 002 eq. 11
+        rows[i:j, sl["z"]] = x @ g.F.T + us @ g.G.T
+        rows[i:j, sl["residual"]] = ys - pred @ g.C.T - us @ g.D.T
+        m, p = q.shape[1], est.Vp.shape[0]
+        rows[i:j, sl["q_sigma"]] = g.sigma[:m]
+        rows[i:j, sl["h_sigma"]] = g.sigma[m:m + p]
+        rows[i:j, sl["z_sigma"]] = g.sigma[m + p:]
+        if capture is not None and i <= capture < j:
+            captured = Carry(x[capture - i].copy(), us[capture - i].copy(), anchor.copy(),
+                             switches)
+        x_prev, u_prev = x[-1].copy(), us[-1].copy()
+        i = j
+    return rows, Carry(x_prev, u_prev, anchor, switches), captured
+
+
+def deviations(
+    est: StreamEstimator, table: pa.Table
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Conditions [S, 4], sensor and actuator deviations [S, ny], [S, nu] in percent of the
+    trim at each sample's condition (actuators absent from the recording, or with no trim,
+    stay at trim)."""
+    S = table.num_rows
+
+    def column(name: str) -> np.ndarray | None:
+        if name not in table.column_names:
+            return None
+        return np.asarray(table[name].to_numpy(zero_copy_only=False), float)
+
+    def sensor(name: str) -> np.ndarray:
+        values = column(name)
+        return np.full(S, np.nan) if values is None else values
+
+    cond = np.column_stack([sensor(c) for c in CONDITION_COLUMNS])
+    y_trim, u_trim = est.trims(cond)
+    y = np.column_stack([sensor(n) for n in est.model.sensor_names])
+    dy = 100.0 * (y - y_trim) / y_trim
+    du = np.zeros((S, est.model.n_inputs))
+    for k, name in enumerate(est.model.input_names):
+        u = column(name)
+        if u is None:
+            continue
+        trim = u_trim[:, k]
+        ok = np.isfinite(trim) & (np.abs(trim) > 1e-9) & np.isfinite(u)
+        du[ok, k] = 100.0 * (u[ok] - trim[ok]) / trim[ok]
+    return cond, dy, du

@@ -1,0 +1,105 @@
+"""The stream filter's numerics at one anchor condition: the design model resampled to the
+recording's sample interval (``resample``), its reduced model and steady-state gain
+(``segment_gain``, MATH.md sections 2-3) and the filter run over samples with that gain
+(``filter_run``). The scheduling over the envelope, the storage and the service are in
+app/services/streams/.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from estimation.kalman import filter_stream_states, steady_state_gain
+from estimation.model import LinearModel
+from estimation.reduced import reduced_model
+
+
+class ResampleError(ValueError):
+    """A model that cannot be resampled to another sample interval."""
+
+
+@dataclass(frozen=True)
+class SegmentGain:
+    """Reduced model and steady-state gain at one anchor condition and sample interval."""
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+    F: np.ndarray
+    G: np.ndarray
+    K: np.ndarray
+    sigma: np.ndarray  # [q | h | z] 1-sigma from the a-posteriori covariance
+
+
+def resample(model: LinearModel, dt: float) -> LinearModel:
+    """The model at sample interval ``dt`` (zero-order hold on u and h).
+
+    With A = exp(Ac dt0) and [B, L] = Ac^-1 (A - I) [Bc, Lc], the same continuous system at dt
+    has A_r = A^r (r = dt / dt0, through the eigenvalues of A, real and positive for spool and
+    metal-temperature modes) and [B_r, L_r] = (A - I)^-1 (A_r - I) [B, L] (functions of A
+    commute), which keeps the steady-state gains C (I - A)^-1 L + M.
+    """
+    if math.isclose(dt, model.dt, rel_tol=1e-9):
+        return model
+    w, T = np.linalg.eig(model.A)
+    on_negative_axis = (np.abs(np.imag(w)) <= 1e-12 * np.abs(w)) & (np.real(w) <= 0.0)
+    if np.any(on_negative_axis):
+        raise ResampleError(
+            f"the design model (dt {model.dt:g} s) cannot be resampled to {dt:g} s: "
+            "its state matrix has eigenvalues on the negative real axis"
+        )
+    # Principal powers of conjugate pairs are conjugate: the product is real.
+    Ar_c = np.linalg.solve(T.T, (T * w ** (dt / model.dt)).T).T  # T diag(w^r) T^-1
+    Ar = np.real(Ar_c)
+    eye = np.eye(model.n_states)
+    BL = np.linalg.solve(model.A - eye, (Ar - eye) @ np.hstack([model.B, model.L]))
+    nu = model.n_inputs
+    return replace(model, A=Ar, B=BL[:, :nu], L=BL[:, nu:], dt=dt)
+
+
+def segment_gain(
+    model: LinearModel, vstar: np.ndarray, Vp: np.ndarray, Q: np.ndarray, Qh: np.ndarray,
+    dt: float,
+) -> SegmentGain:
+    """The reduced model and steady-state gain of ``model`` at sample interval ``dt``, with the
+    random walks and process noise Q, Qh given per sample of the model (they scale with the
+    sample interval)."""
+    ratio = dt / model.dt
+    model = resample(model, dt)
+    red = reduced_model(model, vstar, Q * ratio, Qh * ratio)
+    ss = steady_state_gain(red.A, red.C, red.Q, model.R)
+    P = ss.P_post
+    nx = model.n_states
+    Pq = P[nx:, nx:]
+    sigma = np.sqrt(np.maximum(np.concatenate([
+        np.diag(Pq), np.diag(Vp @ Pq @ Vp.T), np.diag(red.F @ P @ red.F.T)
+    ]), 0.0))
+    return SegmentGain(red.A, red.B, red.C, red.D, red.F, red.G, ss.K, sigma)
+
+
+def filter_run(g: SegmentGain, ys: np.ndarray, us: np.ndarray, x_prev: np.ndarray,
+                u_prev: np.ndarray) -> np.ndarray:
+    """x_hat [L, n] over samples ys [L, ny], us [L, nu] with one gain. A sample missing a
+    sensor (null) is not a measurement: x_hat is the prediction A x_hat + B du there."""
+    missing = np.isnan(ys).any(axis=1)
+    L = ys.shape[0]
+    if not missing.any():
+        return filter_stream_states(g.A, g.C, g.K, ys[:, None, :], u=us[:, None, :], B=g.B,
+                                    D=g.D, x0=x_prev, u_prev=u_prev)[:, 0, :]
+    x = np.empty((L, g.A.shape[0]))
+    k = 0
+    while k < L:
+        if missing[k]:
+            x[k] = g.A @ x_prev + g.B @ u_prev
+            x_prev, u_prev, k = x[k], us[k], k + 1
+            continue
+        rest = missing[k:]
+        e = k + int(np.argmax(rest)) if rest.any() else L
+        x[k:e] = filter_stream_states(g.A, g.C, g.K, ys[k:e, None, :], u=us[k:e, None, :],
+                                      B=g.B, D=g.D, x0=x_prev, u_prev=u_prev)[:, 0, :]
+        x_prev, u_prev, k = x[e - 1], us[e - 1], e
+    return x
