@@ -92,7 +92,7 @@ def fd001_runs(
     for k, unit_id in enumerate(unit_ids):
         idx = np.flatnonzero(data[:, 0].astype(int) == unit_id)
         run = snapshots_run.EngineRun(
-            engine_id=k, operator_id=0, seq0=0, state=detector.initial_state(est),
+            engine_id=k, operator_id=0, seq0=0, state=snapshots_run.PipelineState.initial(est),
             epoch=epoch[idx], phase=["takeoff"] * len(idx), conditions=cond[idx], y=y[idx],
             u=u[idx], maintenance=np.zeros(0),
         )
@@ -120,7 +120,7 @@ def filter_tracks(
     for start in range(0, len(runs), batch):
         for res in snapshots_run.run_filters(est, list(runs[start : start + batch])):
             values = res.packed.astype(np.float64)
-            P = np.asarray(res.state["filter"]["P"], float).reshape(-1, est.m, est.m)[-1]
+            P = np.asarray(res.state.filter.P, float).reshape(-1, est.m, est.m)[-1]
             out.append(FilterTrack(values[:, s["q"]], P, values[:, s["h"]], tuple(res.events)))
     return out
 
