@@ -15,8 +15,8 @@ from app.config import Settings, get_settings
 from app.db import make_engine, make_sessionmaker
 from app.errors import install_error_handlers
 from app.jobs.background import start_background_jobs
-from app.jobs.dispatch import CeleryDispatch, Dispatcher, NoDispatch
-from app.jobs.registry import load_kinds
+from app.jobs.celery_app import CeleryDispatch
+from app.jobs.kinds import load_kinds
 from app.limits import BodyLimitMiddleware
 from app.log import configure_logging, install_request_logging
 from app.routers import (
@@ -40,6 +40,7 @@ from app.routers import (
     uploads,
 )
 from app.routers import jobs as jobs_router
+from app.services.jobs.dispatch import Dispatcher, NoDispatch
 from app.services.uploads import fresh_records
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static"

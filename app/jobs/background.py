@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from app.jobs.registry import JobRegistry
 from app.jobs.runner import Runner, SessionFactory
 from app.jobs.scheduler import Scheduler
+from app.services.jobs.registry import JobRegistry
 
 
 @dataclass

@@ -15,9 +15,14 @@ from typing import Any
 
 from celery.signals import worker_ready
 
-from app.jobs.celery_app import make_celery
-from app.jobs.dispatch import CELERY_QUEUE, CeleryDispatch
-from app.jobs.registry import JobRegistry, load_kinds
+from app.jobs.celery_app import (
+    CELERY_QUEUE,
+    RUN_JOB_TASK,
+    TICK_TASK,
+    CeleryDispatch,
+    make_celery,
+)
+from app.jobs.kinds import load_kinds
 from app.jobs.runner import (
     SessionFactory,
     claim_job,
@@ -28,6 +33,7 @@ from app.jobs.runner import (
 )
 from app.jobs.scheduler import submit_due
 from app.models.base import utcnow
+from app.services.jobs.registry import JobRegistry
 
 log = logging.getLogger("fleethealth.jobs")
 
@@ -65,7 +71,7 @@ def configure(factory: SessionFactory, registry: JobRegistry) -> None:
     _context = WorkerContext(factory=factory, registry=registry)
 
 
-@celery.task(name="fleethealth.run_job", bind=True)
+@celery.task(name=RUN_JOB_TASK, bind=True)
 def run_job(self: Any, job_id: int) -> str:
     context = worker_context()
     claim = claim_job(context.factory, job_id, worker=worker_name("celery"),
@@ -74,16 +80,17 @@ def run_job(self: Any, job_id: int) -> str:
         return "not queued"
     # Jobs this job queues go to the queue this worker took it from.
     queue = (self.request.delivery_info or {}).get("routing_key") or CELERY_QUEUE
-    return execute(context.factory, claim, context.registry, dispatcher=CeleryDispatch(queue))
+    dispatcher = CeleryDispatch(queue, celery)
+    return execute(context.factory, claim, context.registry, dispatcher=dispatcher)
 
 
-@celery.task(name="fleethealth.tick")
+@celery.task(name=TICK_TASK)
 def tick() -> dict[str, list[int]]:
     context = worker_context()
     requeued = requeue_stale(context.factory)
     lost = queued_before(context.factory, utcnow() - RESEND_QUEUED_AFTER)
     submitted = submit_due(context.factory, context.registry)
-    dispatcher = CeleryDispatch()
+    dispatcher = CeleryDispatch(celery=celery)
     for job_id in sorted(set(requeued) | set(lost) | set(submitted)):
         dispatcher.dispatch(job_id)
     return {"requeued": requeued, "resent": lost, "submitted": submitted}
@@ -101,7 +108,7 @@ def _requeue_on_start(sender: Any = None, **_kwargs: Any) -> None:
 
     engine = make_engine(get_settings().resolved_database_url)
     try:
-        queue = CeleryDispatch(_queue_of(sender))
+        queue = CeleryDispatch(_queue_of(sender), celery)
         for job_id in requeue_stale(make_sessionmaker(engine)):
             queue.dispatch(job_id)
     except Exception:  # the worker must start even if the database is not there yet

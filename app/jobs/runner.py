@@ -26,10 +26,11 @@ from sqlalchemy.orm import Session, aliased, sessionmaker
 
 from app.db import transaction
 from app.errors import ServiceError
-from app.jobs.dispatch import Dispatcher
-from app.jobs.registry import JobCancelled, JobRegistry, load_kinds
+from app.jobs.kinds import load_kinds
 from app.models.base import utcnow
 from app.models.jobs import Job
+from app.services.jobs.dispatch import Dispatcher
+from app.services.jobs.registry import JobCancelled, JobRegistry
 
 log = logging.getLogger("fleethealth.jobs")
 
@@ -105,7 +106,7 @@ def claim_job(
 def _may_start(serial_kinds: Sequence[str]) -> Any:
     """A queued job may start unless its kind is serial and one of its kind runs for its
     operator. (At most one job of a serial kind is queued per operator, see
-    ``app.jobs.kinds.estimation.queue_estimation``, so two claims cannot both pass.)"""
+    ``app.services.jobs.store.queue_estimation``, so two claims cannot both pass.)"""
     if not serial_kinds:
         return true()
     running = aliased(Job)

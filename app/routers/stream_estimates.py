@@ -10,10 +10,10 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 from fastapi import APIRouter, Query, Request, Response
 
-from app.jobs import store
 from app.models import StreamRecording
 from app.schemas.stream_estimates import StreamEstimatesOut
 from app.security import CurrentPrincipal, DbSession, Principal
+from app.services.jobs import store
 from app.services.streams import estimation
 
 router = APIRouter(prefix="/api/v1/streams", tags=["streams"])

@@ -13,11 +13,11 @@ import pyarrow.csv as pacsv
 from fastapi import APIRouter, Depends, Header, Query, Request, Response, status
 
 from app.errors import InvalidInput, NotFound, PayloadTooLarge, ServiceError
-from app.jobs.queue import get_job_queue
 from app.limits import BodyTooLarge
 from app.schemas.fleet import Page, PageParams
 from app.schemas.uploads import EngineSnapshots, SnapshotBatch, UploadDetail, UploadOut
 from app.security import Analyst, CurrentPrincipal, DbSession
+from app.services.jobs.queue import get_job_queue
 from app.services.tenancy.service import Principal
 from app.services.uploads import store as uploads_store
 from app.services.uploads.store import UploadResult

@@ -20,8 +20,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from app.config import Settings
 from app.db import transaction
 from app.errors import Conflict, InvalidInput
-from app.jobs import store
-from app.jobs.registry import JobCancelled, JobRegistry, load_kinds, parameters_checksum
+from app.jobs.kinds import load_kinds
 from app.jobs.runner import (
     ProgressReporter,
     Runner,
@@ -34,6 +33,8 @@ from app.jobs.runner import (
 from app.main import create_app
 from app.models import Job, Operator
 from app.models.base import utcnow
+from app.services.jobs import store
+from app.services.jobs.registry import JobCancelled, JobRegistry, parameters_checksum
 from tests.support.jobs import (
     AddParameters,
     Gates,

@@ -2,7 +2,7 @@
 
 In a route::
 
-    from app.jobs.queue import Jobs
+    from app.services.jobs.queue import Jobs
 
     @router.post("/uploads", ...)
     def upload(..., session: DbSession, principal: Analyst, jobs: Jobs) -> ...:
@@ -24,11 +24,10 @@ from typing import Annotated, Any
 from fastapi import Depends, Request
 from sqlalchemy.orm import Session
 
-from app.jobs import store
-from app.jobs.dispatch import Dispatcher
-from app.jobs.kinds.estimation import queue_estimation
-from app.jobs.registry import JobRegistry
 from app.models.jobs import Job
+from app.services.jobs import store
+from app.services.jobs.dispatch import Dispatcher
+from app.services.jobs.registry import JobRegistry
 
 
 @dataclass(frozen=True)
@@ -61,8 +60,8 @@ class JobQueue:
     def estimate(self, session: Session, *, operator_id: int) -> Job:
         """Queue the estimation of the operator's snapshots that lack estimates under their
         active designs (after an upload, an activation); see
-        ``app.jobs.kinds.estimation.queue_estimation``."""
-        job = queue_estimation(session, operator_id=operator_id, job_registry=self.registry)
+        ``store.queue_estimation``."""
+        job = store.queue_estimation(session, operator_id=operator_id, job_registry=self.registry)
         store.dispatch_after_commit(session, self.dispatcher.dispatch, job.id)
         return job
 
