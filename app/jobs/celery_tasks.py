@@ -22,15 +22,9 @@ from app.jobs.celery_app import (
     CeleryDispatch,
     make_celery,
 )
+from app.jobs.claim import SessionFactory, claim_job, queued_before, requeue_stale, worker_name
 from app.jobs.kinds import load_kinds
-from app.jobs.runner import (
-    SessionFactory,
-    claim_job,
-    execute,
-    queued_before,
-    requeue_stale,
-    worker_name,
-)
+from app.jobs.runner import execute
 from app.jobs.scheduler import submit_due
 from app.models.base import utcnow
 from app.services.jobs.registry import JobRegistry

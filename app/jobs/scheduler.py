@@ -16,7 +16,7 @@ from sqlalchemy import select, update
 
 from app.db import transaction
 from app.errors import ServiceError
-from app.jobs.runner import SessionFactory
+from app.jobs.claim import SessionFactory
 from app.models.base import utcnow
 from app.models.jobs import JobSchedule
 from app.services.jobs.dispatch import Dispatcher

@@ -195,7 +195,7 @@ def test_beat_sends_the_tick_and_the_tick_submits_requeues_and_resends(
 ) -> None:
     """The tick's bookkeeping, called as the worker would (no broker needed: sends recorded)."""
     from app.jobs import celery_tasks
-    from app.jobs.runner import claim_next
+    from app.jobs.claim import claim_next
     from app.services.jobs.schedules import create_schedule
     from tests.support.jobs import make_registry
 

@@ -20,16 +20,10 @@ from sqlalchemy.orm import Session, sessionmaker
 from app.config import Settings
 from app.db import transaction
 from app.errors import Conflict, InvalidInput
+from app.jobs.claim import claim_job, claim_next, requeue_stale
 from app.jobs.kinds import load_kinds
-from app.jobs.runner import (
-    ProgressReporter,
-    Runner,
-    claim_job,
-    claim_next,
-    execute,
-    requeue_stale,
-    run_pending,
-)
+from app.jobs.progress import ProgressReporter
+from app.jobs.runner import Runner, execute, run_pending
 from app.main import create_app
 from app.models import Job, Operator
 from app.models.base import utcnow

@@ -6,8 +6,8 @@ from __future__ import annotations
 from sqlalchemy import update
 from sqlalchemy.orm import Session, sessionmaker
 
+from app.jobs.claim import claim_job, claim_next
 from app.jobs.kinds import load_kinds
-from app.jobs.runner import claim_job, claim_next
 from app.models import Job
 from app.services.jobs.store import queue_estimation
 from app.services.tenancy import service as tenancy
