@@ -12,7 +12,7 @@ import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 from fastapi import APIRouter, Depends, Header, Query, Request, Response, status
 
-from app.errors import InvalidInput, NotFound, PayloadTooLarge, ServiceError
+from app.errors import InvalidInput, PayloadTooLarge, ServiceError
 from app.limits import BodyTooLarge
 from app.schemas.fleet import Page, PageParams
 from app.schemas.uploads import EngineSnapshots, SnapshotBatch, UploadDetail, UploadOut
@@ -115,28 +115,16 @@ def run_upload(
     store: Callable[[], UploadResult],
 ) -> UploadResult:
     """Run ``store``; a refused upload is rolled back entirely, then kept in the history."""
-    try:
-        return store()
-    except ServiceError as exc:
-        if isinstance(exc, NotFound):
-            raise
-        session.rollback()
-        upload = uploads_store.record_rejection(
-            session,
-            operator_id=principal.operator_id,
-            api_key_id=principal.key_id,
-            kind=kind,
-            content_format=payload.content_format or "unknown",
-            checksum=uploads_store.content_checksum(
-                payload.body, kind=kind, content_format=payload.content_format or "unknown"
-            ),
-            idempotency_key=idempotency_key,
-            bytes_received=len(payload.body),
-            error=exc,
-        )
-        session.commit()
-        exc.message = f"{exc.message} [upload {upload.id}]"
-        raise
+    return uploads_store.store_or_reject(
+        session,
+        operator_id=principal.operator_id,
+        api_key_id=principal.key_id,
+        kind=kind,
+        content_format=payload.content_format,
+        body=payload.body,
+        idempotency_key=idempotency_key,
+        store=store,
+    )
 
 
 def queue_estimation(request: Request, session: DbSession, principal: Principal,
