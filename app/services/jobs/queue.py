@@ -65,6 +65,19 @@ class JobQueue:
         store.dispatch_after_commit(session, self.dispatcher.dispatch, job.id)
         return job
 
+    def estimate_recording(
+        self, session: Session, *, operator_id: int, recording_id: int, through_sample: int
+    ) -> Job:
+        """Queue the stream filter over a recording's samples, dispatched when the upload
+        commits (one job per sample count, so each live chunk gets its run)."""
+        job, _created = store.submit(
+            session, operator_id=operator_id, kind="estimate_recording",
+            parameters={"recording_id": recording_id, "through_sample": through_sample},
+            registry=self.registry,
+        )
+        store.dispatch_after_commit(session, self.dispatcher.dispatch, job.id)
+        return job
+
 
 def get_job_queue(request: Request) -> JobQueue:
     """The app's registry and dispatcher (the dispatcher is the runner once it started)."""
