@@ -66,7 +66,12 @@ def create_app(
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         background = None
         if background_jobs and settings.job_runner == "inprocess":
-            background = start_background_jobs(app.state.sessionmaker, app.state.job_registry)
+            background = start_background_jobs(
+                app.state.sessionmaker,
+                app.state.job_registry,
+                heartbeat_seconds=settings.job_heartbeat_seconds,
+                stale_after=settings.job_stale_after,
+            )
             app.state.job_dispatcher = background.runner
         yield
         if background is not None:

@@ -11,7 +11,7 @@ import logging
 import os
 import socket
 import threading
-from collections.abc import Collection, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
@@ -139,10 +139,81 @@ def requeue_stale(
     """
     cutoff = (now or utcnow()) - stale_after
     stale = (Job.status == "running", Job.heartbeat_at < cutoff, Job.id.not_in(list(alive)))
+    ids = _requeue(factory, stale, max_attempts, "requeued: its worker stopped")
+    if ids:
+        log.warning("requeued jobs whose worker stopped: %s", ids)
+    return ids
+
+
+def requeue_orphans(
+    factory: SessionFactory,
+    *,
+    max_attempts: int = MAX_ATTEMPTS,
+    host: str | None = None,
+    process_alive: Callable[[int], bool] | None = None,
+) -> list[int]:
+    """Requeue at once the running jobs that a stopped process of this host left (orphans),
+    without waiting for their heartbeats to go stale; fail those out of attempts.
+
+    A job's ``worker`` names the host and process that claimed it (``worker_name``); a job
+    claimed here by a process that no longer exists is an orphan. Jobs of other hosts, of
+    live processes and of workers named otherwise wait for ``requeue_stale``. (Hosts that
+    share a name but not their process ids, e.g. containers given one hostname, must not
+    share a database with this check on; the default container hostnames differ.)
+    """
+    host = host or socket.gethostname()
+    process_alive = process_alive or _process_alive
+    with transaction(factory, write=False) as session:
+        running = session.execute(
+            select(Job.id, Job.worker).where(Job.status == "running")
+        ).all()
+    orphans = {
+        (job_id, worker)
+        for job_id, worker in running
+        if (claimant := _claimant(worker)) is not None
+        and claimant[0] == host
+        and claimant[1] != os.getpid()
+        and not process_alive(claimant[1])
+    }
+    if not orphans:
+        return []
+    which = (
+        Job.status == "running",
+        Job.id.in_([job_id for job_id, _ in orphans]),
+        Job.worker.in_({worker for _, worker in orphans}),
+    )
+    ids = _requeue(factory, which, max_attempts, "requeued: its process stopped")
+    if ids:
+        log.warning("requeued jobs a stopped process left running: %s", ids)
+    return ids
+
+
+def _claimant(worker: str | None) -> tuple[str, int] | None:
+    """(host, process id) of a ``worker_name``, or None for a worker named otherwise."""
+    parts = (worker or "").split(":")
+    if len(parts) != 4 or not parts[2].isdigit():
+        return None
+    return parts[1], int(parts[2])
+
+
+def _process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+def _requeue(
+    factory: SessionFactory, which: tuple[Any, ...], max_attempts: int, message: str
+) -> list[int]:
+    """Requeue the running jobs ``which`` selects, failing those out of attempts."""
     with transaction(factory) as session:
         session.execute(
             update(Job)
-            .where(*stale, Job.attempts >= max_attempts)
+            .where(*which, Job.attempts >= max_attempts)
             .values(
                 status="failed",
                 finished_at=utcnow(),
@@ -153,15 +224,12 @@ def requeue_stale(
         )
         requeued = session.execute(
             update(Job)
-            .where(*stale, Job.attempts < max_attempts)
-            .values(status="queued", message="requeued: its worker stopped", worker=None)
+            .where(*which, Job.attempts < max_attempts)
+            .values(status="queued", message=message, worker=None)
             .returning(Job.id),
             execution_options={"synchronize_session": False},
         ).scalars()
-        ids = sorted(requeued)
-    if ids:
-        log.warning("requeued jobs whose worker stopped: %s", ids)
-    return ids
+        return sorted(requeued)
 
 
 def queued_before(factory: SessionFactory, cutoff: datetime) -> list[int]:

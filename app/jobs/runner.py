@@ -27,6 +27,7 @@ from app.jobs.claim import (
     SessionFactory,
     claim_next,
     owned,
+    requeue_orphans,
     requeue_stale,
     worker_name,
 )
@@ -222,9 +223,11 @@ def run_pending(
 class Runner:
     """The embedded default's job runner: ``workers`` threads claiming queued jobs.
 
-    On start, and then every ``stale_after / 2`` from an idle worker, it requeues jobs whose
-    worker stopped beating (a previous process, killed). ``dispatch(job_id)`` wakes an idle
-    worker at once; otherwise workers look for queued jobs every ``poll_seconds``.
+    On start it requeues the jobs a stopped process of this host left running (orphans, at
+    once); on start and then every ``stale_after / 2`` from an idle worker, jobs whose worker
+    stopped beating (a previous process, killed, here or elsewhere). ``dispatch(job_id)``
+    wakes an idle worker at once; otherwise workers look for queued jobs every
+    ``poll_seconds``.
     """
 
     def __init__(
@@ -255,6 +258,7 @@ class Runner:
         self._running: set[int] = set()
 
     def start(self) -> None:
+        requeue_orphans(self._factory)
         requeue_stale(self._factory, stale_after=self._stale_after)
         self._last_sweep = time.monotonic()
         for number in range(self._workers):
