@@ -40,8 +40,8 @@ from app.routers import (
     uploads,
 )
 from app.routers import jobs as jobs_router
+from app.services import fresh_records
 from app.services.jobs.dispatch import Dispatcher, NoDispatch
-from app.services.uploads import fresh_records
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
 

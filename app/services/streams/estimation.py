@@ -53,11 +53,10 @@ from app.models.base import utcnow
 from app.models.estimates import EstimateLayout
 from app.models.ingest import ACTUATORS, CONDITION_COLUMNS, SENSORS, SignalSpec
 from app.models.stream_estimates import StreamEstimate, StreamFilterState
-from app.services import common
+from app.services import common, units
 from app.services.designs import service as designs
 from app.services.snapshots import estimator
 from app.services.streams import recordings
-from app.services.uploads import units
 from estimation.engine.schedule import EngineSchedule
 from estimation.kalman import filter_stream_states, steady_state_gain
 from estimation.model import LinearModel

@@ -35,11 +35,10 @@ from app.db import record_after_rollback
 from app.errors import Conflict, NotFound, ServiceError
 from app.models import Aircraft, Engine, Snapshot, Upload
 from app.models.ingest import SIGNALS, SNAPSHOT_COLUMNS
-from app.services import common
+from app.services import common, fresh_records
 from app.services.encoding.pgcopy import HEADER, TRAILER, binary_copy_rows
 from app.services.fleet import service as fleet
 from app.services.snapshots import backlog
-from app.services.uploads import fresh_records
 from app.services.uploads.parse import (
     MAX_ERRORS,
     ErrorLimitReached,
