@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+from datetime import timedelta
 from functools import lru_cache
 from pathlib import Path
 
-from pydantic import Field
+from pydantic import Field, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 
@@ -20,11 +21,30 @@ class Settings(BaseSettings):
     )
     redis_url: str = "redis://127.0.0.1:6379/0"
     job_runner: str = Field(default="inprocess", pattern="^(inprocess|celery)$")
+    job_heartbeat_seconds: float = Field(
+        default=15.0, gt=0, description="How often a running job marks itself alive."
+    )
+    job_stale_after_seconds: float = Field(
+        default=120.0,
+        gt=0,
+        description="The heartbeat timeout: a running job whose last heartbeat is older is "
+        "taken as abandoned by a stopped worker and requeued.",
+    )
     host: str = "127.0.0.1"
     port: int = 8000
     log_level: str = "INFO"
     log_json: bool = True
     max_body_bytes: int = Field(default=256 * 1024 * 1024, gt=0)
+
+    @model_validator(mode="after")
+    def _heartbeat_within_timeout(self) -> Settings:
+        if self.job_heartbeat_seconds >= self.job_stale_after_seconds:
+            raise ValueError("job_heartbeat_seconds must be shorter than job_stale_after_seconds")
+        return self
+
+    @property
+    def job_stale_after(self) -> timedelta:
+        return timedelta(seconds=self.job_stale_after_seconds)
 
     @property
     def resolved_database_url(self) -> str:

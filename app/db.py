@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -74,7 +74,8 @@ def make_sessionmaker(engine: Engine) -> sessionmaker[Session]:
 
 @contextmanager
 def transaction(factory: sessionmaker[Session], *, write: bool = True) -> Iterator[Session]:
-    """One unit of work: commit on success, roll back on any error.
+    """One unit of work: commit on success, roll back on any error (then write and commit
+    what ``record_after_rollback`` asked for).
 
     ``write`` (the default) marks its first transaction as one that writes (see ``writing``);
     pass ``write=False`` for a read-only unit that should never wait for a writer.
@@ -87,9 +88,24 @@ def transaction(factory: sessionmaker[Session], *, write: bool = True) -> Iterat
         session.commit()
     except BaseException:
         session.rollback()
+        records = session.info.pop(AFTER_ROLLBACK, [])
+        if records:
+            for record in records:
+                record(session)
+            session.commit()
         raise
     finally:
         session.close()
+
+
+AFTER_ROLLBACK = "fleethealth.after_rollback"
+
+
+def record_after_rollback(session: Session, record: Callable[[Session], None]) -> None:
+    """Have the unit of work that owns ``session`` (``transaction``: a request, a job) write
+    ``record`` after it rolls back on the error now being raised, and commit that alone: the
+    record of a failure that must outlive it (a refused upload in the upload history)."""
+    session.info.setdefault(AFTER_ROLLBACK, []).append(record)
 
 
 def ping(engine: Engine) -> None:

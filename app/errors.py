@@ -44,6 +44,11 @@ class InvalidInput(ServiceError):
     code = "invalid_input"
 
 
+class UnsupportedMediaType(ServiceError):
+    status_code = 415
+    code = "unsupported_media_type"
+
+
 class PayloadTooLarge(ServiceError):
     status_code = 413
     code = "payload_too_large"

@@ -15,8 +15,8 @@ from app.config import Settings, get_settings
 from app.db import make_engine, make_sessionmaker
 from app.errors import install_error_handlers
 from app.jobs.background import start_background_jobs
-from app.jobs.dispatch import CeleryDispatch, Dispatcher, NoDispatch
-from app.jobs.registry import load_kinds
+from app.jobs.celery_app import CeleryDispatch
+from app.jobs.kinds import load_kinds
 from app.limits import BodyLimitMiddleware
 from app.log import configure_logging, install_request_logging
 from app.routers import (
@@ -40,7 +40,8 @@ from app.routers import (
     uploads,
 )
 from app.routers import jobs as jobs_router
-from app.services.uploads import fresh_records
+from app.services import fresh_records
+from app.services.jobs.dispatch import Dispatcher, NoDispatch
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
 
@@ -65,7 +66,12 @@ def create_app(
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         background = None
         if background_jobs and settings.job_runner == "inprocess":
-            background = start_background_jobs(app.state.sessionmaker, app.state.job_registry)
+            background = start_background_jobs(
+                app.state.sessionmaker,
+                app.state.job_registry,
+                heartbeat_seconds=settings.job_heartbeat_seconds,
+                stale_after=settings.job_stale_after,
+            )
             app.state.job_dispatcher = background.runner
         yield
         if background is not None:

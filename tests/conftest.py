@@ -23,7 +23,7 @@ from app.config import Settings
 from app.db import make_engine
 from app.main import create_app
 from app.migrate import upgrade
-from app.services.uploads import fresh_records
+from app.services import fresh_records
 
 POSTGRES_URL = os.environ.get(
     "FLEETHEALTH_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test"

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from datetime import timedelta
 
-from app.jobs.registry import JobRegistry
-from app.jobs.runner import Runner, SessionFactory
+from app.jobs.claim import HEARTBEAT_SECONDS, STALE_AFTER, SessionFactory
+from app.jobs.runner import Runner
 from app.jobs.scheduler import Scheduler
+from app.services.jobs.registry import JobRegistry
 
 
 @dataclass
@@ -20,11 +22,19 @@ class BackgroundJobs:
 
 
 def start_background_jobs(
-    factory: SessionFactory, registry: JobRegistry, *, workers: int = 2
+    factory: SessionFactory,
+    registry: JobRegistry,
+    *,
+    workers: int = 2,
+    heartbeat_seconds: float = HEARTBEAT_SECONDS,
+    stale_after: timedelta = STALE_AFTER,
 ) -> BackgroundJobs:
     """Start the runner's threads (requeueing jobs a stopped process left running) and the
     scheduler thread, which wakes the runner for each job it submits."""
-    runner = Runner(factory, registry, workers=workers)
+    runner = Runner(
+        factory, registry, workers=workers, heartbeat_seconds=heartbeat_seconds,
+        stale_after=stale_after,
+    )
     runner.start()
     scheduler = Scheduler(factory, registry, runner)
     scheduler.start()

@@ -15,19 +15,28 @@ from typing import Any
 
 from celery.signals import worker_ready
 
-from app.jobs.celery_app import make_celery
-from app.jobs.dispatch import CELERY_QUEUE, CeleryDispatch
-from app.jobs.registry import JobRegistry, load_kinds
-from app.jobs.runner import (
+from app.jobs.celery_app import (
+    CELERY_QUEUE,
+    RUN_JOB_TASK,
+    TICK_TASK,
+    CeleryDispatch,
+    make_celery,
+)
+from app.jobs.claim import (
+    HEARTBEAT_SECONDS,
+    STALE_AFTER,
     SessionFactory,
     claim_job,
-    execute,
     queued_before,
+    requeue_orphans,
     requeue_stale,
     worker_name,
 )
+from app.jobs.kinds import load_kinds
+from app.jobs.runner import execute
 from app.jobs.scheduler import submit_due
 from app.models.base import utcnow
+from app.services.jobs.registry import JobRegistry
 
 log = logging.getLogger("fleethealth.jobs")
 
@@ -42,6 +51,8 @@ RESEND_QUEUED_AFTER = timedelta(minutes=2)
 class WorkerContext:
     factory: SessionFactory
     registry: JobRegistry
+    heartbeat_seconds: float = HEARTBEAT_SECONDS
+    stale_after: timedelta = STALE_AFTER
 
 
 _context: WorkerContext | None = None
@@ -54,8 +65,14 @@ def worker_context() -> WorkerContext:
         from app.config import get_settings
         from app.db import make_engine, make_sessionmaker
 
-        engine = make_engine(get_settings().resolved_database_url)
-        _context = WorkerContext(factory=make_sessionmaker(engine), registry=load_kinds())
+        settings = get_settings()
+        engine = make_engine(settings.resolved_database_url)
+        _context = WorkerContext(
+            factory=make_sessionmaker(engine),
+            registry=load_kinds(),
+            heartbeat_seconds=settings.job_heartbeat_seconds,
+            stale_after=settings.job_stale_after,
+        )
     return _context
 
 
@@ -65,7 +82,7 @@ def configure(factory: SessionFactory, registry: JobRegistry) -> None:
     _context = WorkerContext(factory=factory, registry=registry)
 
 
-@celery.task(name="fleethealth.run_job", bind=True)
+@celery.task(name=RUN_JOB_TASK, bind=True)
 def run_job(self: Any, job_id: int) -> str:
     context = worker_context()
     claim = claim_job(context.factory, job_id, worker=worker_name("celery"),
@@ -74,16 +91,20 @@ def run_job(self: Any, job_id: int) -> str:
         return "not queued"
     # Jobs this job queues go to the queue this worker took it from.
     queue = (self.request.delivery_info or {}).get("routing_key") or CELERY_QUEUE
-    return execute(context.factory, claim, context.registry, dispatcher=CeleryDispatch(queue))
+    dispatcher = CeleryDispatch(queue, celery)
+    return execute(
+        context.factory, claim, context.registry, dispatcher=dispatcher,
+        heartbeat_seconds=context.heartbeat_seconds,
+    )
 
 
-@celery.task(name="fleethealth.tick")
+@celery.task(name=TICK_TASK)
 def tick() -> dict[str, list[int]]:
     context = worker_context()
-    requeued = requeue_stale(context.factory)
+    requeued = requeue_stale(context.factory, stale_after=context.stale_after)
     lost = queued_before(context.factory, utcnow() - RESEND_QUEUED_AFTER)
     submitted = submit_due(context.factory, context.registry)
-    dispatcher = CeleryDispatch()
+    dispatcher = CeleryDispatch(celery=celery)
     for job_id in sorted(set(requeued) | set(lost) | set(submitted)):
         dispatcher.dispatch(job_id)
     return {"requeued": requeued, "resent": lost, "submitted": submitted}
@@ -91,7 +112,8 @@ def tick() -> dict[str, list[int]]:
 
 @worker_ready.connect
 def _requeue_on_start(sender: Any = None, **_kwargs: Any) -> None:
-    """A worker starting after a crash sends the jobs the crashed worker left running again.
+    """A worker starting after a crash sends the jobs the crashed worker left running again:
+    at once those of a stopped process of this host (orphans), the others once stale.
 
     This runs in the pool's parent process: its engine is thrown away afterwards, so pool
     processes forked later never inherit its connections.
@@ -99,10 +121,14 @@ def _requeue_on_start(sender: Any = None, **_kwargs: Any) -> None:
     from app.config import get_settings
     from app.db import make_engine, make_sessionmaker
 
-    engine = make_engine(get_settings().resolved_database_url)
+    settings = get_settings()
+    engine = make_engine(settings.resolved_database_url)
     try:
-        queue = CeleryDispatch(_queue_of(sender))
-        for job_id in requeue_stale(make_sessionmaker(engine)):
+        queue = CeleryDispatch(_queue_of(sender), celery)
+        factory = make_sessionmaker(engine)
+        orphans = requeue_orphans(factory)
+        stale = requeue_stale(factory, stale_after=settings.job_stale_after)
+        for job_id in sorted(set(orphans) | set(stale)):
             queue.dispatch(job_id)
     except Exception:  # the worker must start even if the database is not there yet
         log.exception("requeueing stale jobs at worker start failed")

@@ -7,12 +7,13 @@ from __future__ import annotations
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from app.jobs.registry import JobRegistry, load_kinds
-from app.jobs.store import submit
+from app.jobs.kinds import load_kinds
 from app.models import Operator
 from app.models.designs import EstimatorDesign
 from app.services.demo.operator import DEMO_OPERATOR
 from app.services.designs.evaluation import JOB_KIND, latest_evaluation
+from app.services.jobs.registry import JobRegistry
+from app.services.jobs.store import submit
 
 
 def queue_demo_evaluations(session: Session, registry: JobRegistry | None = None) -> list[int]:

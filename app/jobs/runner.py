@@ -1,314 +1,50 @@
-"""Claiming and running jobs: the code every runner shares, and the in-process thread pool.
+"""Running claimed jobs: the code every runner shares, and the in-process thread pool.
 
 The in-process ``Runner`` (embedded default) and the Celery task ``run_job`` (deployment) both
-claim a job with one atomic UPDATE and run it with ``execute``. Tests run queued jobs
-synchronously with ``run_pending(session_factory)``.
+claim a job with one atomic UPDATE (``app.jobs.claim``) and run it with ``execute``, which
+reports progress and beats through ``app.jobs.progress``. Tests run queued jobs synchronously
+with ``run_pending(session_factory)``.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import math
-import os
-import socket
 import threading
 import time
-from collections.abc import Callable, Collection, Iterator, Sequence
-from contextlib import contextmanager
-from dataclasses import dataclass
-from datetime import datetime, timedelta
+from datetime import timedelta
 from typing import Any
 
-from sqlalchemy import event, or_, select, true, update
-from sqlalchemy.exc import OperationalError
-from sqlalchemy.orm import Session, aliased, sessionmaker
+from sqlalchemy import event, select, update
+from sqlalchemy.orm import Session
 
 from app.db import transaction
 from app.errors import ServiceError
-from app.jobs.dispatch import Dispatcher
-from app.jobs.registry import JobCancelled, JobRegistry, load_kinds
+from app.jobs.claim import (
+    HEARTBEAT_SECONDS,
+    STALE_AFTER,
+    Claim,
+    SessionFactory,
+    claim_next,
+    owned,
+    requeue_orphans,
+    requeue_stale,
+    worker_name,
+)
+from app.jobs.kinds import load_kinds
+from app.jobs.progress import (
+    PROGRESS_THROTTLE_SECONDS,
+    Heartbeat,
+    ProgressReporter,
+    SqliteTransactionWatch,
+    never_busy,
+)
 from app.models.base import utcnow
 from app.models.jobs import Job
+from app.services.jobs.dispatch import Dispatcher
+from app.services.jobs.registry import JobCancelled, JobRegistry
 
 log = logging.getLogger("fleethealth.jobs")
-
-SessionFactory = sessionmaker[Session]
-
-# A worker that stopped (killed process, lost machine) leaves its job 'running' without
-# heartbeats; after STALE_AFTER the job is requeued, at most MAX_ATTEMPTS claims in all.
-HEARTBEAT_SECONDS = 15.0
-STALE_AFTER = timedelta(seconds=120)
-MAX_ATTEMPTS = 3
-PROGRESS_THROTTLE_SECONDS = 0.5
-# While a job's own transaction holds SQLite's single write lock, a progress write would wait;
-# it gives up quickly instead and the next report tries again.
-SQLITE_PROGRESS_WAIT_MS = 200
-
-
-def worker_name(prefix: str) -> str:
-    return f"{prefix}:{socket.gethostname()}:{os.getpid()}:{threading.get_ident()}"
-
-
-@dataclass(frozen=True)
-class Claim:
-    """A job this worker owns: every later write is conditioned on ``attempt``."""
-
-    job_id: int
-    attempt: int
-
-
-def _claim_values(worker: str) -> dict[str, Any]:
-    now = utcnow()
-    return {
-        "status": "running",
-        "attempts": Job.attempts + 1,
-        "started_at": now,
-        "heartbeat_at": now,
-        "worker": worker[:200],
-        "message": "running",
-    }
-
-
-def claim_next(
-    factory: SessionFactory, *, worker: str, serial_kinds: Sequence[str] = ()
-) -> Claim | None:
-    """Atomically take the oldest queued job that may start, or None when there is none.
-
-    One UPDATE ... WHERE status = 'queued' RETURNING: of two workers racing for a job only one
-    gets the row back. On PostgreSQL the inner SELECT skips rows another worker has locked.
-    An idle worker only reads: on SQLite even an UPDATE of no rows takes the one write lock.
-    A job of a kind in ``serial_kinds`` waits while one of its kind runs for its operator.
-    """
-    with transaction(factory) as session:
-        if session.scalar(select(Job.id).where(Job.status == "queued").limit(1)) is None:
-            return None
-    oldest = (
-        select(Job.id)
-        .where(Job.status == "queued", _may_start(serial_kinds))
-        .order_by(Job.id)
-        .limit(1)
-        .with_for_update(skip_locked=True)
-        .scalar_subquery()
-    )
-    return _claim(factory, Job.id == oldest, worker, serial_kinds)
-
-
-def claim_job(
-    factory: SessionFactory, job_id: int, *, worker: str, serial_kinds: Sequence[str] = ()
-) -> Claim | None:
-    """Atomically take job ``job_id`` if it is still queued and may start (a Celery message
-    names its job; one that must wait stays queued for the next tick's message)."""
-    return _claim(factory, Job.id == job_id, worker, serial_kinds)
-
-
-def _may_start(serial_kinds: Sequence[str]) -> Any:
-    """A queued job may start unless its kind is serial and one of its kind runs for its
-    operator. (At most one job of a serial kind is queued per operator, see
-    ``app.jobs.kinds.estimation.queue_estimation``, so two claims cannot both pass.)"""
-    if not serial_kinds:
-        return true()
-    running = aliased(Job)
-    sibling = (
-        select(running.id)
-        .where(running.operator_id == Job.operator_id, running.kind == Job.kind,
-               running.status == "running")
-        .exists()
-    )
-    return or_(Job.kind.not_in(list(serial_kinds)), ~sibling)
-
-
-def _claim(
-    factory: SessionFactory, which: Any, worker: str, serial_kinds: Sequence[str] = ()
-) -> Claim | None:
-    with transaction(factory) as session:
-        row = session.execute(
-            update(Job)
-            .where(which, Job.status == "queued", _may_start(serial_kinds))
-            .values(**_claim_values(worker))
-            .returning(Job.id, Job.attempts),
-            execution_options={"synchronize_session": False},
-        ).first()
-    return None if row is None else Claim(job_id=row[0], attempt=row[1])
-
-
-def _owned(claim: Claim) -> tuple[Any, ...]:
-    return (Job.id == claim.job_id, Job.status == "running", Job.attempts == claim.attempt)
-
-
-@contextmanager
-def _short_write(factory: SessionFactory) -> Iterator[Session]:
-    """A short transaction that gives up fast on a locked SQLite file (raises OperationalError)."""
-    with transaction(factory) as session:
-        connection = session.connection()
-        if connection.dialect.name != "sqlite":
-            yield session
-            return
-        previous = connection.exec_driver_sql("PRAGMA busy_timeout").scalar()
-        connection.exec_driver_sql(f"PRAGMA busy_timeout = {SQLITE_PROGRESS_WAIT_MS}")
-        try:
-            yield session
-        finally:
-            connection.exec_driver_sql(f"PRAGMA busy_timeout = {int(previous or 0)}")
-
-
-def _locked(exc: OperationalError) -> bool:
-    return "database is locked" in str(exc.orig)
-
-
-class SqliteTransactionWatch:
-    """Makes a job's SQLite transactions take the write lock at once, and tells when they do.
-
-    SQLite has one writer. A transaction that reads and later writes fails ("database is
-    locked") if another connection committed in between, since its snapshot is stale; so a
-    job's transaction begins IMMEDIATE: it holds the lock from its first statement to its
-    commit, and other writers wait for it instead. Meanwhile ``busy()`` is true: the job's
-    progress is held back and its heartbeat skipped, both written after its commit. Other
-    databases are never busy.
-    """
-
-    def __init__(self, session: Session) -> None:
-        self._dbapi: Any = None
-        event.listen(session, "after_begin", self._begun)
-        event.listen(session, "after_transaction_end", self._ended)
-
-    def _begun(self, _session: Session, _transaction: object, connection: Any) -> None:
-        if connection.dialect.name != "sqlite" or connection.in_nested_transaction():
-            return  # a savepoint inside a caller's transaction (tests) is not ours to change
-        dbapi = connection.connection.dbapi_connection
-        if dbapi.in_transaction:
-            # A deferred BEGIN was sent (nothing ran yet): begin again, taking the lock.
-            connection.exec_driver_sql("ROLLBACK")
-        connection.exec_driver_sql("BEGIN IMMEDIATE")
-        self._dbapi = dbapi
-
-    def _ended(self, session: Session, _transaction: object) -> None:
-        if not session.in_transaction():
-            self._dbapi = None
-
-    def busy(self) -> bool:
-        # sqlite3's in_transaction is safe to read from the heartbeat thread.
-        dbapi = self._dbapi
-        return dbapi is not None and bool(dbapi.in_transaction)
-
-
-def _never_busy() -> bool:
-    return False
-
-
-class ProgressReporter:
-    """The ``progress(fraction, message)`` callback a job function receives.
-
-    Writes at most every ``throttle_seconds`` (the first report always), each in its own short
-    transaction, so the dashboard sees it while the job's own transaction is still open. Raises
-    ``JobCancelled`` when the write finds the job no longer running under this claim. While
-    ``busy()`` (see ``SqliteTransactionWatch``) reports are kept and written by ``flush()``,
-    which the runner calls when the job's session commits.
-    """
-
-    def __init__(
-        self,
-        factory: SessionFactory,
-        claim: Claim,
-        *,
-        throttle_seconds: float = PROGRESS_THROTTLE_SECONDS,
-        clock: Callable[[], float] = time.monotonic,
-        busy: Callable[[], bool] = _never_busy,
-    ) -> None:
-        self._factory = factory
-        self._claim = claim
-        self._throttle = throttle_seconds
-        self._clock = clock
-        self._busy = busy
-        self._last_write: float | None = None
-        self._unwritten = False
-        self.finished = False
-        self.fraction = 0.0
-        self.message = "running"
-
-    def __call__(self, fraction: float, message: str | None = None) -> None:
-        if not (math.isfinite(fraction) and 0.0 <= fraction <= 1.0):
-            raise ValueError(f"progress must be a fraction between 0 and 1, not {fraction!r}")
-        self.fraction = float(fraction)
-        if message is not None:
-            self.message = message[:500]
-        self._unwritten = True
-        now = self._clock()
-        if self._last_write is not None and now - self._last_write < self._throttle:
-            return
-        if self._busy():
-            return
-        self._last_write = now
-        self._write()
-
-    def flush(self) -> None:
-        """Write the latest report if it was held back; never raises (called at commit)."""
-        if not self._unwritten or self.finished:
-            return
-        try:
-            self._write()
-        except Exception as exc:  # cancellation is seen at the next report or the end
-            log.debug("progress of job %s not written at commit: %s", self._claim.job_id, exc)
-
-    def _write(self) -> None:
-        self._unwritten = False
-        try:
-            with _short_write(self._factory) as session:
-                written = session.execute(
-                    update(Job)
-                    .where(*_owned(self._claim))
-                    .values(progress=self.fraction, message=self.message, heartbeat_at=utcnow()),
-                    execution_options={"synchronize_session": False},
-                ).rowcount  # type: ignore[attr-defined]
-        except OperationalError as exc:
-            if not _locked(exc):
-                raise
-            self._last_write = None  # another connection holds the lock; report again next time
-            self._unwritten = True
-            return
-        if written == 0:
-            raise JobCancelled(f"job {self._claim.job_id} is no longer running here")
-
-
-class Heartbeat:
-    """Marks a running job alive every ``interval`` seconds from a daemon thread."""
-
-    def __init__(
-        self,
-        factory: SessionFactory,
-        claim: Claim,
-        interval: float,
-        busy: Callable[[], bool] = _never_busy,
-    ) -> None:
-        self._factory = factory
-        self._claim = claim
-        self._interval = interval
-        self._busy = busy
-        self._stop = threading.Event()
-        self._thread = threading.Thread(
-            target=self._beat, name=f"job-{claim.job_id}-heartbeat", daemon=True
-        )
-        self._thread.start()
-
-    def _beat(self) -> None:
-        while not self._stop.wait(self._interval):
-            if self._busy():
-                continue  # the job's transaction is open; its runner knows it is alive
-            try:
-                with _short_write(self._factory) as session:
-                    written = session.execute(
-                        update(Job).where(*_owned(self._claim)).values(heartbeat_at=utcnow()),
-                        execution_options={"synchronize_session": False},
-                    ).rowcount  # type: ignore[attr-defined]
-            except OperationalError as exc:
-                log.debug("heartbeat of job %s skipped: %s", self._claim.job_id, exc)
-                continue
-            if written == 0:
-                return
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
 
 
 def execute(
@@ -343,7 +79,7 @@ def execute(
         return _record_failure(factory, claim, exc.message)
 
     session = factory()
-    busy = SqliteTransactionWatch(session).busy if sqlite_guard else _never_busy
+    busy = SqliteTransactionWatch(session).busy if sqlite_guard else never_busy
     progress = ProgressReporter(factory, claim, throttle_seconds=throttle_seconds, busy=busy)
     _flush_at_commit(session, progress)
     if dispatcher is not None:
@@ -366,7 +102,7 @@ def execute(
             now = utcnow()
             done = session.execute(
                 update(Job)
-                .where(*_owned(claim))
+                .where(*owned(claim))
                 .values(
                     status="succeeded",
                     progress=1.0,
@@ -444,7 +180,7 @@ def _record_failure(factory: SessionFactory, claim: Claim, error: str) -> str:
     with transaction(factory) as session:
         session.execute(
             update(Job)
-            .where(*_owned(claim))
+            .where(*owned(claim))
             .values(status="failed", error=error, message="failed", finished_at=utcnow()),
             execution_options={"synchronize_session": False},
         )
@@ -454,57 +190,6 @@ def _record_failure(factory: SessionFactory, claim: Claim, error: str) -> str:
 def _status(factory: SessionFactory, job_id: int) -> str:
     with transaction(factory) as session:
         return session.scalar(select(Job.status).where(Job.id == job_id)) or "missing"
-
-
-def requeue_stale(
-    factory: SessionFactory,
-    *,
-    stale_after: timedelta = STALE_AFTER,
-    max_attempts: int = MAX_ATTEMPTS,
-    now: datetime | None = None,
-    alive: Collection[int] = (),
-) -> list[int]:
-    """Requeue running jobs whose worker stopped beating; fail those out of attempts.
-
-    ``alive``: jobs the caller knows are running (its own threads), whatever their heartbeat
-    says (on SQLite a job's open write transaction blocks its heartbeats). Returns the ids
-    requeued (a Celery deployment sends them to the workers again).
-    """
-    cutoff = (now or utcnow()) - stale_after
-    stale = (Job.status == "running", Job.heartbeat_at < cutoff, Job.id.not_in(list(alive)))
-    with transaction(factory) as session:
-        session.execute(
-            update(Job)
-            .where(*stale, Job.attempts >= max_attempts)
-            .values(
-                status="failed",
-                finished_at=utcnow(),
-                message="failed",
-                error=f"its worker stopped {max_attempts} times; not retried again",
-            ),
-            execution_options={"synchronize_session": False},
-        )
-        requeued = session.execute(
-            update(Job)
-            .where(*stale, Job.attempts < max_attempts)
-            .values(status="queued", message="requeued: its worker stopped", worker=None)
-            .returning(Job.id),
-            execution_options={"synchronize_session": False},
-        ).scalars()
-        ids = sorted(requeued)
-    if ids:
-        log.warning("requeued jobs whose worker stopped: %s", ids)
-    return ids
-
-
-def queued_before(factory: SessionFactory, cutoff: datetime) -> list[int]:
-    """Ids of jobs still queued that were created before ``cutoff`` (their message was lost)."""
-    with transaction(factory) as session:
-        return list(
-            session.scalars(
-                select(Job.id).where(Job.status == "queued", Job.created_at < cutoff)
-            ).all()
-        )
 
 
 def run_pending(
@@ -538,9 +223,11 @@ def run_pending(
 class Runner:
     """The embedded default's job runner: ``workers`` threads claiming queued jobs.
 
-    On start, and then every ``stale_after / 2`` from an idle worker, it requeues jobs whose
-    worker stopped beating (a previous process, killed). ``dispatch(job_id)`` wakes an idle
-    worker at once; otherwise workers look for queued jobs every ``poll_seconds``.
+    On start it requeues the jobs a stopped process of this host left running (orphans, at
+    once); on start and then every ``stale_after / 2`` from an idle worker, jobs whose worker
+    stopped beating (a previous process, killed, here or elsewhere). ``dispatch(job_id)``
+    wakes an idle worker at once; otherwise workers look for queued jobs every
+    ``poll_seconds``.
     """
 
     def __init__(
@@ -571,6 +258,7 @@ class Runner:
         self._running: set[int] = set()
 
     def start(self) -> None:
+        requeue_orphans(self._factory)
         requeue_stale(self._factory, stale_after=self._stale_after)
         self._last_sweep = time.monotonic()
         for number in range(self._workers):

@@ -16,12 +16,12 @@ from sqlalchemy import select, update
 
 from app.db import transaction
 from app.errors import ServiceError
-from app.jobs.dispatch import Dispatcher
-from app.jobs.registry import JobRegistry
-from app.jobs.runner import SessionFactory
-from app.jobs.store import submit
+from app.jobs.claim import SessionFactory
 from app.models.base import utcnow
 from app.models.jobs import JobSchedule
+from app.services.jobs.dispatch import Dispatcher
+from app.services.jobs.registry import JobRegistry
+from app.services.jobs.store import submit
 
 log = logging.getLogger("fleethealth.jobs")
 

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import Annotated
 
 from fastapi import APIRouter, Query, status
 from pydantic import AwareDatetime
 
-from app.models.base import utcnow
 from app.schemas.fleet import (
     AircraftCreate,
     AircraftOut,
@@ -99,7 +98,7 @@ def aircraft_engines(
     at: AwareDatetime | None = None,
 ) -> list[PositionEngine]:
     """The engine at each position of the tail at time ``at`` (default: now)."""
-    when: datetime = at or utcnow()
+    when: datetime = at or datetime.now(UTC)
     slots = fleet.engines_on_aircraft(
         session, operator_id=principal.operator_id, aircraft_id=aircraft_id, at=when
     )

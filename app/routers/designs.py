@@ -6,12 +6,12 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query, Response, status
 
-from app.jobs.queue import Jobs
 from app.schemas.designs import DesignCreate, DesignDetail, DesignOut
 from app.schemas.fleet import Page, PageParams
 from app.security import Analyst, CurrentPrincipal, DbSession
 from app.services.designs import service as designs
 from app.services.fleet import service as fleet
+from app.services.jobs.queue import Jobs
 
 router = APIRouter(prefix="/api/v1", tags=["designs"])
 

@@ -7,7 +7,6 @@ from typing import Annotated
 from fastapi import APIRouter, Query, status
 from pydantic import AwareDatetime
 
-from app.jobs.queue import Jobs
 from app.schemas.fleet import (
     Deleted,
     InstallationCreate,
@@ -18,6 +17,7 @@ from app.schemas.fleet import (
 )
 from app.security import Analyst, CurrentPrincipal, DbSession
 from app.services.fleet import service as fleet
+from app.services.jobs.queue import Jobs
 
 router = APIRouter(prefix="/api/v1/installations", tags=["fleet"])
 

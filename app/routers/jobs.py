@@ -7,9 +7,6 @@ from typing import Annotated
 from fastapi import APIRouter, Query, Response, status
 
 from app.errors import Forbidden, InvalidInput
-from app.jobs import schedules as schedule_service
-from app.jobs import store
-from app.jobs.queue import Jobs
 from app.schemas.jobs import (
     JobKindOut,
     JobList,
@@ -21,6 +18,9 @@ from app.schemas.jobs import (
     ScheduleUpdate,
 )
 from app.security import Admin, Analyst, CurrentPrincipal, DbSession
+from app.services.jobs import schedules as schedule_service
+from app.services.jobs import store
+from app.services.jobs.queue import Jobs
 
 router = APIRouter(prefix="/api/v1", tags=["jobs"])
 

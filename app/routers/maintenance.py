@@ -7,7 +7,6 @@ from typing import Annotated
 from fastapi import APIRouter, Query, status
 from pydantic import AwareDatetime
 
-from app.jobs.queue import Jobs
 from app.schemas.fleet import (
     Deleted,
     MaintenanceCreate,
@@ -19,6 +18,7 @@ from app.schemas.fleet import (
 )
 from app.security import Analyst, CurrentPrincipal, DbSession
 from app.services.fleet import maintenance
+from app.services.jobs.queue import Jobs
 
 router = APIRouter(prefix="/api/v1/maintenance-actions", tags=["maintenance"])
 

@@ -8,12 +8,10 @@ from typing import Annotated
 import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
-from fastapi import APIRouter, Query, Request, Response
+from fastapi import APIRouter, Query, Response
 
-from app.jobs import store
-from app.models import StreamRecording
 from app.schemas.stream_estimates import StreamEstimatesOut
-from app.security import CurrentPrincipal, DbSession, Principal
+from app.security import CurrentPrincipal, DbSession
 from app.services.streams import estimation
 
 router = APIRouter(prefix="/api/v1/streams", tags=["streams"])
@@ -28,19 +26,6 @@ SERIES = (
     ("z_sigma", "z_sigma", "aux"),
     ("residual", "residual", "sensors"),
 )
-
-
-def queue_recording_estimation(
-    request: Request, session: DbSession, principal: Principal, recording: StreamRecording
-) -> None:
-    """Queue the stream filter over the recording's samples, dispatched when the upload
-    commits (one job per sample count, so each live chunk gets its run)."""
-    job, _created = store.submit(
-        session, operator_id=principal.operator_id, kind="estimate_recording",
-        parameters={"recording_id": recording.id, "through_sample": recording.n_samples},
-        registry=request.app.state.job_registry,
-    )
-    store.dispatch_after_commit(session, request.app.state.job_dispatcher.dispatch, job.id)
 
 
 def _numbers(values: np.ndarray) -> list[float | None]:

@@ -11,15 +11,8 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 from fastapi import APIRouter, Query, Request, Response, status
 
-from app.routers.stream_estimates import queue_recording_estimation
-from app.routers.uploads import (
-    Body,
-    ColumnMapping,
-    IdempotencyKey,
-    UnsupportedMediaType,
-    parse_mapping,
-    run_upload,
-)
+from app.errors import UnsupportedMediaType
+from app.payloads import Body, ColumnMapping, IdempotencyKey, parse_mapping, run_upload
 from app.schemas.fleet import Page, PageParams
 from app.schemas.uploads import (
     ChunkOut,
@@ -29,6 +22,7 @@ from app.schemas.uploads import (
     UploadOut,
 )
 from app.security import Analyst, CurrentPrincipal, DbSession
+from app.services.jobs.queue import get_job_queue
 from app.services.streams import recordings
 
 router = APIRouter(prefix="/api/v1/streams", tags=["streams"])
@@ -99,7 +93,11 @@ def upload_stream(
         store=store,
     )
     if not outcome["replayed"]:
-        queue_recording_estimation(request, session, principal, outcome["recording"])
+        recording = outcome["recording"]
+        get_job_queue(request).estimate_recording(
+            session, operator_id=principal.operator_id, recording_id=recording.id,
+            through_sample=recording.n_samples,
+        )
     response.status_code = status.HTTP_200_OK if outcome["replayed"] else status.HTTP_201_CREATED
     upload = UploadOut.model_validate(outcome["upload"]).model_copy(
         update={"replayed": outcome["replayed"]}
@@ -155,7 +153,10 @@ def append_chunk(
     )
     result: recordings.ChunkResult = outcome["result"]
     if not result.replayed:
-        queue_recording_estimation(request, session, principal, result.recording)
+        get_job_queue(request).estimate_recording(
+            session, operator_id=principal.operator_id, recording_id=result.recording.id,
+            through_sample=result.recording.n_samples,
+        )
     response.status_code = status.HTTP_200_OK if result.replayed else status.HTTP_201_CREATED
     return ChunkOut(
         recording=RecordingOut.model_validate(result.recording),

@@ -7,11 +7,11 @@ import threading
 from pathlib import Path
 
 import pytest
-from sqlalchemy import Engine, func, select
+from sqlalchemy import Engine, func, select, text
 from sqlalchemy.exc import OperationalError
 from sqlalchemy.orm import Session
 
-from app.db import writing
+from app.db import make_engine, make_sessionmaker, record_after_rollback, transaction, writing
 from app.models import Operator
 
 
@@ -141,3 +141,28 @@ def make_fleet_for_state(session: Session) -> tuple[int, int, int]:
     fleet = make_fleet(session, "JSON Air")
     engine = add_engine(session, fleet, "J1")
     return fleet.operator_id, engine.id, fleet.design.id
+
+
+def test_a_record_asked_for_survives_the_rollback_of_its_unit(tmp_path: Path) -> None:
+    """``record_after_rollback``: the unit's work is rolled back, the record alone commits."""
+    engine = make_engine(f"sqlite:///{tmp_path / 'unit.db'}")
+    with engine.begin() as connection:
+        connection.execute(text("CREATE TABLE notes (text TEXT)"))
+    factory = make_sessionmaker(engine)
+
+    def record(session: Session) -> None:
+        session.execute(text("INSERT INTO notes VALUES ('refused')"))
+
+    with pytest.raises(ValueError), transaction(factory) as session:
+        session.execute(text("INSERT INTO notes VALUES ('work')"))
+        record_after_rollback(session, record)
+        raise ValueError("refused")
+    with transaction(factory) as session:
+        assert session.scalars(text("SELECT text FROM notes")).all() == ["refused"]
+        session.execute(text("INSERT INTO notes VALUES ('next')"))
+    with pytest.raises(ValueError), transaction(factory) as session:
+        raise ValueError("nothing asked for")  # a later unit does not repeat the record
+    with engine.connect() as connection:
+        notes = connection.execute(text("SELECT text FROM notes")).scalars().all()
+    assert notes == ["refused", "next"]
+    engine.dispose()

@@ -20,8 +20,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db import transaction
-from app.jobs import store
-from app.jobs.registry import load_kinds
+from app.jobs.kinds import load_kinds
 from app.jobs.runner import run_pending
 from app.models.estimates import Event
 from app.services.demo.simulation_files import snapshot_table
@@ -29,6 +28,7 @@ from app.services.designs import engine_models
 from app.services.designs import service as designs
 from app.services.fleet import maintenance
 from app.services.fleet import service as fleet
+from app.services.jobs import store
 from app.services.snapshots import estimator
 from app.services.snapshots import store as snapshots_store
 from app.services.tenancy import service as tenancy

@@ -18,10 +18,10 @@ from typing import Any
 import numpy as np
 
 from app.cli.importers import CMAPSS_SENSORS, cmapss_snapshots, read_cmapss, select_units
+from app.services import units
 from app.services.designs import service as designs
 from app.services.snapshots import detector, estimator
 from app.services.snapshots import run as snapshots_run
-from app.services.uploads import units
 from estimation.engine.schedule import EngineSchedule, build_schedule
 from estimation.model import LinearModel
 from estimation.snapshot import snapshot_deviation

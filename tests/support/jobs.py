@@ -15,9 +15,9 @@ from sqlalchemy import Connection, Engine, delete, func, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db import make_engine, make_sessionmaker, transaction
-from app.jobs.registry import JobRegistry, Progress
 from app.migrate import upgrade
 from app.models import ApiKey, Job, JobSchedule, Operator
+from app.services.jobs.registry import JobRegistry, Progress
 from app.services.tenancy import service as tenancy
 from tests.conftest import BACKENDS, _backend_use, fresh_database_url
 

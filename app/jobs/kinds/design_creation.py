@@ -8,8 +8,8 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict
 from sqlalchemy.orm import Session
 
-from app.jobs.registry import Progress, registry
 from app.services.designs import service as designs
+from app.services.jobs.registry import Progress, registry
 
 
 class CreateDesign(BaseModel):

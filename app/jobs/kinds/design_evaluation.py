@@ -8,8 +8,8 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.orm import Session
 
-from app.jobs.registry import Progress, registry
 from app.services.designs import evaluation
+from app.services.jobs.registry import Progress, registry
 
 
 class EvaluateDesign(BaseModel):

@@ -8,10 +8,9 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.orm import Session
 
-from app.jobs import store
-from app.jobs.registry import JobRegistry, Progress, registry
-from app.models import Job
 from app.services.fleet import diagnostics
+from app.services.jobs.registry import Progress, registry
+from app.services.jobs.store import queue_estimation
 from app.services.snapshots import store as snapshots_store
 
 # The default schedule of the fleet-wide diagnostic job (seconds): once a day.
@@ -40,27 +39,6 @@ def estimate_engines(
     session: Session, parameters: EstimateEngines, progress: Progress, *, operator_id: int
 ) -> dict[str, Any]:
     return snapshots_store.catch_up(session, operator_id, progress=progress, commit=session.commit)
-
-
-def queue_estimation(session: Session, *, operator_id: int, job_registry: JobRegistry) -> Job:
-    """Queue the estimation of the operator's new snapshots (the caller dispatches it once
-    committed).
-
-    One estimation runs at a time per operator (a serial kind). A running one may already have
-    looked for work for the last time when the caller's rows commit, so then a follow-up is
-    queued (once: later submissions find it) and starts when the running one ends; otherwise
-    the queued job, if any, covers these rows too.
-    """
-    job, _created = store.submit(
-        session, operator_id=operator_id, kind="estimate_engines", parameters={},
-        registry=job_registry,
-    )
-    if job.status == "running":
-        job, _created = store.submit(
-            session, operator_id=operator_id, kind="estimate_engines",
-            parameters={"follow_up": True}, registry=job_registry,
-        )
-    return job
 
 
 class FleetDiagnostics(BaseModel):

@@ -9,9 +9,9 @@ from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import delete, func, select
 from sqlalchemy.orm import Session
 
-from app.jobs.registry import Progress, registry
 from app.models.base import utcnow
 from app.models.jobs import FINISHED_STATUSES, Job
+from app.services.jobs.registry import Progress, registry
 
 
 class PurgeFinishedJobs(BaseModel):

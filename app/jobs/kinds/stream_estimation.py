@@ -8,7 +8,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.orm import Session
 
-from app.jobs.registry import Progress, registry
+from app.services.jobs.registry import Progress, registry
 from app.services.streams import estimation
 
 

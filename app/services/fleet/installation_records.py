@@ -21,8 +21,8 @@ from sqlalchemy.orm import Session
 
 from app.errors import Conflict
 from app.models import Installation, Snapshot
+from app.services import fresh_records
 from app.services.snapshots import backlog
-from app.services.uploads import fresh_records
 
 Window = tuple[int, int, datetime, datetime | None]  # aircraft id, position, [start, end)
 

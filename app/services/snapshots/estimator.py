@@ -26,7 +26,7 @@ from sqlalchemy.orm import Session
 from app.models import EngineModel, EstimatorDesign
 from app.models.estimates import EstimateLayout
 from app.models.ingest import ACTUATORS, SENSORS, SignalSpec
-from app.services.uploads import units
+from app.services import units
 from estimation.detection import CusumDesign, design_cusum
 from estimation.engine.schedule import EngineSchedule
 from estimation.model import LinearModel

@@ -40,10 +40,10 @@ from sqlalchemy.orm import Session, defer
 from app.models import Engine, EstimatorDesign, MaintenanceAction, Snapshot
 from app.models.base import utcnow
 from app.models.estimates import Estimate, Event, FilterCheckpoint, FilterState
+from app.services import fresh_records
 from app.services.snapshots import backlog, detector, rows
 from app.services.snapshots.estimator import SnapshotEstimator, estimator_for_design
 from app.services.snapshots.run import EngineOutput, EngineRun, PipelineState, run_filters
-from app.services.uploads import fresh_records
 from estimation.snapshot import SnapshotState
 
 

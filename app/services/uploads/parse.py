@@ -28,7 +28,7 @@ import pyarrow.parquet as pq
 
 from app.errors import InvalidInput
 from app.models.ingest import OPERATING_CONDITION, PHASES, SIGNALS, SignalSpec
-from app.services.uploads.units import UnknownUnitError, affine
+from app.services.units import UnknownUnitError, affine
 
 MAX_ERRORS = 100
 FORMATS = ("csv", "json", "parquet")

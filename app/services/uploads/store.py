@@ -17,10 +17,10 @@ from __future__ import annotations
 import hashlib
 import json
 import sqlite3
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime, timedelta
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import psycopg
@@ -31,14 +31,14 @@ from sqlalchemy import DateTime, select, type_coerce
 from sqlalchemy import exc as sa_exc
 from sqlalchemy.orm import Session
 
-from app.errors import Conflict, ServiceError
+from app.db import record_after_rollback
+from app.errors import Conflict, NotFound, ServiceError
 from app.models import Aircraft, Engine, Snapshot, Upload
 from app.models.ingest import SIGNALS, SNAPSHOT_COLUMNS
-from app.services import common
+from app.services import common, fresh_records
 from app.services.encoding.pgcopy import HEADER, TRAILER, binary_copy_rows
 from app.services.fleet import service as fleet
 from app.services.snapshots import backlog
-from app.services.uploads import fresh_records
 from app.services.uploads.parse import (
     MAX_ERRORS,
     ErrorLimitReached,
@@ -176,6 +176,49 @@ def record_rejection(
     session.add(upload)
     session.flush()
     return upload
+
+
+T = TypeVar("T")
+
+
+def store_or_reject(
+    session: Session,
+    *,
+    operator_id: int,
+    api_key_id: int | None,
+    kind: str,
+    content_format: str | None,
+    body: bytes,
+    idempotency_key: str | None,
+    store: Callable[[], T],
+) -> T:
+    """Run ``store``; a refused upload (a ``ServiceError`` other than ``NotFound``) is rolled
+    back entirely by the request's unit of work, which then keeps it in the history
+    (``record_rejection``) and commits that; the error's message names the upload."""
+    try:
+        return store()
+    except ServiceError as exc:
+        if isinstance(exc, NotFound):
+            raise
+        fmt = content_format or "unknown"
+        error = exc  # ``exc`` is unbound once the except clause ends; the record runs later
+
+        def record(rolled_back: Session) -> None:
+            upload = record_rejection(
+                rolled_back,
+                operator_id=operator_id,
+                api_key_id=api_key_id,
+                kind=kind,
+                content_format=fmt,
+                checksum=content_checksum(body, kind=kind, content_format=fmt),
+                idempotency_key=idempotency_key,
+                bytes_received=len(body),
+                error=error,
+            )
+            error.message = f"{error.message} [upload {upload.id}]"
+
+        record_after_rollback(session, record)
+        raise
 
 
 # ------------------------------------------------------------------------------ ingest

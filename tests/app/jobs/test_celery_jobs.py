@@ -19,12 +19,12 @@ from sqlalchemy import select, update
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db import transaction
-from app.jobs import store
+from app.jobs.celery_app import CeleryDispatch
 from app.jobs.celery_tasks import celery
-from app.jobs.dispatch import CeleryDispatch
-from app.jobs.registry import load_kinds
+from app.jobs.kinds import load_kinds
 from app.models import Job
 from app.models.base import utcnow
+from app.services.jobs import store
 from tests.support.jobs import job_row, live, live_module, make_operator, wait_until
 from tests.support.paths import ROOT
 
@@ -195,8 +195,8 @@ def test_beat_sends_the_tick_and_the_tick_submits_requeues_and_resends(
 ) -> None:
     """The tick's bookkeeping, called as the worker would (no broker needed: sends recorded)."""
     from app.jobs import celery_tasks
-    from app.jobs.runner import claim_next
-    from app.jobs.schedules import create_schedule
+    from app.jobs.claim import claim_next
+    from app.services.jobs.schedules import create_schedule
     from tests.support.jobs import make_registry
 
     entries = celery.conf.beat_schedule.values()

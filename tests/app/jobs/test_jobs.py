@@ -6,6 +6,10 @@ the threaded tests use a fresh database that really commits, with the runner's r
 
 from __future__ import annotations
 
+import os
+import socket
+import subprocess
+import sys
 import threading
 from collections.abc import Iterator
 from datetime import timedelta
@@ -20,20 +24,15 @@ from sqlalchemy.orm import Session, sessionmaker
 from app.config import Settings
 from app.db import transaction
 from app.errors import Conflict, InvalidInput
-from app.jobs import store
-from app.jobs.registry import JobCancelled, JobRegistry, load_kinds, parameters_checksum
-from app.jobs.runner import (
-    ProgressReporter,
-    Runner,
-    claim_job,
-    claim_next,
-    execute,
-    requeue_stale,
-    run_pending,
-)
+from app.jobs.claim import STALE_AFTER, claim_job, claim_next, requeue_orphans, requeue_stale
+from app.jobs.kinds import load_kinds
+from app.jobs.progress import ProgressReporter
+from app.jobs.runner import Runner, execute, run_pending
 from app.main import create_app
 from app.models import Job, Operator
 from app.models.base import utcnow
+from app.services.jobs import store
+from app.services.jobs.registry import JobCancelled, JobRegistry, parameters_checksum
 from tests.support.jobs import (
     AddParameters,
     Gates,
@@ -525,6 +524,44 @@ def test_restart_requeues_stale_running_jobs_and_fences_the_lost_worker(
     assert execute(session_factory, lost, registry, heartbeat_seconds=None) == "succeeded"
     done = job_row(session_factory, job_id)
     assert done.attempts == 2 and done.result == {"sum": 7 + 8, "operator_id": operator.id}
+
+
+def test_a_starting_process_takes_over_the_jobs_a_stopped_process_of_its_host_left(
+    session_factory: sessionmaker[Session], session: Session, registry: JobRegistry
+) -> None:
+    operator, _key = make_operator(session, "Orphan Air")
+    session.commit()
+    finished = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                              capture_output=True, text=True, check=True)
+    gone = int(finished.stdout)  # a process that has exited
+    host = socket.gethostname()
+    workers = {
+        "orphan": f"inprocess:{host}:{gone}:1",
+        "live here": f"inprocess:{host}:{os.getpid()}:1",
+        "elsewhere": f"celery:another-host:{gone}:1",
+        "unnamed": "a worker named otherwise",
+    }
+    jobs = {}
+    for number, (name, worker) in enumerate(workers.items()):
+        jobs[name] = _submit(session_factory, registry, operator.id, "add", a=number)
+        assert claim_next(session_factory, worker=worker) is not None
+    # Every heartbeat is fresh: only the orphan is taken over, without waiting.
+    assert requeue_orphans(session_factory) == [jobs["orphan"]]
+    assert requeue_stale(session_factory) == []
+    statuses = {name: job_row(session_factory, job_id).status for name, job_id in jobs.items()}
+    assert statuses == {
+        "orphan": "queued", "live here": "running", "elsewhere": "running", "unnamed": "running"
+    }
+    assert run_pending(session_factory, registry) == [jobs["orphan"]]
+    assert job_row(session_factory, jobs["orphan"]).attempts == 2
+
+
+def test_the_heartbeat_timeout_is_a_setting(tmp_path: Path) -> None:
+    settings = Settings(data_dir=tmp_path, job_stale_after_seconds=30, job_heartbeat_seconds=5)
+    assert settings.job_stale_after == timedelta(seconds=30)
+    assert Settings(data_dir=tmp_path).job_stale_after == STALE_AFTER
+    with pytest.raises(ValueError, match="shorter"):
+        Settings(data_dir=tmp_path, job_stale_after_seconds=10, job_heartbeat_seconds=10)
 
 
 def test_a_job_whose_workers_keep_dying_fails_after_max_attempts(

@@ -13,11 +13,11 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.db import transaction
-from app.jobs import schedules
-from app.jobs.registry import JobRegistry
 from app.jobs.runner import run_pending
 from app.jobs.scheduler import Scheduler, next_run_after, submit_due
 from app.models import Job, JobSchedule
+from app.services.jobs import schedules
+from app.services.jobs.registry import JobRegistry
 from tests.support.jobs import (
     add_key,
     connection,

@@ -6,10 +6,10 @@ from __future__ import annotations
 from sqlalchemy import update
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.jobs.kinds.estimation import queue_estimation
-from app.jobs.registry import load_kinds
-from app.jobs.runner import claim_job, claim_next
+from app.jobs.claim import claim_job, claim_next
+from app.jobs.kinds import load_kinds
 from app.models import Job
+from app.services.jobs.store import queue_estimation
 from app.services.tenancy import service as tenancy
 
 

@@ -21,12 +21,12 @@ from app.db import make_engine, make_sessionmaker, transaction
 from app.migrate import upgrade
 from app.models import Snapshot
 from app.models.estimates import EstimationBacklog
+from app.services import fresh_records
 from app.services.designs import service as designs
 from app.services.fleet import maintenance
 from app.services.fleet import service as fleet_service
 from app.services.snapshots import backlog, store
 from app.services.snapshots import rows as snapshots_rows
-from app.services.uploads import fresh_records
 from app.services.uploads import store as uploads_store
 from tests.app.services.snapshots import test_pipeline as pipeline_case
 from tests.app.services.trends.test_trends import add_aircraft, add_engine

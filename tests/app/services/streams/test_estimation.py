@@ -376,7 +376,8 @@ def test_the_trend_endpoint_json_csv_viewer_and_tenants(
 
 
 def test_job_kind_is_registered_and_internal() -> None:
-    from app.jobs.registry import load_kinds, registry
+    from app.jobs.kinds import load_kinds
+    from app.services.jobs.registry import registry
 
     load_kinds()
     kind = registry.get("estimate_recording")
@@ -424,7 +425,7 @@ def test_uploads_and_live_chunks_queue_jobs_that_estimate_the_recording(
     client: TestClient, session: Session, fleet_data: Fleet, settings: Settings,
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    from app.jobs.registry import registry
+    from app.services.jobs.registry import registry
 
     model = _model()
     _activate(session, fleet_data, model, _design_document(model))

@@ -2,7 +2,7 @@
 
 In a route::
 
-    from app.jobs.queue import Jobs
+    from app.services.jobs.queue import Jobs
 
     @router.post("/uploads", ...)
     def upload(..., session: DbSession, principal: Analyst, jobs: Jobs) -> ...:
@@ -24,11 +24,10 @@ from typing import Annotated, Any
 from fastapi import Depends, Request
 from sqlalchemy.orm import Session
 
-from app.jobs import store
-from app.jobs.dispatch import Dispatcher
-from app.jobs.kinds.estimation import queue_estimation
-from app.jobs.registry import JobRegistry
 from app.models.jobs import Job
+from app.services.jobs import store
+from app.services.jobs.dispatch import Dispatcher
+from app.services.jobs.registry import JobRegistry
 
 
 @dataclass(frozen=True)
@@ -61,8 +60,21 @@ class JobQueue:
     def estimate(self, session: Session, *, operator_id: int) -> Job:
         """Queue the estimation of the operator's snapshots that lack estimates under their
         active designs (after an upload, an activation); see
-        ``app.jobs.kinds.estimation.queue_estimation``."""
-        job = queue_estimation(session, operator_id=operator_id, job_registry=self.registry)
+        ``store.queue_estimation``."""
+        job = store.queue_estimation(session, operator_id=operator_id, job_registry=self.registry)
+        store.dispatch_after_commit(session, self.dispatcher.dispatch, job.id)
+        return job
+
+    def estimate_recording(
+        self, session: Session, *, operator_id: int, recording_id: int, through_sample: int
+    ) -> Job:
+        """Queue the stream filter over a recording's samples, dispatched when the upload
+        commits (one job per sample count, so each live chunk gets its run)."""
+        job, _created = store.submit(
+            session, operator_id=operator_id, kind="estimate_recording",
+            parameters={"recording_id": recording_id, "through_sample": through_sample},
+            registry=self.registry,
+        )
         store.dispatch_after_commit(session, self.dispatcher.dispatch, job.id)
         return job
 

@@ -10,9 +10,9 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from app.errors import Conflict, NotFound
-from app.jobs.registry import JobRegistry, parameters_checksum
 from app.models.base import utcnow
 from app.models.jobs import ACTIVE_STATUSES, Job
+from app.services.jobs.registry import JobRegistry, parameters_checksum
 
 
 def submit(
@@ -123,6 +123,27 @@ def cancel(session: Session, *, operator_id: int, job_id: int) -> Job:
     job = get_job(session, operator_id=operator_id, job_id=job_id)
     if cancelled.rowcount == 0:  # type: ignore[attr-defined]
         raise Conflict(f"job {job_id} has {job.status} already; only queued or running jobs cancel")
+    return job
+
+
+def queue_estimation(session: Session, *, operator_id: int, job_registry: JobRegistry) -> Job:
+    """Queue the estimation of the operator's new snapshots (the caller dispatches it once
+    committed).
+
+    One estimation runs at a time per operator (a serial kind). A running one may already have
+    looked for work for the last time when the caller's rows commit, so then a follow-up is
+    queued (once: later submissions find it) and starts when the running one ends; otherwise
+    the queued job, if any, covers these rows too.
+    """
+    job, _created = submit(
+        session, operator_id=operator_id, kind="estimate_engines", parameters={},
+        registry=job_registry,
+    )
+    if job.status == "running":
+        job, _created = submit(
+            session, operator_id=operator_id, kind="estimate_engines",
+            parameters={"follow_up": True}, registry=job_registry,
+        )
     return job
 
 

@@ -1,5 +1,5 @@
 """Records kept in memory from a committed upload are exactly what the database holds, and are
-used only when complete (``app.services.uploads.fresh_records`` through ``estimate_rows``)."""
+used only when complete (``app.services.fresh_records`` through ``estimate_rows``)."""
 
 from __future__ import annotations
 
@@ -12,9 +12,9 @@ from sqlalchemy import delete
 from sqlalchemy.orm import Session
 
 from app.models import Snapshot
+from app.services import fresh_records
 from app.services.snapshots import rows as snapshots_rows
 from app.services.snapshots import store
-from app.services.uploads import fresh_records
 from tests.support.fleet_fixture import T0, csv_bytes, make_fleet, snapshot_rows
 
 SENSORS = ("nf", "nc", "t30", "p30", "t50", "t24")  # t24 is never uploaded: all NaN

@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from app.services.uploads.units import QUANTITIES, UnknownUnitError, affine
+from app.services.units import QUANTITIES, UnknownUnitError, affine
 
 
 def convert(values: np.ndarray, quantity: str, src: str, dst: str, **kw: float) -> np.ndarray:

@@ -13,15 +13,13 @@ A job function is ``function(session, parameters, progress, *, operator_id) -> d
   to it.
 
 Kinds register on a ``JobRegistry``; the service's registry is ``registry`` below, filled by
-the modules of ``app.jobs.kinds`` (``load_kinds()`` imports them all).
+the modules of ``app.jobs.kinds`` (``app.jobs.kinds.load_kinds()`` imports them all).
 """
 
 from __future__ import annotations
 
 import hashlib
-import importlib
 import json
-import pkgutil
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -164,11 +162,3 @@ def parameters_checksum(kind: str, parameters: BaseModel) -> str:
 
 registry = JobRegistry()
 
-
-def load_kinds() -> JobRegistry:
-    """Import every module of ``app.jobs.kinds`` (each registers its kinds); return ``registry``."""
-    from app.jobs import kinds
-
-    for module in pkgutil.iter_modules(kinds.__path__):
-        importlib.import_module(f"{kinds.__name__}.{module.name}")
-    return registry

@@ -9,9 +9,9 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidInput, NotFound
-from app.jobs.registry import JobRegistry
 from app.models.base import utcnow
 from app.models.jobs import JobSchedule
+from app.services.jobs.registry import JobRegistry
 
 
 def create_schedule(
