@@ -51,11 +51,12 @@ import numpy as np
 from estimation.errors import DimensionError
 
 CALIBRATION_FORMAT = "fleethealth.uncertainty-calibration/1"
-# Coverage the calibration aims at on its own fleet: 72 % at 1-sigma (the middle of 55-85 %,
-# a little above a Gaussian's 68 % since another fleet's engines scatter differently) and 95 %
-# at 2-sigma (where the error is heavier-tailed than a Gaussian, the 2-sigma quantile sets it).
-ONE_SIGMA_TARGET = 0.72
-TWO_SIGMA_TARGET = 0.95
+# Coverage the calibration aims at on its own (pooled) fleets: 68 % at 1-sigma and 87 % at
+# 2-sigma, inside the required 55-85 % and >= 85 %. The error is heavier-tailed than a
+# Gaussian, so the 2-sigma level usually sets s; aiming it at 95 % (as before) pushed the
+# 1-sigma coverage of another fleet to 0.80-0.92, over the band (bench_uncertainty).
+ONE_SIGMA_TARGET = 0.68
+TWO_SIGMA_TARGET = 0.87
 # A tuner direction is resolved when its information per record is at least this fraction of
 # the largest one (below, the filter's random walk forgets faster than it learns).
 MIN_INFORMATION = 1e-4

@@ -44,11 +44,16 @@ def engine_trend(
     ] = None,
     max_points: int = MaxPoints,
     format: Literal["json", "csv"] = "json",
+    health: Annotated[
+        Literal["level", "change"],
+        Query(description="health group: levels, or the change since the engine's baseline"),
+    ] = "level",
 ) -> object:
     """Tuners, health parameters with 1-sigma, thrust and margins, residuals and WSSR over time,
     with installation changes, maintenance actions and events as markers."""
     options: dict[str, Any] = {
-        "design_id": design_id, "start": start, "end": end, "max_points": max_points
+        "design_id": design_id, "start": start, "end": end, "max_points": max_points,
+        "health": health,
     }
     if format == "csv":
         trend = trends.engine_trend(session, principal.operator_id, engine_id, **options)

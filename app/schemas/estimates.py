@@ -32,6 +32,24 @@ class TrendGroup(BaseModel):
     key: Literal["tuners", "health", "aux", "residuals", "wssr"]
     label: str
     series: list[TrendSeries]
+    # The health group only (None elsewhere).
+    view: Literal["level", "change"] | None = Field(
+        None, description="health: levels, or the change since the engine's baseline"
+    )
+    uncertainty: Literal["calibrated", "uncalibrated"] | None = Field(
+        None,
+        description=(
+            "health: calibrated: sigma is the honest one (bias, filter and the design's "
+            "calibrated model error); uncalibrated: the filter's own sigma (no calibration "
+            "stored with the design)"
+        ),
+    )
+    unobservable: list[str] | None = Field(
+        None, description="health parameters the design cannot estimate: their values are null"
+    )
+    baselines: list[datetime] | None = Field(
+        None, description="change view: times of the baseline records the changes start from"
+    )
 
 
 class InstallationMarker(BaseModel):

@@ -17,7 +17,8 @@ const YLABELS = { health: "Health change", aux: "Thrust / margin change", tuners
 let trend = null;
 
 function query() {
-  const q = { max_points: $("#max_points").value, design_id: $("#design").value || undefined };
+  const q = { max_points: $("#max_points").value, design_id: $("#design").value || undefined,
+    health: $("#health").value };
   if ($("#start").value) q.start = `${$("#start").value}T00:00:00Z`;
   if ($("#end").value) q.end = `${$("#end").value}T23:59:59Z`;
   return q;
@@ -101,8 +102,19 @@ function draw() {
   for (const group of groups) {
     const id = `plot-${group.key}`;
     const div = h("div", { id, class: "plot" });
-    container.append(h("section", { class: "card" }, h("h2", {}, TITLES[group.key] || group.label), div));
-    const traces = group.series.flatMap((s, i) => lineWithBand(x, broken(s), i));
+    // Health: the change since the engine's baseline (or the level) with the honest 1-sigma
+    // band; a parameter the design cannot estimate comes back as nulls and is named, not drawn.
+    const hidden = new Set(group.unobservable || []);
+    const notes = [];
+    if (group.key === "health") {
+      if (hidden.size) notes.push(`Not observable with this design: ${[...hidden].join(", ")}.`);
+      if (group.uncertainty === "uncalibrated") notes.push("Band: the filter's own 1-sigma (the design has no calibrated model error).");
+      if (group.view === "change") notes.push("Change since the engine's baseline (first settled records after installation or shop visit).");
+    }
+    const title = group.key === "health" && group.view === "change" ? "Health parameters: change since baseline" : TITLES[group.key] || group.label;
+    container.append(h("section", { class: "card" }, h("h2", {}, title),
+      ...notes.map((n) => h("p", { class: "muted" }, n)), div));
+    const traces = group.series.filter((s) => !hidden.has(s.name)).flatMap((s, i) => lineWithBand(x, broken(s), i));
     // Event markers as points too: hovering one names the event.
     const events = marks.filter((m) => m.kind === "event");
     if (events.length) {
@@ -116,7 +128,7 @@ function draw() {
       // The data's own extent: marker labels near the ends must not stretch the axis.
       xaxis: { title: { text: axis === "date" ? "Date (UTC)" : "Cycles (record number)" }, type: axis === "date" ? "date" : "linear",
         range: xRange(axis), autorange: false },
-      yaxis: { title: { text: axisTitle(YLABELS[group.key] || group.label, unitOf(group.series)) } },
+      yaxis: { title: { text: axisTitle(group.key === "health" && group.view === "level" ? "Health level" : YLABELS[group.key] || group.label, unitOf(group.series)) } },
       legend: { orientation: "v", x: 1.02, y: 1, font: { size: 11 } },
       yaxis2: { overlaying: "y", range: [0, 1.05], visible: false, fixedrange: true },
       shapes: markerShapes(marks),

@@ -17,9 +17,11 @@ pytestmark = pytest.mark.browser
 
 
 def _api_trend(server: Server, engine_id: int, **query: Any) -> Any:
+    # The page's defaults: 1000 points, the health group as the change since the baseline.
     response = httpx.get(
         f"{server.base_url}/api/v1/engines/{engine_id}/trend",
-        params={"max_points": 1000, **query}, headers={"X-API-Key": server.seeded.key},
+        params={"max_points": 1000, "health": "change", **query},
+        headers={"X-API-Key": server.seeded.key},
     )
     assert response.status_code == 200, response.text
     return response.json() if query.get("format") != "csv" else response.text
@@ -46,6 +48,9 @@ def test_trend_plots_every_group_with_bands_markers_and_units(
             f"document.querySelector('#plot-{group['key']}').layout.yaxis.title.text"
         )
         assert f"[{group['series'][0]['unit']}]" in title or "dimensionless" in title
+    health = next(g for g in api["groups"] if g["key"] == "health")
+    assert health["view"] == "change"
+    assert "change since baseline" in page.inner_text("#plots section:first-child h2")
     # One solid vermilion line per event, at its detection time.
     shapes = page.evaluate("document.querySelector('#plot-health').layout.shapes")
     event_lines = [s for s in shapes if s["line"]["color"] == "#D55E00"]
@@ -146,8 +151,9 @@ def test_a_long_gap_in_the_data_breaks_the_lines(
     gaps = [i - 1 for i in range(1, len(times)) if times[i] - times[i - 1] > limit]
     assert len(gaps) == 1
     sign_in(page, server.seeded.key, f"/engine.html?id={engine_id}")
+    # The tuners (the health change is null before its baseline settles).
     line = page.evaluate(
-        "document.querySelector('#plot-health').data.find((t) => t.meta.role === 'line')"
+        "document.querySelector('#plot-tuners').data.find((t) => t.meta.role === 'line')"
     )
     assert len(line["x"]) == len(api["time"]) + len(gaps)
     nulls = [i for i, v in enumerate(line["y"]) if v is None]

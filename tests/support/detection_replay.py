@@ -25,12 +25,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from app.services.designs.calibration import (  # noqa: F401  (re-exported)
+    ACTUATOR_NAMES,
+    EngineData,
+    engine_runs,
+)
 from app.services.snapshots import detector, estimator
 from app.services.snapshots import run as snapshots_run
-from estimation.engine.fleet import FleetPlan, Snapshots
-from estimation.engine.sensors import SENSOR_NAMES
+from estimation.engine.fleet import FleetPlan
 
-ACTUATOR_NAMES = ("Wf", "VSV", "VBV")
 NONE = "-"  # confusion-table label: no event, or an event that names no fault
 
 
@@ -125,64 +128,6 @@ class Score:
             f"{self.repeats}; events by kind: {dict(self.events_by_kind)}"
         )
         return "\n".join(lines)
-
-
-@dataclass(frozen=True)
-class EngineData:
-    """One engine's replayed records (time order) and its ground-truth windows."""
-
-    esn: str
-    run: snapshots_run.EngineRun
-    flight_id: np.ndarray  # [S]
-
-
-def engine_runs(
-    plan: FleetPlan, snaps: Snapshots, est: estimator.SnapshotEstimator,
-    phases: Sequence[str] = ("takeoff", "cruise"),
-) -> list[EngineData]:
-    """Every engine's snapshots of ``phases`` as pipeline runs from a fresh state.
-
-    Maintenance actions are those the demo fleet records: a shop visit when an engine is
-    installed again, and every water wash.
-    """
-    keep = np.isin(snaps.phase.astype(str), list(phases))
-    t = np.round(snaps.recorded_at[keep])  # uploads store whole seconds
-    esn = snaps.esn[keep].astype(str)
-    cond = np.stack(
-        [snaps.alt_ft[keep], snaps.mach[keep], snaps.dtamb_k[keep], snaps.power_pct[keep]],
-        axis=1,
-    )
-    column_of = {spec.column: spec.name for spec in estimator.SNAPSHOT_SIGNALS.values()}
-    y_all = np.full((int(keep.sum()), len(est.sensor_columns)), np.nan)
-    for i, col in enumerate(est.sensor_columns):
-        if col:
-            y_all[:, i] = snaps.sensors[keep, SENSOR_NAMES.index(column_of[col])]
-    u_all = np.full((int(keep.sum()), len(est.input_columns)), np.nan)
-    for i, col in enumerate(est.input_columns):
-        if col:
-            u_all[:, i] = snaps.actuators[keep, ACTUATOR_NAMES.index(column_of[col])]
-    phase = snaps.phase[keep].astype(str)
-    fid = snaps.flight_id[keep].astype(str)
-    maint: dict[str, list[float]] = {}
-    seen: set[str] = set()
-    for inst in sorted(plan.installations, key=lambda i: i.installed_at):
-        if inst.esn in seen:
-            maint.setdefault(inst.esn, []).append(float(inst.installed_at))
-        seen.add(inst.esn)
-    for wash in plan.washes:
-        maint.setdefault(wash.esn, []).append(float(wash.at))
-    out = []
-    for k, name in enumerate(sorted(set(esn))):
-        idx = np.flatnonzero(esn == name)
-        idx = idx[np.argsort(t[idx], kind="stable")]
-        run = snapshots_run.EngineRun(
-            engine_id=k, operator_id=0, seq0=0, state=snapshots_run.PipelineState.initial(est),
-            epoch=t[idx], phase=list(phase[idx]),
-            conditions=cond[idx], y=y_all[idx], u=u_all[idx],
-            maintenance=np.array(sorted(maint.get(name, [])), dtype=float),
-        )
-        out.append(EngineData(name, run, fid[idx]))
-    return out
 
 
 def replay(

@@ -24,21 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.services.snapshots import estimator, run
-from estimation.engine.fleet import FleetPlan, Snapshots
-from tests.support import detection_replay
-
-
-@dataclass(frozen=True)
-class HealthTrack:
-    """One engine's records: round index, h_hat, its 1-sigma and the true h (layout order)."""
-
-    esn: str
-    round: np.ndarray  # [S] plan round of each record
-    settled: np.ndarray  # [S] bool: record past the start-up transient
-    h_hat: np.ndarray  # [S, p]
-    h_sigma: np.ndarray  # [S, p]
-    h_true: np.ndarray  # [S, p]
+from app.services.designs.calibration import HealthTrack, tracks  # noqa: F401
+from app.services.snapshots import estimator
 
 
 @dataclass(frozen=True)
@@ -75,35 +62,6 @@ class Accuracy:
             f"{self.records} records, {self.engines} engines)"
         )
         return "\n".join(lines)
-
-
-def tracks(
-    est: estimator.SnapshotEstimator, plan: FleetPlan, snaps: Snapshots,
-    phases: Sequence[str] = ("takeoff", "cruise"), settle: int = 30, batch: int = 64,
-) -> list[HealthTrack]:
-    """Every engine's h_hat (``pipeline.run_filters``) next to the plan's true health."""
-    engines = detection_replay.engine_runs(plan, snaps, est, phases)
-    truth_col = [list(plan.health_names).index(n) for n in est.layout.health]
-    s = est.layout.slices()
-    out = []
-    for start in range(0, len(engines), batch):
-        part = engines[start : start + batch]
-        for data, res in zip(part, run.run_filters(est, [e.run for e in part]),
-                             strict=True):
-            values = res.packed.astype(np.float64)
-            rounds = np.array([int(f.rsplit("-", 1)[1]) - 1 for f in data.flight_id])
-            e = plan.esns.index(data.esn)
-            h_true = plan.health[rounds, e][:, truth_col]
-            # Flights since the engine's first record or last maintenance reset.
-            t = data.run.epoch
-            reset_at = np.concatenate([[t[0]], data.run.maintenance])
-            last_reset = reset_at[np.searchsorted(reset_at, t, side="right") - 1]
-            flights = np.zeros(len(t), dtype=int)
-            for k in range(len(t)):
-                flights[k] = len(np.unique(data.flight_id[(t >= last_reset[k]) & (t <= t[k])]))
-            out.append(HealthTrack(data.esn, rounds, flights > settle, values[:, s["h"]],
-                                   values[:, s["h_sigma"]], h_true))
-    return out
 
 
 def _slope(x: np.ndarray, y: np.ndarray) -> np.ndarray:

@@ -31,7 +31,7 @@ from app.models.estimates import Event
 from app.models.jobs import JobSchedule
 from app.services.demo.operator import DEMO_OPERATOR
 from app.services.demo.simulation_files import snapshot_table
-from app.services.designs import engine_models
+from app.services.designs import calibration, engine_models
 from app.services.designs import service as designs
 from app.services.fleet import maintenance
 from app.services.fleet import service as fleet_service
@@ -67,6 +67,9 @@ class DemoSize:
     flights_per_day: float = 2.0
     fault_rate: float = 1.0 / 3000.0
     months_per_upload: int = 1
+    # Calibrate the active design's model error on simulated fleets (designs.calibration;
+    # a minute or two) so that its trends show the honest health sigma.
+    calibrate: bool = True
 
 
 def _echo_default(message: str) -> None:
@@ -103,6 +106,18 @@ def ensure_demo_fleet(
     started = time.monotonic()
     with transaction(factory) as session:
         type_id, design_id = _designs(session, operator_id, echo)
+    if size.calibrate:
+
+        def calibrating(fraction: float, message: str | None = None) -> None:
+            echo(f"  {100 * fraction:5.1f} %  {message or ''}")
+
+        with transaction(factory) as session:
+            echo("demo fleet: calibrating the active design's model error on simulated fleets ...")
+            stored = calibration.calibrate_design(
+                session, operator_id=operator_id, design_id=design_id, progress=calibrating
+            )
+            shown = [n for n, o in zip(stored["names"], stored["observable"], strict=True) if o]
+            echo(f"  observable: {', '.join(shown) or 'none'}")
     with transaction(factory) as session:
         plan, snaps = _simulate(size, echo)
         _fleet(session, operator_id, type_id, plan)

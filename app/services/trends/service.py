@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import csv
 import io
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from typing import Any
 
@@ -53,6 +53,7 @@ from app.models.ingest import PHASES
 from app.services.encoding import json_numbers
 from app.services.encoding.json_numbers import RawJSON
 from app.services.encoding.pgcopy import PG_EPOCH_US
+from app.services.trends import health as health_view
 
 # Trend groups as the dashboard draws them: (key, value block, sigma block, names group, label).
 GROUPS = (
@@ -486,18 +487,47 @@ def engine_trend(
     max_points: int = DEFAULT_MAX_POINTS,
     markers: bool = True,
     columns_of: Any = _lists,
+    health: str = "level",
+    settle: int = health_view.BASELINE_SETTLE_RECORDS,
 ) -> dict[str, Any]:
     """The trend of one engine as a dict shaped like ``app.schemas.estimates.EngineTrend``.
 
     ``columns_of=_encoded`` (``engine_trend_json``) leaves the series as JSON text.
+    ``health``: the health group as levels with their honest sigma ("level") or as the change
+    since the engine's baseline ("change"; ``settle`` records after a reset), see
+    ``trends.health``.
     """
     _check_range(start, end)
+    if health not in health_view.HEALTH_VIEWS:
+        raise InvalidInput(
+            f"health must be one of {', '.join(health_view.HEALTH_VIEWS)}",
+            details=[{"row": None, "column": "health", "reason": f"unknown view {health!r}"}],
+        )
     target = trend_target(session, operator_id, engine_id, design_id)
     data = None
+    meta = None
     if target.design_id is not None:
+        # A change needs its baseline, which may lie before ``start``: read from the first
+        # record and cut afterwards.
         data = load_trend_data(
-            session, target.engine_id, target.design_id, start, end, target.layout
+            session, target.engine_id, target.design_id,
+            start if health == "level" else None, end, target.layout,
         )
+    if data is not None and len(data.epoch) and target.design_id is not None:
+        calib = health_view.design_calibration(session, target.design_id)
+        resets = (health_view.baseline_resets(session, target.engine_id)
+                  if health == "change" else None)
+        values, meta = health_view.apply(
+            data.values, data.layout.slices(), data.layout.names("health"), calib,
+            "change" if health == "change" else "level", data.epoch, data.phase, resets,
+            settle,
+        )
+        data = replace(data, values=values)
+        if health == "change" and start is not None:
+            keep = data.epoch >= start.timestamp()
+            data = replace(data, epoch=data.epoch[keep], seq=data.seq[keep],
+                           phase=[p for p, k in zip(data.phase, keep, strict=True) if k],
+                           values=data.values[keep])
     out: dict[str, Any] = {
         "engine_id": target.engine_id,
         "esn": target.esn,
@@ -517,6 +547,10 @@ def engine_trend(
     if data is not None and len(data.epoch):
         starts = decimate(len(data.epoch), max_points)
         columns, groups = trend_groups(data, starts, columns_of)
+        if meta is not None:
+            for group in groups:
+                if group["key"] == "health":
+                    group.update(meta.to_dict())
         out.update(columns)
         out.update(
             n_records=len(data.epoch),

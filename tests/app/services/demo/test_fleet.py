@@ -19,7 +19,7 @@ from app.services.fleet import status as fleet_status
 from app.services.snapshots import estimator, store
 from estimation.engine.schedule import EngineSchedule, build_schedule
 
-SMALL = fleet.DemoSize(aircraft=2, flights=40, fault_rate=0.0)
+SMALL = fleet.DemoSize(aircraft=2, flights=40, fault_rate=0.0, calibrate=False)
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,153 @@
+"""The health group of a trend: honest 1-sigma, unobservable parameters, change since baseline.
+
+Stored estimates keep the filter's own 1-sigma (sensor noise only). At read time, with the
+design's calibration (``designs.calibration``: stored in the design's result under
+``"uncertainty"``), each record's health sigma becomes the honest one of
+``estimation.uncertainty`` (``level_sigma``: analytic bias, filter variance and calibrated model
+error), and a parameter the calibration finds unobservable comes back as nulls, listed in the
+group's ``unobservable``. Without a calibration (a design of an imported model) the filter's
+sigma is shown and the group says ``"uncalibrated"``.
+
+The change view (``health=change``) shows h_hat(t) - h_hat(0) against the engine's baseline
+record 0: the first settled record (``BASELINE_SETTLE_RECORDS`` records on) after the
+engine's first record, an installation, a shop visit or a module change (a water wash does not
+move it: its recovery is part of the trend). Its sigma is ``uncertainty.change_sigma`` (or,
+uncalibrated, the two filter sigmas in quadrature); records before a baseline settles are null.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Any, Literal
+
+import numpy as np
+from sqlalchemy import select, union_all
+from sqlalchemy.orm import Session
+
+from app.models import EstimatorDesign, Installation, MaintenanceAction
+from app.services.designs.calibration import RESULT_KEY, SETTLE_FLIGHTS
+from estimation import uncertainty
+
+HealthView = Literal["level", "change"]
+HEALTH_VIEWS = ("level", "change")
+# Maintenance that moves the health baseline (a water wash does not).
+BASELINE_KINDS = ("shop_visit", "module_change")
+# A take-off and a cruise record per flight: the calibration's settle time in records.
+BASELINE_SETTLE_RECORDS = 2 * SETTLE_FLIGHTS
+
+
+@dataclass(frozen=True)
+class HealthMeta:
+    """What the health group carries besides its series."""
+
+    view: HealthView
+    uncertainty: Literal["calibrated", "uncalibrated"]
+    unobservable: tuple[str, ...]
+    baselines: tuple[float, ...] = ()  # epoch seconds of the baseline records (change view)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"view": self.view, "uncertainty": self.uncertainty,
+                "unobservable": list(self.unobservable),
+                "baselines": [datetime.fromtimestamp(t, UTC) for t in self.baselines]
+                if self.view == "change" else None}
+
+
+def design_calibration(session: Session, design_id: int) -> uncertainty.Calibration | None:
+    """The design's stored calibration (None: uncalibrated); reads only that key."""
+    document = session.scalar(
+        select(EstimatorDesign.__table__.c.result[RESULT_KEY]).where(
+            EstimatorDesign.id == design_id)
+    )
+    if not isinstance(document, dict):
+        return None
+    return uncertainty.Calibration.from_dict(document)
+
+
+def baseline_resets(session: Session, engine_id: int) -> np.ndarray:
+    """Epoch seconds [R], sorted, of the engine's installations, shop visits and module
+    changes: each starts a new baseline."""
+    query = union_all(
+        select(Installation.installed_at.label("t")).where(Installation.engine_id == engine_id),
+        select(MaintenanceAction.performed_at).where(
+            MaintenanceAction.engine_id == engine_id, MaintenanceAction.kind.in_(BASELINE_KINDS)
+        ),
+    )
+    times = [t.timestamp() for (t,) in session.execute(query).all() if t is not None]
+    return np.array(sorted(times), dtype=float)
+
+
+def baseline_index(epoch: np.ndarray, resets: np.ndarray, settle: int) -> np.ndarray:
+    """Index [n] of each record's baseline record, -1 before its baseline settles.
+
+    Records split at each reset time (a record at the reset belongs to the new piece); the
+    baseline of a piece is its record number ``settle`` (0: its first record).
+    """
+    n = len(epoch)
+    piece = np.searchsorted(resets, epoch, side="right")
+    first = np.flatnonzero(np.r_[True, piece[1:] != piece[:-1]]) if n else np.empty(0, int)
+    start = np.repeat(first, np.diff(np.r_[first, n]))
+    base = start + settle
+    # The baseline must lie inside the record's piece, and the record at or after it.
+    end = np.repeat(np.r_[first[1:], n], np.diff(np.r_[first, n]))
+    ok = (base < end) & (np.arange(n) >= base)
+    return np.where(ok, base, -1)
+
+
+def apply(
+    values: np.ndarray, layout_slices: dict[str, slice], names: tuple[str, ...],
+    calib: uncertainty.Calibration | None, view: HealthView,
+    epoch: np.ndarray | None = None, phase: list[str] | None = None,
+    resets: np.ndarray | None = None, settle: int = BASELINE_SETTLE_RECORDS,
+) -> tuple[np.ndarray, HealthMeta]:
+    """The health columns of ``values`` [n, width] (a new float64 array) in ``view``.
+
+    Level: h_hat and the honest sigma sqrt(a^2 bias2 + sigma_f^2 + s^2) per record. Change:
+    h_hat - h_hat[b] and sqrt(sigma_f^2 + sigma_f[b]^2 + (d c)^2 + s_delta^2), c the take-off
+    records (cycles) since b, in thousands. Unobservable parameters: NaN (null in JSON).
+    """
+    out = np.array(values, dtype=np.float64)
+    h_cols, s_cols = layout_slices["h"], layout_slices["h_sigma"]
+    h, f = out[:, h_cols], out[:, s_cols]
+    p = len(names)
+    bias2 = np.zeros(p)
+    level_std = np.zeros(p)
+    change_std = np.zeros(p)
+    drift = np.zeros(p)
+    hidden = np.zeros(p, bool)
+    if calib is not None:
+        where = {n: k for k, n in enumerate(calib.names)}
+        for j, name in enumerate(names):
+            k = where.get(name)
+            if k is None:
+                continue
+            scale = float(np.asarray(calib.bias_scale)[k])
+            bias2[j] = scale**2 * calib.bias2[k]
+            level_std[j] = calib.level_std[k]
+            change_std[j] = calib.change_std[k]
+            drift[j] = calib.drift[k]
+            hidden[j] = not calib.observable[k]
+    baselines: tuple[float, ...] = ()
+    if view == "level":
+        new_h = h
+        new_s = uncertainty.level_sigma(f, bias2, level_std) if calib is not None else f
+    else:
+        epoch = np.asarray(epoch if epoch is not None else np.arange(len(out)), float)
+        b = baseline_index(epoch, np.asarray(resets if resets is not None else []), settle)
+        has = b >= 0
+        bb = np.where(has, b, 0)
+        takeoff = np.cumsum([ph == "takeoff" for ph in (phase or [])]) if phase else None
+        if takeoff is None or not takeoff.size or takeoff[-1] == 0:
+            takeoff = np.arange(len(out))  # no phases: one record a cycle
+        kcycles = (takeoff - takeoff[bb]) / 1000.0
+        new_h = np.where(has[:, None], h - h[bb], np.nan)
+        new_s = np.where(has[:, None], uncertainty.change_sigma(f, f[bb], kcycles, drift,
+                                                                 change_std), np.nan)
+        baselines = tuple(float(t) for t in epoch[np.unique(b[has])])
+    new_h = np.where(hidden, np.nan, new_h)
+    new_s = np.where(hidden, np.nan, new_s)
+    out[:, h_cols] = new_h
+    out[:, s_cols] = new_s
+    meta = HealthMeta(view, "uncalibrated" if calib is None else "calibrated",
+                      tuple(n for n, x in zip(names, hidden, strict=True) if x), baselines)
+    return out, meta
