@@ -35,6 +35,7 @@ import argparse
 import os
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from _common import ROOT
@@ -56,6 +57,14 @@ WINDOWS = {"ground": (10.0, 110.0), "takeoff": (140.0, 240.0), "climb": (540.0, 
            "cruise": (790.0, 890.0), "descent": (1090.0, 1190.0)}
 AUX = ("Fn", "T40", "SM_fan", "SM_LPC", "SM_HPC")
 TURBINE_FLOWS = (7, 9)
+
+
+class Recorded(NamedTuple):
+    time_s: np.ndarray
+    u: np.ndarray
+    measured: np.ndarray
+    aux: np.ndarray
+    cond: np.ndarray  # [4, T, B] alt ft, Mach, dTamb K, power %
 
 
 def profile(n: int) -> FlightProfile:
@@ -134,7 +143,7 @@ def table(title: str, err: dict[str, np.ndarray], label: np.ndarray, which: int,
         print(line)
 
 
-def speed(cg: CgekfDesign, sim, idx: list[int], env: np.ndarray, steps: int) -> None:
+def speed(cg: CgekfDesign, sim: Recorded, idx: list[int], env: np.ndarray, steps: int) -> None:
     flight_steps = int(2 * 3600 / DT)
     print(f"\nspeed: 2-hour flight at 20 Hz = {flight_steps} samples; slice of {steps} "
           f"samples from the flight start (idle, slam, take-off), scaled")
@@ -158,6 +167,7 @@ def main() -> None:
     ap.add_argument("--speed-steps", type=int, default=1500)
     ap.add_argument("--no-speed", action="store_true")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--cache", help="npz of the simulation and CGEKF results (kept/reused)")
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
     n = args.flights
@@ -167,20 +177,35 @@ def main() -> None:
     print(f"  breakpoints s {TIMES.tolist()}\n  alt ft {ALT.tolist()}\n  Mach {MACH.tolist()}"
           f"\n  power % {POWER.tolist()}")
     cg = cgekf_design(dt=DT)
-    ty = np.array([linearize(0.0, 0.0, 100.0, dt=DT).trim[s] for s in SENSOR_NAMES])
-    t0 = time.process_time()
-    sim = simulate(profile(n), TIMES[-1], health=health, dt=DT, noise_std=noise_std(ty),
-                   rng=rng)
-    print(f"simulated in {time.process_time() - t0:.0f} s CPU")
     idx = [SENSOR_NAMES.index(s) for s in cg.sensors]
     zi = [AUX_NAMES.index(a) for a in cg.aux]
-    c = sim.condition
-    env = np.stack([c.alt_ft, c.mach, c.dtamb_k], axis=-1)
+    cache = Path(args.cache) if args.cache else None
+    if cache is not None and cache.exists():
+        f = np.load(cache)
+        sim = Recorded(f["time_s"], f["u"], f["measured"], f["aux"], f["cond"])
+        R = {k: f[k] for k in ("d_hat", "h_hat", "z_hat", "residual")}
+        print(f"loaded simulation and cgekf results from {cache}")
+    else:
+        ty = np.array([linearize(0.0, 0.0, 100.0, dt=DT).trim[s] for s in SENSOR_NAMES])
+        t0 = time.process_time()
+        out = simulate(profile(n), TIMES[-1], health=health, dt=DT, noise_std=noise_std(ty),
+                       rng=rng)
+        print(f"simulated in {time.process_time() - t0:.0f} s CPU", flush=True)
+        sim = Recorded(out.time_s, out.u, out.measured, out.aux, np.stack(out.condition))
+        c = sim.cond
+        env = np.stack([c[0], c[1], c[2]], axis=-1)
+        t0 = time.process_time()
+        res = filter_flights(cg, sim.measured[:, :, idx], sim.u, env, z_true=sim.aux[:, :, zi])
+        print(f"cgekf in {time.process_time() - t0:.0f} s CPU", flush=True)
+        R = {"d_hat": res.d_hat, "h_hat": res.h_hat, "z_hat": res.z_hat,
+                      "residual": res.residual}
+        if cache is not None:
+            np.savez(cache, time_s=sim.time_s, u=sim.u, measured=sim.measured, aux=sim.aux,
+                     cond=sim.cond, **R)
+    c = sim.cond
+    env = np.stack([c[0], c[1], c[2]], axis=-1)
     y = sim.measured[:, :, idx]
     z_true = sim.aux[:, :, zi]
-    t0 = time.process_time()
-    res = filter_flights(cg, y, sim.u, env, z_true=z_true)
-    print(f"cgekf in {time.process_time() - t0:.0f} s CPU")
 
     from app.engine_cache import engine_schedule
 
@@ -188,19 +213,21 @@ def main() -> None:
             "power": (0.0, 25.0, 50.0, 75.0, 100.0), "dtamb": (0.0,)}
     t0 = time.process_time()
     sched = engine_schedule(Path(ROOT / ".bench_cache"), axes, dt=DT)
-    cond = np.stack([c.alt_ft, c.mach, c.dtamb_k, c.power_pct], axis=-1)
+    cond = np.stack([c[0], c[1], c[2], c[3]], axis=-1)
     h_lin, z_lin = linear_filter(cg, cond, y, sim.u, sched)
     print(f"linear (schedule and filter) in {time.process_time() - t0:.0f} s CPU")
 
-    finite = np.isfinite(res.h_hat).all(axis=(0, 2)) & np.isfinite(res.z_hat).all(axis=(0, 2))
-    bounded = (np.abs(res.d_hat) < 50.0).all(axis=(0, 2))
+    finite = (np.isfinite(R["h_hat"]).all(axis=(0, 2))
+              & np.isfinite(R["z_hat"]).all(axis=(0, 2)))
+    bounded = (np.abs(R["d_hat"]) < 50.0).all(axis=(0, 2))
     stable = finite & bounded
     print(f"\nstability: {int(stable.sum())}/{n} flights stable (finite, tuners within +-50 %); "
-          f"largest |tuner| {np.nanmax(np.abs(res.d_hat)):.1f} %, "
-          f"largest |innovation| after 60 s {np.nanmax(np.abs(res.residual[1200:])):.1f} %")
+          f"largest |tuner| {np.nanmax(np.abs(R['d_hat'])):.1f} %, "
+          f"largest |innovation| after 60 s "
+          f"{np.nanmax(np.abs(R['residual'][1200:])):.1f} %")
     h_true = health[None, :, :10]
-    err_h = {"cgekf": res.h_hat - h_true, "linear": h_lin - h_true}
-    err_z = {"cgekf": 100.0 * (res.z_hat - z_true) / z_true,
+    err_h = {"cgekf": R["h_hat"] - h_true, "linear": h_lin - h_true}
+    err_z = {"cgekf": 100.0 * (R["z_hat"] - z_true) / z_true,
              "linear": 100.0 * (z_lin - z_true) / z_true}
     names_h = tuple(f"h:{s}" for s in ("fan_eff", "fan_flow", "lpc_eff", "lpc_flow",
                                         "hpc_eff", "hpc_flow", "hpt_eff", "hpt_flow",

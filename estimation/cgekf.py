@@ -144,7 +144,9 @@ class CgekfResult(NamedTuple):
     g_y(s-) (a priori); z_hat [T, B, nz] aux estimates (a posteriori, model
     units); residual [T, B, ny] innovations y - y_hat in percent of scale;
     z_residual [T, B, nz] z_hat - z_true in percent of the truth when a truth
-    was given (else NaN). Names: sensors, aux, tuners.
+    was given (else NaN). Names: sensors, aux, tuners. x_next [B, nx], d_next [B, m]:
+    the a-priori state after the last sample, where a following chunk of the same
+    recordings continues (``run_cgekf(..., x0=x_next, d0=d_next)``).
     """
 
     d_hat: np.ndarray
@@ -157,6 +159,8 @@ class CgekfResult(NamedTuple):
     sensors: tuple[str, ...]
     aux: tuple[str, ...]
     tuners: tuple[str, ...]
+    x_next: np.ndarray
+    d_next: np.ndarray
 
 
 def cgekf_design(
@@ -255,7 +259,7 @@ def run_cgekf(
         zt = np.asarray(z_true, float)
         zres = 100.0 * (out_z - zt) / zt
     return CgekfResult(out_d, h, out_x, out_y, out_z, out_r, zres, design.sensors,
-                       design.aux, design.tuners)
+                       design.aux, design.tuners, x, d)
 
 
 class LinearPlant:

@@ -128,3 +128,16 @@ def test_hpc_step_converges_near_truth(design):
     sim = _one_flight(150.0, 1, h, np.random.default_rng(0), noise=False)
     res = _run(design, sim)
     np.testing.assert_allclose(res.h_hat[-1, 0, [4, 5]], [-2.0, -2.0], atol=0.3)
+
+
+def test_chunks_continue_as_one_run(design):
+    """Two chunks, the second from the first's a-priori state, equal one run."""
+    rng = np.random.default_rng(5)
+    red = design.reduced
+    nx = red.n_states
+    y = rng.normal(0.0, 1.0, (200, 2, len(design.sensors)))
+    u = rng.normal(0.0, 1.0, (200, 2, 3))
+    whole = run_cgekf(design, LinearPlant(design, u), y, np.zeros((2, nx)))
+    a = run_cgekf(design, LinearPlant(design, u[:80]), y[:80], np.zeros((2, nx)))
+    b = run_cgekf(design, LinearPlant(design, u[80:]), y[80:], a.x_next, a.d_next)
+    np.testing.assert_array_equal(np.concatenate([a.d_hat, b.d_hat]), whole.d_hat)
