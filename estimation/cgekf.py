@@ -24,7 +24,7 @@ C x + D u + M V*^+ d) the recursion is the steady-state filter of
 reported aux estimate is g_z at s- moved to s_hat through the design model,
 z_hat = g_z(s-) + F_xq K r (exact on the linear plant).
 
-Units. The gain works in percent (MATH.md section 1 of the design model). The
+Units. The gain works in percent of trim, as the design model does. The
 engine's sensors, states and aux outputs are divided by the design point's
 trim corrected to the current inlet conditions (seed 004's corrected
 parameters: temperatures by theta2, pressures and thrust by delta2, speeds by
@@ -181,7 +181,7 @@ def cgekf_design(
     qh_std [% per sample]: random walk of the health parameters (Q_h = qh_std^2 I);
     R: seed 001 Table 2 noise (``sensors.noise_std_percent``). Tuners are
     a subset of the ten component health parameters (seed 001 Table 3).
-    Reduced model and gain: MATH.md sections 2-3 (seed 002 eq. 4-7).
+    Reduced model and gain: seed 002 eq. 4-7 and the steady-state DARE gain.
     """
     full = linearize(alt_ft, mach, power_pct, dt=dt)
     model = (full.select_sensors(list(sensors)).select_health(list(HEALTH_NAMES[:_TURBO]))
