@@ -8,8 +8,8 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.orm import Session
 
-from app.jobs.registry import Progress, registry
 from app.services.designs import calibration
+from app.services.jobs.registry import Progress, registry
 
 
 class CalibrateDesign(BaseModel):
