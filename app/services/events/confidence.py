@@ -6,8 +6,9 @@ design that isolated it (``estimation.posterior.fault_posterior``, p_i ∝ pi_i 
 C_ij with j the isolated fault). The confusion is the design's latest evaluation on the
 built-in nonlinear engine when there is one, else its linear Monte Carlo confusion (WSSR on
 tuner estimates), else none (WSSR alone); ``source`` says which. The label names the fewest
-faults holding 90 % of the posterior ("HPT or Wf"); the ambiguity group is the isolated fault's
-group in the design's confusion; the confusion row is how the design isolates that fault.
+faults holding 90 % of the posterior ("HPT or Wf"); the ambiguity group is the isolated fault
+and the faults the design's confusion mixes it with; the confusion row is how the design
+isolates that fault.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from app.services.designs import engine_evaluation
 from app.services.designs.evaluation import latest_evaluation
 from app.services.designs.service import get_design
 from estimation.isolation import SEED_002_FAULTS
-from estimation.posterior import ambiguity_groups, fault_posterior
+from estimation.posterior import fault_posterior
 
 CREDIBLE_MASS = 0.9
 LIBRARY_ORDER = {f.name: i for i, f in enumerate(SEED_002_FAULTS)}
@@ -104,8 +105,12 @@ def event_confidence(event: Event, evidence: DesignEvidence) -> dict[str, Any] |
         "not_visible": [f for f in evidence.not_visible if f in faults],
     }
     if C is not None:
-        groups = ambiguity_groups(C, faults, engine_evaluation.AMBIGUITY_PERCENT)
-        out["ambiguity_group"] = list(groups.group_of(isolated))
+        # The isolated fault and those it is confused with directly (C_ij + C_ji above the
+        # threshold): the connected component of ``ambiguity_groups`` can chain a weak design's
+        # confusions into most of the library, which says nothing about this event.
+        j = faults.index(isolated)
+        mixed = (C[:, j] + C[j, :]) > engine_evaluation.AMBIGUITY_PERCENT
+        out["ambiguity_group"] = [f for i, f in enumerate(faults) if i == j or mixed[i]]
         row = faults.index(event.fault) if event.fault in faults else int(post.isolated)
         out["confusion_row"] = {
             "true_fault": faults[row], "faults": list(faults), "percent": C[row].tolist(),
