@@ -139,7 +139,7 @@ async function column(id, side) {
       `No visible signature: ${vis.not_visible.map((f) => `${f} (${fmtNum(vis.event_sigmas[engine.faults.indexOf(f)], 1)} σ per event)`).join(", ")}. `
       + `Below ${fmtNum(vis.threshold_sigmas, 0)} noise sigmas over an event, no design can isolate these faults on this engine.`) : null,
     engine.ambiguity_groups.length ? h("p", { class: "engine-groups" },
-      `Ambiguity groups: ${engine.ambiguity_groups.map((g) => g.join(" or ")).join("; ")} (naming the group is right ${fmtNum(engine.group_percent_correct, 1)} % of the time).`) : null,
+      `Ambiguity groups: ${engine.ambiguity_groups.map((g) => g.join(" or ")).join("; ")} (naming the group is right for ${fmtNum(engine.group_percent_correct, 1)} % of the visible faults).`) : null,
     engineConf,
     h("h3", {}, "Nonlinear engine: baseline health RMS and 95 % interval coverage"), engineHealth);
   } else if (evaluation) {

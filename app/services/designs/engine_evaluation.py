@@ -13,8 +13,8 @@ How much of each fault the snapshots can show at all is measured beside it
 squares over the event's records). A fault whose median event signature is below
 ``VISIBLE_SIGMAS`` cannot be isolated by any design (on the built-in engine the VBV bias, and
 nearly the VSV bias): the result names those faults and gives the percent correct over the
-visible faults too, and the ambiguity groups (``estimation.posterior.ambiguity_groups``) name
-the faults the design confuses.
+visible faults too, and the ambiguity groups (``estimation.posterior.ambiguity_groups``, among
+the visible faults) name the faults the design confuses.
 
 Only designs of the built-in engine (engine model source ``builtin``, health parameters of the
 built-in engine) are run; for others the result says why the run is absent.
@@ -121,7 +121,13 @@ def run_engine_evaluation(
     result = ee.evaluate_design(design, rec, schedule)
     conf = np.nan_to_num(result.confusion)
     diag = np.diag(conf)
-    groups = ambiguity_groups(conf, result.faults, AMBIGUITY_PERCENT)
+    # Groups among the visible faults: an invisible fault is isolated at random, and its row
+    # would chain every fault into one group.
+    vis_idx = np.flatnonzero(visible)
+    vis_names = [result.faults[i] for i in vis_idx]
+    groups = ambiguity_groups(conf[np.ix_(vis_idx, vis_idx)], vis_names, AMBIGUITY_PERCENT)
+    rows = [sum(conf[i, result.faults.index(g)] for g in groups.group_of(result.faults[i]))
+            for i in vis_idx]
     shown = [h for h in HEALTH_NAMES if h in TURBOMACHINERY or h in health]
     idx = [HEALTH_NAMES.index(h) for h in shown]
     turbo = [HEALTH_NAMES.index(h) for h in TURBOMACHINERY]
@@ -148,7 +154,7 @@ def run_engine_evaluation(
             "percent_correct_visible": float(np.mean(diag[visible])) if visible.any() else None,
         },
         "ambiguity_groups": [list(g) for g in groups.groups if len(g) > 1],
-        "group_percent_correct": groups.group_correct(conf, result.faults),
+        "group_percent_correct": float(np.mean(rows)) if rows else None,
         "health": {
             "names": shown,
             "rms": result.health_rms[idx].tolist(),

@@ -92,6 +92,8 @@ def test_builtin_design_evaluation_has_the_nonlinear_engine_run(
     shown = [run["faults"].index(f) for f in vis["visible"]]
     assert vis["percent_correct_visible"] == pytest.approx(float(np.mean(diag[shown])), abs=0.01)
     np.testing.assert_allclose(np.sum(run["confusion_percent"], axis=1), 100.0, atol=0.05)
+    # Ambiguity groups among the visible faults only, each pair linked by > 10 % confusion.
+    assert not {f for g in run["ambiguity_groups"] for f in g} & set(vis["not_visible"])
 
 
 def test_imported_design_evaluation_says_why_there_is_no_engine_run(
