@@ -187,6 +187,43 @@ class CommentOut(BaseModel):
     created_at: datetime
 
 
+class ConfusionRow(BaseModel):
+    true_fault: str
+    faults: list[str]
+    percent: list[float] = Field(description="how often the design isolates each fault, %")
+
+
+class EventConfidence(BaseModel):
+    """Posterior over the fault hypotheses (seed 002 eq. 21-23 likelihoods times the design's
+    measured confusion; estimation/posterior.py)."""
+
+    source: Literal["nonlinear_engine", "linear_monte_carlo", "wssr_only"] = Field(
+        description="which confusion the posterior uses"
+    )
+    source_note: str
+    evaluation_job_id: int | None = Field(description="the evaluation the confusion is from")
+    faults: list[str]
+    posterior: list[float] = Field(description="probability of each fault hypothesis, sums to 1")
+    wssr_posterior: list[float] = Field(description="the same from the WSSR alone")
+    isolated: str = Field(description="the hypothesis with the smallest WSSR")
+    probability: float = Field(description="posterior of the isolated fault")
+    label: str = Field(description='fewest faults holding credible_mass, e.g. "HPT or Wf"')
+    credible_mass: float
+    fit_probability: float = Field(
+        description="chi-squared tail probability of the smallest WSSR: small when no library "
+        "fault explains the event"
+    )
+    ambiguity_group: list[str] = Field(
+        description="faults the design confuses with the isolated one (its confusion)"
+    )
+    confusion_row: ConfusionRow | None = Field(
+        description="the design's confusion row of the isolated fault"
+    )
+    not_visible: list[str] = Field(
+        description="library faults with no visible signature on the built-in engine"
+    )
+
+
 class EventOut(BaseModel):
     id: int
     engine_id: int
@@ -213,6 +250,9 @@ class EventOut(BaseModel):
     closed_at: datetime | None
     closed_by: int | None
     comments: list[CommentOut]
+    confidence: EventConfidence | None = Field(
+        None, description="posterior over the fault hypotheses; null without stored WSSR"
+    )
 
 
 class EventPage(BaseModel):

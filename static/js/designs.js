@@ -1,6 +1,6 @@
 // Estimator designs: analytic squared bias and variance (stacked bars) next to Monte Carlo,
-// confusion matrices and misclassification probabilities, two designs side by side; create a
-// design and watch its evaluation job.
+// confusion matrices (linear Monte Carlo and the built-in nonlinear engine) and misclassification
+// probabilities, two designs side by side; create a design and watch its evaluation job.
 import { api } from "./api.js";
 import { $, badge, fmtNum, fmtTime, h, params, progressBar, showError, sortableTable, startPage } from "./ui.js";
 import { PALETTE, axisTitle, layout, plot } from "./plots.js";
@@ -71,6 +71,25 @@ function matrixPlot(div, z, rows, cols, { title, unit, digits = 1, xTitle, yTitl
   }));
 }
 
+// Baseline health on the nonlinear engine: RMS error per parameter (bars, %) and the fraction
+// of engines inside the design's 95 % interval (markers, right axis; 95 % is honest).
+function healthBars(div, health) {
+  return plot(div, [
+    { x: health.names, y: health.rms, type: "bar", name: "RMS error", marker: { color: PALETTE[0] },
+      hovertemplate: "%{x}: RMS %{y:.2f} %<extra></extra>" },
+    { x: health.names, y: health.coverage_95.map((c) => 100 * c), type: "scatter", mode: "markers", yaxis: "y2",
+      name: "95 % interval coverage", marker: { color: PALETTE[1], size: 9, symbol: "diamond" },
+      hovertemplate: "%{x}: coverage %{y:.0f} %<extra></extra>" },
+  ], layout({
+    hovermode: "closest",
+    xaxis: { title: { text: "Health parameter" } },
+    yaxis: { title: { text: axisTitle("RMS error", "%") } },
+    yaxis2: { title: { text: axisTitle("Coverage", "%") }, overlaying: "y", side: "right", range: [0, 105], showgrid: false },
+    shapes: [{ type: "line", xref: "paper", x0: 0, x1: 1, yref: "y2", y0: 95, y1: 95, line: { dash: "dot", color: PALETTE[1], width: 1 } }],
+    legend: { orientation: "h", y: -0.35 }, margin: { l: 70, r: 60, t: 20, b: 110 },
+  }));
+}
+
 async function column(id, side) {
   const card = h("section", { class: "card", id: `design-${side}` });
   const [design, evaluation] = await details(id);
@@ -105,6 +124,28 @@ async function column(id, side) {
         : h("div", {}, h("p", {}, "No Monte Carlo evaluation yet."),
           h("button", { type: "button", class: "run-evaluation", onclick: () => evaluate(design.id) }, "Run the Monte Carlo evaluation"))));
   }
+  const engine = evaluation && evaluation.result.nonlinear_engine;
+  const engineConf = h("div", { class: "plot tall", id: `engine-confusion-${side}` });
+  const engineHealth = h("div", { class: "plot", id: `engine-health-${side}` });
+  if (engine) {
+    const vis = engine.visibility;
+    card.append(h("h3", {}, `On the built-in nonlinear engine: correct ${fmtNum(engine.percent_correct, 1)} % of the ${engine.faults.length} faults`
+      + (vis.percent_correct_visible != null ? `, ${fmtNum(vis.percent_correct_visible, 1)} % of the ${vis.visible.length} visible ones` : "")),
+    h("p", { class: "muted engine-summary" },
+      `${engine.n_engines} simulated engines (scatter, deterioration, actuator biases), ${engine.settings.records_before} snapshots before the fault, `
+      + `${engine.settings.records_after} with it; ${engine.settings.signatures} fault signatures, fuel flow as ${engine.settings.wf}. `
+      + `Baseline health RMS ${fmtNum(engine.health.rms_turbomachinery, 2)} %, 95 % interval coverage ${fmtNum(100 * engine.health.coverage_turbomachinery, 0)} % (ten turbomachinery parameters).`),
+    vis.not_visible.length ? h("p", { class: "notice engine-invisible" },
+      `No visible signature: ${vis.not_visible.map((f) => `${f} (${fmtNum(vis.event_sigmas[engine.faults.indexOf(f)], 1)} σ per event)`).join(", ")}. `
+      + `Below ${fmtNum(vis.threshold_sigmas, 0)} noise sigmas over an event, no design can isolate these faults on this engine.`) : null,
+    engine.ambiguity_groups.length ? h("p", { class: "engine-groups" },
+      `Ambiguity groups: ${engine.ambiguity_groups.map((g) => g.join(" or ")).join("; ")} (naming the group is right for ${fmtNum(engine.group_percent_correct, 1)} % of the visible faults).`) : null,
+    engineConf,
+    h("h3", {}, "Nonlinear engine: baseline health RMS and 95 % interval coverage"), engineHealth);
+  } else if (evaluation) {
+    card.append(h("h3", {}, "On the built-in nonlinear engine"), h("p", { class: "notice engine-note" },
+      evaluation.result.nonlinear_engine_note || "This evaluation predates the nonlinear-engine run: run the evaluation again."));
+  }
   if (result.faults) card.append(h("h3", {}, `Misclassification probability (analytic), sum ${fmtNum(result.faults.pmc_sum, 3)}`), pmc);
   // Plot after the card is in the document, so the plots size to it.
   card.draw = () => Promise.all([
@@ -112,6 +153,9 @@ async function column(id, side) {
     errorBars(aux, theory.aux, unitsOf(result, "aux"), null),
     conf && conf[variant] ? matrixPlot(confusion, conf[variant].percent, conf[variant].faults, conf[variant].faults,
       { title: "confusion", unit: "%", xTitle: "Isolated fault", yTitle: "True fault" }) : null,
+    engine ? matrixPlot(engineConf, engine.confusion_percent, engine.faults, engine.faults,
+      { title: "confusion on the nonlinear engine", unit: "%", xTitle: "Isolated fault", yTitle: "True fault" }) : null,
+    engine ? healthBars(engineHealth, engine.health) : null,
     result.faults ? matrixPlot(pmc, result.faults.pmc, result.faults.names, result.faults.names,
       { title: "misclassification probability", unit: "probability", digits: 3, xTitle: "Mistaken for", yTitle: "True fault" }) : null,
   ]);

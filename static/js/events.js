@@ -1,5 +1,6 @@
 // Event review: the detected shift, the WSSR of every fault hypothesis, the isolated fault and
-// its magnitude; acknowledge, comment, close. Without ?id= the list of events.
+// its magnitude, the confidence (posterior over the hypotheses, ambiguity group, the design's
+// confusion row); acknowledge, comment, close. Without ?id= the list of events.
 import { api } from "./api.js";
 import { $, badge, fmtNum, fmtTime, h, params, showError, sortableTable, startPage } from "./ui.js";
 import { MARKER_COLOURS, PALETTE, axisTitle, layout, lineWithBand, markerShapes, plot, unitOf } from "./plots.js";
@@ -23,6 +24,8 @@ async function showList() {
     { key: "kind", label: "Kind" },
     { key: "fault", label: "Isolated fault", cell: (e) => e.fault || h("span", { class: "muted" }, "not isolated") },
     { key: "magnitude", label: "Magnitude", numeric: true, cell: (e) => fmtNum(e.magnitude) },
+    { key: "confidence", label: "Confidence", value: (e) => (e.confidence ? e.confidence.probability : -1),
+      cell: (e) => (e.confidence ? `${e.confidence.label} (${fmtNum(100 * e.confidence.probability, 0)} %)` : "–") },
     { key: "status", label: "Status", cell: (e) => badge(e.status) },
   ];
   content.replaceChildren(h("section", { class: "card" },
@@ -76,6 +79,70 @@ function wssrPlot(div, event) {
         range: [Math.log10(Math.min(...all) / 2), Math.log10(Math.max(...all) * 2)] }
       : { title: { text: axisTitle("WSSR", "1") }, type: "linear" },
   }));
+}
+
+const SOURCE_TEXT = {
+  nonlinear_engine: "WSSR × the design's confusion on the built-in nonlinear engine",
+  linear_monte_carlo: "WSSR × the design's linear Monte Carlo confusion",
+  wssr_only: "WSSR alone (the design has no measured confusion yet)",
+};
+
+// Posterior probability of every fault hypothesis (bars, percent), the WSSR-only posterior
+// beside it as markers, so what the design's confusion changes is visible.
+function posteriorPlot(div, c) {
+  return plot(div, [
+    { x: c.faults, y: c.posterior.map((p) => 100 * p), type: "bar", name: "posterior",
+      marker: { color: c.faults.map((f) => (c.ambiguity_group.includes(f) ? MARKER_COLOURS.event : PALETTE[0])) },
+      text: c.posterior.map((p) => (p >= 0.005 ? `${(100 * p).toFixed(p >= 0.995 ? 1 : 0)} %` : "")), textposition: "outside", cliponaxis: false,
+      hovertemplate: "%{x}: %{y:.1f} %<extra>posterior</extra>" },
+    { x: c.faults, y: c.wssr_posterior.map((p) => 100 * p), type: "scatter", mode: "markers", name: "from WSSR alone",
+      marker: { color: "#000000", symbol: "line-ew-open", size: 14, line: { width: 2 } },
+      hovertemplate: "%{x}: %{y:.1f} %<extra>WSSR alone</extra>" },
+  ], layout({
+    hovermode: "closest", legend: { orientation: "h", y: -0.3 },
+    xaxis: { title: { text: "Fault hypothesis" } },
+    yaxis: { title: { text: axisTitle("Probability", "%") }, range: [0, 110] },
+  }));
+}
+
+// The design's confusion row of the isolated fault: where that fault ends up when it is true.
+function confusionRowPlot(div, row) {
+  return plot(div, [{
+    x: row.faults, y: row.percent, type: "bar", name: `true ${row.true_fault}`,
+    marker: { color: row.faults.map((f) => (f === row.true_fault ? MARKER_COLOURS.event : PALETTE[4])) },
+    text: row.percent.map((v) => (v >= 0.5 ? `${v.toFixed(0)} %` : "")), textposition: "outside", cliponaxis: false,
+    hovertemplate: `true ${row.true_fault}, isolated %{x}: %{y:.1f} %<extra></extra>`,
+  }], layout({
+    hovermode: "closest", showlegend: false,
+    xaxis: { title: { text: "Isolated as" } },
+    yaxis: { title: { text: axisTitle(`Share of true ${row.true_fault} faults`, "%") }, range: [0, 110] },
+  }));
+}
+
+function confidenceCard(event) {
+  const c = event.confidence;
+  if (!c) return [h("section", { class: "card", id: "confidence" }, h("h2", {}, "Confidence"), h("p", { class: "muted" }, "No WSSR stored for this event."))];
+  const post = h("div", { id: "posterior", class: "plot" });
+  const row = h("div", { id: "confusion-row", class: "plot" });
+  const group = c.ambiguity_group.length > 1
+    ? h("p", { class: "notice", id: "ambiguity" }, `This design cannot reliably tell ${c.ambiguity_group.join(" or ")} apart `
+      + `(${c.source === "nonlinear_engine" ? "on the built-in nonlinear engine" : "in its Monte Carlo evaluation"}): treat the finding as "${c.ambiguity_group.join(" or ")}".`)
+    : null;
+  const fit = c.fit_probability < 0.01
+    ? h("p", { class: "notice" }, `No library fault explains the event well (chi-squared tail probability ${fmtNum(c.fit_probability, 3)}): the probabilities rank the library's faults only.`)
+    : null;
+  const card = h("section", { class: "card", id: "confidence" },
+    h("h2", {}, c.fit_probability < 0.01 ? `Confidence: closest library fault ${c.label}, but none fits the event`
+      : `Confidence: ${c.label} (${fmtNum(100 * c.probability, 0)} % ${c.isolated})`),
+    h("p", { class: "muted", id: "confidence-source" }, `${SOURCE_TEXT[c.source] || c.source}${c.evaluation_job_id ? ` (evaluation job #${c.evaluation_job_id})` : ""}; the label names the fewest faults holding ${fmtNum(100 * c.credible_mass, 0)} % of the probability.`),
+    group, fit,
+    c.not_visible.length ? h("p", { class: "muted" }, `Faults with no visible signature on the built-in engine, which no design isolates: ${c.not_visible.join(", ")}.`) : null,
+    h("div", { class: "grid" },
+      h("div", {}, h("h3", {}, "Probability of each fault hypothesis"), post),
+      h("div", {}, h("h3", {}, c.confusion_row ? `How the design isolates a true ${c.confusion_row.true_fault} fault` : "Confusion row"),
+        c.confusion_row ? row : h("p", { class: "muted" }, "No measured confusion: run the design's evaluation on the designs page."))));
+  card.draw = () => Promise.all([posteriorPlot(post, c), c.confusion_row ? confusionRowPlot(row, c.confusion_row) : null]);
+  return [card];
 }
 
 async function windowPlot(div, event) {
@@ -151,6 +218,7 @@ function showEvent(event, principal) {
   const shift = h("div", { id: "shift", class: "plot" });
   const wssr = h("div", { id: "wssr", class: "plot" });
   const around = h("div", { id: "around", class: "plot" });
+  const [confidence] = confidenceCard(event);
   $("#content").replaceChildren(
     h("section", { class: "card" }, h("dl", { class: "kv" },
       h("dt", {}, "Engine"), h("dd", {}, h("a", { href: `/engine.html?id=${event.engine_id}` }, event.esn), event.tail ? ` on ${event.tail} position ${event.position}` : ""),
@@ -162,9 +230,11 @@ function showEvent(event, principal) {
     h("div", { class: "grid" },
       h("section", { class: "card" }, h("h2", {}, "Detected shift"), shift),
       h("section", { class: "card" }, h("h2", {}, "WSSR of every fault hypothesis"), wssr)),
+    confidence,
     h("section", { class: "card" }, h("h2", {}, `Health parameters ±${WINDOW_DAYS} days around the detection, against their mean over the ${BASELINE_RECORDS} records before it`), around),
     actions(event, principal, refresh));
-  return Promise.all([shiftPlot(shift, event), wssrPlot(wssr, event), windowPlot(around, event)]);
+  return Promise.all([shiftPlot(shift, event), wssrPlot(wssr, event), windowPlot(around, event),
+    confidence.draw ? confidence.draw() : null]);
 }
 
 async function main() {

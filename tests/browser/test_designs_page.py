@@ -52,6 +52,20 @@ def test_two_designs_side_by_side(page: Any, server: Server, console: Console) -
     assert cells == len(wssr_q["faults"]) ** 2  # percentages written in the cells
     pmc = _data(page, "#pmc-a")[0]
     np.testing.assert_allclose(pmc["z"], design["result"]["faults"]["pmc"])
+    # The run on the built-in nonlinear engine beside the linear one.
+    engine = evaluation["result"]["nonlinear_engine"]
+    assert engine is not None, evaluation["result"].get("nonlinear_engine_note")
+    heat = _data(page, "#engine-confusion-a")[0]
+    assert heat["type"] == "heatmap" and heat["x"] == engine["faults"]
+    np.testing.assert_allclose(heat["z"], engine["confusion_percent"])
+    bars = _data(page, "#engine-health-a")
+    assert bars[0]["y"] == pytest.approx(engine["health"]["rms"])
+    assert bars[1]["y"] == pytest.approx([100 * c for c in engine["health"]["coverage_95"]])
+    card = page.inner_text("#design-a")
+    assert f"correct {engine['percent_correct']:.1f} %" in card
+    assert engine["visibility"]["not_visible"]  # VBV on this engine
+    for fault in engine["visibility"]["not_visible"]:
+        assert fault in page.inner_text("#design-a .engine-invisible")
     # Design B has no evaluation yet: theory only, and a button to run one.
     assert [t["name"] for t in traces(page, "#health-b")] == [
         "squared bias (theory)", "variance (theory)"

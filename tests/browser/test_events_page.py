@@ -41,6 +41,15 @@ def test_event_review_plots_shift_and_wssr_and_acknowledges(
     wssr = page.evaluate("document.querySelector('#wssr').data[0]")
     assert wssr["type"] == "bar" and wssr["x"] == list(event["wssr"])
     assert wssr["y"] == pytest.approx(list(event["wssr"].values()))
+    confidence = event["confidence"]
+    assert confidence is not None and sum(confidence["posterior"]) == pytest.approx(1.0)
+    posterior = page.evaluate("document.querySelector('#posterior').data[0]")
+    assert posterior["x"] == confidence["faults"]
+    assert posterior["y"] == pytest.approx([100 * p for p in confidence["posterior"]])
+    assert confidence["label"] in page.inner_text("#confidence h2")
+    if confidence["confusion_row"] is not None:
+        row = page.evaluate("document.querySelector('#confusion-row').data[0]")
+        assert row["y"] == pytest.approx(confidence["confusion_row"]["percent"])
     shift = traces(page, "#shift")
     assert shift[0]["name"] == "detected h_hat shift"
     assert shift[0]["n"] == len(event["health_shift"])

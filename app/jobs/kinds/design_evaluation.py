@@ -8,6 +8,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.orm import Session
 
+from app.services.designs import engine_evaluation as engine_run
 from app.services.designs import evaluation
 from app.services.jobs.registry import Progress, registry
 
@@ -29,19 +30,43 @@ class EvaluateDesign(BaseModel):
             "duration_s, and the Monte Carlo then measures the transient as well)"
         ),
     )
+    engine_run: bool = Field(
+        True, description="also run the design on the built-in nonlinear engine's faulted fleet"
+    )
+    engine_per_fault: int = Field(
+        25, ge=2, le=200, description="nonlinear engine: simulated engines per library fault"
+    )
+    engine_records_before: int = Field(
+        30, ge=2, le=200, description="nonlinear engine: snapshots before the fault (baseline)"
+    )
+    engine_records_after: int = Field(
+        20, ge=1, le=200, description="nonlinear engine: snapshots with the fault"
+    )
+    engine_signatures: Literal["linear", "secant"] = Field(
+        "linear",
+        description=(
+            "fault signatures of the WSSR isolation on the nonlinear engine: linear (the "
+            "scheduled gains at the nominal engine, as the pipeline isolates) or secant (the "
+            "engine's own change from the estimated baseline)"
+        ),
+    )
 
 
 @registry.job(
     evaluation.JOB_KIND,
     parameters=EvaluateDesign,
-    description="Monte Carlo SSEE next to the design's theory, and WSSR confusion matrices.",
+    description=(
+        "Monte Carlo SSEE next to the design's theory, WSSR confusion matrices, and the "
+        "design on the built-in nonlinear engine's faulted fleet."
+    ),
     role="analyst",
 )
 def evaluate_design(
     session: Session, parameters: EvaluateDesign, progress: Progress, *, operator_id: int
 ) -> dict[str, Any]:
     data = evaluation.evaluation_input(
-        session, operator_id=operator_id, design_id=parameters.design_id
+        session, operator_id=operator_id, design_id=parameters.design_id,
+        engine_signatures=parameters.engine_signatures,
     )
     # End the read transaction before the long run: on SQLite a transaction that read before
     # a progress report committed could not write the result afterwards.
@@ -50,4 +75,10 @@ def evaluate_design(
         data, n_cases=parameters.n_cases, duration_s=parameters.duration_s,
         window_s=parameters.window_s, fault_duration_s=parameters.fault_duration_s,
         seed=parameters.seed, start=parameters.start, progress=progress,
+        engine_settings=engine_run.EngineRunSettings(
+            engines_per_fault=parameters.engine_per_fault,
+            records_before=parameters.engine_records_before,
+            records_after=parameters.engine_records_after,
+            signatures=parameters.engine_signatures, seed=parameters.seed,
+        ) if parameters.engine_run else None,
     )

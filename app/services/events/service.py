@@ -1,5 +1,6 @@
 """Events: list, acknowledge, comment, close. The pipeline opens them
-(app/services/snapshots/store.py).
+(app/services/snapshots/store.py). Each event read carries its confidence (posterior over the
+fault hypotheses, ambiguity group, the design's confusion row: ``confidence``).
 
 Status moves open -> acknowledged -> closed (open -> closed directly is allowed too); a closed
 event cannot be acknowledged again, and acknowledging twice is a no-op, so a retried request does
@@ -18,6 +19,7 @@ from app.errors import Conflict, NotFound
 from app.models import Aircraft, Engine, Installation
 from app.models.base import utcnow
 from app.models.estimates import Event, EventComment
+from app.services.events.confidence import DesignEvidence, design_evidence, event_confidence
 from app.services.tenancy.service import Principal
 
 
@@ -50,7 +52,17 @@ def _installed(session: Session, events: list[Event]) -> dict[int, tuple[str, in
     return out
 
 
-def event_out(event: Event, esn: str, where: tuple[str, int] | None) -> dict[str, Any]:
+def _evidence(
+    session: Session, operator_id: int, events: list[Event]
+) -> dict[int, DesignEvidence]:
+    """design id -> its tuner count and measured confusion, once per design of the events."""
+    return {d: design_evidence(session, operator_id, d) for d in {e.design_id for e in events}}
+
+
+def event_out(
+    event: Event, esn: str, where: tuple[str, int] | None,
+    evidence: DesignEvidence | None = None,
+) -> dict[str, Any]:
     shift = event.shift or {}
     return {
         "id": event.id,
@@ -76,6 +88,7 @@ def event_out(event: Event, esn: str, where: tuple[str, int] | None) -> dict[str
         "closed_at": event.closed_at,
         "closed_by": event.closed_by,
         "comments": list(event.comments),
+        "confidence": None if evidence is None else event_confidence(event, evidence),
     }
 
 
@@ -122,8 +135,9 @@ def list_events(
     ).all()
     events = [e for e, _ in rows]
     where = _installed(session, events)
+    evidence = _evidence(session, operator_id, events)
     return {
-        "items": [event_out(e, esn, where.get(e.id)) for e, esn in rows],
+        "items": [event_out(e, esn, where.get(e.id), evidence[e.design_id]) for e, esn in rows],
         "total": total,
         "limit": limit,
         "offset": offset,
@@ -134,7 +148,10 @@ def show_event(session: Session, operator_id: int, event_id: int) -> dict[str, A
     event = get_event(session, operator_id, event_id)
     engine = session.get(Engine, event.engine_id)
     assert engine is not None
-    return event_out(event, engine.esn, _installed(session, [event]).get(event.id))
+    return event_out(
+        event, engine.esn, _installed(session, [event]).get(event.id),
+        design_evidence(session, operator_id, event.design_id),
+    )
 
 
 def _comment(session: Session, event: Event, principal: Principal, body: str) -> None:

@@ -1,0 +1,118 @@
+"""Confidence per event: the posterior over the fault hypotheses, computed when it is read.
+
+From the event's stored WSSR per hypothesis (tuner space, chi-squared with m - 1 degrees of
+freedom for a design of m tuners, seed 002 eq. 21-23) and the measured confusion of the
+design that isolated it (``estimation.posterior.fault_posterior``, p_i ∝ pi_i exp(-WSSR_i / 2)
+C_ij with j the isolated fault). The confusion is the design's latest evaluation on the
+built-in nonlinear engine when there is one, else its linear Monte Carlo confusion (WSSR on
+tuner estimates), else none (WSSR alone); ``source`` says which. The label names the fewest
+faults holding 90 % of the posterior ("HPT or Wf"); the ambiguity group is the isolated fault
+and the faults the design's confusion mixes it with; the confusion row is how the design
+isolates that fault.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from sqlalchemy.orm import Session
+
+from app.models.estimates import Event
+from app.services.designs import engine_evaluation
+from app.services.designs.evaluation import latest_evaluation
+from app.services.designs.service import get_design
+from estimation.isolation import SEED_002_FAULTS
+from estimation.posterior import fault_posterior
+
+CREDIBLE_MASS = 0.9
+LIBRARY_ORDER = {f.name: i for i, f in enumerate(SEED_002_FAULTS)}
+LINEAR_VARIANT = "wssr_q"  # the pipeline isolates on tuner estimates
+SOURCES = {
+    "nonlinear_engine": "the design's measured confusion on the built-in nonlinear engine",
+    "linear_monte_carlo": "the design's linear Monte Carlo confusion (no nonlinear-engine run)",
+    "wssr_only": "WSSR alone: the design has no evaluation with a confusion matrix",
+}
+
+
+@dataclass(frozen=True)
+class DesignEvidence:
+    """What an event's confidence needs from its design: tuners, confusion, where from."""
+
+    n_tuners: int
+    source: str
+    faults: tuple[str, ...] | None = None
+    confusion: np.ndarray | None = None  # percent, rows true, columns isolated
+    not_visible: tuple[str, ...] = ()
+    evaluation_job_id: int | None = None
+
+
+def design_evidence(session: Session, operator_id: int, design_id: int) -> DesignEvidence:
+    """The design's tuner count and its best measured confusion (see the module docstring)."""
+    design = get_design(session, operator_id=operator_id, design_id=design_id)
+    n_tuners = len((design.result or {}).get("vstar") or []) or 1
+    job = latest_evaluation(session, operator_id=operator_id, design_id=design_id)
+    result: Mapping[str, Any] = (job.result or {}) if job is not None else {}
+    engine = result.get(engine_evaluation.RESULT_KEY)
+    if engine:
+        return DesignEvidence(
+            n_tuners, "nonlinear_engine", tuple(engine["faults"]),
+            np.asarray(engine["confusion_percent"], float),
+            tuple(engine.get("visibility", {}).get("not_visible", ())), job.id if job else None,
+        )
+    linear = (result.get("confusion") or {}).get(LINEAR_VARIANT)
+    if linear:
+        return DesignEvidence(
+            n_tuners, "linear_monte_carlo", tuple(linear["faults"]),
+            np.asarray(linear["percent"], float), (), job.id if job else None,
+        )
+    return DesignEvidence(n_tuners, "wssr_only")
+
+
+def event_confidence(event: Event, evidence: DesignEvidence) -> dict[str, Any] | None:
+    """The ``confidence`` of an event (``EventConfidence``); None without stored WSSR."""
+    wssr_map = {k: float(v) for k, v in (event.wssr or {}).items()}
+    if not wssr_map:
+        return None
+    # JSON objects come back in another key order from PostgreSQL: the library's order.
+    faults = tuple(sorted(wssr_map, key=lambda f: (LIBRARY_ORDER.get(f, len(LIBRARY_ORDER)), f)))
+    wssr = np.array([wssr_map[f] for f in faults])
+    source, C = evidence.source, None
+    if evidence.confusion is not None and evidence.faults is not None:
+        if set(evidence.faults) == set(faults):
+            order = [evidence.faults.index(f) for f in faults]
+            C = evidence.confusion[np.ix_(order, order)]
+        else:
+            source = "wssr_only"  # the confusion was measured on another fault library
+    post = fault_posterior(wssr, max(evidence.n_tuners - 1, 1), faults, confusion=C)
+    isolated = faults[int(post.isolated)]
+    out: dict[str, Any] = {
+        "source": source,
+        "source_note": SOURCES[source],
+        "evaluation_job_id": evidence.evaluation_job_id if C is not None else None,
+        "faults": list(faults),
+        "posterior": post.posterior.tolist(),
+        "wssr_posterior": post.wssr_only.tolist(),
+        "isolated": isolated,
+        "probability": float(post.posterior[int(post.isolated)]),
+        "label": post.label(CREDIBLE_MASS)[0],
+        "credible_mass": CREDIBLE_MASS,
+        "fit_probability": float(post.fit_probability),
+        "ambiguity_group": [isolated],
+        "confusion_row": None,
+        "not_visible": [f for f in evidence.not_visible if f in faults],
+    }
+    if C is not None:
+        # The isolated fault and those it is confused with directly (C_ij + C_ji above the
+        # threshold): the connected component of ``ambiguity_groups`` can chain a weak design's
+        # confusions into most of the library, which says nothing about this event.
+        j = faults.index(isolated)
+        mixed = (C[:, j] + C[j, :]) > engine_evaluation.AMBIGUITY_PERCENT
+        out["ambiguity_group"] = [f for i, f in enumerate(faults) if i == j or mixed[i]]
+        row = faults.index(event.fault) if event.fault in faults else int(post.isolated)
+        out["confusion_row"] = {
+            "true_fault": faults[row], "faults": list(faults), "percent": C[row].tolist(),
+        }
+    return out

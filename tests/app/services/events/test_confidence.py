@@ -1,0 +1,130 @@
+"""Confidence per event, computed when it is read: the posterior over the fault hypotheses
+from the stored WSSR and the design's measured confusion (nonlinear engine, else linear Monte
+Carlo, else WSSR alone), checked against the formula computed by hand here
+(p_i ∝ exp(-WSSR_i / 2) (C_ij + floor) / row sum, estimation/posterior.py); the ambiguity
+group when the confusion mixes two faults."""
+
+from __future__ import annotations
+
+from datetime import timedelta
+from typing import Any
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from sqlalchemy.orm import Session
+
+from app.models.base import utcnow
+from app.models.jobs import Job
+from tests.app.services.events.test_events import _event
+from tests.app.services.trends.test_trends import Fleet, add_engine, make_fleet
+
+FAULTS = ["Fan", "HPC", "HPT", "Wf"]
+# Rows true, columns isolated (percent): HPT and Wf mixed, Fan and HPC clean.
+ENGINE_CONFUSION = [
+    [96.0, 4.0, 0.0, 0.0],
+    [2.0, 98.0, 0.0, 0.0],
+    [0.0, 0.0, 62.0, 38.0],
+    [0.0, 0.0, 30.0, 70.0],
+]
+FLOOR = 0.5  # fault_posterior's default: percent added to every confusion cell
+
+
+def _job(session: Session, fleet: Fleet, result: dict[str, Any], minutes: int) -> Job:
+    job = Job(
+        operator_id=fleet.operator_id, kind="evaluate_design",
+        parameters={"design_id": fleet.design.id}, checksum="0" * 64, status="succeeded",
+        result=result, finished_at=utcnow() + timedelta(minutes=minutes),
+    )
+    session.add(job)
+    session.flush()
+    return job
+
+
+def _by_hand(wssr: dict[str, float], confusion: list[list[float]] | None) -> np.ndarray:
+    w = np.array([wssr[f] for f in FAULTS])
+    p = np.exp(-(w - w.min()) / 2)
+    if confusion is not None:
+        C = np.asarray(confusion) + FLOOR
+        C = C / C.sum(axis=1, keepdims=True)
+        p = p * C[:, int(np.argmin(w))]
+    return p / p.sum()
+
+
+@pytest.fixture
+def fleet(session: Session) -> Fleet:
+    fleet = make_fleet(session, "Confidence Air")
+    fleet.design.result = {"vstar": [[1.0]] * 5}  # five tuners: dof 4
+    session.flush()
+    return fleet
+
+
+def test_posterior_from_wssr_then_linear_then_engine_confusion(
+    client: TestClient, session: Session, fleet: Fleet
+) -> None:
+    engine = add_engine(session, fleet, "CF1")
+    clear = {"Fan": 35.0, "HPC": 2.0, "HPT": 28.0, "Wf": 40.0}
+    event = _event(session, fleet, engine.id, 1, fault="HPC", wssr=clear)
+    session.commit()
+    h = {"X-API-Key": fleet.key}
+    url = f"/api/v1/events/{event.id}"
+
+    alone = client.get(url, headers=h).json()["confidence"]
+    assert alone["source"] == "wssr_only" and alone["confusion_row"] is None
+    assert alone["faults"] == FAULTS
+    np.testing.assert_allclose(alone["posterior"], _by_hand(clear, None), rtol=1e-9)
+    assert sum(alone["posterior"]) == pytest.approx(1.0)
+    assert alone["isolated"] == "HPC" and alone["label"] == "HPC"
+    assert alone["posterior"][FAULTS.index("HPC")] == max(alone["posterior"])
+
+    linear = [[100.0 if i == j else 0.0 for j in range(4)] for i in range(4)]
+    _job(session, fleet, {"confusion": {"wssr_q": {"faults": FAULTS, "percent": linear}}}, 1)
+    session.commit()
+    mc = client.get(url, headers=h).json()["confidence"]
+    assert mc["source"] == "linear_monte_carlo"
+    np.testing.assert_allclose(mc["posterior"], _by_hand(clear, linear), rtol=1e-9)
+    assert mc["confusion_row"] == {"true_fault": "HPC", "faults": FAULTS,
+                                   "percent": linear[1]}
+
+    # A newer evaluation with the nonlinear-engine run, fault order differing from the event's.
+    order = [3, 2, 1, 0]
+    shuffled = np.asarray(ENGINE_CONFUSION)[np.ix_(order, order)].tolist()
+    job = _job(session, fleet, {
+        "confusion": {"wssr_q": {"faults": FAULTS, "percent": linear}},
+        "nonlinear_engine": {"faults": [FAULTS[i] for i in order],
+                             "confusion_percent": shuffled,
+                             "visibility": {"not_visible": ["VBV"]}},
+    }, 2)
+    session.commit()
+    nl = client.get(url, headers=h).json()["confidence"]
+    assert nl["source"] == "nonlinear_engine" and nl["evaluation_job_id"] == job.id
+    np.testing.assert_allclose(nl["posterior"], _by_hand(clear, ENGINE_CONFUSION), rtol=1e-9)
+    assert nl["confusion_row"]["percent"] == ENGINE_CONFUSION[1]
+    assert nl["ambiguity_group"] == ["HPC"] and nl["label"] == "HPC"
+    assert nl["not_visible"] == []  # VBV is not in this event's library
+
+    # Close WSSR of HPT and Wf, a design that mixes them: the group is named.
+    close = {"Fan": 40.0, "HPC": 30.0, "HPT": 3.0, "Wf": 3.4}
+    mixed = _event(session, fleet, engine.id, 2, fault="HPT", wssr=close)
+    session.commit()
+    listed = client.get("/api/v1/events", headers=h).json()["items"]
+    conf = next(e for e in listed if e["id"] == mixed.id)["confidence"]
+    expected = _by_hand(close, ENGINE_CONFUSION)
+    np.testing.assert_allclose(conf["posterior"], expected, rtol=1e-9)
+    assert sum(conf["posterior"]) == pytest.approx(1.0)
+    assert conf["ambiguity_group"] == ["HPT", "Wf"]
+    assert conf["label"] == "HPT or Wf"
+    assert conf["probability"] == pytest.approx(expected[FAULTS.index("HPT")])
+    assert conf["probability"] < 0.9  # not reported as certain
+    assert conf["confusion_row"]["percent"] == ENGINE_CONFUSION[2]
+
+
+def test_event_without_wssr_has_no_confidence(
+    client: TestClient, session: Session, fleet: Fleet
+) -> None:
+    engine = add_engine(session, fleet, "CF2")
+    event = _event(session, fleet, engine.id, 1, kind="shift", fault=None, magnitude=None,
+                   wssr={})
+    session.commit()
+    shown = client.get(f"/api/v1/events/{event.id}", headers={"X-API-Key": fleet.key}).json()
+    assert shown["confidence"] is None
