@@ -2,7 +2,7 @@
 
 Seed 002 assumes the fault has been detected; this module finds the event.
 Each sample of the tuner estimate is compared with an archived baseline and
-normalised by its covariance P_q (MATH.md section 4)::
+normalised by its covariance P_q (docs/math.md section 4)::
 
     s_k = (q_hat[k] - q_0)^T P_q^-1 (q_hat[k] - q_0)       ~ chi2_m       (no fault)
                                                            ~ chi2_m(lam)  (shift d,

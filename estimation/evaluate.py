@@ -274,7 +274,7 @@ def fault_influence(
     faults: Sequence[isolation.Fault] | None = None,
     truth: LinearModel | None = None,
 ) -> FaultInfluence:
-    """H and covariances for WSSR isolation of ``design`` (MATH.md section 4).
+    """H and covariances for WSSR isolation of ``design`` (docs/math.md section 4).
 
     truth : model whose health (plus actuator biases) the faults shift; default
             the design model. It must share the design model's states and sensors.

@@ -1,4 +1,4 @@
-"""Steady-state Kalman gain and the batched stream filter (MATH.md section 3).
+"""Steady-state Kalman gain and the batched stream filter (docs/math.md section 3).
 
     P_inf = DARE(A^T, C^T, Q, R)                 (a-priori covariance)
     K     = P_inf C^T (C P_inf C^T + R)^-1
@@ -67,7 +67,7 @@ def unobservable_modes(A: np.ndarray, C: np.ndarray, rtol: float = 1e-9) -> list
 def steady_state_gain(
     A: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray
 ) -> SteadyStateGain:
-    """Steady-state Kalman gain of x[k+1] = A x + w, y = C x + v (MATH.md section 3).
+    """Steady-state Kalman gain of x[k+1] = A x + w, y = C x + v (docs/math.md section 3).
 
     A [n, n], C [ny, n], Q [n, n], R [ny, ny] (positive definite).
     Raises UnobservableDesignError if (A, C) is not detectable (more tuners than
@@ -289,7 +289,7 @@ def filter_stream(
     x0: np.ndarray | None = None,
     u_prev: np.ndarray | None = None,
 ) -> StreamEstimate:
-    """Reduced-order steady-state filter over a batch of engines (MATH.md section 3).
+    """Reduced-order steady-state filter over a batch of engines (docs/math.md section 3).
 
     y [n_steps, n_engines, ny], u [n_steps, n_engines, nu] or None (u = 0);
     see ``filter_stream_states``. Also returns q_hat, h_hat = V*^+ q_hat

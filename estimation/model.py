@@ -1,4 +1,4 @@
-"""Linear engine model at one operating point (MATH.md section 1).
+"""Linear engine model at one operating point (docs/math.md section 1).
 
     x[k+1] = A x[k] + B u[k] + L h[k] + w[k]
     y[k]   = C x[k] + D u[k] + M h[k] + v[k]
@@ -272,7 +272,7 @@ class LinearModel:
         return np.diag(self.sensor_noise_std**2)
 
     def steady_state_gains(self) -> tuple[np.ndarray, np.ndarray]:
-        """Open-loop steady-state gains of h (MATH.md section 1), u = 0.
+        """Open-loop steady-state gains of h (docs/math.md section 1), u = 0.
 
         G_y = C (I - A)^-1 L + M   [ny, np]
         G_z = F (I - A)^-1 L + N   [nz, np]

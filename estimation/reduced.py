@@ -1,4 +1,4 @@
-"""Reduced-order tuner model (MATH.md section 2; seed 002 eq. 4-7).
+"""Reduced-order tuner model (docs/math.md section 2; seed 002 eq. 4-7).
 
 A tuner vector q = V* h (q in R^m, m < p) replaces the health parameters:
 

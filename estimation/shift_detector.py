@@ -1,6 +1,6 @@
 """Shift detection and fault isolation on one engine's tuner estimates.
 
-Detection (MATH.md section 4, last paragraph): a chi-squared CUSUM (``estimation.detection``)
+Detection (docs/math.md section 4, last paragraph): a chi-squared CUSUM (``estimation.detection``)
 runs on the tuner estimate against its baseline, s = (q_hat - q_0)^T P^-1 (q_hat - q_0) with
 the filter covariance P; q_0 is the mean of ``N_BASE`` tuner estimates ending ``GAP`` records
 before the current one. The estimates are correlated from record to record, so the run-length

@@ -1,4 +1,4 @@
-"""Snapshot-mode (ground-station) tuner filter (MATH.md section 8).
+"""Snapshot-mode (ground-station) tuner filter (docs/math.md section 8).
 
 Between snapshots the tuners follow a random walk; each snapshot is a
 steady-state measurement scheduled on its own operating condition theta_j:
@@ -117,7 +117,7 @@ def snapshot_deviation(
     G_u: np.ndarray | None = None,
     du: np.ndarray | None = None,
 ) -> np.ndarray:
-    """dy = 100 (y - y_trim) / y_trim - G_u du (percent of trim; MATH.md section 8).
+    """dy = 100 (y - y_trim) / y_trim - G_u du (percent of trim; docs/math.md section 8).
 
     y, y_trim [..., ny] in engineering units; G_u [..., ny, nu]; du [..., nu] in percent.
     """
@@ -141,7 +141,7 @@ def snapshot_filter(
     keep_covariance: bool = False,
     workers: int | None = None,
 ) -> SnapshotResult:
-    """Time-varying tuner filter over snapshots, batched over engines (MATH.md section 8).
+    """Time-varying tuner filter over snapshots, batched over engines (docs/math.md section 8).
 
     state     : SnapshotState, n_engines E, tuners m
     dy        : [E, S, ny] sensor deviations in percent of trim, NaN = missing

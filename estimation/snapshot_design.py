@@ -4,7 +4,7 @@
 result (``estimation.design.design_to_dict``): V*, the sensor suite, the noise (Q, Qh, Ph)
 and the fault library. ``snapshot_design`` derives the snapshot filter's covariances and the
 fault library in tuner space: the snapshot filter settles on the R^-1-weighted least-squares
-tuner fit of a constant health shift (MATH.md section 4 with the filter's steady state
+tuner fit of a constant health shift (docs/math.md section 4 with the filter's steady state
 replaced by that fit; equal to V* S when m = p).
 """
 

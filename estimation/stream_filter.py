@@ -1,6 +1,6 @@
 """The stream filter's numerics at one anchor condition: the design model resampled to the
 recording's sample interval (``resample``), its reduced model and steady-state gain
-(``segment_gain``, MATH.md sections 2-3) and the filter run over samples with that gain
+(``segment_gain``, docs/math.md sections 2-3) and the filter run over samples with that gain
 (``filter_run``). The scheduling over the envelope, the storage and the service are in
 app/services/streams/.
 """

@@ -1,4 +1,4 @@
-"""Analytic estimation errors of the steady-state tuner filter (MATH.md section 3).
+"""Analytic estimation errors of the steady-state tuner filter (docs/math.md section 3).
 
 Open-loop steady state, constant h, fleet health covariance P_h (seed 002
 eq. 15-19; seed 003 "Analytical derivation of Kalman estimation error"):
@@ -12,7 +12,7 @@ eq. 15-19; seed 003 "Analytical derivation of Kalman estimation error"):
     SSEE     = sum(bias^2) + sum(variance)
     P_q      = [0 I_m] P_hat [0 I_m]^T
 
-Process noise. The Lyapunov equation above (MATH.md section 3, seed 003's
+Process noise. The Lyapunov equation above (docs/math.md section 3, seed 003's
 "Analytical derivation of Kalman estimation error"; seed 002 itself refers to
 Simon & Garg 2010 for it) counts sensor noise only, yet the plant of seed 002
 eq. 1 has process noise w ~ N(0, Q) as well. Here the project goes beyond the
@@ -52,7 +52,7 @@ from estimation.reduced import ReducedModel
 WITH_PROCESS_NOISE = "with_process_noise"
 """Variance from sensor and state process noise (joint Lyapunov equation; the default)."""
 SENSOR_NOISE_ONLY = "sensor_noise_only"
-"""Variance from sensor noise only: P_hat = Phi P_hat Phi^T + K R K^T (MATH.md section 3)."""
+"""Variance from sensor noise only: P_hat = Phi P_hat Phi^T + K R K^T (docs/math.md section 3)."""
 VARIANCE_MODES = (WITH_PROCESS_NOISE, SENSOR_NOISE_ONLY)
 
 
@@ -170,7 +170,7 @@ def analytic_errors(
     Ph: np.ndarray,
     variance: str = WITH_PROCESS_NOISE,
 ) -> FilterErrors:
-    """Analytic bias^2, variance and P_q of one steady-state design (MATH.md section 3).
+    """Analytic bias^2, variance and P_q of one steady-state design (docs/math.md section 3).
 
     model gives G_y, G_z and R; reduced the matrices A_xq, C_xq, F_xq and V*^+ and the
     design's process noise Q (reduced.Q[:nx, :nx]); K [n, ny] the gain; Ph [p, p] the
@@ -278,7 +278,7 @@ class BatchedErrors(NamedTuple):
 
 
 def batched_errors(problem: ErrorProblem, V: np.ndarray) -> BatchedErrors:
-    """Analytic errors for a stack of tuner matrices V [b, m, p] (MATH.md section 3).
+    """Analytic errors for a stack of tuner matrices V [b, m, p] (docs/math.md section 3).
 
     One batched doubling DARE and Stein solve for the whole stack; no Python
     loop over designs. Designs whose tuners the sensors cannot observe in steady

@@ -1,4 +1,4 @@
-"""Tuner selection V* (MATH.md section 2) and the design record.
+"""Tuner selection V* (docs/math.md section 2) and the design record.
 
 Methods, all returning a ``TunerDesign``:
 
@@ -107,7 +107,7 @@ def design_filter(
     objective: float | None = None,
     variance: str = WITH_PROCESS_NOISE,
 ) -> TunerDesign:
-    """Steady-state filter for a given V* with its analytic errors (MATH.md sections 2-3).
+    """Steady-state filter for a given V* with its analytic errors (docs/math.md sections 2-3).
 
     variance: see ``theory.analytic_errors``.
     Raises UnobservableDesignError when the sensors cannot estimate the tuners.

@@ -87,7 +87,6 @@ def test_documents_named_in_code_and_docs_exist() -> None:
     assert not missing, "documents named but not in the repository:\n" + "\n".join(missing)
 
 
-@pytest.mark.xfail(strict=True, reason="MATH.md and UPLOAD.md citations still to be rewritten")
 def test_old_document_names_are_gone() -> None:
     old = [
         _where(source, line, ref)

@@ -91,7 +91,8 @@ def esn_of(unit: int) -> str:
 
 
 def cmapss_snapshots(data: np.ndarray, start: datetime = CMAPSS_START) -> pa.Table:
-    """Rows of the C-MAPSS array as upload columns (UPLOAD.md), sensors in C-MAPSS units."""
+    """Rows of the C-MAPSS array as upload columns (docs/upload-format.md), sensors in
+    C-MAPSS units."""
     col = {name: data[:, i] for i, name in enumerate(CMAPSS_COLUMNS)}
     units = col["unit"].astype(np.int64)
     cycles = col["cycle"].astype(np.int64)

@@ -112,7 +112,7 @@ class EstimatorDesign(Base):
     name: Mapped[str] = mapped_column(String(100))
     spec: Mapped[dict[str, Any]] = mapped_column(JSONDocument)
     status: Mapped[str] = mapped_column(String(16), default="pending")
-    # The fleethealth.design/1 dict and its analytic errors (MATH.md section 3), when ready.
+    # The fleethealth.design/1 dict and its analytic errors (docs/math.md section 3), when ready.
     result: Mapped[dict[str, Any] | None] = mapped_column(JSONDocument, default=None)
     analytic_errors: Mapped[dict[str, Any] | None] = mapped_column(JSONDocument, default=None)
     ssee_health: Mapped[float | None] = mapped_column(default=None)

@@ -145,7 +145,8 @@ class Upload(Base):
 
 
 class Snapshot(Base):
-    """One steady-state report of one engine on one flight (UPLOAD.md), in stored units."""
+    """One steady-state report of one engine on one flight (docs/upload-format.md), in
+    stored units."""
 
     __tablename__ = "snapshots"
     __table_args__ = (

@@ -1,4 +1,4 @@
-"""Linear models of the engine at an operating point (MATH.md section 1).
+"""Linear models of the engine at an operating point (docs/math.md section 1).
 
 Around a steady state (x0, u0, h0) the nonlinear model (``turbofan.evaluate``,
 heat flows included) is differentiated by central differences in every state,

@@ -3,9 +3,9 @@
 The grid spans altitude [ft], Mach, power [%] and dTamb [K] (dTamb may be a
 single value). At every node the engine is trimmed and linearised
 (``linearize.linear_model_at``); between nodes every matrix entry, trim value and
-the derived steady-state gains (G_y, G_z of MATH.md section 1, and those of the
+the derived steady-state gains (G_y, G_z of docs/math.md section 1, and those of the
 inputs) are interpolated multilinearly, which is what a snapshot filter
-scheduled on operating condition needs (MATH.md section 8). Trims are
+scheduled on operating condition needs (docs/math.md section 8). Trims are
 interpolated as corrected parameters (seed 004: temperatures over theta2,
 pressures and thrust over delta2, speeds over sqrt(theta2), fuel flow over
 delta2 sqrt(theta2)) and un-corrected at the query's own inlet conditions, so

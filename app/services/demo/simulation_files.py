@@ -1,4 +1,5 @@
-"""Writing a simulated fleet to files in the upload formats (UPLOAD.md), plus its ground truth.
+"""Writing a simulated fleet to files in the upload formats (docs/upload-format.md), plus its
+ground truth.
 
 Layout under the output directory:
 
@@ -86,7 +87,7 @@ def snapshot_table(snaps: Snapshots) -> pa.Table:
 
 
 def _write_csv(table: pa.Table, path: Path) -> None:
-    # Timestamps as ISO 8601 text with Z, exactly as UPLOAD.md shows them.
+    # Timestamps as ISO 8601 text with Z, exactly as docs/upload-format.md shows them.
     if "recorded_at" in table.column_names:
         text = [iso_utc(t.timestamp()) for t in table["recorded_at"].to_pylist()]
         table = table.set_column(

@@ -149,7 +149,7 @@ class SnapshotEstimator:
     def fault_signatures(self, G_y: np.ndarray, G_u: np.ndarray) -> np.ndarray:
         """Each library fault's sensor change (nominal magnitude) at the conditions of these
         gains: health columns through G_y [..., ny, p], actuator-bias columns through G_u
-        [..., ny, nu] (MATH.md section 4, in sensor space) -> [..., ny, n_faults]."""
+        [..., ny, nu] (docs/math.md section 4, in sensor space) -> [..., ny, n_faults]."""
         p = G_y.shape[-1]
         return G_y @ self.S_full[:p] + G_u[..., list(self.bias_inputs)] @ self.S_full[p:]
 
@@ -304,7 +304,7 @@ def engine_schedule_for(
     model: LinearModel, sched: EngineSchedule, exact_trims: bool = True
 ) -> Schedule:
     """Gains and trims of ``model``'s signals at each record's operating condition, from the
-    built-in engine's schedule (corrected-parameter trims, MATH.md section 8). With
+    built-in engine's schedule (corrected-parameter trims, docs/math.md section 8). With
     ``exact_trims`` the trims are solved per record (``exact_nominal_trims``); the gains are
     interpolated (they vary slowly)."""
     tmpl = sched.template

@@ -124,7 +124,7 @@ class ChunkRecords(NamedTuple):
 
     def observation(self, est: SnapshotEstimator, j: int) -> RecordObservation:
         """Record ``j`` with each library fault's sensor change at its own condition (health
-        columns through G_y, actuator-bias columns through G_u; MATH.md section 4, in sensor
+        columns through G_y, actuator-bias columns through G_u; docs/math.md section 4, in sensor
         space), computed only for the records an alarm fits."""
         signatures = est.fault_signatures(self.G_y[j], self.G_u[j])
         return RecordObservation(self.dy[j], self.G_y[j], signatures, self.var[j])

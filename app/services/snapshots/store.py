@@ -3,7 +3,7 @@ run restarts, their records in, and their estimates, events, checkpoints and fil
 out.
 
 After an upload commits, each affected engine's snapshot filter (``estimation.snapshot``,
-MATH.md section 8) continues from its stored state under the engine type's active design. A
+docs/math.md section 8) continues from its stored state under the engine type's active design. A
 record older than the last processed one re-runs the engine from the newest checkpoint before
 it: estimates and checkpoints from there on are deleted and recomputed, so a re-run writes the
 same rows as an uninterrupted run (the arithmetic per record does not depend on how records are

@@ -1,7 +1,7 @@
 """Stream estimation: the reduced-order steady-state Kalman filter over a recording.
 
 Each recording is filtered at its full rate with the engine type's active design (V*, the
-design model's sensors, health parameters and noise; MATH.md sections 2-3):
+design model's sensors, health parameters and noise; docs/math.md sections 2-3):
 
     x_hat[k] = A_xq x_hat[k-1] + B_xq du[k-1] + K (dy[k] - C_xq x_pred[k] - D du[k])
 

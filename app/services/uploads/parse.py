@@ -5,7 +5,7 @@ and per-row Python runs only to word the errors of rows already known to be bad.
 numbered from 1 in file order (CSV: the first line after the header is row 1; JSON: the first
 element of ``snapshots``). At most ``MAX_ERRORS`` errors are collected, then checking stops.
 
-Column names are the upload names of UPLOAD.md; a ``[unit]`` suffix declares a unit
+Column names are the upload names of docs/upload-format.md; a ``[unit]`` suffix declares a unit
 (``T30[degC]``), otherwise the stored unit is assumed. A column mapping renames foreign
 columns (``{"HPC_T": "T30"}``) or drops them (``{"Ps30_raw": null}``) before anything else.
 """

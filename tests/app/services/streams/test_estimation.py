@@ -149,7 +149,7 @@ def _state(session: Session, recording_id: int) -> StreamFilterState:
 
 def _lyapunov_tuner_std(model: LinearModel, document: dict[str, Any]) -> np.ndarray:
     """Steady-state error spread of q_hat with constant health and sensor noise only
-    (MATH.md section 3): P_hat = Phi P_hat Phi^T + K R K^T, Phi = A_xq - K C_xq A_xq, solved
+    (docs/math.md section 3): P_hat = Phi P_hat Phi^T + K R K^T, Phi = A_xq - K C_xq A_xq, solved
     here by scipy's Lyapunov solver from the design document's gain."""
     K = np.asarray(document["gain"])
     vstar = np.asarray(document["vstar"])
