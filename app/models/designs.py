@@ -34,6 +34,21 @@ DESIGN_STATUSES = ("pending", "ready", "failed")
 JSONDocument = JSON().with_variant(JSONB(), "postgresql")
 
 
+# Limits of an engine's state, per engine type: name -> (unit, worse direction, amber, red).
+# "above": a value above a level is worse (amber < red); "below": a margin, worse below
+# (amber > red). The defaults are the built-in engine's; a type stores only what it overrides
+# (``engine_types.limits``, NULL: all defaults).
+LIMIT_SPECS: dict[str, tuple[str, str, float, float]] = {
+    "health_change": ("%", "above", 3.0, 5.0),
+    "egt_margin": ("degC", "below", 15.0, 0.0),
+    "thrust_deficit": ("%", "above", 4.0, 8.0),
+    "rate_of_change": ("%/100 flights", "above", 2.0, 4.0),
+}
+# EGT redline [degC] of the built-in engine's T48: its nominal take-off EGT on an ISA+15 K day
+# is 903 degC (the schedule), so a new engine has about 47 degC of margin.
+DEFAULT_EGT_REDLINE_C = 950.0
+
+
 class EngineType(Base):
     __tablename__ = "engine_types"
     __table_args__ = (UniqueConstraint("operator_id", "name"),)
@@ -45,6 +60,21 @@ class EngineType(Base):
     name: Mapped[str] = mapped_column(String(100))
     description: Mapped[str] = mapped_column(Text, default="")
     created_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    # Overrides of LIMIT_SPECS' levels ({"egt_margin": {"amber": 20, "red": 5}, ...}) and
+    # "egt_redline_c"; NULL: the defaults (migration 0011).
+    limits: Mapped[dict[str, Any] | None] = mapped_column(JSONDocument, default=None)
+
+    @property
+    def effective_limits(self) -> dict[str, Any]:
+        """Every limit with its unit and levels, the stored overrides over the defaults."""
+        stored = self.limits or {}
+        out: dict[str, Any] = {}
+        for name, (unit, worse, amber, red) in LIMIT_SPECS.items():
+            levels = stored.get(name) or {}
+            out[name] = {"unit": unit, "worse": worse, "amber": float(levels.get("amber", amber)),
+                         "red": float(levels.get("red", red))}
+        out["egt_redline_c"] = float(stored.get("egt_redline_c", DEFAULT_EGT_REDLINE_C))
+        return out
 
 
 class EngineModel(Base):

@@ -28,10 +28,20 @@ class TrendSeries(BaseModel):
     max: list[float | None] | None = Field(None, description="bucket maximum (decimated)")
 
 
+class LimitLine(BaseModel):
+    """A level of the engine type's limits drawn on a series of the performance group."""
+
+    series: str
+    level: Literal["amber", "red"]
+    value: float
+    unit: str
+
+
 class TrendGroup(BaseModel):
-    key: Literal["tuners", "health", "aux", "residuals", "wssr"]
+    key: Literal["tuners", "health", "aux", "residuals", "wssr", "performance"]
     label: str
     series: list[TrendSeries]
+    limits: list[LimitLine] | None = Field(None, description="limit lines (performance group)")
 
 
 class InstallationMarker(BaseModel):

@@ -53,6 +53,7 @@ from app.models.ingest import PHASES
 from app.services.encoding import json_numbers
 from app.services.encoding.json_numbers import RawJSON
 from app.services.encoding.pgcopy import PG_EPOCH_US
+from app.services.trends.performance import performance_group
 
 # Trend groups as the dashboard draws them: (key, value block, sigma block, names group, label).
 GROUPS = (
@@ -517,6 +518,13 @@ def engine_trend(
     if data is not None and len(data.epoch):
         starts = decimate(len(data.epoch), max_points)
         columns, groups = trend_groups(data, starts, columns_of)
+        assert target.design_id is not None
+        extra = performance_group(
+            session, target.engine_id, target.design_id, data.layout, data.epoch, data.values,
+            starts, columns_of,
+        )
+        if extra is not None:
+            groups.append(extra)
         out.update(columns)
         out.update(
             n_records=len(data.epoch),
