@@ -125,6 +125,16 @@ class OpenEventBrief(BaseModel):
     status: EventStatus
 
 
+class LimitCheck(BaseModel):
+    limit: str
+    value: float
+    unit: str
+    amber: float
+    red: float
+    level: Literal["normal", "amber", "red"]
+    reason: str
+
+
 class EngineStatus(BaseModel):
     engine_id: int
     esn: str
@@ -135,7 +145,18 @@ class EngineStatus(BaseModel):
     design_id: int | None
     last_data: datetime | None
     n_records: int
-    state: Literal["no_data", "normal", "watch", "alert"]
+    state: Literal["no_data", "normal", "watch", "alert"] = Field(
+        description="red severity is alert, amber watch"
+    )
+    severity: Literal["normal", "amber", "red"] | None = Field(
+        None, description="worst of the type's limit checks and the active events"
+    )
+    severity_score: float | None = Field(
+        None, description="largest (value - amber) / (red - amber): 0 at amber, 1 at red"
+    )
+    reason: str | None = Field(None, description="why the severity, worst first")
+    checks: list[LimitCheck] = Field(default_factory=list)
+    rank: int | None = Field(None, description="1 = most severe")
     health: HealthSummary | None
     open_events: int
     latest_event: OpenEventBrief | None

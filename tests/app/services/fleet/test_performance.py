@@ -117,7 +117,7 @@ def test_trend_of_a_builtin_design_carries_the_performance_group(
     # The exact nominal solve and the coarse schedule agree at a grid node within 0.5 K.
     np.testing.assert_allclose(series["dEGT"]["value"], 5.0, atol=0.5)
     levels = {(line["series"], line["level"]): line["value"] for line in group["limits"]}
-    assert levels[("egt_margin", "amber")] == 15.0 and levels[("thrust_deficit", "red")] == 8.0
+    assert levels[("egt_margin", "amber")] == 25.0 and levels[("thrust_deficit", "red")] == 10.0
     # The decimated trend keeps the group, bucketed.
     small = trends.engine_trend(session, fleet.operator_id, engine.id, max_points=2)
     assert any(g["key"] == "performance" for g in small["groups"])
