@@ -11,6 +11,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.models import EngineModel, Snapshot
+from app.schemas.estimates import EngineTrend
 from app.services.fleet import performance
 from app.services.snapshots import estimator
 from app.services.trends import service as trends
@@ -118,6 +119,9 @@ def test_trend_of_a_builtin_design_carries_the_performance_group(
     np.testing.assert_allclose(series["dEGT"]["value"], 5.0, atol=0.5)
     levels = {(line["series"], line["level"]): line["value"] for line in group["limits"]}
     assert levels[("egt_margin", "amber")] == 25.0 and levels[("thrust_deficit", "red")] == 10.0
+    EngineTrend.model_validate(trend)  # the documented response shape
+    header = trends.engine_trend_csv(trend).splitlines()[0].split(",")
+    assert "performance.egt_margin[degC]" in header and "performance.Fn[lbf]" in header
     # The decimated trend keeps the group, bucketed.
     small = trends.engine_trend(session, fleet.operator_id, engine.id, max_points=2)
     assert any(g["key"] == "performance" for g in small["groups"])

@@ -12,6 +12,7 @@ from sqlalchemy.orm import Session
 from app.models import EngineType
 from app.models.designs import LIMIT_SPECS
 from app.models.estimates import Event
+from app.schemas.estimates import FleetStatus
 from app.services.fleet import severity
 from tests.app.services.trends.test_trends import (
     LAYOUT,
@@ -45,6 +46,7 @@ def test_a_large_thrust_deficit_ranks_above_a_small_one(
     _engine_with(session, fleet, aircraft, "C-amber", 6.0)
     session.commit()
     body = client.get("/api/v1/fleet/status", headers={"X-API-Key": fleet.key}).json()
+    FleetStatus.model_validate(body)  # the documented response shape
     order = [e["esn"] for e in body["engines"]]
     assert order == ["B-large", "C-amber", "A-small"]
     by = {e["esn"]: e for e in body["engines"]}
