@@ -25,6 +25,7 @@ const PERFORMANCE_PANELS = [
   { key: "perf-thrust", title: "Net thrust", ylabel: "Thrust", series: ["Fn"] },
   { key: "perf-deficit", title: "Thrust deficit and thrust in % of rated", ylabel: "Thrust", series: ["thrust_deficit", "Fn_rated"] },
   { key: "perf-margins", title: "Stall margins", ylabel: "Stall margin", series: ["SM_fan", "SM_LPC", "SM_HPC"] },
+  { key: "perf-margin-change", title: "Stall-margin change from the baseline", ylabel: "Change", series: ["SM_fan_change", "SM_LPC_change", "SM_HPC_change"] },
 ];
 const UNIT_LABELS = { degC: "°C", pts: "margin points" };
 

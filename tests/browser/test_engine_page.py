@@ -37,11 +37,9 @@ def test_trend_plots_every_group_with_bands_markers_and_units(
     # type's limit lines as dashed amber and red shapes.
     drawn = []
     for panel in ("perf-egt", "perf-degt", "perf-deltas", "perf-thrust", "perf-deficit",
-                  "perf-margins"):
+                  "perf-margins", "perf-margin-change"):
         drawn += [t["name"] for t in traces(page, f"#plot-{panel}") if t["role"] == "line"]
-    assert sorted(drawn) == sorted(
-        s["name"] for s in performance["series"] if not s["name"].endswith("_change")
-    )
+    assert sorted(drawn) == sorted(s["name"] for s in performance["series"])
     egt_title = page.evaluate("document.querySelector('#plot-perf-egt').layout.yaxis.title.text")
     assert egt_title == "EGT margin [°C]"
     limit_values = page.evaluate(
