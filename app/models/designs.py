@@ -34,6 +34,30 @@ DESIGN_STATUSES = ("pending", "ready", "failed")
 JSONDocument = JSON().with_variant(JSONB(), "postgresql")
 
 
+# Limits of an engine's state, per engine type: name -> (unit, worse direction, amber, red).
+# "above": a value above a level is worse (amber < red); "below": a margin, worse below
+# (amber > red). A type stores only the levels it overrides (``engine_types.limits``, NULL: all
+# defaults). The defaults are the built-in engine's, set where its simulator's mean
+# deterioration (estimation.engine.fleet.DETERIORATION_RATES) takes an engine in about 10,000
+# cycles (red) and 7,000-8,500 cycles (amber): the largest health parameter change then is
+# 7.5 % (5 % at 6,700 cycles) and the take-off EGT 202 K above new (see the redline).
+# Thrust deficit and rate of change have no such anchor: 5 % and 10 % of thrust below the
+# baseline at the same condition; a health parameter moving 3 % (6 %) in 100 records, which
+# gradual wear does not do (0.04 %) and an abrupt fault does.
+LIMIT_SPECS: dict[str, tuple[str, str, float, float]] = {
+    "health_change": ("%", "above", 5.0, 8.0),
+    "egt_margin": ("degC", "below", 25.0, 0.0),
+    "thrust_deficit": ("%", "above", 5.0, 10.0),
+    "rate_of_change": ("%/100 records", "above", 3.0, 6.0),
+}
+# EGT redline [degC] of the built-in engine's T48 (its EGT station). Its nominal take-off EGT on
+# an ISA+15 K day is 903 degC (schedule); at the simulator's mean deterioration it rises 94 K in
+# 5,000 cycles and 202 K in 10,000, so a redline of 1100 degC leaves a new engine ~197 degC of
+# margin and none after ~10,000 cycles. (The model's EGT is about twice as sensitive to
+# deterioration as a real engine's, hence the large margin.)
+DEFAULT_EGT_REDLINE_C = 1100.0
+
+
 class EngineType(Base):
     __tablename__ = "engine_types"
     __table_args__ = (UniqueConstraint("operator_id", "name"),)
@@ -45,6 +69,27 @@ class EngineType(Base):
     name: Mapped[str] = mapped_column(String(100))
     description: Mapped[str] = mapped_column(Text, default="")
     created_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    # Overrides of LIMIT_SPECS' levels ({"egt_margin": {"amber": 20, "red": 5}, ...}) and
+    # "egt_redline_c"; NULL: the defaults (migration 0011).
+    limits: Mapped[dict[str, Any] | None] = mapped_column(JSONDocument, default=None)
+
+    @property
+    def effective_limits(self) -> dict[str, Any]:
+        """Every limit with its unit and levels, the stored overrides over the defaults."""
+        return effective_limits(self.limits)
+
+
+def effective_limits(stored: dict[str, Any] | None) -> dict[str, Any]:
+    """``LIMIT_SPECS`` with a type's stored overrides: name -> unit, worse, amber, red; and
+    egt_redline_c."""
+    stored = stored or {}
+    out: dict[str, Any] = {}
+    for name, (unit, worse, amber, red) in LIMIT_SPECS.items():
+        levels = stored.get(name) or {}
+        out[name] = {"unit": unit, "worse": worse, "amber": float(levels.get("amber", amber)),
+                     "red": float(levels.get("red", red))}
+    out["egt_redline_c"] = float(stored.get("egt_redline_c", DEFAULT_EGT_REDLINE_C))
+    return out
 
 
 class EngineModel(Base):

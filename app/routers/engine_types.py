@@ -35,7 +35,8 @@ def create_engine_type(
     body: EngineTypeCreate, session: DbSession, principal: Analyst
 ) -> EngineTypeOut:
     row = fleet.create_engine_type(
-        session, operator_id=principal.operator_id, name=body.name, description=body.description
+        session, operator_id=principal.operator_id, name=body.name, description=body.description,
+        limits=None if body.limits is None else body.limits.model_dump(exclude_none=True),
     )
     return EngineTypeOut.model_validate(row)
 
@@ -58,7 +59,7 @@ def update_engine_type(
         session,
         operator_id=principal.operator_id,
         engine_type_id=engine_type_id,
-        changes=body.model_dump(exclude_unset=True),
+        changes=body.model_dump(exclude_unset=True, exclude_none=True),
     )
     return EngineTypeOut.model_validate(row)
 

@@ -28,8 +28,17 @@ class TrendSeries(BaseModel):
     max: list[float | None] | None = Field(None, description="bucket maximum (decimated)")
 
 
+class LimitLine(BaseModel):
+    """A level of the engine type's limits drawn on a series of the performance group."""
+
+    series: str
+    level: Literal["amber", "red"]
+    value: float
+    unit: str
+
+
 class TrendGroup(BaseModel):
-    key: Literal["tuners", "health", "aux", "residuals", "wssr"]
+    key: Literal["tuners", "health", "aux", "residuals", "wssr", "performance"]
     label: str
     series: list[TrendSeries]
     # The health group only (None elsewhere).
@@ -50,6 +59,7 @@ class TrendGroup(BaseModel):
     baselines: list[datetime] | None = Field(
         None, description="change view: times of the baseline records the changes start from"
     )
+    limits: list[LimitLine] | None = Field(None, description="limit lines (performance group)")
 
 
 class InstallationMarker(BaseModel):
@@ -133,6 +143,16 @@ class OpenEventBrief(BaseModel):
     status: EventStatus
 
 
+class LimitCheck(BaseModel):
+    limit: str
+    value: float
+    unit: str
+    amber: float
+    red: float
+    level: Literal["normal", "amber", "red"]
+    reason: str
+
+
 class EngineStatus(BaseModel):
     engine_id: int
     esn: str
@@ -143,7 +163,18 @@ class EngineStatus(BaseModel):
     design_id: int | None
     last_data: datetime | None
     n_records: int
-    state: Literal["no_data", "normal", "watch", "alert"]
+    state: Literal["no_data", "normal", "watch", "alert"] = Field(
+        description="red severity is alert, amber watch"
+    )
+    severity: Literal["normal", "amber", "red"] | None = Field(
+        None, description="worst of the type's limit checks and the active events"
+    )
+    severity_score: float | None = Field(
+        None, description="largest (value - amber) / (red - amber): 0 at amber, 1 at red"
+    )
+    reason: str | None = Field(None, description="why the severity, worst first")
+    checks: list[LimitCheck] = Field(default_factory=list)
+    rank: int | None = Field(None, description="1 = most severe")
     health: HealthSummary | None
     open_events: int
     latest_event: OpenEventBrief | None

@@ -68,16 +68,39 @@ class Deleted(BaseModel):
 # ------------------------------------------------------------------------ engine types
 
 
+class LimitLevels(StrictInput):
+    """Amber and red levels of one limit; ``unit``, when sent, must be the limit's own."""
+
+    amber: float = Field(allow_inf_nan=False)
+    red: float = Field(allow_inf_nan=False)
+    unit: str | None = None
+
+
+class EngineTypeLimits(StrictInput):
+    """Levels an engine type overrides; a limit left out keeps its current levels.
+
+    health_change [%] and thrust_deficit [%] and rate_of_change [%/100 records]: worse above,
+    amber below red. egt_margin [degC]: worse below, amber above red."""
+
+    health_change: LimitLevels | None = None
+    egt_margin: LimitLevels | None = None
+    thrust_deficit: LimitLevels | None = None
+    rate_of_change: LimitLevels | None = None
+    egt_redline_c: float | None = Field(None, gt=0, lt=2000, allow_inf_nan=False)
+
+
 class EngineTypeCreate(StrictInput):
     name: str = Field(min_length=1, max_length=100)
     description: str = Field("", max_length=2000)
+    limits: EngineTypeLimits | None = None
 
 
 class EngineTypeUpdate(StrictInput):
     name: str | None = Field(None, min_length=1, max_length=100)
     description: str | None = Field(None, max_length=2000)
+    limits: EngineTypeLimits | None = None
 
-    _no_null = refuse_null("name", "description")
+    _no_null = refuse_null("name", "description", "limits")
 
 
 class EngineTypeOut(Row):
@@ -85,6 +108,10 @@ class EngineTypeOut(Row):
     name: str
     description: str
     created_at: AwareDatetime
+    limits: dict[str, Any] = Field(
+        validation_alias="effective_limits",
+        description="every limit with unit, worse direction, amber and red; egt_redline_c",
+    )
 
 
 # ---------------------------------------------------------------------------- aircraft

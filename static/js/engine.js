@@ -2,7 +2,7 @@
 // WSSR, against date or cycles, with installation, maintenance and event markers.
 import { api, apiText, download } from "./api.js";
 import { $, fmtTime, h, params, showError, startPage } from "./ui.js";
-import { axisTitle, layout, lineWithBand, markerAnnotations, markerShapes, plot, syncZoom, unitOf } from "./plots.js";
+import { axisTitle, layout, limitShapes, lineWithBand, markerAnnotations, markerShapes, plot, syncZoom, unitOf } from "./plots.js";
 
 const ORDER = ["health", "aux", "tuners", "residuals", "wssr"];
 const TITLES = {
@@ -15,6 +15,29 @@ const TITLES = {
 // Short y-axis titles, so the unit stays visible on a narrow plot.
 const YLABELS = { health: "Health change", aux: "Thrust / margin change", tuners: "Tuner", residuals: "Residual", wssr: "WSSR" };
 let trend = null;
+
+// The performance group (engineering units) drawn as one panel per quantity, each with the
+// engine type's limit lines on its series.
+const PERFORMANCE_PANELS = [
+  { key: "perf-egt", title: "EGT margin (take-off, ISA+15 K)", ylabel: "EGT margin", series: ["egt_margin"] },
+  { key: "perf-degt", title: "ΔEGT against the baseline (corrected, smoothed)", ylabel: "ΔEGT", series: ["dEGT"] },
+  { key: "perf-deltas", title: "ΔWf, ΔN2, ΔN1 against the baseline (smoothed)", ylabel: "Delta", series: ["dWf", "dN2", "dN1"] },
+  { key: "perf-thrust", title: "Net thrust", ylabel: "Thrust", series: ["Fn"] },
+  { key: "perf-deficit", title: "Thrust deficit and thrust in % of rated", ylabel: "Thrust", series: ["thrust_deficit", "Fn_rated"] },
+  { key: "perf-margins", title: "Stall margins", ylabel: "Stall margin", series: ["SM_fan", "SM_LPC", "SM_HPC"] },
+  { key: "perf-margin-change", title: "Stall-margin change from the baseline", ylabel: "Change", series: ["SM_fan_change", "SM_LPC_change", "SM_HPC_change"] },
+];
+const UNIT_LABELS = { degC: "°C", pts: "margin points" };
+
+function performancePanels() {
+  const group = trend.groups.find((g) => g.key === "performance");
+  if (!group) return [];
+  return PERFORMANCE_PANELS.map((panel) => ({
+    key: panel.key, label: panel.ylabel, title: panel.title,
+    series: group.series.filter((s) => panel.series.includes(s.name)).map((s) => ({ ...s, unit: UNIT_LABELS[s.unit] || s.unit })),
+    limits: (group.limits || []).filter((l) => panel.series.includes(l.series)),
+  })).filter((panel) => panel.series.length);
+}
 
 function query() {
   const q = { max_points: $("#max_points").value, design_id: $("#design").value || undefined,
@@ -98,7 +121,7 @@ function draw() {
   container.replaceChildren();
   const divs = [];
   const pending = [];
-  const groups = ORDER.map((k) => trend.groups.find((g) => g.key === k)).filter(Boolean);
+  const groups = [...performancePanels(), ...ORDER.map((k) => trend.groups.find((g) => g.key === k)).filter(Boolean)];
   for (const group of groups) {
     const id = `plot-${group.key}`;
     const div = h("div", { id, class: "plot" });
@@ -111,7 +134,7 @@ function draw() {
       if (group.uncertainty === "uncalibrated") notes.push("Band: the filter's own 1-sigma (the design has no calibrated model error).");
       if (group.view === "change") notes.push("Change since the engine's baseline (first settled records after installation or shop visit).");
     }
-    const title = group.key === "health" && group.view === "change" ? "Health parameters: change since baseline" : TITLES[group.key] || group.label;
+    const title = group.key === "health" && group.view === "change" ? "Health parameters: change since baseline" : group.title || TITLES[group.key] || group.label;
     container.append(h("section", { class: "card" }, h("h2", {}, title),
       ...notes.map((n) => h("p", { class: "muted" }, n)), div));
     const traces = group.series.filter((s) => !hidden.has(s.name)).flatMap((s, i) => lineWithBand(x, broken(s), i));
@@ -131,7 +154,7 @@ function draw() {
       yaxis: { title: { text: axisTitle(group.key === "health" && group.view === "level" ? "Health level" : YLABELS[group.key] || group.label, unitOf(group.series)) } },
       legend: { orientation: "v", x: 1.02, y: 1, font: { size: 11 } },
       yaxis2: { overlaying: "y", range: [0, 1.05], visible: false, fixedrange: true },
-      shapes: markerShapes(marks),
+      shapes: [...markerShapes(marks), ...limitShapes(group.limits || [])],
       annotations: markerAnnotations(marks.filter((m) => m.kind !== "event")),
       margin: { l: 70, r: 20, t: 50, b: 50 },
     });

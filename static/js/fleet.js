@@ -3,7 +3,6 @@ import { api } from "./api.js";
 import { $, badge, fmtNum, fmtTime, h, showError, sortableTable, startPage } from "./ui.js";
 import { axisTitle, layout, plot, styleFor, unitOf } from "./plots.js";
 
-const STATE_RANK = { alert: 3, watch: 2, normal: 1, no_data: 0 };
 let engines = [];
 
 function columns() {
@@ -13,7 +12,9 @@ function columns() {
     { key: "position", label: "Pos.", numeric: true },
     { key: "engine_type", label: "Engine type" },
     { key: "last_data", label: "Last data", cell: (e) => fmtTime(e.last_data) },
-    { key: "state", label: "State", value: (e) => STATE_RANK[e.state], cell: (e) => badge(e.state) },
+    // Severity rank from the API: red, amber, normal, then by how far past the type's limits.
+    { key: "rank", label: "State", value: (e) => -(e.rank ?? 1e9), cell: (e) => badge(e.state) },
+    { key: "reason", label: "Reason", value: (e) => e.reason || "", cell: (e) => e.reason || h("span", { class: "muted" }, "within limits") },
     { key: "worst", label: "Largest health change [%]", value: (e) => (e.health ? Math.abs(e.health.worst_health_value ?? 0) : null),
       cell: (e) => (e.health && e.health.worst_health ? `${e.health.worst_health} ${fmtNum(e.health.worst_health_value)} ± ${fmtNum(e.health.worst_health_sigma)}` : "–") },
     { key: "thrust", label: "Thrust deficit [%]", numeric: true, value: (e) => e.health?.thrust_deficit ?? null, cell: (e) => fmtNum(e.health?.thrust_deficit) },
@@ -31,7 +32,7 @@ function drawTable() {
   const rows = engines.filter((e) => (!state || e.state === state) && (!open || e.open_events > 0) &&
     (!text || [e.esn, e.tail, e.engine_type, e.health?.worst_health, e.state].some((v) => v && String(v).toLowerCase().includes(text))));
   $("#count").textContent = `${rows.length} of ${engines.length} engines`;
-  $("#table").replaceChildren(rows.length ? sortableTable(columns(), rows, { sortKey: "state", descending: true, rowClass: (e) => `state-${e.state}` })
+  $("#table").replaceChildren(rows.length ? sortableTable(columns(), rows, { sortKey: "rank", descending: true, rowClass: (e) => `state-${e.state}` })
     : h("p", { class: "muted" }, engines.length ? "No engine matches the filter." : "No engines yet: add engines and upload snapshots."));
 }
 
@@ -42,7 +43,7 @@ async function loadStatus() {
   $("#summary").replaceChildren(
     h("div", { class: "card" }, h("div", { class: "muted" }, "Engines"), h("div", { class: "big" }, status.n_engines)),
     h("div", { class: "card" }, h("div", { class: "muted" }, "Active events"), h("a", { class: "big", href: "/events.html?status=active" }, status.n_open_events)),
-    h("div", { class: "card" }, h("div", { class: "muted" }, "Alert / watch"), h("div", { class: "big" }, `${by("alert")} / ${by("watch")}`)),
+    h("div", { class: "card" }, h("div", { class: "muted" }, "Red (alert) / amber (watch) / normal"), h("div", { class: "big" }, `${by("alert")} / ${by("watch")} / ${by("normal")}`)),
     h("div", { class: "card" }, h("div", { class: "muted" }, "Operator"), h("div", { class: "big" }, status.operator)));
   drawTable();
 }

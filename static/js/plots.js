@@ -133,6 +133,16 @@ export function lineWithBand(x, series, index, { band = true } = {}) {
   return traces;
 }
 
+// Horizontal limit lines (amber, red) across the plot width, each labelled with its level.
+const LIMIT_COLOURS = { amber: "#E69F00", red: "#C0392B" };
+export function limitShapes(lines) {
+  return lines.map((l) => ({
+    type: "line", xref: "paper", yref: "y", x0: 0, x1: 1, y0: l.value, y1: l.value,
+    line: { color: LIMIT_COLOURS[l.level], width: 1.5, dash: "dash" },
+    label: { text: `${l.series} ${l.level} ${l.value}`, textposition: "end", font: { size: 10, color: LIMIT_COLOURS[l.level] } },
+  }));
+}
+
 // Vertical marker lines (installation changes, maintenance, events) across the plot height.
 export function markerShapes(markers) {
   return markers.map((m) => ({

@@ -49,3 +49,27 @@ def test_migrations_form_one_line_of_history() -> None:
 
     script = ScriptDirectory.from_config(alembic_config("sqlite://"))
     assert len(script.get_heads()) == 1, f"several migration heads: {script.get_heads()}"
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_engine_type_limits_come_and_go_with_migration_0011(
+    backend: str, tmp_path: Path
+) -> None:
+    urls = fresh_database_url(backend, tmp_path)
+    url = next(urls)
+    try:
+        upgrade(url)
+        engine = make_engine(url)
+
+        def columns() -> set[str]:
+            with engine.connect() as connection:
+                return {c["name"] for c in inspect(connection).get_columns("engine_types")}
+
+        assert "limits" in columns()
+        downgrade(url, "0010")
+        assert "limits" not in columns() and "name" in columns()
+        upgrade(url)
+        assert "limits" in columns()
+        engine.dispose()
+    finally:
+        urls.close()

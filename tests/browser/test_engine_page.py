@@ -34,7 +34,26 @@ def test_trend_plots_every_group_with_bands_markers_and_units(
     assert engine_id is not None, "the seeded fleet must have an event"
     sign_in(page, server.seeded.key, f"/engine.html?id={engine_id}")
     api = _api_trend(server, engine_id)
+    performance = next(g for g in api["groups"] if g["key"] == "performance")
+    # The performance group in engineering units is drawn as one panel per quantity, with the
+    # type's limit lines as dashed amber and red shapes.
+    drawn = []
+    for panel in ("perf-egt", "perf-degt", "perf-deltas", "perf-thrust", "perf-deficit",
+                  "perf-margins", "perf-margin-change"):
+        drawn += [t["name"] for t in traces(page, f"#plot-{panel}") if t["role"] == "line"]
+    assert sorted(drawn) == sorted(s["name"] for s in performance["series"])
+    egt_title = page.evaluate("document.querySelector('#plot-perf-egt').layout.yaxis.title.text")
+    assert egt_title == "EGT margin [°C]"
+    limit_values = page.evaluate(
+        "document.querySelector('#plot-perf-egt').layout.shapes"
+        ".filter((s) => s.xref === 'paper').map((s) => s.y0)"
+    )
+    assert sorted(limit_values) == sorted(
+        line["value"] for line in performance["limits"] if line["series"] == "egt_margin"
+    )
     for group in api["groups"]:
+        if group["key"] == "performance":
+            continue
         plotted = traces(page, f"#plot-{group['key']}")
         lines = [t for t in plotted if t["role"] == "line"]
         bands = [t for t in plotted if t["role"] == "band"]

@@ -20,6 +20,7 @@ from sqlalchemy.orm import Session
 from app.errors import Conflict
 from app.models import Aircraft, Engine, EngineType, Installation, Snapshot
 from app.models.base import Base
+from app.models.designs import LIMIT_SPECS
 from app.models.fleet import MAX_POSITIONS
 from app.services.common import (
     apply_changes,
@@ -47,10 +48,40 @@ _TAIL_CHUNK = 5000
 # ------------------------------------------------------------------------ engine types
 
 
+def checked_limits(
+    stored: Mapping[str, Any] | None, changes: Mapping[str, Any]
+) -> dict[str, Any]:
+    """The stored limit overrides with ``changes`` applied, checked: a level's unit is the
+    limit's own, amber comes before red in the worse direction (below red where higher is
+    worse, above red for a margin). InvalidInput names the field."""
+    out = dict(stored or {})
+    for name, levels in changes.items():
+        if name == "egt_redline_c":
+            out[name] = float(levels)
+            continue
+        spec = LIMIT_SPECS.get(name)
+        if spec is None:
+            raise field_error(f"limits.{name}", f"unknown limit; known: {', '.join(LIMIT_SPECS)}")
+        unit, worse, _amber, _red = spec
+        if levels.get("unit") not in (None, unit):
+            raise field_error(f"limits.{name}.unit", f"must be {unit!r}, got {levels['unit']!r}")
+        amber, red = float(levels["amber"]), float(levels["red"])
+        if worse == "above" and not amber < red:
+            raise field_error(f"limits.{name}.amber", f"amber ({amber:g}) must be below red "
+                                                      f"({red:g}): higher {name} is worse")
+        if worse == "below" and not amber > red:
+            raise field_error(f"limits.{name}.amber", f"amber ({amber:g}) must be above red "
+                                                      f"({red:g}): a smaller {name} is worse")
+        out[name] = {"amber": amber, "red": red}
+    return out
+
+
 def create_engine_type(
-    session: Session, *, operator_id: int, name: str, description: str = ""
+    session: Session, *, operator_id: int, name: str, description: str = "",
+    limits: Mapping[str, Any] | None = None,
 ) -> EngineType:
-    row = EngineType(operator_id=operator_id, name=name, description=description)
+    row = EngineType(operator_id=operator_id, name=name, description=description,
+                     limits=checked_limits(None, limits) if limits else None)
     session.add(row)
     flush_or_conflict(session, f"engine type {name!r} exists already")
     return row
@@ -71,6 +102,9 @@ def update_engine_type(
     session: Session, *, operator_id: int, engine_type_id: int, changes: Mapping[str, Any]
 ) -> EngineType:
     row = get_engine_type(session, operator_id=operator_id, engine_type_id=engine_type_id)
+    changes = dict(changes)
+    if "limits" in changes:
+        changes["limits"] = checked_limits(row.limits, changes["limits"])
     apply_changes(row, changes)
     flush_or_conflict(session, f"engine type {row.name!r} exists already")
     return row

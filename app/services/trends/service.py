@@ -54,6 +54,7 @@ from app.services.encoding import json_numbers
 from app.services.encoding.json_numbers import RawJSON
 from app.services.encoding.pgcopy import PG_EPOCH_US
 from app.services.trends import health as health_view
+from app.services.trends.performance import performance_group
 
 # Trend groups as the dashboard draws them: (key, value block, sigma block, names group, label).
 GROUPS = (
@@ -551,6 +552,13 @@ def engine_trend(
             for group in groups:
                 if group["key"] == "health":
                     group.update(meta.to_dict())
+        assert target.design_id is not None
+        extra = performance_group(
+            session, target.engine_id, target.design_id, data.layout, data.epoch, data.values,
+            starts, columns_of,
+        )
+        if extra is not None:
+            groups.append(extra)
         out.update(columns)
         out.update(
             n_records=len(data.epoch),

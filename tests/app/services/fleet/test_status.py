@@ -9,9 +9,10 @@ import numpy as np
 from fastapi.testclient import TestClient
 from sqlalchemy.orm import Session
 
-from app.models import Installation
+from app.models import EngineType, Installation
 from app.models.estimates import Event
 from app.services.fleet import status
+from app.services.fleet.severity import LimitValue, severity
 from tests.app.services.trends.test_trends import (
     LAYOUT,
     T0,
@@ -57,7 +58,10 @@ def test_status_lists_every_engine_with_its_latest_state(
     assert health["worst_health"] == LAYOUT.health[worst]
     assert abs(health["worst_health_value"] - last[h][worst]) < 1e-3
     assert abs(health["thrust_deficit"] + last[LAYOUT.slices()["z"]][0]) < 1e-3  # Fn first
-    expected = "watch" if np.any(np.abs(last[h]) > 1.5) else "normal"
+    # The default limits: health change amber 5 % red 8 %, thrust deficit amber 5 % red 10 %.
+    worst_h, deficit = np.abs(last[h]).max(), -last[LAYOUT.slices()["z"]][0]
+    expected = ("alert" if worst_h >= 8 or deficit >= 10
+                else "watch" if worst_h >= 5 or deficit >= 5 else "normal")
     assert by_esn["S0"]["state"] == expected
     assert by_esn["S0"]["last_data"].startswith("2026-01-30")
 
@@ -87,9 +91,9 @@ def test_deterioration_is_the_mean_over_engines_of_engine_means(session: Session
 def test_status_summaries_equal_the_one_engine_reference(
     client: TestClient, session: Session
 ) -> None:
-    """The array summaries of many engines equal ``health_summary`` and the watch rule applied
-    to each engine's latest estimate alone, also when a design's engines carry different
-    layout documents."""
+    """The array summaries of many engines equal ``health_summary`` and the severity of each
+    engine's latest estimate alone, also when a design's engines carry different layout
+    documents."""
     from app.models.estimates import EstimateLayout, FilterState
 
     fleet = make_fleet(session, "Status Ref Air")
@@ -121,4 +125,9 @@ def test_status_summaries_equal_the_one_engine_reference(
         )
         expected["recorded_at"] = item["last_data"]
         assert item["health"] == expected
-        assert item["state"] == status._state(expected, 0, layout, last)
+        judged = severity(EngineType().effective_limits, {
+            "health_change": LimitValue(abs(expected["worst_health_value"])),
+            "thrust_deficit": LimitValue(expected["thrust_deficit"]),
+        })
+        assert item["severity"] == judged.level
+        assert item["severity_score"] == round(judged.score, 3)

@@ -1,0 +1,240 @@
+"""Engineering units of an engine's estimates, and the classic performance deltas.
+
+Estimates keep auxiliary outputs in percent of trim at the record's own operating condition
+(z_hat). Engineers read thrust in lbf and in percent of rated, stall margins in margin points,
+EGT margin in degrees C and the deltas against the type's baseline. For the built-in engine these
+are converted at read time with the record's trims from the engine schedule (the operating
+condition comes from the record's snapshot):
+
+- margin SM [pts] = SM_trim (1 + z/100); its change from the baseline SM_trim z/100 [pts];
+- thrust Fn [lbf] = Fn_trim (1 + z/100); in percent of rated, 100 Fn / Fn_rated where Fn_rated is
+  the schedule's take-off thrust at sea-level static, ISA; thrust deficit -z [%];
+- EGT is T48 (HPT exit / LPT inlet, the station the built-in engine reports as EGT; T50 is the
+  LPT exit). Each delta is the measurement minus the baseline model (the nominal engine solved
+  at the record's own condition), in corrected parameters (theta2 = T2/288.15 K,
+  delta2 = P2/101325 Pa, seed 004): dEGT = (T48 - T48_base) / theta2 [K = degC];
+  dWf, dN2 (Nc), dN1 (Nf) in percent of the baseline (a ratio at one condition, so corrected
+  and physical ratios are equal);
+- EGT margin = redline - EGT at the reference condition, take-off at sea level on an ISA+15 K
+  day (the flat-rate corner where the margin is smallest): EGT_ref = T48_base(ref) + dEGT
+  theta2(ref). A nominal engine has margin redline - T48_base(ref).
+
+Deltas and EGT margin are smoothed over flights with an exponential filter (``SMOOTHING``):
+one record's scatter (sensor noise 0.75 % of T48, about 6 K) would otherwise hide a trend of a
+few degrees.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from sqlalchemy import Float, cast, func, select
+from sqlalchemy.orm import Session
+
+from app.models import EngineModel, EstimatorDesign, Snapshot
+from app.models.estimates import EstimateLayout
+from estimation.engine.atmosphere import flight_condition
+from estimation.engine.schedule import EngineSchedule
+
+EGT_SENSOR = "T48"
+DELTA_SENSORS = (("dEGT", "T48", "degC"), ("dWf", "Wf", "%"), ("dN2", "Nc", "%"),
+                 ("dN1", "Nf", "%"))
+MARGINS = ("SM_fan", "SM_LPC", "SM_HPC")
+THRUST = "Fn"
+# Schedule axes order: alt [ft], mach, power [%], dtamb [K].
+RATED_CONDITION = (0.0, 0.0, 100.0, 0.0)
+EGT_REFERENCE_CONDITION = (0.0, 0.0, 100.0, 15.0)
+SMOOTHING = 0.1  # weight of each new record in the exponential filter (~10 flights)
+RANKINE_PER_KELVIN = 1.8
+ZERO_C = 273.15
+MEASURED_COLUMNS = {"T48": "t48", "Wf": "wf", "Nc": "nc", "Nf": "nf"}
+
+
+@dataclass(frozen=True)
+class TypeReference:
+    """Values of an engine type's nominal engine at its reference conditions."""
+
+    rated_thrust_lbf: float
+    egt_reference_c: float  # T48 of the nominal engine at EGT_REFERENCE_CONDITION
+    theta_reference: float
+
+
+def type_reference(schedule: EngineSchedule) -> TypeReference:
+    """Rated thrust (take-off, sea-level static, ISA) and the nominal EGT at the reference."""
+    return _reference(id(schedule), schedule)
+
+
+@functools.lru_cache(maxsize=4)
+def _reference(_key: int, schedule: EngineSchedule) -> TypeReference:
+    rated = schedule.trims_at(np.array([RATED_CONDITION]))
+    ref = schedule.trims_at(np.array([EGT_REFERENCE_CONDITION]))
+    alt, mach, _power, dtamb = EGT_REFERENCE_CONDITION
+    theta = float(flight_condition(alt, mach, dtamb).theta)
+    return TypeReference(
+        rated_thrust_lbf=float(rated[THRUST][0]),
+        egt_reference_c=float(ref[EGT_SENSOR][0]) / RANKINE_PER_KELVIN - ZERO_C,
+        theta_reference=theta,
+    )
+
+
+def smooth(values: np.ndarray, weight: float = SMOOTHING) -> np.ndarray:
+    """Exponential smoothing over records along axis 0 [n, k]; a missing value (NaN) keeps the
+    previous smoothed value, and the filter starts at the first value present."""
+    out = np.full(values.shape, np.nan)
+    state = np.full(values.shape[1:], np.nan)
+    for i in range(values.shape[0]):
+        x = values[i]
+        fresh = np.isnan(state) & ~np.isnan(x)
+        state = np.where(fresh, x, state)
+        step = ~np.isnan(x) & ~fresh
+        state = np.where(step, state + weight * (x - state), state)
+        out[i] = state
+    return out
+
+
+@dataclass(frozen=True)
+class RecordConditions:
+    """Operating condition and measured EGT, Wf, N2, N1 of n records (NaN: missing).
+
+    conditions : [n, 4] alt [ft], mach, dtamb [K], power [%] (snapshot order);
+    measured : name -> [n] in stored units (degR, pps, rpm).
+    """
+
+    conditions: np.ndarray
+    measured: Mapping[str, np.ndarray]
+
+
+def engineering_units(
+    schedule: EngineSchedule,
+    layout: EstimateLayout,
+    z: np.ndarray,
+    records: RecordConditions,
+    egt_redline_c: float,
+    baseline: Mapping[str, np.ndarray] | None = None,
+) -> list[tuple[str, str, np.ndarray]]:
+    """Series (name, unit, [n] values) in engineering units for estimates z [n, n_aux].
+
+    ``baseline``: sensor trims of the nominal engine at each record's condition (name -> [n],
+    engine units); None takes the schedule's interpolated trims.
+    """
+    cond = np.asarray(records.conditions, float)
+    n = cond.shape[0]
+    sched_cond = cond[:, [0, 1, 3, 2]]
+    trims = schedule.trims_at(sched_cond) if n else {k: np.empty(0) for k in schedule.trim_names}
+    base = dict(trims)
+    if baseline is not None:
+        base.update({k: np.asarray(v, float) for k, v in baseline.items()})
+    ref = type_reference(schedule)
+    out: list[tuple[str, str, np.ndarray]] = []
+    aux = list(layout.aux)
+    if THRUST in aux and THRUST in trims:
+        zt = z[:, aux.index(THRUST)].astype(float)
+        fn = trims[THRUST] * (1.0 + zt / 100.0)
+        out.append(("Fn", "lbf", fn))
+        out.append(("Fn_rated", "% of rated", 100.0 * fn / ref.rated_thrust_lbf))
+        out.append(("thrust_deficit", "%", -zt))
+    for name in MARGINS:
+        if name in aux and name in trims:
+            zm = z[:, aux.index(name)].astype(float)
+            out.append((name, "pts", trims[name] * (1.0 + zm / 100.0)))
+            out.append((f"{name}_change", "pts", trims[name] * zm / 100.0))
+    theta = flight_condition(cond[:, 0], cond[:, 1], cond[:, 2]).theta if n else np.empty(0)
+    deltas: list[tuple[str, str, np.ndarray]] = []
+    for name, sensor, unit in DELTA_SENSORS:
+        measured = records.measured.get(sensor)
+        if measured is None or sensor not in base:
+            continue
+        measured = np.asarray(measured, float)
+        if sensor == EGT_SENSOR:
+            delta = (measured - base[sensor]) / theta / RANKINE_PER_KELVIN
+        else:
+            delta = 100.0 * (measured / base[sensor] - 1.0)
+        deltas.append((name, unit, delta))
+    if deltas:
+        smoothed = smooth(np.stack([d for _n, _u, d in deltas], axis=1))
+        for j, (name, unit, _raw) in enumerate(deltas):
+            if name == "dEGT":
+                egt_ref = ref.egt_reference_c + smoothed[:, j] * ref.theta_reference
+                out.append(("egt_margin", "degC", egt_redline_c - egt_ref))
+            out.append((name, unit, smoothed[:, j]))
+    return out
+
+
+def nominal_margin_c(schedule: EngineSchedule, egt_redline_c: float) -> float:
+    """EGT margin of the nominal engine (dEGT = 0)."""
+    return egt_redline_c - type_reference(schedule).egt_reference_c
+
+
+def builtin_schedule_for_design(session: Session, design_id: int) -> EngineSchedule | None:
+    """The built-in engine's schedule when the design's engine model is the built-in one."""
+    source = session.scalar(
+        select(EngineModel.source)
+        .join(EstimatorDesign, EstimatorDesign.engine_model_id == EngineModel.id)
+        .where(EstimatorDesign.id == design_id)
+    )
+    if source != "builtin":
+        return None
+    from app.services.snapshots.estimator import builtin_schedule
+
+    return builtin_schedule()
+
+
+def baseline_trims(conditions: np.ndarray, schedule: EngineSchedule) -> dict[str, np.ndarray]:
+    """Sensor trims of the nominal built-in engine solved at each record's condition [n, 4]
+    (snapshot order), the schedule's interpolation where the solver cannot."""
+    from app.services.snapshots.estimator import exact_nominal_trims
+
+    cond = np.asarray(conditions, float)
+    interpolated = schedule.trims_at(cond[:, [0, 1, 3, 2]]) if len(cond) else {}
+    wanted = {k: v for k, v in interpolated.items() if k in MEASURED_COLUMNS}
+    return exact_nominal_trims(cond, wanted)
+
+
+def _snapshot_epoch(session: Session) -> Any:
+    column = Snapshot.__table__.c.recorded_at
+    if session.get_bind().dialect.name == "sqlite":
+        return (func.julianday(column) - 2440587.5) * 86400.0
+    return cast(func.extract("epoch", column), Float)
+
+
+def record_conditions(
+    session: Session, engine_id: int, epoch: np.ndarray
+) -> RecordConditions:
+    """The snapshot of each estimate (engine, time) [n]: condition and measured sensors (NaN
+    where no snapshot matches or a value is missing)."""
+    n = len(epoch)
+    cond = np.full((n, 4), np.nan)
+    measured = {k: np.full(n, np.nan) for k in MEASURED_COLUMNS}
+    if n == 0:
+        return RecordConditions(cond, measured)
+    t = Snapshot.__table__.c
+    lo, hi = float(np.min(epoch)), float(np.max(epoch))
+    at = _snapshot_epoch(session)
+    rows = session.connection().execute(
+        select(at, t.alt_ft, t.mach, t.dtamb_k, t.power_pct,
+               *[t[c] for c in MEASURED_COLUMNS.values()])
+        .where(t.engine_id == engine_id, at >= lo - 1.0, at <= hi + 1.0)
+    ).all()
+    if not rows:
+        return RecordConditions(cond, measured)
+    data = np.array([[math.nan if v is None else float(v) for v in row] for row in rows])
+    order = np.argsort(data[:, 0], kind="stable")
+    data = data[order]
+    # Estimate and snapshot share (engine, recorded_at); the two epoch expressions may differ
+    # in the last float digits, so match to the nearest within half a second.
+    i = np.clip(np.searchsorted(data[:, 0], epoch), 1, len(data) - 1) if len(data) > 1 else (
+        np.zeros(n, dtype=int))
+    if len(data) > 1:
+        left = i - 1
+        closer = np.abs(data[left, 0] - epoch) <= np.abs(data[i, 0] - epoch)
+        i = np.where(closer, left, i)
+    hit = np.abs(data[i, 0] - epoch) < 0.5
+    cond[hit] = data[i[hit], 1:5]
+    for k, name in enumerate(MEASURED_COLUMNS):
+        measured[name][hit] = data[i[hit], 5 + k]
+    return RecordConditions(cond, measured)

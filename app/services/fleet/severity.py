@@ -1,0 +1,106 @@
+"""An engine's severity: the worst of its limit checks and its active events.
+
+Each limit of the engine type (``EngineType.effective_limits``) is checked against the engine's
+latest values: normal, amber past the amber level, red past the red level, in the limit's worse
+direction. An active event (open or acknowledged) counts too: an isolated fault red, an
+unexplained shift amber. The engine's level is the worst of all; its score, which ranks
+engines of one level, is the largest exceedance ``(value - amber) / (red - amber)`` in the
+worse direction (0 at amber, 1 at red, negative while short of amber), so a 17.6 % thrust
+deficit ranks above a 3 % one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+LEVELS = ("normal", "amber", "red")
+LABELS = {
+    "health_change": "health change",
+    "egt_margin": "EGT margin",
+    "thrust_deficit": "thrust deficit",
+    "rate_of_change": "rate of change",
+}
+UNIT_TEXT = {"degC": " °C", "%": " %", "%/100 records": " %/100 records"}
+EVENT_LEVEL = {"isolated_fault": "red", "shift": "amber"}
+
+
+@dataclass(frozen=True)
+class LimitValue:
+    """An engine's value for one limit; ``detail`` names what it is (a health parameter)."""
+
+    value: float
+    detail: str | None = None
+
+
+@dataclass(frozen=True)
+class Check:
+    limit: str
+    value: float
+    unit: str
+    amber: float
+    red: float
+    level: str
+    exceedance: float
+    reason: str
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"limit": self.limit, "value": round(self.value, 3), "unit": self.unit,
+                "amber": self.amber, "red": self.red, "level": self.level,
+                "reason": self.reason}
+
+
+def check(limit: str, levels: Mapping[str, Any], value: LimitValue) -> Check:
+    """One limit against one value."""
+    unit, worse = levels["unit"], levels["worse"]
+    amber, red = float(levels["amber"]), float(levels["red"])
+    sign = 1.0 if worse == "above" else -1.0
+    exceedance = sign * (value.value - amber) / (sign * (red - amber))
+    if sign * (value.value - red) >= 0:
+        level, bound = "red", red
+    elif sign * (value.value - amber) >= 0:
+        level, bound = "amber", amber
+    else:
+        level, bound = "normal", amber
+    u = UNIT_TEXT.get(unit, f" {unit}")
+    name = LABELS.get(limit, limit) + (f" ({value.detail})" if value.detail else "")
+    if level == "normal":
+        relation = "<" if worse == "above" else ">"
+        reason = f"{name} {value.value:.1f}{u} {relation} amber {amber:g}{u}"
+    else:
+        relation = ">" if worse == "above" else "<"
+        reason = f"{name} {value.value:.1f}{u} {relation} {level} {bound:g}{u}"
+    return Check(limit, value.value, unit, amber, red, level, exceedance, reason)
+
+
+@dataclass(frozen=True)
+class Severity:
+    level: str  # normal, amber, red
+    score: float  # largest exceedance over the checks (-inf without any)
+    reason: str | None  # why the level, worst first
+    checks: tuple[Check, ...]
+
+
+def severity(
+    limits: Mapping[str, Any], values: Mapping[str, LimitValue],
+    events: Iterable[tuple[int, str, str, str | None]] = (),
+) -> Severity:
+    """Level, score and reason from the limits and values present, and the active events
+    (id, kind, status, fault)."""
+    checks = tuple(check(name, limits[name], v) for name, v in values.items() if name in limits)
+    level = max((c.level for c in checks), key=LEVELS.index, default="normal")
+    reasons = [c for c in sorted(checks, key=lambda c: (-LEVELS.index(c.level), -c.exceedance))
+               if c.level != "normal"]
+    texts = [c.reason for c in reasons]
+    for event_id, kind, status, fault in events:
+        event_level = EVENT_LEVEL.get(kind, "amber")
+        level = max(level, event_level, key=LEVELS.index)
+        what = f"isolated fault {fault}" if kind == "isolated_fault" else "unexplained shift"
+        text = f"{status} event #{event_id}: {what}"
+        if event_level == "red":
+            texts.insert(0, text)
+        else:
+            texts.append(text)
+    score = max((c.exceedance for c in checks), default=float("-inf"))
+    return Severity(level, score, "; ".join(texts) if texts else None, checks)

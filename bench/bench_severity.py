@@ -1,0 +1,90 @@
+"""Severity on the demo fleet: the state distribution, why each red engine is red, and the
+status's EGT and thrust figures against the simulator's truth.
+
+Reads a database holding the demo fleet (``fleethealth serve`` seeds it on first start; point
+FLEETHEALTH_DATA_DIR at its data directory), regenerates the demo's fleet plan from its seed
+(cheap: no snapshots), and compares each engine's status with its true health after the last
+round: the take-off dEGT on an ISA+15 K day and the thrust change at take-off power, both from
+the steady-state solver. Engines removed before the end (their last data is older) are
+compared against a health they no longer had when last reported.
+
+    FLEETHEALTH_DATA_DIR=data .venv/bin/python bench/bench_severity.py
+"""
+
+from __future__ import annotations
+
+import collections
+import time
+from dataclasses import replace
+
+import _common  # noqa: F401  (import path)
+import numpy as np
+from sqlalchemy import select
+
+from app.config import get_settings
+from app.db import make_engine, make_sessionmaker
+from app.models import Operator
+from app.services.demo import fleet as demo
+from app.services.demo.operator import DEMO_OPERATOR
+from app.services.fleet import performance, status
+from app.services.snapshots.estimator import builtin_schedule
+from estimation.engine.fleet import plan_fleet
+from estimation.engine.steady import steady_state
+
+
+def main() -> None:
+    settings = get_settings()
+    factory = make_sessionmaker(make_engine(settings.resolved_database_url))
+    with factory() as session:
+        operator_id = session.scalar(select(Operator.id).where(Operator.name == DEMO_OPERATOR))
+        if operator_id is None:
+            raise SystemExit("no demo operator in this database")
+        status.fleet_status(session, operator_id)  # schedule and caches warm
+        t = time.perf_counter()
+        engines = status.fleet_status(session, operator_id)["engines"]
+        elapsed = time.perf_counter() - t
+    print(f"fleet status: {len(engines)} engines in {elapsed:.3f} s")
+    print("severity:", dict(collections.Counter(e["severity"] for e in engines)))
+    why: collections.Counter[str] = collections.Counter()
+    for e in engines:
+        if e["severity"] == "red":
+            reds = sorted(c["limit"] for c in e["checks"] if c["level"] == "red")
+            why[("event + " if e["open_events"] else "") + (", ".join(reds) or "-")] += 1
+    for reason, n in why.most_common():
+        print(f"  red by {reason}: {n}")
+
+    config = replace(demo.fleet_config(demo.DemoSize()), start_epoch_s=0.0)
+    plan_rng, _ = np.random.default_rng(demo.SEED).spawn(2)
+    plan = plan_fleet(config, plan_rng)
+    health = plan.health[-1]
+    n = health.shape[0]
+    takeoff = np.tile([0.0, 0.0, 15.0], (n, 1))
+    nominal = steady_state(takeoff[:1], power=np.array([100.0]))
+    true = steady_state(takeoff, power=np.full(n, 100.0), health=health)
+    ref = performance.type_reference(builtin_schedule())
+    by_esn = {e["esn"]: e for e in engines}
+    last = max(e["last_data"] for e in engines if e["last_data"] is not None)
+    print("\nesn         true dEGT  status dEGT   true thrust  status thrust   (TO, ISA+15)")
+    errors = []
+    for k, esn in enumerate(plan.esns):
+        e = by_esn.get(esn)
+        checks = {c["limit"]: c["value"] for c in (e or {}).get("checks", [])}
+        if "egt_margin" not in checks:
+            continue
+        redline = 1100.0  # the built-in type's default
+        d_true = (true.sensors[k, 7] - nominal.sensors[0, 7]) / 1.8
+        d_status = (redline - checks["egt_margin"] - ref.egt_reference_c) / ref.theta_reference
+        fn_true = 100.0 * (1.0 - true.aux[k, 0] / nominal.aux[0, 0])
+        current = (last - e["last_data"]).days < 2  # type: ignore[index]
+        if current:
+            errors.append(d_status - d_true)
+        print(f"{esn}  {d_true:9.1f}  {d_status:11.1f}   {fn_true:11.1f}  "
+              f"{checks.get('thrust_deficit', float('nan')):13.1f}"
+              f"{'' if current else '   (removed: last data older)'}")
+    err = np.abs(errors)
+    print(f"\ndEGT, status against truth over {len(err)} engines with current data: "
+          f"median |error| {np.median(err):.1f} K, largest {err.max():.1f} K")
+
+
+if __name__ == "__main__":
+    main()
