@@ -146,6 +146,20 @@ def find_replay(
     )
 
 
+def stored_error(detail: dict[str, Any], fallback: str) -> dict[str, Any]:
+    """A refusal's detail as kept with the upload: row, column and a reason always (the
+    error's message where the detail has none, e.g. a chunk sent out of order), other keys
+    as they were."""
+    row = detail.get("row")
+    column = detail.get("column")
+    return {
+        **detail,
+        "row": row if isinstance(row, int) and not isinstance(row, bool) else None,
+        "column": column if isinstance(column, str) else None,
+        "reason": str(detail.get("reason") or fallback),
+    }
+
+
 def record_rejection(
     session: Session,
     *,
@@ -159,7 +173,9 @@ def record_rejection(
     error: ServiceError,
 ) -> Upload:
     """Keep a refused upload in the history (its rows are not stored), with its errors."""
-    details = [d for d in error.details if isinstance(d, dict)][:MAX_ERRORS]
+    details = [
+        stored_error(d, error.message) for d in error.details if isinstance(d, dict)
+    ][:MAX_ERRORS]
     upload = Upload(
         operator_id=operator_id,
         api_key_id=api_key_id,
