@@ -14,6 +14,7 @@ every engine with new rows and the earliest new ``recorded_at`` of each.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import sqlite3
@@ -270,10 +271,10 @@ def ingest_snapshots(
         return UploadResult(earlier, replayed=True)
     parsed = parse_body(body, content_format, kind="snapshots", mapping=mapping)
     rows = resolve_rows(session, operator_id=operator_id, parsed=parsed)
-    replay = {
-        "operator_id": operator_id, "kind": "snapshots", "checksum": checksum,
-        "idempotency_key": idempotency_key,
-    }
+    replay = functools.partial(
+        find_replay, session, operator_id=operator_id, kind="snapshots", checksum=checksum,
+        idempotency_key=idempotency_key,
+    )
     try:
         # A savepoint: when a concurrent identical upload wins the race, this one's failed
         # insert is undone and the transaction can still read the winner (a replay).
@@ -281,7 +282,7 @@ def ingest_snapshots(
             fresh, duplicates = drop_stored(session, rows)
             if fresh.num_rows == 0:
                 # Every row is stored: by an identical upload committed since the check above?
-                earlier = find_replay(session, **replay)
+                earlier = replay()
                 if earlier is not None:
                     return UploadResult(earlier, replayed=True)
             upload = _store_snapshots(
@@ -293,7 +294,7 @@ def ingest_snapshots(
     except INTEGRITY_ERRORS as exc:
         # A concurrent upload stored some of these rows (or took the key) first: the same
         # content is a replay of it (READ COMMITTED sees its commit now), other content a 409.
-        earlier = find_replay(session, **replay)
+        earlier = replay()
         if earlier is not None:
             return UploadResult(earlier, replayed=True)
         raise Conflict(
