@@ -9,6 +9,8 @@ from pathlib import Path
 from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 from sqlalchemy import Engine
+from starlette.routing import Match, Mount
+from starlette.types import Scope
 
 from app import __version__
 from app.config import Settings, get_settings
@@ -19,6 +21,7 @@ from app.jobs.celery_app import CeleryDispatch
 from app.jobs.kinds import load_kinds
 from app.limits import BodyLimitMiddleware
 from app.log import configure_logging, install_request_logging
+from app.openapi import install_openapi
 from app.routers import (
     aircraft,
     assets,
@@ -44,6 +47,16 @@ from app.services import fresh_records
 from app.services.jobs.dispatch import Dispatcher, NoDispatch
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
+
+
+class DashboardMount(Mount):
+    """The dashboard's files, never under /api/: a method an API route does not take is then
+    the router's 405 with the route's own Allow header, not the file server's GET, HEAD."""
+
+    def matches(self, scope: Scope) -> tuple[Match, Scope]:
+        if scope["type"] == "http" and scope["path"].startswith("/api/"):
+            return Match.NONE, {}
+        return super().matches(scope)
 
 
 def create_app(
@@ -123,5 +136,8 @@ def create_app(
     app.include_router(stream_estimates.router)
     app.include_router(jobs_router.router)
     app.include_router(assets.router)
-    app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
+    install_openapi(app)
+    app.router.routes.append(
+        DashboardMount("/", app=StaticFiles(directory=STATIC_DIR, html=True), name="static")
+    )
     return app

@@ -41,6 +41,12 @@ PHASES = ("takeoff", "climb", "cruise")
 UPLOAD_KINDS = ("snapshots", "stream", "stream_chunk")
 UPLOAD_STATUSES = ("stored", "rejected")
 RECORDING_STATUSES = ("open", "closed")
+# A stream's sample interval: at most 1 kHz (finer is noise, not engine data, and would
+# make a short file millions of samples long), at least one sample a minute.
+STREAM_DT_MIN_S = 1e-3
+STREAM_DT_MAX_S = 60.0
+# Chunks of a live recording: chunk-NNNNNN.parquet files, indexed from 0.
+MAX_CHUNK_INDEX = 999_999
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,6 @@ from datetime import UTC, datetime
 from typing import Annotated
 
 from fastapi import APIRouter, Query, status
-from pydantic import AwareDatetime
 
 from app.schemas.fleet import (
     AircraftCreate,
@@ -15,6 +14,7 @@ from app.schemas.fleet import (
     Deleted,
     EngineOut,
     InstallationOut,
+    IsoAwareDatetime,
     Page,
     PageParams,
     PositionEngine,
@@ -95,7 +95,7 @@ def aircraft_engines(
     aircraft_id: int,
     session: DbSession,
     principal: CurrentPrincipal,
-    at: AwareDatetime | None = None,
+    at: IsoAwareDatetime | None = None,
 ) -> list[PositionEngine]:
     """The engine at each position of the tail at time ``at`` (default: now)."""
     when: datetime = at or datetime.now(UTC)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from datetime import datetime
 from typing import Annotated
 
 from fastapi import APIRouter, Query
@@ -15,6 +14,7 @@ from app.schemas.estimates import (
     EventPage,
     EventStatusFilter,
 )
+from app.schemas.fleet import IsoDatetime
 from app.security import Analyst, CurrentPrincipal, DbSession
 from app.services.events import service as events
 
@@ -31,8 +31,8 @@ def list_events(
     ] = None,
     engine_id: int | None = None,
     kind: EventKind | None = None,
-    since: Annotated[datetime | None, Query(description="detected at or after (ISO 8601)")] = None,
-    until: Annotated[datetime | None, Query(description="detected before")] = None,
+    since: Annotated[IsoDatetime | None, Query(description="at or after, ISO 8601")] = None,
+    until: Annotated[IsoDatetime | None, Query(description="detected before")] = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
     offset: Annotated[int, Query(ge=0)] = 0,
 ) -> object:

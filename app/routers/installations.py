@@ -5,13 +5,13 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, Query, status
-from pydantic import AwareDatetime
 
 from app.schemas.fleet import (
     Deleted,
     InstallationCreate,
     InstallationOut,
     InstallationUpdate,
+    IsoAwareDatetime,
     Page,
     PageParams,
 )
@@ -30,7 +30,7 @@ def list_installations(
     engine_id: int | None = None,
     aircraft_id: int | None = None,
     position: Annotated[int | None, Query(ge=1, le=4)] = None,
-    at: AwareDatetime | None = None,
+    at: IsoAwareDatetime | None = None,
 ) -> Page[InstallationOut]:
     """Installations, newest first; ``at`` keeps those in place at that time."""
     rows, total = fleet.list_installations(

@@ -5,10 +5,10 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, Query, status
-from pydantic import AwareDatetime
 
 from app.schemas.fleet import (
     Deleted,
+    IsoAwareDatetime,
     MaintenanceCreate,
     MaintenanceKind,
     MaintenanceOut,
@@ -30,8 +30,8 @@ def list_actions(
     page: Annotated[PageParams, Query()],
     engine_id: int | None = None,
     kind: MaintenanceKind | None = None,
-    since: AwareDatetime | None = None,
-    until: AwareDatetime | None = None,
+    since: IsoAwareDatetime | None = None,
+    until: IsoAwareDatetime | None = None,
 ) -> Page[MaintenanceOut]:
     """Actions, newest first; filter by engine, kind and [since, until)."""
     rows, total = maintenance.list_actions(

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import io
-from datetime import datetime
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -13,8 +12,9 @@ from fastapi import APIRouter, Query, Request, Response, status
 
 from app.errors import UnsupportedMediaType
 from app.payloads import Body, ColumnMapping, IdempotencyKey, parse_mapping, run_upload
-from app.schemas.fleet import Page, PageParams
+from app.schemas.fleet import IsoDatetime, Page, PageParams
 from app.schemas.uploads import (
+    MAX_CHUNK_INDEX,
     ChunkOut,
     LiveRecordingCreate,
     RecordingOut,
@@ -49,7 +49,7 @@ def upload_stream(
     response: Response,
     tail: str | None = None,
     position: Annotated[int | None, Query(ge=1, le=4)] = None,
-    started_at: datetime | None = None,
+    started_at: IsoDatetime | None = None,
     flight_id: str | None = None,
     idempotency_key: IdempotencyKey = None,
     columns: ColumnMapping = None,
@@ -129,7 +129,9 @@ def append_chunk(
     session: DbSession,
     principal: Analyst,
     response: Response,
-    index: Annotated[int, Query(ge=0, description="chunk index: 0, 1, 2, ... in order")],
+    index: Annotated[
+        int, Query(ge=0, le=MAX_CHUNK_INDEX, description="chunk index: 0, 1, 2, ... in order")
+    ],
 ) -> ChunkOut:
     """Append the next chunk (CSV or Parquet; chunked transfer encoding is fine)."""
     fmt = _file_format(payload.content_format)

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from datetime import datetime
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, Response
 
 from app.schemas.estimates import AircraftTrend, EngineTrend
+from app.schemas.fleet import IsoDatetime
 from app.security import CurrentPrincipal, DbSession
 from app.services.trends import service as trends
 
@@ -37,8 +37,8 @@ def engine_trend(
     engine_id: int,
     session: DbSession,
     principal: CurrentPrincipal,
-    start: Annotated[datetime | None, Query(description="from this time, ISO 8601")] = None,
-    end: Annotated[datetime | None, Query(description="before this time")] = None,
+    start: Annotated[IsoDatetime | None, Query(description="from this time, ISO 8601")] = None,
+    end: Annotated[IsoDatetime | None, Query(description="before this time")] = None,
     design_id: Annotated[
         int | None, Query(description="default: the engine type's active design")
     ] = None,
@@ -69,8 +69,8 @@ def aircraft_trend(
     aircraft_id: int,
     session: DbSession,
     principal: CurrentPrincipal,
-    start: Annotated[datetime | None, Query(description="from this time, ISO 8601")] = None,
-    end: Annotated[datetime | None, Query(description="before this time")] = None,
+    start: Annotated[IsoDatetime | None, Query(description="from this time, ISO 8601")] = None,
+    end: Annotated[IsoDatetime | None, Query(description="before this time")] = None,
     max_points: int = MaxPoints,
     format: Literal["json", "csv"] = "json",
 ) -> object:

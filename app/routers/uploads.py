@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import io
 import json
-from datetime import datetime
 from typing import Annotated, Any
 
 import pyarrow.compute as pc
@@ -13,7 +12,7 @@ from fastapi import APIRouter, Query, Request, Response, status
 
 from app.errors import InvalidInput, UnsupportedMediaType
 from app.payloads import Body, ColumnMapping, IdempotencyKey, Payload, parse_mapping, run_upload
-from app.schemas.fleet import Page, PageParams
+from app.schemas.fleet import IsoDatetime, Page, PageParams
 from app.schemas.uploads import EngineSnapshots, SnapshotBatch, UploadDetail, UploadOut
 from app.security import Analyst, CurrentPrincipal, DbSession
 from app.services.jobs.queue import get_job_queue
@@ -179,8 +178,8 @@ def engine_snapshots(
     engine_id: int,
     session: DbSession,
     principal: CurrentPrincipal,
-    start: datetime | None = None,
-    end: datetime | None = None,
+    start: IsoDatetime | None = None,
+    end: IsoDatetime | None = None,
     limit: Annotated[int, Query(ge=1, le=100_000)] = 10_000,
     fmt: Annotated[str, Query(alias="format", pattern="^(json|csv)$")] = "json",
 ) -> Any:

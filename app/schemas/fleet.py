@@ -3,9 +3,19 @@ maintenance actions, API keys, and the page envelope of every list."""
 
 from __future__ import annotations
 
+import re
+from datetime import datetime
 from typing import Annotated, Any, Generic, Literal, TypeVar
 
-from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, StringConstraints, field_validator
+from pydantic import (
+    AwareDatetime,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    StringConstraints,
+    field_validator,
+)
 
 MAX_PAGE = 1000
 T = TypeVar("T")
@@ -19,6 +29,24 @@ Esn = Annotated[
 Position = Annotated[int, Field(ge=1, le=4, description="engine position on the aircraft, 1..4")]
 MaintenanceKind = Literal["water_wash", "module_change", "shop_visit"]
 Role = Literal["viewer", "analyst", "admin"]
+
+
+_NUMBER = re.compile(r"\s*[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\s*")
+
+
+def _iso_text(value: object) -> object:
+    """Refuse a number where a date-time is due: pydantic would read ``0.5`` as seconds
+    since 1970, which no client sending ``?at=0.5`` means."""
+    if isinstance(value, int | float) and not isinstance(value, bool) or (
+        isinstance(value, str) and _NUMBER.fullmatch(value)
+    ):
+        raise ValueError("expected an ISO 8601 date-time 2026-03-01T12:00:00Z, not a number")
+    return value
+
+
+# Date-times in query parameters: ISO 8601 text only.
+IsoDatetime = Annotated[datetime, BeforeValidator(_iso_text)]
+IsoAwareDatetime = Annotated[AwareDatetime, BeforeValidator(_iso_text)]
 
 
 class StrictInput(BaseModel):

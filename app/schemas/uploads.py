@@ -4,9 +4,17 @@ from __future__ import annotations
 
 from typing import Any
 
-from pydantic import AwareDatetime, BaseModel, ConfigDict, Field
+from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator
 
-from app.models.ingest import ACTUATORS, PHASES, SENSORS, SIGNALS
+from app.models.ingest import (
+    ACTUATORS,
+    PHASES,
+    SENSORS,
+    SIGNALS,
+    STREAM_DT_MAX_S,
+    STREAM_DT_MIN_S,
+)
+from app.models.ingest import MAX_CHUNK_INDEX as MAX_CHUNK_INDEX  # for the streams router
 
 
 class RowErrorOut(BaseModel):
@@ -52,6 +60,19 @@ class UploadOut(BaseModel):
 
 class UploadDetail(UploadOut):
     errors: list[RowErrorOut]
+
+    @field_validator("errors", mode="before")
+    @classmethod
+    def _reasons(cls, errors: Any) -> Any:
+        # Refusals stored before every detail carried a reason (a chunk out of order kept
+        # only its expected index): answer with the upload's message rather than fail.
+        if not isinstance(errors, list):
+            return errors
+        return [
+            {**e, "reason": e.get("reason") or "refused; see the upload's message"}
+            if isinstance(e, dict) else e
+            for e in errors
+        ]
 
 
 def _signal_doc(prefix: str, signals: Any) -> str:
@@ -127,7 +148,10 @@ class LiveRecordingCreate(BaseModel):
     position: int = Field(ge=1, le=4)
     started_at: AwareDatetime
     flight_id: str | None = Field(None, max_length=64)
-    dt_s: float = Field(gt=0, le=60, description="sample interval in seconds")
+    dt_s: float = Field(
+        ge=STREAM_DT_MIN_S, le=STREAM_DT_MAX_S, allow_inf_nan=False,
+        description="sample interval in seconds, a finite number",
+    )
 
 
 class ChunkOut(BaseModel):

@@ -24,7 +24,7 @@ from collections.abc import Iterable
 import pyarrow as pa
 import pyarrow.compute as pc
 from sqlalchemy import event
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, SessionTransaction
 
 MAX_RECORDS = 500_000  # about 100 MB of snapshot columns at most
 
@@ -71,8 +71,22 @@ def keep_after_commit(session: Session, upload_id: int, rows: pa.Table) -> None:
         nonlocal ended
         ended = True  # rolled back: a later commit of this session is not this upload's
 
+    # The rows belong to the innermost transaction (a savepoint where the caller opened one):
+    # its rollback, or an enclosing one's, drops them even when the session later commits.
+    inserted_in = session.get_nested_transaction() or session.get_transaction()
+
+    def forget_savepoint(_session: Session, previous: SessionTransaction) -> None:
+        nonlocal ended
+        transaction = inserted_in
+        while transaction is not None:
+            if transaction is previous:
+                ended = True
+                return
+            transaction = transaction.parent
+
     event.listen(session, "after_commit", keep)
     event.listen(session, "after_rollback", forget)
+    event.listen(session, "after_soft_rollback", forget_savepoint)
 
 
 def kept_rows(session: Session) -> int:

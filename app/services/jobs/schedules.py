@@ -11,6 +11,7 @@ from sqlalchemy.orm import Session
 from app.errors import InvalidInput, NotFound
 from app.models.base import utcnow
 from app.models.jobs import JobSchedule
+from app.services.jobs.references import check_references
 from app.services.jobs.registry import JobRegistry
 
 
@@ -26,7 +27,9 @@ def create_schedule(
     enabled: bool = True,
 ) -> JobSchedule:
     """A schedule whose first job is due at ``first_run_at`` (default: now)."""
-    normalised = registry.get(kind).validate(parameters).model_dump(mode="json")
+    validated = registry.get(kind).validate(parameters)
+    check_references(session, operator_id, validated)
+    normalised = validated.model_dump(mode="json")
     _check_interval(interval_seconds)
     schedule = JobSchedule(
         operator_id=operator_id,
@@ -73,7 +76,9 @@ def update_schedule(
     schedule = get_schedule(session, operator_id=operator_id, schedule_id=schedule_id)
     if parameters is not None:
         kind = registry.get(schedule.kind)
-        schedule.parameters = kind.validate(parameters).model_dump(mode="json")
+        validated = kind.validate(parameters)
+        check_references(session, operator_id, validated)
+        schedule.parameters = validated.model_dump(mode="json")
     if interval_seconds is not None:
         _check_interval(interval_seconds)
         schedule.interval_seconds = interval_seconds

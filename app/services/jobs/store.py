@@ -12,6 +12,7 @@ from sqlalchemy.orm import Session
 from app.errors import Conflict, NotFound
 from app.models.base import utcnow
 from app.models.jobs import ACTIVE_STATUSES, Job
+from app.services.jobs.references import check_references
 from app.services.jobs.registry import JobRegistry, parameters_checksum
 
 
@@ -32,6 +33,7 @@ def submit(
     """
     job_kind = registry.get(kind)
     validated = job_kind.validate(parameters)
+    check_references(session, operator_id, validated)
     checksum = parameters_checksum(kind, validated)
     existing = _active_job(session, operator_id, kind, checksum)
     if existing is not None:

@@ -359,7 +359,10 @@ def append_chunk(
         raise Conflict(
             f"recording {recording.id} expects chunk {recording.n_chunks} next, "
             f"not chunk {chunk_index}",
-            details=[{"expected_chunk_index": recording.n_chunks}],
+            details=[{
+                "column": "index", "expected_chunk_index": recording.n_chunks,
+                "reason": f"chunk {chunk_index} is out of order: {recording.n_chunks} comes next",
+            }],
         )
     parsed = parse_body(body, content_format, kind="stream")
     upload = _upload_row(

@@ -27,7 +27,14 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
 from app.errors import InvalidInput
-from app.models.ingest import OPERATING_CONDITION, PHASES, SIGNALS, SignalSpec
+from app.models.ingest import (
+    OPERATING_CONDITION,
+    PHASES,
+    SIGNALS,
+    STREAM_DT_MAX_S,
+    STREAM_DT_MIN_S,
+    SignalSpec,
+)
 from app.services.units import UnknownUnitError, affine
 
 MAX_ERRORS = 100
@@ -404,6 +411,32 @@ def _require_present(
                     log.add(int(index) + 1, source[name], "value is missing")
 
 
+# Physical bounds per quantity in its stored unit (app.models.ingest): wider than any engine
+# reaches (turbine exit under 3000 degR, compressor delivery under 1000 psia, spools under
+# 40000 rpm, fuel under 20 pps), narrow enough that a unit slip or a garbage value (1e308)
+# is refused rather than stored.
+QUANTITY_BOUNDS: dict[tuple[str, str], tuple[float, float]] = {
+    ("temperature", "degR"): (0.0, 5000.0),
+    ("pressure", "psia"): (0.0, 2000.0),
+    ("rotational_speed", "rpm"): (0.0, 60000.0),
+    ("mass_flow", "pps"): (0.0, 100.0),
+    ("percent", "%"): (0.0, 200.0),
+    ("length", "ft"): (-2000.0, 60000.0),
+    ("dimensionless", "1"): (0.0, 1.0),
+    ("temperature_difference", "K"): (-100.0, 100.0),
+}
+
+
+def signal_bounds(signal: SignalSpec) -> tuple[float | None, float | None]:
+    """(low, high) of a stored signal: its own range within its quantity's physical bounds."""
+    low, high = QUANTITY_BOUNDS.get((signal.quantity, signal.unit), (None, None))
+    if signal.low is not None:
+        low = signal.low if low is None else max(low, signal.low)
+    if signal.high is not None:
+        high = signal.high if high is None else min(high, signal.high)
+    return low, high
+
+
 def _convert_signals(
     columns: dict[str, pa.ChunkedArray], specs: list[ColumnSpec], log: ErrorLog
 ) -> None:
@@ -421,22 +454,23 @@ def _convert_signals(
             columns[spec.target] = values
         numbers = values.to_numpy(zero_copy_only=False)
         unit = f" {signal.unit}" if signal.unit not in ("1", "%") else signal.unit
-        if signal.low is not None:
+        low, high = signal_bounds(signal)
+        if low is not None:
             with np.errstate(invalid="ignore"):
-                below = numbers < signal.low
+                below = numbers < low
             log.add_rows(
                 below,
                 spec.source,
-                lambda v, s=signal, u=unit: f"{v:g}{u} is below {s.low:g}{u}",
+                lambda v, b=low, u=unit: f"{v:g}{u} is below {b:g}{u}",
                 numbers,
             )
-        if signal.high is not None:
+        if high is not None:
             with np.errstate(invalid="ignore"):
-                above = numbers > signal.high
+                above = numbers > high
             log.add_rows(
                 above,
                 spec.source,
-                lambda v, s=signal, u=unit: f"{v:g}{u} is above {s.high:g}{u}",
+                lambda v, b=high, u=unit: f"{v:g}{u} is above the physical bound {b:g}{u}",
                 numbers,
             )
 
@@ -523,6 +557,12 @@ def _check_time_axis(table: pa.Table, log: ErrorLog) -> None:
     if not (steps > 0).all():
         return
     dt = float(np.median(steps))
+    if not STREAM_DT_MIN_S <= dt <= STREAM_DT_MAX_S:
+        log.add(
+            2, "time_s",
+            f"sample interval {dt:g} s is outside {STREAM_DT_MIN_S:g} s to {STREAM_DT_MAX_S:g} s",
+        )
+        return
     off = np.abs(steps - dt) > 1e-6 * max(dt, 1.0) + 1e-9
     log.add_rows(
         np.concatenate([[False], off]),

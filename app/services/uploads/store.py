@@ -14,6 +14,7 @@ every engine with new rows and the earliest new ``recorded_at`` of each.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import sqlite3
@@ -146,6 +147,20 @@ def find_replay(
     )
 
 
+def stored_error(detail: dict[str, Any], fallback: str) -> dict[str, Any]:
+    """A refusal's detail as kept with the upload: row, column and a reason always (the
+    error's message where the detail has none, e.g. a chunk sent out of order), other keys
+    as they were."""
+    row = detail.get("row")
+    column = detail.get("column")
+    return {
+        **detail,
+        "row": row if isinstance(row, int) and not isinstance(row, bool) else None,
+        "column": column if isinstance(column, str) else None,
+        "reason": str(detail.get("reason") or fallback),
+    }
+
+
 def record_rejection(
     session: Session,
     *,
@@ -159,7 +174,9 @@ def record_rejection(
     error: ServiceError,
 ) -> Upload:
     """Keep a refused upload in the history (its rows are not stored), with its errors."""
-    details = [d for d in error.details if isinstance(d, dict)][:MAX_ERRORS]
+    details = [
+        stored_error(d, error.message) for d in error.details if isinstance(d, dict)
+    ][:MAX_ERRORS]
     upload = Upload(
         operator_id=operator_id,
         api_key_id=api_key_id,
@@ -254,7 +271,54 @@ def ingest_snapshots(
         return UploadResult(earlier, replayed=True)
     parsed = parse_body(body, content_format, kind="snapshots", mapping=mapping)
     rows = resolve_rows(session, operator_id=operator_id, parsed=parsed)
-    fresh, duplicates = drop_stored(session, rows)
+    replay = functools.partial(
+        find_replay, session, operator_id=operator_id, kind="snapshots", checksum=checksum,
+        idempotency_key=idempotency_key,
+    )
+    try:
+        # A savepoint: when a concurrent identical upload wins the race, this one's failed
+        # insert is undone and the transaction can still read the winner (a replay).
+        with session.begin_nested():
+            fresh, duplicates = drop_stored(session, rows)
+            if fresh.num_rows == 0:
+                # Every row is stored: by an identical upload committed since the check above?
+                earlier = replay()
+                if earlier is not None:
+                    return UploadResult(earlier, replayed=True)
+            upload = _store_snapshots(
+                session, fresh, operator_id=operator_id, api_key_id=api_key_id,
+                content_format=content_format, checksum=checksum,
+                idempotency_key=idempotency_key, rows_received=parsed.num_rows,
+                duplicates=duplicates, bytes_received=len(body),
+            )
+    except INTEGRITY_ERRORS as exc:
+        # A concurrent upload stored some of these rows (or took the key) first: the same
+        # content is a replay of it (READ COMMITTED sees its commit now), other content a 409.
+        earlier = replay()
+        if earlier is not None:
+            return UploadResult(earlier, replayed=True)
+        raise Conflict(
+            "another upload stored some of these snapshots or used this Idempotency-Key at "
+            "the same time; nothing was stored, send it again",
+            details=[{"reason": str(exc).splitlines()[0][:300]}],
+        ) from None
+    return UploadResult(upload, replayed=False)
+
+
+def _store_snapshots(
+    session: Session,
+    fresh: pa.Table,
+    *,
+    operator_id: int,
+    api_key_id: int | None,
+    content_format: str,
+    checksum: str,
+    idempotency_key: str | None,
+    rows_received: int,
+    duplicates: int,
+    bytes_received: int,
+) -> Upload:
+    """Insert the upload row and its new snapshots, mark the engines' backlog."""
     upload = Upload(
         operator_id=operator_id,
         api_key_id=api_key_id,
@@ -263,32 +327,24 @@ def ingest_snapshots(
         checksum=checksum,
         idempotency_key=idempotency_key,
         status="stored",
-        rows_received=parsed.num_rows,
+        rows_received=rows_received,
         rows_stored=fresh.num_rows,
         rows_duplicate=duplicates,
-        bytes_received=len(body),
-        message=f"stored {fresh.num_rows} of {parsed.num_rows} snapshots"
+        bytes_received=bytes_received,
+        message=f"stored {fresh.num_rows} of {rows_received} snapshots"
         + (f" ({duplicates} were stored already)" if duplicates else ""),
         errors=[],
     )
-    try:
-        session.add(upload)
-        session.flush()
-        affected = summarise(session, fresh)
-        upload.affected = [a.as_json() for a in affected]
-        if fresh.num_rows:
-            insert_snapshots(session, fresh, operator_id=operator_id, upload_id=upload.id)
-            backlog.mark(session, operator_id, {a.engine_id: (a.earliest, a.rows)
-                                                for a in affected})
-        session.flush()
-    except INTEGRITY_ERRORS as exc:
-        # A concurrent upload stored some of these rows (or took the key) first.
-        raise Conflict(
-            "another upload stored some of these snapshots or used this Idempotency-Key at "
-            "the same time; nothing was stored, send it again",
-            details=[{"reason": str(exc).splitlines()[0][:300]}],
-        ) from None
-    return UploadResult(upload, replayed=False)
+    session.add(upload)
+    session.flush()
+    affected = summarise(session, fresh)
+    upload.affected = [a.as_json() for a in affected]
+    if fresh.num_rows:
+        insert_snapshots(session, fresh, operator_id=operator_id, upload_id=upload.id)
+        backlog.mark(session, operator_id, {a.engine_id: (a.earliest, a.rows)
+                                            for a in affected})
+    session.flush()
+    return upload
 
 
 def resolve_rows(session: Session, *, operator_id: int, parsed: ParsedTable) -> pa.Table:
