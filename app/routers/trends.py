@@ -19,8 +19,11 @@ CSV_RESPONSE: dict[int | str, dict[str, Any]] = {
 MaxPoints = Query(
     trends.DEFAULT_MAX_POINTS,
     ge=0,
-    le=100_000,
-    description="decimate into at most this many buckets (mean, min, max); 0 keeps every record",
+    # A plot shows a few thousand points; 20,000 buckets bound a read's cost (JSON of every
+    # series for each bucket). 0 keeps every record, for exports of one engine's history.
+    le=20_000,
+    description="decimate into at most this many buckets (mean, min, max), at most 20,000; "
+    "0 keeps every record",
 )
 
 

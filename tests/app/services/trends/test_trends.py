@@ -398,3 +398,20 @@ def test_markers_are_the_engines_installations_maintenance_and_events_in_time_or
          "status": e.status, "seq": e.seq}
         for e in sorted(events[:2], key=lambda e: e.detected_at)
     ]
+
+
+def test_a_read_asking_for_more_buckets_than_a_plot_shows_is_refused(
+    client: TestClient, session: Session
+) -> None:
+    """Bounded cost: at most 20,000 buckets per read (0 keeps every record)."""
+    fleet = make_fleet(session)
+    engine, aircraft = add_engine(session, fleet, "E10"), add_aircraft(session, fleet, "F-AAAB")
+    add_estimates(session, fleet, engine, aircraft, _values(np.random.default_rng(4), 5),
+                  [T0 + timedelta(days=i) for i in range(5)])
+    session.commit()
+    headers = {"X-API-Key": fleet.key}
+    path = f"/api/v1/engines/{engine.id}/trend"
+    too_many = client.get(path, params={"max_points": 100_000}, headers=headers)
+    assert too_many.status_code == 422
+    assert "max_points" in too_many.json()["error"]["message"]
+    assert client.get(path, params={"max_points": 20_000}, headers=headers).status_code == 200
