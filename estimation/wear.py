@@ -474,15 +474,20 @@ def _attribute_rows(d: np.ndarray, W: np.ndarray, H: np.ndarray) -> tuple[np.nda
 
 
 def matched_rows(dy: np.ndarray, var: np.ndarray, signatures: np.ndarray) -> np.ndarray:
-    """``matched_filter`` with every record's sums independent of the other records."""
+    """``matched_filter`` with every record's sums independent of the other records: dy [S, ny]
+    (NaN = missing), var [S, ny], signatures [ny, n] or [S, ny, n] -> z [S, n]."""
     dy = np.asarray(dy, float)
-    S, ny = dy.shape
-    sig = np.broadcast_to(np.asarray(signatures, float), (S, ny, np.shape(signatures)[-1]))
+    sig = np.asarray(signatures, float)
     w = np.broadcast_to(1.0 / np.asarray(var, float), dy.shape)
     present = np.isfinite(dy)
-    wg = np.where(present[:, :, None], w[:, :, None] * sig, 0.0)
-    num = _rowsum(np.moveaxis(wg * np.where(present, dy, 0.0)[:, :, None], 1, 2))
-    den = _rowsum(np.moveaxis(wg * sig, 1, 2))
+    wd = np.where(present, w * np.where(present, dy, 0.0), 0.0)
+    wp = np.where(present, w, 0.0)
+    num = np.zeros((dy.shape[0], sig.shape[-1]))
+    den = np.zeros_like(num)
+    for j in range(dy.shape[1]):
+        s_j = sig[..., j, :]
+        num += wd[:, j, None] * s_j
+        den += wp[:, j, None] * (s_j * s_j)
     return num / np.sqrt(np.maximum(den, 1e-300))
 
 
@@ -496,8 +501,7 @@ def _complete(det: WearDetector, st: WearState) -> WearState:
     wssr, f = _attribute_rows(xb - x0, det.W, det.H)
     sigma = f.std(axis=0, ddof=1)
     delta = np.maximum(cfg.margin * sigma, cfg.margin_floor)
-    A = _a_columns(det)
-    c_last = _rowdot(xb[-1:] - x0, A)[0] - cfg.rate * st.cycle
+    c_last = f[-1] - cfg.rate * st.cycle
     zb = np.asarray(st.z_rows, float)
     mu = zb.mean(axis=0) if len(zb) else np.zeros(0)
     sd = zb.std(axis=0, ddof=1) if len(zb) > 1 else np.zeros(0)
@@ -512,12 +516,6 @@ def _complete(det: WearDetector, st: WearState) -> WearState:
         c_min=tuple(c_last.tolist()), c_b=st.cycle, mu=tuple(mu.tolist()),
         sd=tuple(sd.tolist()), bank_sum=(0,) * n, bank_min=(0,) * n, recent=recent,
     )
-
-
-def _a_columns(det: WearDetector) -> np.ndarray:
-    WH = det.W @ det.H
-    hWh = (det.H * WH).sum(axis=0)
-    return WH / np.where(hWh > 0, hWh, 1.0)
 
 
 def _confident_rows(
@@ -547,7 +545,7 @@ def _active(
     x0 = np.asarray(st.x0, float)
     d = x - x0
     wssr, f = _attribute_rows(d, det.W, det.H)
-    C = _rowdot(d, _a_columns(det)) - cfg.rate * cycles[:, None]
+    C = f - cfg.rate * cycles[:, None]  # f_i = a_i^T d
     c_min = np.minimum(np.minimum.accumulate(C, axis=0), np.asarray(st.c_min)[None, :])
     g = C - c_min
     delta = np.asarray(st.delta, float)
@@ -574,17 +572,18 @@ def _active(
         cmin = np.minimum(np.minimum.accumulate(csum, axis=0), bank_min[None, :])
         G = (csum - cmin) * BANK_QUANTUM
         bank_sum, bank_min = csum[-1], cmin[-1]
-        crossed = np.logical_or.accumulate(
-            np.r_[st.crossed, np.any((G > cfg.bank_threshold) & cand, axis=1)])[1:]
+        crossed = st.crossed | np.logical_or.accumulate(
+            np.any((G > cfg.bank_threshold) & cand, axis=1))
         lag = max(cfg.hold, 1) - 1
         named, ok = _confident_rows(det, wssr, f)
         prev_best = np.array([b for b, _ in st.recent], dtype=np.int64)
         prev_ok = np.array([o for _, o in st.recent], dtype=bool)
-        all_best = np.r_[prev_best, named]
-        held = np.r_[prev_ok, ok]
+        all_best = np.concatenate([prev_best, named])
+        all_ok = np.concatenate([prev_ok, ok])
+        held = all_ok.copy()
         P = len(prev_best)
         for j in range(1, lag + 1):
-            held[j:] &= np.r_[prev_ok, ok][:-j] & (all_best[:-j] == all_best[j:])
+            held[j:] &= all_ok[:-j] & (all_best[:-j] == all_best[j:])
             held[:j] = False
         bank_hit = crossed & held[P:]
     hit = limit_hit | rate_hit | bank_hit

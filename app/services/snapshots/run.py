@@ -224,6 +224,14 @@ def run_filters(
         z_var = ((Gz_Vp @ P_all) * Gz_Vp).sum(axis=-1)
         values_all[..., s["z_sigma"]] = np.sqrt(np.maximum(z_var, 0.0))
         values_all[..., s["residual"]] = result.innovation
+        # The wear detector's matched filter on every record of the chunk at once.
+        if g.constant:
+            signatures = _fault_signatures(est, G_y[0, 0], G_u[0, 0])
+        else:
+            signatures = _fault_signatures(est, G_y, G_u)
+        z_all = matched_rows(dy.reshape(E * S, ny), (noise**2).reshape(E * S, ny),
+                             signatures if g.constant else signatures.reshape(E * S, ny, -1)
+                             ).reshape(E, S, -1)
         for e, r in enumerate(runs):
             n = int(counts[e])
             if n == 0:
@@ -236,8 +244,8 @@ def run_filters(
             first_checkpoint = len(out.checkpoints)
             dets[e] = _wssr_filled(est, dets[e], r, c0, q, P, resets[e, :n], values, out,
                                    records)
-            wears[e] = _wear_watched(est, wear_det, wears[e], r, c0, q, flights[e, :n],
-                                     resets[e, :n], records, out, first_checkpoint)
+            wears[e] = _wear_watched(wear_det, wears[e], r, c0, q, flights[e, :n],
+                                     resets[e, :n], z_all[e, :n], out, first_checkpoint, est)
             packed = values.astype(VALUE_DTYPE)
             out.n_records += n
             if sink is None:
@@ -267,8 +275,9 @@ def wear_detector(est: SnapshotEstimator) -> WearDetector:
 
 
 def _fault_signatures(est: SnapshotEstimator, G_y: np.ndarray, G_u: np.ndarray) -> np.ndarray:
-    """``est.fault_signatures`` [n, ny, n_faults] summed term by term, so a record's signature
-    does not depend on the other records of its call (a batched matrix product's may)."""
+    """``est.fault_signatures`` [..., ny, n_faults] summed term by term, so a record's
+    signature does not depend on the other records of its call (a batched matrix product's
+    may)."""
     p = G_y.shape[-1]
     out = np.zeros((*G_y.shape[:-1], est.S_full.shape[1]))
     for j in range(p):
@@ -279,21 +288,17 @@ def _fault_signatures(est: SnapshotEstimator, G_y: np.ndarray, G_u: np.ndarray) 
 
 
 def _wear_watched(
-    est: SnapshotEstimator, det: WearDetector, state: WearState, r: EngineRun, c0: int,
-    q: np.ndarray, new_flight: np.ndarray, resets: np.ndarray, records: ChunkRecords,
-    out: EngineOutput, first_checkpoint: int,
+    det: WearDetector, state: WearState, r: EngineRun, c0: int, q: np.ndarray,
+    new_flight: np.ndarray, resets: np.ndarray, z: np.ndarray, out: EngineOutput,
+    first_checkpoint: int, est: SnapshotEstimator,
 ) -> WearState:
     """Continue the engine's wear detector over its records of the chunk (tuner estimates q,
-    and the directional bank on the sensor deviations): its alerts become events, and its
-    state goes into the checkpoints the shift detector wrote from ``first_checkpoint`` on.
-    Cycles are counted in flights (``NEW_FLIGHT_S``)."""
+    and the directional bank on the matched-filter projections z of the sensor deviations):
+    its alerts become events, and its state goes into the checkpoints the shift detector
+    wrote from ``first_checkpoint`` on. Cycles are counted in flights (``NEW_FLIGHT_S``)."""
     base = r.seq0 + c0
     marks = out.checkpoints[first_checkpoint:]
     keep = [cp.seq - base - 1 for cp in marks]
-    z = None
-    if not state.alerted or resets.any():  # an alerted stretch waits for a reset
-        signatures = _fault_signatures(est, records.G_y, records.G_u)
-        z = matched_rows(records.dy, records.var, signatures)
     run = wear_steps(det, state, q, new_flight, resets, z, keep)
     kept = dict(run.states)
     for i, cp in enumerate(marks, start=first_checkpoint):
