@@ -445,13 +445,10 @@ class WearRun:
 
 
 def _rowdot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a [K, m] times b [m, n] -> [K, n], each element summed in the same order whatever K
-    (no BLAS, no reduction whose buffering may depend on the number of rows: one term of
-    the inner index at a time)."""
-    out = np.zeros((a.shape[0], b.shape[1]))
-    for j in range(a.shape[1]):
-        out += a[:, j, None] * b[j]
-    return out
+    """a [K, m] times b [m, n] -> [K, n], each element summed over m in the same order
+    whatever K (einsum's own loop; BLAS blocking may depend on the number of rows; the
+    split-invariance test in tests/estimation/test_wear.py holds it to that)."""
+    return np.einsum("km,mn->kn", a, b)
 
 
 def _rowsum(a: np.ndarray) -> np.ndarray:
@@ -519,12 +516,13 @@ def _complete(det: WearDetector, st: WearState) -> WearState:
 
 
 def _confident_rows(
-    det: WearDetector, wssr: np.ndarray, f: np.ndarray
+    det: WearDetector, wssr: np.ndarray, f: np.ndarray, best: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Per row: the best fault and whether it beats every other candidate by the ratio
-    (``confident_fault`` before its hold)."""
+    """Per row: the best fault (``best_fault``, given or computed) and whether it beats every
+    other candidate by the ratio (``confident_fault`` before its hold)."""
     cand = det.candidates
-    best = best_fault(wssr, f, cand)
+    if best is None:
+        best = best_fault(wssr, f, cand)
     if det.settings.confidence <= 0:
         return best, np.ones(len(best), bool)
     rows = np.arange(len(best))
@@ -575,7 +573,7 @@ def _active(
         crossed = st.crossed | np.logical_or.accumulate(
             np.any((G > cfg.bank_threshold) & cand, axis=1))
         lag = max(cfg.hold, 1) - 1
-        named, ok = _confident_rows(det, wssr, f)
+        named, ok = _confident_rows(det, wssr, f, best)
         prev_best = np.array([b for b, _ in st.recent], dtype=np.int64)
         prev_ok = np.array([o for _, o in st.recent], dtype=bool)
         all_best = np.concatenate([prev_best, named])
