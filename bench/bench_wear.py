@@ -9,6 +9,12 @@ before failure), share of alerts attributed to HPC; the product's own shift dete
 Demo fleet (``app.services.demo.fleet``, simulated, built-in engine): wear alerts outside the
 injected faults' windows per engine-year.
 
+Next to the detector's own figures (``wear_scan`` on the filter's estimates, cycles as C-MAPSS
+counts them, default settings unless given), the product path's: the ``wear`` events
+``run_filters`` raises itself (``estimation.wear.wear_steps`` record by record, cycles counted
+in flights, default settings), on FD001 with the design ``fleethealth import-cmapss`` creates
+(the built-in engine's default schedule grid, as a server builds it).
+
 The wear detector gets the records' sensor deviations too (its directional CUSUM bank);
 ``--no-bank`` scans the tuner estimates alone (limit and rate alerts).
 
@@ -41,7 +47,8 @@ def health_candidates(S_full: np.ndarray, p: int) -> np.ndarray:
     return np.all(S_full[p:] == 0.0, axis=0)
 
 
-def fd001(path: Path, cfg: wear.WearSettings, units: int | None, use_sensors: bool) -> None:
+def fd001(path: Path, cfg: wear.WearSettings, units: int | None, use_sensors: bool,
+          cache: Path) -> None:
     t0 = time.perf_counter()
     est = fd001_replay.fd001_estimator(fd001_replay.fd001_schedule())
     engines = fd001_replay.fd001_runs(path, est, units)
@@ -64,14 +71,30 @@ def fd001(path: Path, cfg: wear.WearSettings, units: int | None, use_sensors: bo
         k = wear.signature_cusum(dy, var, sig[0, :, hpc])
         if k is not None:
             naive.append(int(e.cycle[-1] - e.cycle[k]))
-        if tr.events:
-            product.append((tr.events[0], int(e.cycle[-1]) - _cycle_at(e, tr.events[0].epoch)))
+        shifts = [ev for ev in tr.events if ev.kind != "wear"]
+        if shifts:
+            product.append((shifts[0], int(e.cycle[-1]) - _cycle_at(e, shifts[0].epoch)))
+    # The product path: the design import-cmapss makes, its pipeline's own wear events.
+    t1 = time.perf_counter()
+    est_p = fd001_replay.fd001_estimator(engine_schedule(cache))
+    engines_p = fd001_replay.fd001_runs(path, est_p, units)
+    wear_events = []
+    for e, tr in zip(engines_p, fd001_replay.filter_tracks(est_p, [e.run for e in engines_p]),
+                     strict=True):
+        first = next((ev for ev in tr.events if ev.kind == "wear"), None)
+        if first is not None and _cycle_at(e, first.epoch) < int(e.cycle[-1]):
+            wear_events.append((first, int(e.cycle[-1]) - _cycle_at(e, first.epoch)))
+    t_product = time.perf_counter() - t1
     n = len(engines)
     print(f"FD001 train, {n} engines ({time.perf_counter() - t0:.1f} s); settings {cfg}")
     print(f"{'':34s}{'alerted':>10s}{'median lead':>13s}{'HPC share':>11s}")
     print(f"{'target':34s}{n:>7d}/{n:<3d}{'>= naive':>13s}{'>= 90 %':>11s}")
     print(f"{'filter + wear detector':34s}{len(ours):>7d}/{n:<3d}"
           f"{_median(ours):>13s}{_share(hpc_hits, len(ours)):>11s}")
+    hpc_wear = sum(ev.fault == "HPC" for ev, _ in wear_events)
+    print(f"{'product wear events':34s}{len(wear_events):>7d}/{n:<3d}"
+          f"{_median([lead for _, lead in wear_events]):>13s}"
+          f"{_share(hpc_wear, len(wear_events)):>11s}   ({t_product:.1f} s)")
     print(f"{'naive signature CUSUM (HPC)':34s}{len(naive):>7d}/{n:<3d}{_median(naive):>13s}"
           f"{'(given)':>11s}")
     hpc_product = sum(ev.fault == "HPC" for ev, _ in product)
@@ -104,6 +127,7 @@ def demo(cfg: wear.WearSettings, cache: Path, use_sensors: bool) -> None:
     cand = health_candidates(est.S_full, len(est.layout.health))
     s = est.layout.slices()
     false, in_fault, years = [], 0, 0.0
+    product_false, product_in_fault = 0, 0
     outs = run.run_filters(est, [e.run for e in engines])
     for data, out in zip(engines, outs, strict=True):
         q = out.packed.astype(np.float64)[:, s["q"]]
@@ -128,6 +152,12 @@ def demo(cfg: wear.WearSettings, cache: Path, use_sensors: bool) -> None:
         if use_sensors:
             dy, var, sig = fd001_replay.sensor_deviations(est, data.run)
             sensors = {"dy": dy, "var": var, "signatures": sig}
+        for ev in out.events:
+            if ev.kind == "wear":
+                if faulty[np.searchsorted(t, ev.epoch)]:
+                    product_in_fault += 1
+                else:
+                    product_false += 1
         scan = wear.wear_scan(q, est.H, W, cycles, resets, cand, cfg, **sensors)
         for a in scan.alerts:
             if faulty[a.index]:
@@ -139,6 +169,9 @@ def demo(cfg: wear.WearSettings, cache: Path, use_sensors: bool) -> None:
     print(f"demo fleet ({len(engines)} engines, {time.perf_counter() - t0:.1f} s): "
           f"{len(false)} false wear alerts in {years:.1f} healthy engine-years = "
           f"{rate:.2f} per engine-year (target <= 1); {in_fault} alerts in fault windows")
+    product_rate = product_false / years if years else float("nan")
+    print(f"  product wear events (run_filters, default settings): {product_false} false = "
+          f"{product_rate:.2f} per engine-year (target <= 1); {product_in_fault} in fault windows")
     for item in false[:10]:
         print("  ", item)
 
@@ -165,7 +198,7 @@ def main() -> None:
                             margin_floor=args.floor, bank_reference=args.kappa,
                             bank_threshold=args.h, bank_rate=args.bank_rate,
                             confidence=args.confidence, hold=args.hold)
-    fd001(args.fd001, cfg, args.units, not args.no_bank)
+    fd001(args.fd001, cfg, args.units, not args.no_bank, args.cache)
     if not args.skip_demo:
         demo(cfg, args.cache, not args.no_bank)
 

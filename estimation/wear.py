@@ -67,7 +67,8 @@ Alerts (the first of a stretch; one alert per stretch, the next after a reset):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -130,6 +131,7 @@ class WearAlert:
     statistic: float
     threshold: float
     baseline_start: int
+    change: np.ndarray | None = None  # d = x - x_0 at the record (``wear_steps``' alerts)
 
 
 @dataclass(frozen=True)
@@ -336,6 +338,12 @@ def wear_scan(
     return WearScan(f_all, wssr_all, g_all, tuple(alerts), bank_all)
 
 
+def health_candidates(S_full: np.ndarray, p: int) -> np.ndarray:
+    """Library faults that are module deteriorations (no actuator-bias rows in the fault
+    matrix S_full [p + biases, n]): the faults wear may be attributed to."""
+    return np.all(np.asarray(S_full)[p:] == 0.0, axis=0)
+
+
 def health_weight(Vp: np.ndarray) -> np.ndarray:
     """W = V*^+T V*^+ [m, m] from V*^+ [p, m]: a tuner change weighted as its health change."""
     return np.asarray(Vp, float).T @ np.asarray(Vp, float)
@@ -366,3 +374,343 @@ def signature_cusum(
     S = (C - np.minimum.accumulate(C))[1:]
     hit = (S > threshold) & (np.arange(len(z)) >= arm_at)
     return int(np.argmax(hit)) if hit.any() else None
+
+
+# --- Record-by-record form (the pipeline's): the same alerts as ``wear_scan``, its state carried
+# from one run of records to the next, so a run split anywhere equals one uninterrupted run.
+#
+# Every per-record figure depends on that record and the stretch's baseline only (f, WSSR,
+# C_k = f_k - rho c_k, z_k), and what carries over is exact under any grouping: the baseline's
+# rows (until it is complete), running minima, latched flags, and the bank's cumulative sums
+# in integer units of BANK_QUANTUM standard deviations (an integer sum does not depend on where
+# it was split; a float cumsum does in its last bits).
+
+BANK_QUANTUM = 2.0**-24  # the bank's u_k are summed as integer multiples of this
+
+Rows = tuple[tuple[float, ...], ...]
+
+
+@dataclass(frozen=True)
+class WearDetector:
+    """What the recursion needs besides the records: fault directions H [m, n], attribution
+    weight W [m, m], the candidates [n] bool and the settings (see ``wear_scan``)."""
+
+    H: np.ndarray
+    W: np.ndarray
+    candidates: np.ndarray
+    settings: WearSettings = WearSettings()
+
+
+@dataclass(frozen=True)
+class WearState:
+    """One engine's wear detector between records.
+
+    cycle: the engine's cycle count at its last record; k: records of the current stretch so
+    far; x_rows / z_rows: the tuner baseline's rows and the bank baseline's matched-filter rows
+    while they are collected; once the tuner baseline is complete: x0 [m], delta [n] (rate
+    CUSUM thresholds), c_min [n] (running minimum of C_i since the baseline's last record),
+    c_b (that record's cycle), mu, sd [n] (bank standardisation), bank_sum, bank_min [n]
+    (the bank's cumulative sum and its running minimum, integers), crossed and bank_stat (the
+    bank's latch and its largest CUSUM at the crossing), recent (best fault, confident) of the
+    last hold - 1 records; alerted: the stretch has had its alert."""
+
+    cycle: float = 0.0
+    k: int = 0
+    x_rows: Rows = ()
+    z_rows: Rows = ()
+    x0: tuple[float, ...] | None = None
+    delta: tuple[float, ...] = ()
+    c_min: tuple[float, ...] = ()
+    c_b: float = 0.0
+    mu: tuple[float, ...] = ()
+    sd: tuple[float, ...] = ()
+    bank_sum: tuple[int, ...] = ()
+    bank_min: tuple[int, ...] = ()
+    crossed: bool = False
+    bank_stat: float = 0.0
+    bank_top: int = -1
+    recent: tuple[tuple[int, bool], ...] = ()
+    alerted: bool = False
+
+
+@dataclass(frozen=True)
+class WearRun:
+    """A run of records through ``wear_steps``: the alerts (``index`` into the run's
+    records), the state after each record asked for (index, state) and the state after
+    the last."""
+
+    alerts: tuple[WearAlert, ...]
+    states: tuple[tuple[int, WearState], ...]
+    state: WearState
+
+
+def _rowdot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a [K, m] times b [m, n] -> [K, n], each element summed over m in the same order
+    whatever K (einsum's own loop; BLAS blocking may depend on the number of rows; the
+    split-invariance test in tests/estimation/test_wear.py holds it to that)."""
+    return np.einsum("km,mn->kn", a, b)
+
+
+def _rowsum(a: np.ndarray) -> np.ndarray:
+    """Sum over the last axis, term by term in order (see ``_rowdot``)."""
+    out = np.zeros(a.shape[:-1])
+    for j in range(a.shape[-1]):
+        out += a[..., j]
+    return out
+
+
+def _attribute_rows(d: np.ndarray, W: np.ndarray, H: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``attribute`` with every row's sums independent of the other rows."""
+    WH = W @ H
+    a = (H * WH).sum(axis=0)
+    b = _rowdot(d, WH)
+    c = _rowsum(_rowdot(d, W) * d)
+    ok = a > 0
+    f = np.where(ok, b / np.where(ok, a, 1.0), 0.0)
+    return np.maximum(c[:, None] - b * f, 0.0), f
+
+
+def matched_rows(dy: np.ndarray, var: np.ndarray, signatures: np.ndarray) -> np.ndarray:
+    """``matched_filter`` with every record's sums independent of the other records: dy [S, ny]
+    (NaN = missing), var [S, ny], signatures [ny, n] or [S, ny, n] -> z [S, n]."""
+    dy = np.asarray(dy, float)
+    sig = np.asarray(signatures, float)
+    w = np.broadcast_to(1.0 / np.asarray(var, float), dy.shape)
+    present = np.isfinite(dy)
+    wd = np.where(present, w * np.where(present, dy, 0.0), 0.0)
+    wp = np.where(present, w, 0.0)
+    num = np.zeros((dy.shape[0], sig.shape[-1]))
+    den = np.zeros_like(num)
+    for j in range(dy.shape[1]):
+        s_j = sig[..., j, :]
+        num += wd[:, j, None] * s_j
+        den += wp[:, j, None] * (s_j * s_j)
+    return num / np.sqrt(np.maximum(den, 1e-300))
+
+
+def _complete(det: WearDetector, st: WearState) -> WearState:
+    """The tuner baseline just completed (``st.x_rows`` full): x0, thresholds, the rate
+    CUSUM's zero at this record, the bank's standardisation, and the confidence of the
+    baseline's last hold - 1 records (``confident_fault`` looks back over them)."""
+    cfg = det.settings
+    xb = np.asarray(st.x_rows, float)
+    x0 = xb.mean(axis=0)
+    wssr, f = _attribute_rows(xb - x0, det.W, det.H)
+    sigma = f.std(axis=0, ddof=1)
+    delta = np.maximum(cfg.margin * sigma, cfg.margin_floor)
+    c_last = f[-1] - cfg.rate * st.cycle
+    zb = np.asarray(st.z_rows, float)
+    mu = zb.mean(axis=0) if len(zb) else np.zeros(0)
+    sd = zb.std(axis=0, ddof=1) if len(zb) > 1 else np.zeros(0)
+    lag = max(cfg.hold, 1) - 1
+    recent: tuple[tuple[int, bool], ...] = ()
+    if lag:
+        best, ok = _confident_rows(det, wssr[-lag:], f[-lag:])
+        recent = tuple(zip(best.tolist(), ok.tolist(), strict=True))
+    n = det.H.shape[1]
+    return WearState(
+        cycle=st.cycle, k=st.k, x0=tuple(x0.tolist()), delta=tuple(delta.tolist()),
+        c_min=tuple(c_last.tolist()), c_b=st.cycle, mu=tuple(mu.tolist()),
+        sd=tuple(sd.tolist()), bank_sum=(0,) * n, bank_min=(0,) * n, recent=recent,
+    )
+
+
+def _confident_rows(
+    det: WearDetector, wssr: np.ndarray, f: np.ndarray, best: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per row: the best fault (``best_fault``, given or computed) and whether it beats every
+    other candidate by the ratio (``confident_fault`` before its hold)."""
+    cand = det.candidates
+    if best is None:
+        best = best_fault(wssr, f, cand)
+    if det.settings.confidence <= 0:
+        return best, np.ones(len(best), bool)
+    rows = np.arange(len(best))
+    w_best = np.where(best >= 0, wssr[rows, np.maximum(best, 0)], np.inf)
+    others = cand[None, :] & (np.arange(wssr.shape[1])[None, :] != best[:, None])
+    runner_up = np.where(others, wssr, np.inf).min(axis=1)
+    return best, (best >= 0) & (runner_up >= det.settings.confidence * w_best)
+
+
+def _active(
+    det: WearDetector, st: WearState, x: np.ndarray, cycles: np.ndarray,
+    z: np.ndarray | None, offset: int, b0: int,
+) -> tuple[WearState, WearAlert | None]:
+    """Records of a stretch after its baseline (armed; ``st`` holds the baseline): the
+    state after them, or after the first alert and that alert."""
+    cfg = det.settings
+    cand = det.candidates
+    x0 = np.asarray(st.x0, float)
+    d = x - x0
+    wssr, f = _attribute_rows(d, det.W, det.H)
+    C = f - cfg.rate * cycles[:, None]  # f_i = a_i^T d
+    c_min = np.minimum(np.minimum.accumulate(C, axis=0), np.asarray(st.c_min)[None, :])
+    g = C - c_min
+    delta = np.asarray(st.delta, float)
+    best = best_fault(wssr, f, cand)
+    rows = np.arange(len(best))
+    mag = np.where(best >= 0, f[rows, np.maximum(best, 0)], 0.0)
+    limit_hit = mag >= cfg.limit
+    rate_hit = np.any((g > delta) & cand, axis=1)
+    use_bank = z is not None
+    if use_bank and not cfg.rate_with_bank:
+        rate_hit[:] = False
+    bank_hit = np.zeros(len(x), bool)
+    crossed = np.full(len(x), st.crossed)
+    bank_sum = np.asarray(st.bank_sum, np.int64)
+    bank_min = np.asarray(st.bank_min, np.int64)
+    G = np.zeros_like(C)
+    named = best
+    if z is not None:
+        sd = np.asarray(st.sd, float)
+        u = (z - np.asarray(st.mu)) / np.where(sd > 0, sd, np.inf)
+        u -= cfg.bank_reference + cfg.bank_rate * (cycles[:, None] - st.c_b)
+        steps = np.rint(u / BANK_QUANTUM).astype(np.int64)
+        csum = bank_sum[None, :] + np.cumsum(steps, axis=0)
+        cmin = np.minimum(np.minimum.accumulate(csum, axis=0), bank_min[None, :])
+        G = (csum - cmin) * BANK_QUANTUM
+        bank_sum, bank_min = csum[-1], cmin[-1]
+        crossed = st.crossed | np.logical_or.accumulate(
+            np.any((G > cfg.bank_threshold) & cand, axis=1))
+        lag = max(cfg.hold, 1) - 1
+        named, ok = _confident_rows(det, wssr, f, best)
+        prev_best = np.array([b for b, _ in st.recent], dtype=np.int64)
+        prev_ok = np.array([o for _, o in st.recent], dtype=bool)
+        all_best = np.concatenate([prev_best, named])
+        all_ok = np.concatenate([prev_ok, ok])
+        held = all_ok.copy()
+        P = len(prev_best)
+        for j in range(1, lag + 1):
+            held[j:] &= all_ok[:-j] & (all_best[:-j] == all_best[j:])
+            held[:j] = False
+        bank_hit = crossed & held[P:]
+    hit = limit_hit | rate_hit | bank_hit
+    if not hit.any():
+        new_cross = crossed[-1] and not st.crossed
+        kc = int(np.argmax(crossed)) if new_cross else -1
+        return _carry(det, st, cycles[-1], len(x), c_min[-1], bank_sum, bank_min,
+                      crossed[-1], G, kc, named, ok if z is not None else None), None
+    k = int(np.argmax(hit))
+    kinds = [kind for kind, h in ((DIRECTIONAL, bank_hit), (LIMIT, limit_hit), (RATE, rate_hit))
+             if h[k]]
+    kind = min(kinds)
+    if kind == DIRECTIONAL:
+        if st.crossed:
+            stat = st.bank_stat
+            top_fault = st.bank_top
+        else:
+            kc = int(np.argmax(crossed))
+            top = np.where(cand, G[kc], -np.inf)
+            stat, top_fault = float(np.max(top)), int(np.argmax(top))
+        fault = int(named[k]) if named[k] >= 0 else top_fault
+        alert = WearAlert(
+            index=offset + k, kind=kind, fault=fault, wssr=wssr[k], f=f[k],
+            magnitude=float(f[k, fault]), statistic=stat, threshold=cfg.bank_threshold,
+            baseline_start=b0, change=d[k],
+        )
+    else:
+        gk = g[k]
+        i = int(np.argmax(np.where(cand, gk - delta, -np.inf)))
+        alert = WearAlert(
+            index=offset + k, kind=kind, fault=int(best[k]) if best[k] >= 0 else None,
+            wssr=wssr[k], f=f[k], magnitude=float(mag[k]), statistic=float(gk[i]),
+            threshold=float(delta[i]), baseline_start=b0, change=d[k],
+        )
+    return WearState(cycle=float(cycles[-1]), k=st.k + len(x), alerted=True), alert
+
+
+def _carry(
+    det: WearDetector, st: WearState, cycle: float, n: int, c_min: np.ndarray,
+    bank_sum: np.ndarray, bank_min: np.ndarray, crossed: bool, G: np.ndarray, kc: int,
+    named: np.ndarray, ok: np.ndarray | None,
+) -> WearState:
+    """The state after an armed run of n records without an alert."""
+    stat, top = st.bank_stat, st.bank_top
+    if kc >= 0:
+        row = np.where(det.candidates, G[kc], -np.inf)
+        stat, top = float(np.max(row)), int(np.argmax(row))
+    recent = st.recent
+    lag = max(det.settings.hold, 1) - 1
+    if ok is not None and lag:
+        recent = (*st.recent, *zip(named.tolist(), ok.tolist(), strict=True))[-lag:]
+    return WearState(
+        cycle=float(cycle), k=st.k + n, x0=st.x0, delta=st.delta,
+        c_min=tuple(c_min.tolist()), c_b=st.c_b, mu=st.mu, sd=st.sd,
+        bank_sum=tuple(int(v) for v in bank_sum), bank_min=tuple(int(v) for v in bank_min),
+        crossed=bool(crossed), bank_stat=stat, bank_top=top, recent=recent,
+    )
+
+
+def _stretch_steps(
+    det: WearDetector, st: WearState, x: np.ndarray, cycles: np.ndarray,
+    z: np.ndarray | None, offset: int,
+) -> tuple[WearState, WearAlert | None]:
+    """Records of one stretch (no reset among them but perhaps at the first, already
+    applied to ``st``): collect the baselines, complete them, scan the armed records."""
+    cfg = det.settings
+    n = len(x)
+    if st.alerted or n == 0:
+        last = cycles[-1] if n else st.cycle
+        return replace_state(st, cycle=float(last), k=st.k + n), None
+    b1 = cfg.settle + cfg.n_base
+    kk = st.k + np.arange(n)
+    b0 = offset - st.k + cfg.settle  # the baseline's first record, as an index of this run
+    if st.x0 is None:
+        take = (kk >= cfg.settle) & (kk < b1)
+        x_rows = st.x_rows + tuple(map(tuple, x[take].tolist()))
+        z_rows = st.z_rows
+        if z is not None:
+            z_rows = z_rows + tuple(map(tuple, z[kk < cfg.n_base].tolist()))
+        done = np.flatnonzero(kk == b1 - 1)
+        if not len(done):
+            return WearState(cycle=float(cycles[-1]), k=st.k + n, x_rows=x_rows,
+                             z_rows=z_rows), None
+        j = int(done[0])
+        st = _complete(det, WearState(cycle=float(cycles[j]), k=st.k + j + 1, x_rows=x_rows,
+                                      z_rows=z_rows))
+        x, cycles = x[j + 1 :], cycles[j + 1 :]
+        z = None if z is None else z[j + 1 :]
+        offset += j + 1
+        if not len(x):
+            return st, None
+    return _active(det, st, x, cycles, z, offset, b0)
+
+
+def replace_state(st: WearState, **changes: object) -> WearState:
+    return replace(st, **changes)  # type: ignore[arg-type]
+
+
+def wear_steps(
+    det: WearDetector, state: WearState, x: np.ndarray, new_cycle: np.ndarray,
+    resets: np.ndarray, z: np.ndarray | None = None, keep: Sequence[int] = (),
+) -> WearRun:
+    """Continue one engine's wear detector over a run of records.
+
+    x [S, m] tuner estimates; new_cycle [S] bool, True where a record starts a new cycle
+    (flight: the cycle count advances by one); resets [S] bool (a maintenance action before
+    the record: a new stretch); z [S, n] the records' matched-filter projections
+    (``matched_rows``; None: no directional bank). The states after the records ``keep``
+    (indices) are returned too. Alerts are ``wear_scan``'s for the same records when the
+    first record is the engine's first (cycles as counted here; tests/estimation/test_wear.py).
+    """
+    x = np.asarray(x, float)
+    cycles = state.cycle + np.cumsum(np.asarray(new_cycle, bool)).astype(float)
+    resets = np.asarray(resets, bool)
+    S = len(x)
+    cuts = sorted({0, S, *np.flatnonzero(resets).tolist(), *(j + 1 for j in keep)})
+    alerts: list[WearAlert] = []
+    states: list[tuple[int, WearState]] = []
+    want = set(keep)
+    st = state
+    for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+        if b <= a:
+            continue
+        if resets[a]:
+            st = WearState(cycle=st.cycle)
+        st, alert = _stretch_steps(det, st, x[a:b], cycles[a:b],
+                                   None if z is None else z[a:b], a)
+        if alert is not None:
+            alerts.append(alert)
+        if b - 1 in want:
+            states.append((b - 1, st))
+    return WearRun(tuple(alerts), tuple(states), st)

@@ -9,6 +9,13 @@ C-MAPSS units, declared in the CSV header (T24, T30, T50 degR; P15, P30 psia; Nf
 C-MAPSS's Ps30 (~47.5 "psia") and phi (fuel flow / Ps30) are not on the scale of P30 and are
 left out, as are T2/P2 (the inlet follows from the operating condition) and the derived
 columns (epr, NRf, NRc, BPR, farB, htBleed, demands, bleeds W31/W32).
+
+Unless told not to, the import also leaves the engine type ready to trend and alert: the
+built-in engine linearised at FD001's operating condition (sea level static, TRA 100:
+``POST /api/v1/engine-models/builtin``), a design on it (SVD, ``FD001_TUNERS`` tuners, the
+C-MAPSS sensors above, the ten turbomachinery health parameters: ``fd001_design_spec``) and
+that design activated, so the estimation job that follows runs the filter, the shift detector
+and the wear detector on every unit. An engine type that already has an active design keeps it.
 """
 
 from __future__ import annotations
@@ -44,6 +51,11 @@ CMAPSS_SENSORS = {
 }
 CMAPSS_START = datetime(2020, 1, 1, tzinfo=UTC)
 ENGINE_TYPE = "CMAPSS-FD001"
+# FD001 flies one condition: sea level static, TRA 100 (power 100 %).
+FD001_CONDITION = {"alt_ft": 0.0, "mach": 0.0, "power_pct": 100.0, "dtamb_k": 0.0}
+FD001_MODEL = "FD001 sea level static"
+FD001_DESIGN = "FD001 SVD 7 tuners"
+FD001_TUNERS = 7
 _RANKINE = 1.8
 _T_SL = 288.15
 _LAPSE = 0.0065  # K/m, ISA troposphere
@@ -61,6 +73,46 @@ class ImportSummary:
     stored: int
     duplicates: int
     uploads: list[int]
+    design_id: int | None = None  # the engine type's active design (None: not asked for)
+    design_created: bool = False
+
+
+def fd001_design_spec(health_names: list[str], tuners: int = FD001_TUNERS) -> dict[str, Any]:
+    """The design an FD001 user starts with: SVD tuners over the ten turbomachinery health
+    parameters (the built-in model's first ten: fan, LPC, HPC, HPT, LPT efficiency and flow),
+    the C-MAPSS sensors the built-in engine has."""
+    return {
+        "format": "fleethealth.design-spec/1", "method": "svd", "tuners": tuners,
+        "sensors": list(CMAPSS_SENSORS), "health": list(health_names[:10]),
+        "noise": {"Q": 1e-4, "Qh": 1e-4, "Ph": 4.0},
+    }
+
+
+def ensure_design(client: httpx.Client, engine_type_id: int) -> tuple[int, bool]:
+    """The engine type's active design, or a new one made and activated through the API
+    (the built-in engine at ``FD001_CONDITION``, ``fd001_design_spec``): (design id, created).
+    A design that fails is an error naming the server's reason."""
+    active = _check(client.get(f"/api/v1/engine-types/{engine_type_id}/active-design"),
+                    "read the active design")
+    if active:
+        return int(active["id"]), False
+    model = _check(
+        client.post("/api/v1/engine-models/builtin",
+                    json={"engine_type_id": engine_type_id, "name": FD001_MODEL,
+                          **FD001_CONDITION}),
+        "linearise the built-in engine at FD001's condition",
+    )
+    design = _check(
+        client.post("/api/v1/designs",
+                    json={"engine_model_id": model["id"], "name": FD001_DESIGN,
+                          "spec": fd001_design_spec(model["health_names"])}),
+        "create the FD001 design",
+    )
+    if design["status"] != "ready":
+        raise CmapssImportError(
+            f"the FD001 design {design['id']} is {design['status']}: {design.get('failure')}")
+    _check(client.post(f"/api/v1/designs/{design['id']}/activate"), "activate the FD001 design")
+    return int(design["id"]), True
 
 
 def read_cmapss(path: Path) -> np.ndarray:
@@ -193,14 +245,19 @@ def import_cmapss(
     batch_rows: int = 5000,
     start: datetime = CMAPSS_START,
     progress: Callable[[int], None] | None = None,
+    design: bool = True,
 ) -> ImportSummary:
     """Create the fleet and upload the snapshots of the first ``units`` units (all: None).
 
     Each batch carries an Idempotency-Key derived from the file and the batch, so running
     the import again stores nothing new. ``progress`` is called with the rows of each batch.
+    With ``design`` the engine type gets a ready, active design first (``ensure_design``),
+    so the uploads' estimation trends and alerts at once.
     """
     data, unit_ids = select_units(read_cmapss(path), units)
     engine_type_id = ensure_engine_type(client)
+    design_id, design_created = (ensure_design(client, engine_type_id) if design
+                                 else (None, False))
     for unit in unit_ids:
         ensure_unit(client, unit, engine_type_id, start)
     table = cmapss_snapshots(data, start)
@@ -228,7 +285,8 @@ def import_cmapss(
             duplicates += int(result["rows_duplicate"])
         if progress is not None:
             progress(batch.num_rows)
-    return ImportSummary(len(unit_ids), table.num_rows, stored, duplicates, uploads)
+    return ImportSummary(len(unit_ids), table.num_rows, stored, duplicates, uploads,
+                         design_id, design_created)
 
 
 def import_cmapss_command(
@@ -239,18 +297,26 @@ def import_cmapss_command(
     api_key: str = typer.Option(..., envvar="FLEETHEALTH_API_KEY", help="An analyst key."),
     units: int | None = typer.Option(None, min=1, help="Import only the first N units."),
     batch_rows: int = typer.Option(5000, min=1, help="Snapshots per upload request."),
+    design: bool = typer.Option(
+        True, help="Give the engine type a ready, active design at FD001's condition "
+        "(unless it has one)."),
 ) -> None:
     """Upload NASA C-MAPSS FD001 through the REST API: one engine and tail per unit."""
     total = select_units(read_cmapss(path), units)[0].shape[0]
     with httpx.Client(base_url=url, headers={"X-API-Key": api_key}, timeout=300) as client:
         with typer.progressbar(length=total, label="uploading snapshots") as bar:
             summary = import_cmapss(
-                path, client, units=units, batch_rows=batch_rows, progress=bar.update
+                path, client, units=units, batch_rows=batch_rows, progress=bar.update,
+                design=design,
             )
     typer.echo(
         f"{summary.units} engines, {summary.snapshots} snapshots: {summary.stored} stored, "
         f"{summary.duplicates} already there ({len(summary.uploads)} uploads)"
     )
+    if summary.design_id is not None:
+        typer.echo(f"design {summary.design_id} "
+                   f"{'created and activated' if summary.design_created else 'already active'}"
+                   f" for {ENGINE_TYPE}: estimation runs in the server's jobs")
 
 
 def register(app: typer.Typer) -> None:

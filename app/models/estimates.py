@@ -37,7 +37,7 @@ from sqlalchemy.orm import Mapped, mapped_column, relationship
 from app.models.base import Base, UTCDateTime, utcnow
 from app.models.designs import JSONDocument
 
-EVENT_KINDS = ("shift", "isolated_fault")
+EVENT_KINDS = ("shift", "isolated_fault", "wear")
 EVENT_STATUSES = ("open", "acknowledged", "closed")
 
 
@@ -147,8 +147,11 @@ class Event(Base):
 
     kind ``isolated_fault``: the smallest WSSR is consistent with its fault (``fault`` and
     ``magnitude``, 1.0 = the library's nominal shift); kind ``shift``: no library fault explains
-    it. ``wssr`` maps every hypothesis to its WSSR; ``shift`` maps tuner names to the change
-    against the baseline; ``seq`` is the record at which the detector raised the alarm.
+    it; kind ``wear``: the wear detector's alert on the change accumulated since its baseline
+    (``estimation.wear``; ``fault``, ``magnitude`` attributed, ``shift["wear"]`` the alert's
+    kind, CUSUM and threshold). ``wssr`` maps every hypothesis to its WSSR; ``shift`` maps tuner
+    names to the change against the baseline; ``seq`` is the record at which the detector
+    raised the alarm (a record may carry one event per kind).
     """
 
     __tablename__ = "events"
@@ -159,7 +162,7 @@ class Event(Base):
         CheckConstraint(
             "status IN (" + ", ".join(f"'{s}'" for s in EVENT_STATUSES) + ")", name="status"
         ),
-        UniqueConstraint("engine_id", "design_id", "seq"),
+        UniqueConstraint("engine_id", "design_id", "seq", "kind"),
         Index("ix_events_operator_status_detected", "operator_id", "status", "detected_at"),
     )
 

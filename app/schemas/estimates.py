@@ -12,7 +12,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-EventKind = Literal["shift", "isolated_fault"]
+EventKind = Literal["shift", "isolated_fault", "wear"]
 EventStatus = Literal["open", "acknowledged", "closed"]
 # A list filter: "active" is every event not closed (open or acknowledged), the events that
 # the fleet page counts.

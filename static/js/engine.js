@@ -2,7 +2,7 @@
 // WSSR, against date or cycles, with installation, maintenance and event markers.
 import { api, apiText, download } from "./api.js";
 import { $, fmtTime, h, params, showError, startPage } from "./ui.js";
-import { axisTitle, layout, limitShapes, lineWithBand, markerAnnotations, markerShapes, plot, syncZoom, unitOf } from "./plots.js";
+import { MARKER_COLOURS, axisTitle, layout, limitShapes, lineWithBand, markerAnnotations, markerShapes, plot, syncZoom, unitOf } from "./plots.js";
 
 const ORDER = ["health", "aux", "tuners", "residuals", "wssr"];
 const TITLES = {
@@ -68,7 +68,8 @@ function markers(axis) {
     if (inside(m.performed_at)) out.push({ kind: "maintenance", x: at(m.performed_at), short: m.kind.replace("_", " "), label: `${m.kind}: ${m.notes}` });
   }
   for (const e of trend.events) {
-    out.push({ kind: "event", x: axis === "date" ? e.detected_at : e.seq, short: e.fault || e.kind, label: `event ${e.id}: ${e.fault || e.kind} (${e.status})` });
+    const wear = e.kind === "wear";
+    out.push({ kind: wear ? "wear" : "event", x: axis === "date" ? e.detected_at : e.seq, short: wear ? `wear ${e.fault || ""}`.trim() : e.fault || e.kind, label: `event ${e.id}: ${wear ? "wear, " : ""}${e.fault || e.kind} (${e.status})` });
   }
   return out.filter((m) => m.x !== null && m.x !== undefined);
 }
@@ -139,11 +140,11 @@ function draw() {
       ...notes.map((n) => h("p", { class: "muted" }, n)), div));
     const traces = group.series.filter((s) => !hidden.has(s.name)).flatMap((s, i) => lineWithBand(x, broken(s), i));
     // Event markers as points too: hovering one names the event.
-    const events = marks.filter((m) => m.kind === "event");
+    const events = marks.filter((m) => m.kind === "event" || m.kind === "wear");
     if (events.length) {
       traces.push({
         x: events.map((m) => m.x), y: events.map(() => 1), yaxis: "y2", type: "scatter", mode: "markers",
-        name: "events", marker: { symbol: "triangle-down", size: 12, color: "#D55E00" },
+        name: "events", marker: { symbol: "triangle-down", size: 12, color: events.map((m) => MARKER_COLOURS[m.kind]) },
         text: events.map((m) => m.label), hovertemplate: "%{text}<extra></extra>",
       });
     }
@@ -155,7 +156,7 @@ function draw() {
       legend: { orientation: "v", x: 1.02, y: 1, font: { size: 11 } },
       yaxis2: { overlaying: "y", range: [0, 1.05], visible: false, fixedrange: true },
       shapes: [...markerShapes(marks), ...limitShapes(group.limits || [])],
-      annotations: markerAnnotations(marks.filter((m) => m.kind !== "event")),
+      annotations: markerAnnotations(marks.filter((m) => m.kind !== "event" && m.kind !== "wear")),
       margin: { l: 70, r: 20, t: 50, b: 50 },
     });
     divs.push(div);
@@ -181,7 +182,7 @@ function info() {
     h("div", {}, h("h3", {}, "Maintenance actions"), t.maintenance.length ? h("ul", {}, t.maintenance.map((m) =>
       h("li", {}, `${fmtTime(m.performed_at)}: ${m.kind.replace("_", " ")}${m.notes ? ` (${m.notes})` : ""}`))) : h("p", { class: "muted" }, "none")),
     h("div", {}, h("h3", {}, "Events"), t.events.length ? h("ul", {}, t.events.map((e) =>
-      h("li", {}, h("a", { href: `/events.html?id=${e.id}` }, `${fmtTime(e.detected_at)}: ${e.fault || e.kind}`), ` · ${e.status}`))) : h("p", { class: "muted" }, "none"))));
+      h("li", {}, h("a", { href: `/events.html?id=${e.id}` }, `${fmtTime(e.detected_at)}: ${e.kind === "wear" ? "wear " : ""}${e.fault || e.kind}`), ` · ${e.status}`))) : h("p", { class: "muted" }, "none"))));
 }
 
 async function load(engineId) {

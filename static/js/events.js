@@ -1,6 +1,7 @@
-// Event review: the detected shift, the WSSR of every fault hypothesis, the isolated fault and
-// its magnitude, the confidence (posterior over the hypotheses, ambiguity group, the design's
-// confusion row); acknowledge, comment, close. Without ?id= the list of events.
+// Event review (an abrupt shift, or wear: the change accumulated since a baseline): the detected
+// shift, the WSSR of every fault hypothesis, the isolated fault and its magnitude, the confidence
+// (posterior over the hypotheses, ambiguity group, the design's confusion row); acknowledge,
+// comment, close. Without ?id= the list of events.
 import { api } from "./api.js";
 import { $, badge, fmtNum, fmtTime, h, params, showError, sortableTable, startPage } from "./ui.js";
 import { MARKER_COLOURS, PALETTE, axisTitle, layout, lineWithBand, markerShapes, plot, unitOf } from "./plots.js";
@@ -14,14 +15,20 @@ async function showList() {
   const labels = { active: "active (open or acknowledged)", open: "open", acknowledged: "acknowledged", closed: "closed", "": "all" };
   const filter = h("select", { id: "status" }, Object.keys(labels).map((s) =>
     h("option", { value: s, selected: s === status }, labels[s])));
-  filter.addEventListener("change", () => location.assign(`/events.html?status=${filter.value}`));
-  const page = await api("/api/v1/events", { query: { status: status || undefined, limit: 500 } });
+  const kind = params().get("kind") ?? "";
+  const kinds = { "": "all", shift: "shift (not isolated)", isolated_fault: "isolated fault (abrupt)", wear: "wear (gradual)" };
+  const kindFilter = h("select", { id: "kind" }, Object.keys(kinds).map((k) =>
+    h("option", { value: k, selected: k === kind }, kinds[k])));
+  const reload = () => location.assign(`/events.html?status=${filter.value}${kindFilter.value ? `&kind=${kindFilter.value}` : ""}`);
+  filter.addEventListener("change", reload);
+  kindFilter.addEventListener("change", reload);
+  const page = await api("/api/v1/events", { query: { status: status || undefined, kind: kind || undefined, limit: 500 } });
   const columns = [
     { key: "id", label: "Event", numeric: true, cell: (e) => h("a", { href: `/events.html?id=${e.id}` }, `#${e.id}`) },
     { key: "detected_at", label: "Detected", cell: (e) => fmtTime(e.detected_at) },
     { key: "esn", label: "ESN", cell: (e) => h("a", { href: `/engine.html?id=${e.engine_id}` }, e.esn) },
     { key: "tail", label: "Tail", cell: (e) => (e.tail ? `${e.tail} #${e.position}` : "–") },
-    { key: "kind", label: "Kind" },
+    { key: "kind", label: "Kind", cell: (e) => e.kind.replace("_", " ") },
     { key: "fault", label: "Isolated fault", cell: (e) => e.fault || h("span", { class: "muted" }, "not isolated") },
     { key: "magnitude", label: "Magnitude", numeric: true, cell: (e) => fmtNum(e.magnitude) },
     { key: "confidence", label: "Confidence", value: (e) => (e.confidence ? e.confidence.probability : -1),
@@ -29,9 +36,9 @@ async function showList() {
     { key: "status", label: "Status", cell: (e) => badge(e.status) },
   ];
   content.replaceChildren(h("section", { class: "card" },
-    h("div", { class: "toolbar" }, h("label", {}, "Status", filter), h("span", { class: "muted" }, `${page.total} event${page.total === 1 ? "" : "s"}`)),
+    h("div", { class: "toolbar" }, h("label", {}, "Status", filter), h("label", {}, "Kind", kindFilter), h("span", { class: "muted" }, `${page.total} event${page.total === 1 ? "" : "s"}`)),
     page.items.length ? h("div", { class: "table-wrap" }, sortableTable(columns, page.items, { sortKey: "detected_at", descending: true }))
-      : h("p", { class: "muted" }, "No events with this status.")));
+      : h("p", { class: "muted" }, "No events with this status and kind.")));
 }
 
 function shiftPlot(div, event) {
@@ -212,9 +219,10 @@ function showEvent(event, principal) {
     $("#status").replaceChildren(...statusLine(updated));
     $("#review").replaceWith(actions(updated, principal, refresh));
   };
+  const wear = event.kind === "wear";
   const isolated = event.fault
-    ? `${event.fault}, magnitude ${fmtNum(event.magnitude)} × the library's nominal shift`
-    : "no fault hypothesis accepted (WSSR above the threshold for all)";
+    ? `${event.fault}, magnitude ${fmtNum(event.magnitude)} × the library's nominal shift${wear ? " accumulated since the baseline" : ""}`
+    : wear ? "no module deterioration fits the accumulated change" : "no fault hypothesis accepted (WSSR above the threshold for all)";
   const shift = h("div", { id: "shift", class: "plot" });
   const wssr = h("div", { id: "wssr", class: "plot" });
   const around = h("div", { id: "around", class: "plot" });
@@ -228,7 +236,7 @@ function showEvent(event, principal) {
       h("dt", {}, "Detector statistic"), h("dd", {}, fmtNum(event.statistic, 2)),
       h("dt", {}, "Status"), h("dd", { id: "status" }, ...statusLine(event)))),
     h("div", { class: "grid" },
-      h("section", { class: "card" }, h("h2", {}, "Detected shift"), shift),
+      h("section", { class: "card" }, h("h2", {}, wear ? "Change accumulated since the wear baseline" : "Detected shift"), shift),
       h("section", { class: "card" }, h("h2", {}, "WSSR of every fault hypothesis"), wssr)),
     confidence,
     h("section", { class: "card" }, h("h2", {}, `Health parameters ±${WINDOW_DAYS} days around the detection, against their mean over the ${BASELINE_RECORDS} records before it`), around),

@@ -5,7 +5,7 @@ export const PALETTE = ["#0072B2", "#E69F00", "#009E73", "#D55E00", "#56B4E9", "
 export const DASHES = ["solid", "dash", "dot", "dashdot"];
 // Health parameters come in pairs per module: one colour per module, efficiency solid, flow dashed.
 const MODULES = ["fan", "lpc", "hpc", "hpt", "lpt"];
-export const MARKER_COLOURS = { installation: "#555555", maintenance: "#009E73", event: "#D55E00" };
+export const MARKER_COLOURS = { installation: "#555555", maintenance: "#009E73", event: "#D55E00", wear: "#CC79A7" };
 
 export function styleFor(name, index) {
   const module = MODULES.indexOf(String(name).split("_")[0].toLowerCase());
@@ -147,7 +147,7 @@ export function limitShapes(lines) {
 export function markerShapes(markers) {
   return markers.map((m) => ({
     type: "line", xref: "x", yref: "paper", x0: m.x, x1: m.x, y0: 0, y1: 1,
-    line: { color: MARKER_COLOURS[m.kind], width: m.kind === "event" ? 2 : 1.2, dash: m.kind === "maintenance" ? "dot" : m.kind === "installation" ? "dash" : "solid" },
+    line: { color: MARKER_COLOURS[m.kind], width: m.kind === "event" || m.kind === "wear" ? 2 : 1.2, dash: m.kind === "maintenance" ? "dot" : m.kind === "installation" ? "dash" : "solid" },
   }));
 }
 

@@ -229,3 +229,57 @@ def test_fd001_median_lead_at_least_the_naive_signature_cusum(
     assert isinstance(ours, list) and isinstance(naive, list)
     assert len(naive) == fd001_figures["n"]
     assert np.median(ours) >= np.median(naive)
+
+
+def _alert_key(a: wear.WearAlert) -> tuple[object, ...]:
+    return (a.index, a.kind, a.fault, round(a.magnitude, 9), round(a.statistic, 5))
+
+
+@pytest.mark.parametrize("bank", [False, True])
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_record_by_record_steps_give_the_scans_alerts_however_split(
+    bank: bool, seed: int
+) -> None:
+    """``wear_steps`` against ``wear_scan`` on drifting engines with resets and two records a
+    flight; then the same records in random pieces, each continuing from the state the last
+    left: the same alerts (the bank's sums are quantised to 2^-24: statistics to 1e-5) and
+    bit-identical final states."""
+    rng = np.random.default_rng(seed)
+    H, W = _library(rng)
+    m, n = H.shape
+    S, ny = 900, 6
+    drift = np.zeros((S, m))
+    drift[400:] = np.outer(np.arange(S - 400), 4e-3 * H[:, seed % (n - 1)])
+    x = drift + rng.normal(scale=0.05, size=(S, m))
+    new_cycle = np.r_[True, rng.random(S - 1) < 0.5]
+    resets = np.zeros(S, bool)
+    resets[[250, 700]] = True
+    cfg = wear.WearSettings(margin=6.0, limit=0.8)
+    cand = np.array([True] * (n - 1) + [False])
+    sensors: dict[str, np.ndarray] = {}
+    z = None
+    if bank:
+        sig = rng.normal(size=(ny, n))
+        dy = rng.normal(size=(S, ny))
+        dy[400:] += np.outer(np.arange(S - 400) * 3e-3, sig[:, seed % (n - 1)])
+        var = np.ones(ny)
+        sensors = {"dy": dy, "var": var, "signatures": sig}
+        z = wear.matched_rows(dy, var, sig)
+    cycles = np.cumsum(new_cycle).astype(float)
+    scan = wear.wear_scan(x, H, W, cycles, resets, cand, cfg, **sensors)
+    assert scan.alerts, "the drift should alert"
+    assert (wear.DIRECTIONAL in {a.kind for a in scan.alerts}) == bank
+    det = wear.WearDetector(H, W, cand, cfg)
+    whole = wear.wear_steps(det, wear.WearState(), x, new_cycle, resets, z)
+    assert [_alert_key(a) for a in whole.alerts] == [_alert_key(a) for a in scan.alerts]
+    cuts = np.sort(rng.choice(np.arange(1, S), size=25, replace=False))
+    st, alerts = wear.WearState(), []
+    for a, b in zip(np.r_[0, cuts], np.r_[cuts, S], strict=True):
+        part = wear.wear_steps(det, st, x[a:b], new_cycle[a:b], resets[a:b],
+                               None if z is None else z[a:b])
+        alerts += [(a + al.index, al.kind, al.fault, al.magnitude, al.statistic)
+                   for al in part.alerts]
+        st = part.state
+    assert alerts == [(al.index, al.kind, al.fault, al.magnitude, al.statistic)
+                      for al in whole.alerts]
+    assert st == whole.state

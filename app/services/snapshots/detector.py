@@ -5,7 +5,9 @@ The detector itself (baseline, CUSUM, sensor-space isolation, record by record a
 is ``estimation.shift_detector``; here its frozen state is written and read (``document``,
 ``from_document``; states written before, with the history as lists of numbers, still read)
 and an ``Isolation`` becomes an ``EventDraft`` with the design's fault, tuner and health names.
-A second detector kind would sit next to it under its own key of the pipeline state.
+The wear detector (``estimation.wear``, record by record) is the second kind: its state is
+written and read here too (``wear_document``, ``wear_from_document``) and its alerts become
+``wear`` events (``wear_event``).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import numpy as np
 
 from app.services.snapshots.estimator import SnapshotEstimator
 from estimation.shift_detector import Isolation, PendingAlarm, Rows, SensorFit, ShiftState
+from estimation.wear import WearAlert, WearState
 
 HISTORY_FORMAT = "float64-le-base64"
 
@@ -128,5 +131,74 @@ def event(est: SnapshotEstimator, iso: Isolation) -> EventDraft | None:
             "wssr_threshold": iso.wssr_threshold,
             "nearest": names[best] if best is not None else None,
             "distance": iso.distance,
+        },
+    )
+
+
+def wear_document(state: WearState) -> dict[str, Any]:
+    """The wear detector's state as stored: its fields as JSON numbers (a float's shortest
+    repr reads back to the same float; the baseline rows exist only for the first ~50
+    records of a stretch)."""
+    return {
+        "cycle": state.cycle, "k": state.k, "x_rows": [list(r) for r in state.x_rows],
+        "z_rows": [list(r) for r in state.z_rows],
+        "x0": None if state.x0 is None else list(state.x0), "delta": list(state.delta),
+        "c_min": list(state.c_min), "c_b": state.c_b, "mu": list(state.mu),
+        "sd": list(state.sd), "bank_sum": list(state.bank_sum),
+        "bank_min": list(state.bank_min), "crossed": state.crossed,
+        "bank_stat": state.bank_stat, "bank_top": state.bank_top,
+        "recent": [[b, ok] for b, ok in state.recent], "alerted": state.alerted,
+    }
+
+
+def wear_from_document(d: Mapping[str, Any] | None) -> WearState:
+    """A stored wear state (``wear_document``); none (states written before the wear detector
+    ran) is a fresh one: the engine's next records start its baseline."""
+    if d is None:
+        return WearState()
+
+    def floats(key: str) -> tuple[float, ...]:
+        return tuple(float(v) for v in d[key])
+
+    x0 = d.get("x0")
+    return WearState(
+        cycle=float(d["cycle"]), k=int(d["k"]), x_rows=_rows(d["x_rows"]),
+        z_rows=_rows(d["z_rows"]), x0=None if x0 is None else tuple(map(float, x0)),
+        delta=floats("delta"), c_min=floats("c_min"), c_b=float(d["c_b"]), mu=floats("mu"),
+        sd=floats("sd"), bank_sum=tuple(int(v) for v in d["bank_sum"]),
+        bank_min=tuple(int(v) for v in d["bank_min"]), crossed=bool(d["crossed"]),
+        bank_stat=float(d["bank_stat"]), bank_top=int(d["bank_top"]),
+        recent=tuple((int(b), bool(ok)) for b, ok in d["recent"]), alerted=bool(d["alerted"]),
+    )
+
+
+def wear_event(
+    est: SnapshotEstimator, alert: WearAlert, seq: int, epoch: float, baseline_seq: int
+) -> EventDraft:
+    """The ``wear`` event of a wear alert: the attributed fault and its magnitude (times the
+    library's nominal shift), the accumulated change since the baseline in tuners and health
+    parameters (docs/math.md, wear), the WSSR of every fault for that change, and under
+    ``wear`` the alert's kind (``limit``, ``rate``, ``directional``), its CUSUM against its
+    threshold and the baseline's first record."""
+    names = est.layout.faults
+    change = np.zeros(est.m) if alert.change is None else np.asarray(alert.change, float)
+    fault_shift = {}
+    if alert.fault is not None:
+        fault_shift = {k: round(float(v * alert.magnitude), 4)
+                       for k, v in est.fault_shifts[alert.fault].items()}
+    return EventDraft(
+        seq=seq, epoch=epoch, kind="wear",
+        fault=None if alert.fault is None else names[alert.fault],
+        magnitude=None if alert.fault is None else float(alert.magnitude),
+        statistic=float(alert.statistic),
+        wssr={n: float(w) for n, w in zip(names, alert.wssr, strict=True)},
+        shift={
+            "tuners": {n: float(v) for n, v in zip(est.layout.tuners, change, strict=True)},
+            "health": {n: float(v)
+                       for n, v in zip(est.layout.health, est.Vp @ change, strict=True)},
+            "fault": fault_shift,
+            "nearest": None if alert.fault is None else names[alert.fault],
+            "wear": {"alert": alert.kind, "statistic": float(alert.statistic),
+                     "threshold": float(alert.threshold), "baseline_seq": baseline_seq},
         },
     )

@@ -15,6 +15,7 @@ tests/support/test_detection_replay.py).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -34,6 +35,14 @@ from estimation.shift_detector import (
     shift_steps,
 )
 from estimation.snapshot import SnapshotState, snapshot_deviation, snapshot_filter
+from estimation.wear import (
+    WearDetector,
+    WearState,
+    health_candidates,
+    health_weight,
+    matched_rows,
+    wear_steps,
+)
 
 NEW_FLIGHT_S = 3600.0  # records further apart than this are different flights
 # A checkpoint (the whole pipeline state, a few kB of JSON) every this many records of an
@@ -48,17 +57,18 @@ CHUNK_BYTES = 64 * 2**20
 @dataclass(frozen=True, eq=False)
 class PipelineState:
     """One engine's pipeline state between records: the snapshot filter's, the shift
-    detector's, and the time of its last record (None before the first). Stored as JSON by
-    ``store`` (``detector.state_document``)."""
+    detector's, the time of its last record (None before the first) and the wear detector's.
+    Stored as JSON by ``store`` (``state_document``)."""
 
     filter: SnapshotState
     detector: ShiftState
     last_epoch: float | None
+    wear: WearState = WearState()
 
     @classmethod
     def initial(cls, est: SnapshotEstimator) -> PipelineState:
         """Before an engine's first record."""
-        return cls(SnapshotState.initial(1, est.P0), ShiftState(), None)
+        return cls(SnapshotState.initial(1, est.P0), ShiftState(), None, WearState())
 
 
 @dataclass
@@ -75,7 +85,7 @@ class EngineRun:
     y: np.ndarray  # [S, ny] stored units, NaN = missing
     u: np.ndarray  # [S, nu]
     maintenance: np.ndarray  # epochs of the engine's maintenance actions
-    redo: dict[float, Event] = field(default_factory=dict)  # events the run recomputes
+    redo: dict[tuple[float, str], Event] = field(default_factory=dict)  # events the run recomputes
 
 
 class Checkpoint(NamedTuple):
@@ -145,6 +155,8 @@ def run_filters(
     outputs = [EngineOutput([], [], [], r.state, est.layout.width) for r in runs]
     filt = [r.state.filter for r in runs]
     dets = [r.state.detector for r in runs]
+    wears = [r.state.wear for r in runs]
+    wear_det = wear_detector(est)
     last = [r.state.last_epoch for r in runs]
     longest = max((len(r.epoch) for r in runs), default=0)
     s = est.layout.slices()
@@ -174,6 +186,7 @@ def run_filters(
         if g.noise_std is not None:
             noise[slot_e, slot_j] = np.sqrt(g.noise_std**2 + MODEL_ERROR**2)
         resets = np.zeros((E, S), dtype=bool)
+        flights = np.zeros((E, S), dtype=bool)
         scale = np.zeros((E, S))
         for e, r in enumerate(runs):
             n = int(counts[e])
@@ -186,6 +199,7 @@ def run_filters(
             for t in r.maintenance:
                 maint |= (t <= epochs) & (t > prev)  # NaN prev (first record): no reset
             resets[e, :n] = maint
+            flights[e, :n] = new_flight
             # A maintenance action may move the health: widen P to the fleet spread.
             scale[e, :n] = new_flight.astype(float) + maint * (FLEET_STD / WALK_STD) ** 2
             last[e] = float(epochs[-1])
@@ -210,6 +224,14 @@ def run_filters(
         z_var = ((Gz_Vp @ P_all) * Gz_Vp).sum(axis=-1)
         values_all[..., s["z_sigma"]] = np.sqrt(np.maximum(z_var, 0.0))
         values_all[..., s["residual"]] = result.innovation
+        # The wear detector's matched filter on every record of the chunk at once.
+        if g.constant:
+            signatures = _fault_signatures(est, G_y[0, 0], G_u[0, 0])
+        else:
+            signatures = _fault_signatures(est, G_y, G_u)
+        z_all = matched_rows(dy.reshape(E * S, ny), (noise**2).reshape(E * S, ny),
+                             signatures if g.constant else signatures.reshape(E * S, ny, -1)
+                             ).reshape(E, S, -1)
         for e, r in enumerate(runs):
             n = int(counts[e])
             if n == 0:
@@ -218,10 +240,12 @@ def run_filters(
             P = P_all[e, :n]
             values = values_all[e, :n]
             out = outputs[e]
-            dets[e] = _wssr_filled(
-                est, dets[e], r, c0, q, P, resets[e, :n], values, out,
-                ChunkRecords(dy[e, :n], G_y[e, :n], G_u[e, :n], noise[e, :n] ** 2),
-            )
+            records = ChunkRecords(dy[e, :n], G_y[e, :n], G_u[e, :n], noise[e, :n] ** 2)
+            first_checkpoint = len(out.checkpoints)
+            dets[e] = _wssr_filled(est, dets[e], r, c0, q, P, resets[e, :n], values, out,
+                                   records)
+            wears[e] = _wear_watched(wear_det, wears[e], r, c0, q, flights[e, :n],
+                                     resets[e, :n], z_all[e, :n], out, first_checkpoint, est)
             packed = values.astype(VALUE_DTYPE)
             out.n_records += n
             if sink is None:
@@ -230,8 +254,62 @@ def run_filters(
                 sink((r.engine_id, r.seq0 + c0, r.epoch[c0 : c0 + n], r.phase[c0 : c0 + n],
                       packed))
             filt[e] = SnapshotState(q[-1:], P[-1:])
-            out.state = PipelineState(filt[e], dets[e], last[e])
+            out.state = PipelineState(filt[e], dets[e], last[e], wears[e])
     return outputs
+
+
+@functools.lru_cache(maxsize=16)
+def _wear_detector(H: bytes, W: bytes, cand: bytes, m: int, n: int) -> WearDetector:
+    return WearDetector(np.frombuffer(H).reshape(m, n), np.frombuffer(W).reshape(m, m),
+                        np.frombuffer(cand, dtype=bool))
+
+
+def wear_detector(est: SnapshotEstimator) -> WearDetector:
+    """The design's wear detector (``estimation.wear``): the library faults' tuner directions
+    H, the attribution weight W = V*^+T V*^+ (a tuner change weighed as its health change)
+    and the module deteriorations as candidates (no actuator biases)."""
+    H = np.ascontiguousarray(est.H, dtype=float)
+    W = np.ascontiguousarray(health_weight(est.Vp))
+    cand = np.ascontiguousarray(health_candidates(est.S_full, len(est.layout.health)))
+    return _wear_detector(H.tobytes(), W.tobytes(), cand.tobytes(), *H.shape)
+
+
+def _fault_signatures(est: SnapshotEstimator, G_y: np.ndarray, G_u: np.ndarray) -> np.ndarray:
+    """``est.fault_signatures`` [..., ny, n_faults] summed term by term, so a record's
+    signature does not depend on the other records of its call (a batched matrix product's
+    may)."""
+    p = G_y.shape[-1]
+    out = np.zeros((*G_y.shape[:-1], est.S_full.shape[1]))
+    for j in range(p):
+        out += G_y[..., j, None] * est.S_full[j]
+    for k, b in enumerate(est.bias_inputs):
+        out += G_u[..., b, None] * est.S_full[p + k]
+    return out
+
+
+def _wear_watched(
+    det: WearDetector, state: WearState, r: EngineRun, c0: int, q: np.ndarray,
+    new_flight: np.ndarray, resets: np.ndarray, z: np.ndarray, out: EngineOutput,
+    first_checkpoint: int, est: SnapshotEstimator,
+) -> WearState:
+    """Continue the engine's wear detector over its records of the chunk (tuner estimates q,
+    and the directional bank on the matched-filter projections z of the sensor deviations):
+    its alerts become events, and its state goes into the checkpoints the shift detector
+    wrote from ``first_checkpoint`` on. Cycles are counted in flights (``NEW_FLIGHT_S``)."""
+    base = r.seq0 + c0
+    marks = out.checkpoints[first_checkpoint:]
+    keep = [cp.seq - base - 1 for cp in marks]
+    run = wear_steps(det, state, q, new_flight, resets, z, keep)
+    kept = dict(run.states)
+    for i, cp in enumerate(marks, start=first_checkpoint):
+        out.checkpoints[i] = cp._replace(
+            state=dataclasses.replace(cp.state, wear=kept[cp.seq - base - 1]))
+    epoch = r.epoch[c0 : c0 + len(q)]
+    for alert in run.alerts:
+        out.events.append(detector.wear_event(
+            est, alert, base + alert.index, float(epoch[alert.index]),
+            base + alert.baseline_start))
+    return run.state
 
 
 def _record_bytes(est: SnapshotEstimator) -> int:

@@ -49,9 +49,10 @@ from estimation.snapshot import SnapshotState
 
 def state_document(state: PipelineState) -> dict[str, Any]:
     """An engine's pipeline state as stored (``FilterState.state``, ``FilterCheckpoint.state``):
-    the filter, the detector (``detector.document``) and the last record's time."""
+    the filter, the shift detector (``detector.document``), the last record's time and the
+    wear detector (``detector.wear_document``)."""
     return {"filter": state.filter.to_dict(), "detector": detector.document(state.detector),
-            "last_epoch": state.last_epoch}
+            "last_epoch": state.last_epoch, "wear": detector.wear_document(state.wear)}
 
 
 def state_from_document(d: Mapping[str, Any]) -> PipelineState:
@@ -59,7 +60,8 @@ def state_from_document(d: Mapping[str, Any]) -> PipelineState:
     last = d.get("last_epoch")
     return PipelineState(SnapshotState.from_dict(d["filter"]),
                          detector.from_document(d["detector"]),
-                         None if last is None else float(last))
+                         None if last is None else float(last),
+                         detector.wear_from_document(d.get("wear")))
 
 
 def _restart_point(
@@ -110,16 +112,21 @@ def _delete_from(
     )
 
 
+def _family(kind: str) -> str:
+    """The detector an event kind comes from: ``wear`` or the shift detector's."""
+    return "wear" if kind == "wear" else "shift"
+
+
 def _events_to_redo(
     events: Sequence[Event], seq0: int, state: PipelineState
-) -> dict[float, Event]:
+) -> dict[tuple[float, str], Event]:
     """Of one engine's ``events``, those a run from ``seq0`` (state ``state``) recomputes, by
-    detection time (an alarm's record keeps its time when a late record shifts the sequence
-    numbers)."""
+    detection time and detector (an alarm's record keeps its time when a late record shifts
+    the sequence numbers; a wear alert and a shift may fall on one record)."""
     pending = state.detector.pending
     pending_seq = None if pending is None else pending.seq
-    return {e.detected_at.timestamp(): e for e in events
-            if e.seq >= seq0 or e.seq == pending_seq}
+    return {(e.detected_at.timestamp(), _family(e.kind)): e for e in events
+            if e.seq >= seq0 or (e.seq == pending_seq and _family(e.kind) == "shift")}
 
 
 def _by_engine(session: Session, query: Any) -> dict[int, list[Any]]:
@@ -339,7 +346,7 @@ def _store(
             "fault": draft.fault, "magnitude": draft.magnitude, "statistic": draft.statistic,
             "wssr": draft.wssr, "shift": draft.shift,
         }
-        existing = redo.pop(draft.epoch, None)
+        existing = redo.pop((draft.epoch, _family(draft.kind)), None)
         if existing is not None:
             # Detected again: keep what people did with it (status, comments).
             for key, value in detection.items():
@@ -348,8 +355,8 @@ def _store(
         else:
             fresh.append((draft.seq, detection))
     pending = out.state.detector.pending
-    for epoch, stale in redo.items():
-        if pending is not None and pending.epoch == epoch:
+    for (epoch, family), stale in redo.items():
+        if pending is not None and pending.epoch == epoch and family == "shift":
             continue  # still awaiting its isolation: the next run redoes it
         session.delete(stale)
     if run.redo:

@@ -129,3 +129,51 @@ def test_the_command_line_runs_the_import_with_a_progress_bar(
         select(func.count()).select_from(Snapshot).where(Snapshot.operator_id == operator_id)
     )
     assert stored == n
+
+
+@pytest.mark.skipif(not FD001.exists(), reason=f"no C-MAPSS file at {FD001}")
+def test_import_leaves_a_ready_active_design_at_fd001s_condition(
+    analyst_client: tuple[TestClient, int], session: Session
+) -> None:
+    """The engine type gets the built-in engine linearised at sea level static, TRA 100, and
+    an active, ready SVD design on the C-MAPSS sensors; importing again keeps that design, and
+    ``design=False`` (``--no-design``) makes none."""
+    from app.cli.importers import (
+        CMAPSS_SENSORS,
+        ENGINE_TYPE,
+        FD001_CONDITION,
+        FD001_TUNERS,
+        ensure_engine_type,
+    )
+    from app.models import EngineModel, EstimatorDesign
+    from app.services.designs.engine_models import checksum
+
+    client, operator_id = analyst_client
+    first = import_cmapss(FD001, client, units=1)
+    assert first.design_created and first.design_id is not None
+    design = session.get(EstimatorDesign, first.design_id)
+    assert design is not None and design.operator_id == operator_id
+    assert design.status == "ready" and design.active
+    assert design.spec["tuners"] == FD001_TUNERS and design.spec["sensors"] == list(CMAPSS_SENSORS)
+    model = session.get(EngineModel, design.engine_model_id)
+    assert model is not None and model.source == "builtin"
+    # The model's operating point: its trims are the built-in engine's at FD001's condition.
+    from estimation.engine.linearize import linearize
+
+    reference = linearize(FD001_CONDITION["alt_ft"], FD001_CONDITION["mach"],
+                          FD001_CONDITION["power_pct"], FD001_CONDITION["dtamb_k"])
+    assert model.checksum == checksum(reference.to_dict())
+    active = client.get(f"/api/v1/engine-types/{design.engine_type_id}/active-design").json()
+    assert active["id"] == design.id
+
+    again = import_cmapss(FD001, client, units=1)
+    assert again.design_id == design.id and not again.design_created
+    assert session.scalar(select(func.count()).select_from(EstimatorDesign).where(
+        EstimatorDesign.operator_id == operator_id)) == 1
+
+    # Without an active design and not asked for one: none is made.
+    assert client.post(f"/api/v1/designs/{design.id}/deactivate").status_code == 200
+    none = import_cmapss(FD001, client, units=1, design=False)
+    assert none.design_id is None
+    type_id = ensure_engine_type(client, ENGINE_TYPE)
+    assert client.get(f"/api/v1/engine-types/{type_id}/active-design").json() is None
