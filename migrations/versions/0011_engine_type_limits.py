@@ -32,5 +32,7 @@ def upgrade() -> None:
 
 
 def downgrade() -> None:
-    with op.batch_alter_table('engine_types', schema=None) as batch_op:
-        batch_op.drop_column('limits')
+    # A plain DROP COLUMN (SQLite has it since 3.35): batch mode would copy engine_types into a
+    # new table and drop the old one, which the foreign keys of its models and engines refuse
+    # once there is data.
+    op.drop_column('engine_types', 'limits')
