@@ -28,3 +28,16 @@ def test_estimation_imports_no_service_or_dataframe_library() -> None:
         [sys.executable, "-c", script], capture_output=True, text=True, cwd=root.parent, check=True
     )
     assert result.stdout.strip() == "", f"estimation pulled in: {result.stdout.strip()}"
+
+
+def test_the_signal_catalogue_needs_no_database_library() -> None:
+    """Parsing, estimation and schemas read the catalogue of signals without SQLAlchemy."""
+    script = (
+        "import sys, app.signals\n"
+        "print(','.join(sorted(m for m in sys.modules if m.split('.')[0] == 'sqlalchemy')))\n"
+    )
+    root = Path(estimation.__file__).parent.parent
+    result = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, cwd=root, check=True
+    )
+    assert result.stdout.strip() == "", f"app.signals pulled in: {result.stdout.strip()[:200]}"

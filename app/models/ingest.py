@@ -12,7 +12,6 @@ fleet service answers 409). Stream samples stay in Parquet files under
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
@@ -33,72 +32,26 @@ from sqlalchemy.dialects.postgresql import JSONB
 from sqlalchemy.orm import Mapped, mapped_column
 
 from app.models.base import Base, UTCDateTime, utcnow
+from app.signals import (  # noqa: F401  (the catalogue, as the tables use it)
+    ACTUATORS,
+    CONDITION_COLUMNS,
+    MAX_CHUNK_INDEX,
+    MEASURED,
+    OPERATING_CONDITION,
+    PHASES,
+    SENSORS,
+    SIGNALS,
+    STREAM_DT_MAX_S,
+    STREAM_DT_MIN_S,
+    SignalSpec,
+)
 
 JSONDocument = JSON().with_variant(JSONB(), "postgresql")
 BigId = BigInteger().with_variant(Integer(), "sqlite")  # SQLite autoincrements INTEGER only
 
-PHASES = ("takeoff", "climb", "cruise")
 UPLOAD_KINDS = ("snapshots", "stream", "stream_chunk")
 UPLOAD_STATUSES = ("stored", "rejected")
 RECORDING_STATUSES = ("open", "closed")
-# A stream's sample interval: at most 1 kHz (finer is noise, not engine data, and would
-# make a short file millions of samples long), at least one sample a minute.
-STREAM_DT_MIN_S = 1e-3
-STREAM_DT_MAX_S = 60.0
-# Chunks of a live recording: chunk-NNNNNN.parquet files, indexed from 0.
-MAX_CHUNK_INDEX = 999_999
-
-
-@dataclass(frozen=True)
-class SignalSpec:
-    """A stored signal: upload name, table column, quantity and the unit it is stored in.
-
-    ``percent_reference`` is 100 % in the stored unit (design spool speeds), for ``%`` uploads.
-    """
-
-    name: str
-    quantity: str
-    unit: str
-    low: float | None = None
-    high: float | None = None
-    percent_reference: float | None = None
-
-    @property
-    def column(self) -> str:
-        return self.name.lower()
-
-
-# Operating condition: every snapshot and stream sample carries all four.
-OPERATING_CONDITION = (
-    SignalSpec("alt_ft", "length", "ft", -2000.0, 60000.0),
-    SignalSpec("mach", "dimensionless", "1", 0.0, 1.0),
-    SignalSpec("dtamb_k", "temperature_difference", "K", -100.0, 100.0),
-    SignalSpec("power_pct", "percent", "%", 0.0, 110.0),
-)
-# Actuators and sensors in the built-in engine's units (C-MAPSS units, estimation/engine
-# turbofan.outputs_from_stations); 100 % spool speed is the design point (engine/design.py).
-ACTUATORS = (
-    SignalSpec("Wf", "mass_flow", "pps", 0.0),
-    SignalSpec("VSV", "percent", "%", 0.0, 100.0),
-    SignalSpec("VBV", "percent", "%", 0.0, 100.0),
-)
-SENSORS = (
-    SignalSpec("Nf", "rotational_speed", "rpm", 0.0, percent_reference=2388.06),
-    SignalSpec("Nc", "rotational_speed", "rpm", 0.0, percent_reference=9055.99),
-    SignalSpec("T24", "temperature", "degR", 0.0),
-    SignalSpec("P24", "pressure", "psia", 0.0),
-    SignalSpec("T30", "temperature", "degR", 0.0),
-    SignalSpec("Ps30", "pressure", "psia", 0.0),
-    SignalSpec("P30", "pressure", "psia", 0.0),
-    SignalSpec("T48", "temperature", "degR", 0.0),
-    SignalSpec("P50", "pressure", "psia", 0.0),
-    SignalSpec("T50", "temperature", "degR", 0.0),
-    SignalSpec("P15", "pressure", "psia", 0.0),
-)
-# alt_ft, mach, dtamb_k, power_pct: the operating condition as stored
-CONDITION_COLUMNS = tuple(s.column for s in OPERATING_CONDITION)
-MEASURED = ACTUATORS + SENSORS  # nullable: NULL is a missing value
-SIGNALS = OPERATING_CONDITION + MEASURED
 
 
 def _in(column: str, values: tuple[str, ...]) -> str:

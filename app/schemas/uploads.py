@@ -6,15 +6,8 @@ from typing import Any
 
 from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator
 
-from app.models.ingest import (
-    ACTUATORS,
-    PHASES,
-    SENSORS,
-    SIGNALS,
-    STREAM_DT_MAX_S,
-    STREAM_DT_MIN_S,
-)
-from app.models.ingest import MAX_CHUNK_INDEX as MAX_CHUNK_INDEX  # for the streams router
+from app.signals import ACTUATORS, PHASES, SENSORS, SIGNALS, STREAM_DT_MAX_S, STREAM_DT_MIN_S
+from app.signals import MAX_CHUNK_INDEX as MAX_CHUNK_INDEX  # for the streams router
 
 
 class RowErrorOut(BaseModel):

@@ -28,8 +28,8 @@ from sqlalchemy.orm import Session
 
 from app.models import Snapshot
 from app.models.estimates import VALUE_DTYPE, Estimate
-from app.models.ingest import CONDITION_COLUMNS, PHASES
 from app.services.encoding.pgcopy import HEADER, PG_EPOCH_US, TRAILER, fixed_copy_rows
+from app.signals import CONDITION_COLUMNS, PHASES
 
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 _MICROSECOND = timedelta(microseconds=1)

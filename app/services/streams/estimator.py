@@ -17,9 +17,9 @@ from sqlalchemy.orm import Session
 
 from app.models import EngineModel, EstimatorDesign
 from app.models.estimates import EstimateLayout
-from app.models.ingest import ACTUATORS, SENSORS, SignalSpec
 from app.services import units
 from app.services.snapshots import estimator
+from app.signals import ACTUATORS, SENSORS, SignalSpec
 from estimation.engine.schedule import EngineSchedule
 from estimation.model import LinearModel
 from estimation.snapshot_design import DesignResult

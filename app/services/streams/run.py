@@ -10,8 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 import pyarrow as pa
 
-from app.models.ingest import CONDITION_COLUMNS
 from app.services.streams.estimator import TOLERANCE, StreamEstimator
+from app.signals import CONDITION_COLUMNS
 from estimation.stream_filter import filter_run
 
 

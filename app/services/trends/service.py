@@ -49,12 +49,12 @@ from app.models.estimates import (
     Event,
     FilterState,
 )
-from app.models.ingest import PHASES
 from app.services.encoding import json_numbers
 from app.services.encoding.json_numbers import RawJSON
 from app.services.encoding.pgcopy import PG_EPOCH_US
 from app.services.trends import health as health_view
 from app.services.trends.performance import performance_group
+from app.signals import PHASES
 
 # Trend groups as the dashboard draws them: (key, value block, sigma block, names group, label).
 GROUPS = (

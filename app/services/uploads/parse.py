@@ -27,7 +27,8 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
 from app.errors import InvalidInput
-from app.models.ingest import (
+from app.services.units import UnknownUnitError, affine
+from app.signals import (
     OPERATING_CONDITION,
     PHASES,
     SIGNALS,
@@ -35,7 +36,6 @@ from app.models.ingest import (
     STREAM_DT_MIN_S,
     SignalSpec,
 )
-from app.services.units import UnknownUnitError, affine
 
 MAX_ERRORS = 100
 FORMATS = ("csv", "json", "parquet")

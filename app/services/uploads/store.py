@@ -35,7 +35,7 @@ from sqlalchemy.orm import Session
 from app.db import record_after_rollback
 from app.errors import Conflict, NotFound, ServiceError
 from app.models import Aircraft, Engine, Snapshot, Upload
-from app.models.ingest import SIGNALS, SNAPSHOT_COLUMNS
+from app.models.ingest import SNAPSHOT_COLUMNS
 from app.services import common, fresh_records
 from app.services.encoding.pgcopy import HEADER, TRAILER, binary_copy_rows
 from app.services.fleet import service as fleet
@@ -49,6 +49,7 @@ from app.services.uploads.parse import (
     UploadRejected,
     parse_body,
 )
+from app.signals import SIGNALS
 
 COPY_BATCH_ROWS = 20_000
 # Unique violations surface from SQLAlchemy, or from the drivers under COPY / executemany.

@@ -9,7 +9,7 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy.orm import Session
 
-from app.models.ingest import MAX_CHUNK_INDEX, STREAM_DT_MAX_S, STREAM_DT_MIN_S
+from app.signals import MAX_CHUNK_INDEX, STREAM_DT_MAX_S, STREAM_DT_MIN_S
 from tests.app.services.streams.test_recordings import CSV, csv, flight, n_recordings
 from tests.support.fleet_fixture import T0, Fleet, make_fleet
 

@@ -322,7 +322,7 @@ def test_stream_time_axis_must_be_fixed_rate() -> None:
 
 
 def test_stored_signals_are_the_built_in_engines_sensors_in_its_units() -> None:
-    from app.models.ingest import ACTUATORS, SENSORS
+    from app.signals import ACTUATORS, SENSORS
     from estimation.engine.sensors import SENSOR_NAMES, SENSOR_UNITS
 
     stored = {s.name: s.unit for s in SENSORS + ACTUATORS}

@@ -9,8 +9,8 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy.orm import Session
 
-from app.models.ingest import SIGNALS
 from app.services.uploads.parse import QUANTITY_BOUNDS, parse_json, signal_bounds
+from app.signals import SIGNALS
 from tests.app.services.uploads.test_parse import records, rejected
 from tests.support.fleet_fixture import Fleet, counts, make_fleet
 
