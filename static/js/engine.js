@@ -1,7 +1,7 @@
 // Engine trend: tuners, health parameters and thrust/margins with 1-sigma bands, residuals and
 // WSSR, against date or cycles, with installation, maintenance and event markers.
 import { api, apiText, download } from "./api.js";
-import { $, fmtTime, h, params, showError, startPage } from "./ui.js";
+import { $, fmtTime, h, params, showError, startPage, tailLink } from "./ui.js";
 import { axisTitle, layout, lineWithBand, markerAnnotations, markerShapes, plot, syncZoom, unitOf } from "./plots.js";
 
 const ORDER = ["health", "aux", "tuners", "residuals", "wssr"];
@@ -154,7 +154,7 @@ function info() {
   hist.hidden = false;
   hist.replaceChildren(h("h2", {}, "History"), h("div", { class: "grid" },
     h("div", {}, h("h3", {}, "Installations"), h("ul", {}, t.installations.map((i) =>
-      h("li", {}, `${i.tail} position ${i.position}: ${fmtTime(i.installed_at)} – ${i.removed_at ? fmtTime(i.removed_at) : "now"}`)))),
+      h("li", {}, tailLink(i.tail), ` position ${i.position}: ${fmtTime(i.installed_at)} – ${i.removed_at ? fmtTime(i.removed_at) : "now"}`)))),
     h("div", {}, h("h3", {}, "Maintenance actions"), t.maintenance.length ? h("ul", {}, t.maintenance.map((m) =>
       h("li", {}, `${fmtTime(m.performed_at)}: ${m.kind.replace("_", " ")}${m.notes ? ` (${m.notes})` : ""}`))) : h("p", { class: "muted" }, "none")),
     h("div", {}, h("h3", {}, "Events"), t.events.length ? h("ul", {}, t.events.map((e) =>

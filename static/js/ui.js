@@ -3,6 +3,7 @@ import { ApiError, apiKey, me, signOut } from "./api.js";
 
 const PAGES = [
   ["fleet", "/", "Fleet status"],
+  ["aircraft", "/aircraft.html", "Aircraft"],
   ["engine", "/engine.html", "Engine trend"],
   ["events", "/events.html", "Events"],
   ["designs", "/designs.html", "Estimator designs"],
@@ -39,6 +40,11 @@ export async function startPage(active) {
     h("button", { class: "link", type: "button", onclick: () => signOut() }, "Sign out"));
   document.body.prepend(nav);
   return principal;
+}
+
+// A tail number as a link to its aircraft page.
+export function tailLink(tail, text) {
+  return h("a", { href: `/aircraft.html?tail=${encodeURIComponent(tail)}`, class: "tail" }, text ?? tail);
 }
 
 export function params() { return new URLSearchParams(location.search); }
