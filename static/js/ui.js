@@ -1,5 +1,5 @@
 // Page shell (sign-in check, nav bar), small DOM helpers, formatting and error display.
-import { ApiError, apiKey, me, signOut } from "./api.js";
+import { ApiError, KEY, apiKey, me, signOut, toSignIn } from "./api.js";
 
 const PAGES = [
   ["fleet", "/", "Fleet status"],
@@ -31,6 +31,7 @@ export const $ = (sel, root = document) => root.querySelector(sel);
 // Every page: without a key go to sign-in; else draw the nav bar and return the principal.
 export async function startPage(active) {
   if (!apiKey()) { signOut(); return new Promise(() => {}); }
+  followSignInElsewhere();
   const principal = await me();
   const nav = h("nav", { class: "topnav", "aria-label": "main" },
     h("a", { class: "brand", href: "/" }, "fleethealth"),
@@ -45,6 +46,16 @@ export async function startPage(active) {
 // A tail number as a link to its aircraft page.
 export function tailLink(tail, text) {
   return h("a", { href: `/aircraft.html?tail=${encodeURIComponent(tail)}`, class: "tail" }, text ?? tail);
+}
+
+// Another tab signed out (the key is gone): this one leaves too. Another tab signed in with
+// another key (another operator or role): this page reloads with it.
+function followSignInElsewhere() {
+  window.addEventListener("storage", (e) => {
+    if (e.key !== KEY && e.key !== null) return;
+    if (!apiKey()) toSignIn("You signed out in another tab.");
+    else if (e.key === KEY && e.newValue !== e.oldValue) location.reload();
+  });
 }
 
 export function params() { return new URLSearchParams(location.search); }
