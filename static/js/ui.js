@@ -103,9 +103,11 @@ export function fmtNum(x, digits = 2) {
 
 export function badge(text, kind) { return h("span", { class: `badge ${kind || text}` }, text.replace("_", " ")); }
 
-export function progressBar(fraction, label) {
+// ``name``: what is progressing ("job 12 evaluate_design"), the bar's accessible name.
+export function progressBar(fraction, label, name) {
   const pct = Math.round(100 * Math.max(0, Math.min(1, fraction || 0)));
-  return h("div", { class: "progress", role: "progressbar", "aria-valuemin": 0, "aria-valuemax": 100, "aria-valuenow": pct },
+  return h("div", { class: "progress", role: "progressbar", "aria-valuemin": 0, "aria-valuemax": 100, "aria-valuenow": pct,
+    "aria-label": name || label || "progress", "aria-valuetext": label ? `${pct} %, ${label}` : `${pct} %` },
     h("div", { class: "bar", style: `width:${pct}%` }),
     h("span", {}, label ? `${pct} % · ${label}` : `${pct} %`));
 }
