@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
+from fastapi.responses import HTMLResponse, JSONResponse
 from sqlalchemy.exc import DataError, DBAPIError, OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
@@ -101,7 +102,14 @@ def error_body(
     return {"error": {"code": code, "message": message, "details": details or []}}
 
 
-def install_error_handlers(app: FastAPI) -> None:
+def is_api_path(path: str) -> bool:
+    """Paths whose clients read JSON: the API and the service's health check."""
+    return path.startswith("/api/") or path in ("/api", "/health")
+
+
+def install_error_handlers(app: FastAPI, not_found_page: Path | None = None) -> None:
+    """``not_found_page``: the HTML answered, with 404, for an unknown page outside the API."""
+
     @app.exception_handler(ServiceError)
     async def _service_error(_request: Request, exc: ServiceError) -> JSONResponse:
         return JSONResponse(
@@ -125,7 +133,12 @@ def install_error_handlers(app: FastAPI) -> None:
         )
 
     @app.exception_handler(StarletteHTTPException)
-    async def _http_error(_request: Request, exc: StarletteHTTPException) -> JSONResponse:
+    async def _http_error(
+        request: Request, exc: StarletteHTTPException
+    ) -> JSONResponse | HTMLResponse:
+        if (exc.status_code == 404 and not_found_page is not None
+                and not is_api_path(request.scope["path"])):
+            return HTMLResponse(not_found_page.read_text(encoding="utf-8"), status_code=404)
         code = {404: "not_found", 405: "method_not_allowed", 401: "unauthorized"}.get(
             exc.status_code, "http_error"
         )

@@ -7,6 +7,7 @@ from contextlib import asynccontextmanager
 from pathlib import Path
 
 from fastapi import FastAPI
+from fastapi.middleware.gzip import GZipMiddleware
 from fastapi.staticfiles import StaticFiles
 from sqlalchemy import Engine
 from starlette.routing import Match, Mount
@@ -113,9 +114,13 @@ def create_app(
     fresh_records.configure(enabled=settings.job_runner != "celery")
     app.state.job_dispatcher = dispatcher
 
-    install_error_handlers(app)
+    # Not "404.html": StaticFiles(html=True) would send that for unknown API paths too.
+    install_error_handlers(app, not_found_page=STATIC_DIR / "not-found.html")
     install_request_logging(app)
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
+    # Pages, scripts and JSON trends compressed for browsers that accept gzip (plotly.js comes
+    # compressed already, so the middleware leaves it as it is).
+    app.add_middleware(GZipMiddleware, minimum_size=1024, compresslevel=6)
 
     app.include_router(health.router)
     app.include_router(me.router)

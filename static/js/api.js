@@ -1,17 +1,24 @@
 // The REST API as the dashboard calls it: every request sends the API key kept for this
-// browser session; a 401 sends the user back to sign-in; error bodies become ApiError.
+// browser (every tab and window of it, until signed out); a 401 sends the user back to sign-in;
+// error bodies become ApiError.
 
-const KEY = "fleethealth.apiKey";
+export const KEY = "fleethealth.apiKey";
 const ME = "fleethealth.me";
 
-export function apiKey() { return sessionStorage.getItem(KEY); }
+export function apiKey() { return localStorage.getItem(KEY); }
 
-export function signOut(reason) {
-  sessionStorage.removeItem(KEY);
-  sessionStorage.removeItem(ME);
+// Back to sign-in (with ``reason`` shown there), coming back to this page afterwards.
+export function toSignIn(reason) {
   const next = encodeURIComponent(location.pathname + location.search);
   const why = reason ? `&reason=${encodeURIComponent(reason)}` : "";
   location.assign(`/signin.html?next=${next}${why}`);
+}
+
+// Forget the key in this browser: every other open tab sees the storage event and follows.
+export function signOut(reason) {
+  localStorage.removeItem(KEY);
+  localStorage.removeItem(ME);
+  toSignIn(reason);
 }
 
 export class ApiError extends Error {
@@ -79,15 +86,15 @@ export async function checkKey(key) {
 }
 
 export function rememberKey(key, me) {
-  sessionStorage.setItem(KEY, key);
-  sessionStorage.setItem(ME, JSON.stringify(me));
+  localStorage.setItem(ME, JSON.stringify(me));
+  localStorage.setItem(KEY, key);
 }
 
 export async function me() {
-  const cached = sessionStorage.getItem(ME);
+  const cached = localStorage.getItem(ME);
   if (cached) return JSON.parse(cached);
   const principal = await api("/api/v1/me");
-  sessionStorage.setItem(ME, JSON.stringify(principal));
+  localStorage.setItem(ME, JSON.stringify(principal));
   return principal;
 }
 

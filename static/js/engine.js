@@ -1,7 +1,7 @@
 // Engine trend: tuners, health parameters and thrust/margins with 1-sigma bands, residuals and
 // WSSR, against date or cycles, with installation, maintenance and event markers.
 import { api, apiText, download } from "./api.js";
-import { $, fmtTime, h, params, showError, startPage } from "./ui.js";
+import { $, fmtTime, h, params, showError, startPage, tailLink } from "./ui.js";
 import { MARKER_COLOURS, axisTitle, layout, limitShapes, lineWithBand, markerAnnotations, markerShapes, plot, syncZoom, unitOf } from "./plots.js";
 
 const ORDER = ["health", "aux", "tuners", "residuals", "wssr"];
@@ -178,7 +178,7 @@ function info() {
   hist.hidden = false;
   hist.replaceChildren(h("h2", {}, "History"), h("div", { class: "grid" },
     h("div", {}, h("h3", {}, "Installations"), h("ul", {}, t.installations.map((i) =>
-      h("li", {}, `${i.tail} position ${i.position}: ${fmtTime(i.installed_at)} – ${i.removed_at ? fmtTime(i.removed_at) : "now"}`)))),
+      h("li", {}, tailLink(i.tail), ` position ${i.position}: ${fmtTime(i.installed_at)} – ${i.removed_at ? fmtTime(i.removed_at) : "now"}`)))),
     h("div", {}, h("h3", {}, "Maintenance actions"), t.maintenance.length ? h("ul", {}, t.maintenance.map((m) =>
       h("li", {}, `${fmtTime(m.performed_at)}: ${m.kind.replace("_", " ")}${m.notes ? ` (${m.notes})` : ""}`))) : h("p", { class: "muted" }, "none")),
     h("div", {}, h("h3", {}, "Events"), t.events.length ? h("ul", {}, t.events.map((e) =>
@@ -228,6 +228,40 @@ async function exportCsv(engineId) {
   }
 }
 
+// The view in the URL (engine, design, health view, axis, date range, points), so a link or a
+// reload shows the same thing: read once at start, written on every change.
+const VIEW = ["design", "health", "axis", "start", "end", "max_points"];
+
+function restoreView() {
+  const p = params();
+  for (const name of VIEW) {
+    const value = p.get(name);
+    const input = $(`#${name}`);
+    if (value === null) continue;
+    if (input.tagName === "SELECT" && ![...input.options].some((o) => o.value === value)) continue;
+    input.value = value;
+  }
+}
+
+function saveView() {
+  const u = new URL(location.href);
+  for (const name of VIEW) {
+    const input = $(`#${name}`);
+    const initial = input.tagName === "SELECT" ? ([...input.options].find((o) => o.defaultSelected) || input.options[0])?.value : "";
+    if (input.value && input.value !== initial) u.searchParams.set(name, input.value);
+    else u.searchParams.delete(name);
+  }
+  history.replaceState(null, "", u);
+}
+
+// Another engine, in the same view (the design belongs to an engine type: not carried over).
+function engineUrl(id) {
+  const u = new URL(location.href);
+  u.searchParams.set("id", id);
+  u.searchParams.delete("design");
+  return u.pathname + u.search;
+}
+
 async function main() {
   await startPage("engine");
   const id = params().get("id");
@@ -242,7 +276,7 @@ async function main() {
   select.replaceChildren(h("option", { value: "" }, "choose an engine…"), ...status.engines.map((e) =>
     h("option", { value: e.engine_id, selected: String(e.engine_id) === id }, `${e.esn}${e.tail ? ` (${e.tail} #${e.position})` : ""}`)));
   $("#controls").hidden = false;
-  select.addEventListener("change", () => { if (select.value) location.assign(`/engine.html?id=${select.value}`); });
+  select.addEventListener("change", () => { if (select.value) location.assign(engineUrl(select.value)); });
   if (!id) {
     $("#message").append(h("p", { class: "notice" }, "Choose an engine to see its trend."));
     document.body.dataset.ready = "true";
@@ -258,8 +292,9 @@ async function main() {
     document.body.dataset.ready = "true";
     return;
   }
-  $("#form").addEventListener("submit", (e) => { e.preventDefault(); load(id); });
-  $("#axis").addEventListener("change", () => { if (trend?.n_records) draw(); });
+  restoreView();
+  $("#form").addEventListener("submit", (e) => { e.preventDefault(); saveView(); load(id); });
+  $("#axis").addEventListener("change", () => { saveView(); if (trend?.n_records) draw(); });
   $("#export").addEventListener("click", () => exportCsv(id));
   await load(id);
   document.body.dataset.ready = "true";

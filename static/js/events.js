@@ -3,7 +3,7 @@
 // (posterior over the hypotheses, ambiguity group, the design's confusion row); acknowledge,
 // comment, close. Without ?id= the list of events.
 import { api } from "./api.js";
-import { $, badge, fmtNum, fmtTime, h, params, showError, sortableTable, startPage } from "./ui.js";
+import { $, badge, fmtNum, fmtTime, h, params, showError, sortableTable, startPage, tailLink } from "./ui.js";
 import { MARKER_COLOURS, PALETTE, axisTitle, layout, lineWithBand, markerShapes, plot, unitOf } from "./plots.js";
 
 const WINDOW_DAYS = 20;
@@ -27,7 +27,7 @@ async function showList() {
     { key: "id", label: "Event", numeric: true, cell: (e) => h("a", { href: `/events.html?id=${e.id}` }, `#${e.id}`) },
     { key: "detected_at", label: "Detected", cell: (e) => fmtTime(e.detected_at) },
     { key: "esn", label: "ESN", cell: (e) => h("a", { href: `/engine.html?id=${e.engine_id}` }, e.esn) },
-    { key: "tail", label: "Tail", cell: (e) => (e.tail ? `${e.tail} #${e.position}` : "–") },
+    { key: "tail", label: "Tail", cell: (e) => (e.tail ? h("span", {}, tailLink(e.tail), ` #${e.position}`) : "–") },
     { key: "kind", label: "Kind", cell: (e) => e.kind.replace("_", " ") },
     { key: "fault", label: "Isolated fault", cell: (e) => e.fault || h("span", { class: "muted" }, "not isolated") },
     { key: "magnitude", label: "Magnitude", numeric: true, cell: (e) => fmtNum(e.magnitude) },
@@ -229,7 +229,7 @@ function showEvent(event, principal) {
   const [confidence] = confidenceCard(event);
   $("#content").replaceChildren(
     h("section", { class: "card" }, h("dl", { class: "kv" },
-      h("dt", {}, "Engine"), h("dd", {}, h("a", { href: `/engine.html?id=${event.engine_id}` }, event.esn), event.tail ? ` on ${event.tail} position ${event.position}` : ""),
+      h("dt", {}, "Engine"), h("dd", {}, h("a", { href: `/engine.html?id=${event.engine_id}` }, event.esn), event.tail ? h("span", {}, " on ", tailLink(event.tail), ` position ${event.position}`) : ""),
       h("dt", {}, "Detected"), h("dd", {}, `${fmtTime(event.detected_at)} (record ${event.seq})`),
       h("dt", {}, "Kind"), h("dd", {}, event.kind.replace("_", " ")),
       h("dt", {}, "Isolated fault"), h("dd", { id: "isolated" }, isolated),

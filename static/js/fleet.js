@@ -1,6 +1,6 @@
 // Fleet status: every engine with its state, sortable and filterable; fleet-average deterioration.
 import { api } from "./api.js";
-import { $, badge, fmtNum, fmtTime, h, showError, sortableTable, startPage } from "./ui.js";
+import { $, badge, fmtNum, fmtTime, h, showError, sortableTable, startPage, tailLink } from "./ui.js";
 import { axisTitle, layout, plot, styleFor, unitOf } from "./plots.js";
 
 let engines = [];
@@ -8,7 +8,7 @@ let engines = [];
 function columns() {
   return [
     { key: "esn", label: "ESN", cell: (e) => h("a", { href: `/engine.html?id=${e.engine_id}` }, e.esn) },
-    { key: "tail", label: "Tail", value: (e) => e.tail, cell: (e) => e.tail || h("span", { class: "muted" }, "not installed") },
+    { key: "tail", label: "Tail", value: (e) => e.tail, cell: (e) => (e.tail ? tailLink(e.tail) : null) || h("span", { class: "muted" }, "not installed") },
     { key: "position", label: "Pos.", numeric: true },
     { key: "engine_type", label: "Engine type" },
     { key: "last_data", label: "Last data", cell: (e) => fmtTime(e.last_data) },

@@ -87,7 +87,44 @@ export function plot(div, traces, lay) {
     }));
     return Promise.resolve(div);
   }
+  describe(div, traces, lay);
   return Plotly.react(div, traces, lay, CONFIG);
+}
+
+const textOf = (t) => (typeof t === "string" ? t : t && t.text) || "";
+const num = (v) => (Math.abs(v) >= 1000 || Math.abs(v) < 0.01 ? v.toPrecision(3) : v.toFixed(2));
+let described = 0;
+
+// The text alternative of a plot for screen readers: the plot is a figure named by its title,
+// described by a hidden summary of every trace (points, range of values, last value).
+export function plotSummary(traces, lay) {
+  const x = textOf(lay.xaxis && lay.xaxis.title);
+  const y = textOf(lay.yaxis && lay.yaxis.title);
+  const shown = traces.filter((t) => !(t.meta && t.meta.role === "band"));
+  const parts = shown.map((t) => {
+    if (t.type === "heatmap") return `${t.name || "matrix"}: ${(t.y || []).length} rows by ${(t.x || []).length} columns`;
+    const values = (t.y || []).filter((v) => typeof v === "number" && Number.isFinite(v));
+    if (!values.length) return `${t.name || "series"}: no data`;
+    const last = values[values.length - 1];
+    const kind = t.type === "bar" ? "bars" : "points";
+    return `${t.name || "series"}: ${values.length} ${kind} from ${num(Math.min(...values))} to ${num(Math.max(...values))}, last ${num(last)}`;
+  });
+  const axes = y && x ? `${y} against ${x}. ` : "";
+  return `${axes}${shown.length} series. ${parts.join("; ")}.`;
+}
+
+function describe(div, traces, lay) {
+  if (!div.id) { described += 1; div.id = `plot-${described}`; }
+  const id = `${div.id}-summary`;
+  let summary = document.getElementById(id);
+  if (!summary) {
+    summary = Object.assign(document.createElement("p"), { id, className: "sr-only" });
+    div.after(summary);
+  }
+  summary.textContent = plotSummary(traces, lay);
+  div.setAttribute("role", "figure");
+  div.setAttribute("aria-label", textOf(lay.title) || textOf(lay.yaxis && lay.yaxis.title) || "plot");
+  div.setAttribute("aria-describedby", id);
 }
 
 // A line with its band: value ± 1 sigma where the series has a sigma, else (a decimated

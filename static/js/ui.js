@@ -1,8 +1,9 @@
 // Page shell (sign-in check, nav bar), small DOM helpers, formatting and error display.
-import { ApiError, apiKey, me, signOut } from "./api.js";
+import { ApiError, KEY, apiKey, me, signOut, toSignIn } from "./api.js";
 
 const PAGES = [
   ["fleet", "/", "Fleet status"],
+  ["aircraft", "/aircraft.html", "Aircraft"],
   ["engine", "/engine.html", "Engine trend"],
   ["events", "/events.html", "Events"],
   ["designs", "/designs.html", "Estimator designs"],
@@ -30,6 +31,7 @@ export const $ = (sel, root = document) => root.querySelector(sel);
 // Every page: without a key go to sign-in; else draw the nav bar and return the principal.
 export async function startPage(active) {
   if (!apiKey()) { signOut(); return new Promise(() => {}); }
+  followSignInElsewhere();
   const principal = await me();
   const nav = h("nav", { class: "topnav", "aria-label": "main" },
     h("a", { class: "brand", href: "/" }, "fleethealth"),
@@ -39,6 +41,21 @@ export async function startPage(active) {
     h("button", { class: "link", type: "button", onclick: () => signOut() }, "Sign out"));
   document.body.prepend(nav);
   return principal;
+}
+
+// A tail number as a link to its aircraft page.
+export function tailLink(tail, text) {
+  return h("a", { href: `/aircraft.html?tail=${encodeURIComponent(tail)}`, class: "tail" }, text ?? tail);
+}
+
+// Another tab signed out (the key is gone): this one leaves too. Another tab signed in with
+// another key (another operator or role): this page reloads with it.
+function followSignInElsewhere() {
+  window.addEventListener("storage", (e) => {
+    if (e.key !== KEY && e.key !== null) return;
+    if (!apiKey()) toSignIn("You signed out in another tab.");
+    else if (e.key === KEY && e.newValue !== e.oldValue) location.reload();
+  });
 }
 
 export function params() { return new URLSearchParams(location.search); }
@@ -86,9 +103,11 @@ export function fmtNum(x, digits = 2) {
 
 export function badge(text, kind) { return h("span", { class: `badge ${kind || text}` }, text.replace("_", " ")); }
 
-export function progressBar(fraction, label) {
+// ``name``: what is progressing ("job 12 evaluate_design"), the bar's accessible name.
+export function progressBar(fraction, label, name) {
   const pct = Math.round(100 * Math.max(0, Math.min(1, fraction || 0)));
-  return h("div", { class: "progress", role: "progressbar", "aria-valuemin": 0, "aria-valuemax": 100, "aria-valuenow": pct },
+  return h("div", { class: "progress", role: "progressbar", "aria-valuemin": 0, "aria-valuemax": 100, "aria-valuenow": pct,
+    "aria-label": name || label || "progress", "aria-valuetext": label ? `${pct} %, ${label}` : `${pct} %` },
     h("div", { class: "bar", style: `width:${pct}%` }),
     h("span", {}, label ? `${pct} % · ${label}` : `${pct} %`));
 }

@@ -20,19 +20,19 @@ async function upload(e) {
   const result = $("#upload-result");
   button.disabled = true;
   result.replaceChildren();
-  bar.replaceChildren(progressBar(0, `sending ${file.name} (${fileFormat(file.name)}, ${(file.size / 1024).toFixed(1)} KiB)`));
+  bar.replaceChildren(progressBar(0, `sending ${file.name} (${fileFormat(file.name)}, ${(file.size / 1024).toFixed(1)} KiB)`, `upload of ${file.name}`));
   try {
     const out = await uploadFile("/api/v1/snapshots/file", file, {
-      onProgress: (f) => bar.replaceChildren(progressBar(f, f < 1 ? `sending ${file.name}` : "sent; validating and storing…")),
+      onProgress: (f) => bar.replaceChildren(progressBar(f, f < 1 ? `sending ${file.name}` : "sent; validating and storing…", `upload of ${file.name}`)),
     });
-    bar.replaceChildren(progressBar(1, `${file.name} stored`));
+    bar.replaceChildren(progressBar(1, `${file.name} stored`, `upload of ${file.name}`));
     result.replaceChildren(h("div", { class: "notice", id: "upload-ok" },
       out.replayed ? h("strong", {}, `Already uploaded as upload #${out.id}: nothing new stored.`) : [
         h("strong", {}, `Upload #${out.id} stored. `),
         `${out.rows_received} rows received, ${out.rows_stored} stored, ${out.rows_duplicate} already stored. `,
         out.affected.length ? `Engines: ${out.affected.map((a) => `${a.esn} (${a.rows})`).join(", ")}; estimation queued.` : ""]));
   } catch (err) {
-    const refused = progressBar(1, `${file.name} refused`);
+    const refused = progressBar(1, `${file.name} refused`, `upload of ${file.name}`);
     refused.classList.add("refused");
     bar.replaceChildren(refused);
     result.replaceChildren(errorBox(err, "Upload refused, nothing stored"));
@@ -50,6 +50,12 @@ async function showUpload(id) {
       h("p", {}, u.message || ""),
       u.errors.length ? h("ul", {}, u.errors.map((e) => h("li", {}, detailText(e)))) : h("p", { class: "muted" }, "No errors."),
       u.affected.length ? h("p", {}, `Engines: ${u.affected.map((a) => `${a.esn}: ${a.rows} rows, ${fmtTime(a.earliest)} – ${fmtTime(a.latest)}`).join("; ")}`) : null));
+    // The detail is drawn below a long history: bring it into view, its heading focused for
+    // keyboard and screen-reader users.
+    const heading = detail.querySelector("h3");
+    heading.tabIndex = -1;
+    heading.focus({ preventScroll: true });
+    detail.scrollIntoView({ block: "start" });
   } catch (err) {
     showError(detail, err, `Upload ${id}`);
   }
@@ -90,7 +96,7 @@ async function loadJobs() {
       { key: "id", label: "#", numeric: true },
       { key: "kind", label: "Kind" },
       { key: "status", label: "Status", cell: (j) => badge(j.status) },
-      { key: "progress", label: "Progress", cell: (j) => progressBar(j.progress, j.error || j.message) },
+      { key: "progress", label: "Progress", cell: (j) => progressBar(j.progress, j.error || j.message, `job ${j.id} ${j.kind.replaceAll("_", " ")}`) },
       { key: "created_at", label: "Queued", cell: (j) => fmtTime(j.created_at) },
       { key: "finished_at", label: "Finished", cell: (j) => fmtTime(j.finished_at) },
       { key: "cancel", label: "", value: () => 0, cell: (j) => (canCancel && ["queued", "running"].includes(j.status)

@@ -136,7 +136,7 @@ def console() -> Console:
 @pytest.fixture(scope="session")
 def context(browser: Any, server: Server) -> Iterator[Any]:
     """One browser context for the run: plotly.js is fetched and compiled once (HTTP and code
-    cache); each test's new tab still starts signed out (sessionStorage is per tab)."""
+    cache); each test's page starts signed out (the ``page`` fixture forgets the key)."""
     ctx = browser.new_context(viewport=LAPTOP, base_url=server.base_url)
     yield ctx
     ctx.close()
@@ -149,6 +149,9 @@ def page(context: Any, console: Console) -> Iterator[Any]:
           if m.type == "error" else None)
     pg.on("pageerror", lambda e: console.errors.append(f"pageerror: {e}"))
     pg.set_default_timeout(30_000)  # generous: CI shares the machine with other suites
+    # The key is kept for the whole browser (localStorage): each test starts signed out.
+    pg.goto("/signin.html")
+    pg.evaluate("localStorage.clear()")
     yield pg
     pg.close()
 

@@ -19,7 +19,7 @@ def test_wrong_key_is_refused_with_the_api_message(page: Any, console: Console) 
     page.click("button[type=submit]")
     error = page.wait_for_selector(".error")
     assert "Sign-in failed" in error.inner_text() and "401" in error.inner_text()
-    assert page.evaluate("sessionStorage.getItem('fleethealth.apiKey')") is None
+    assert page.evaluate("localStorage.getItem('fleethealth.apiKey')") is None
     screenshot(page, "signin-wrong-key")
     # The browser logs the refused request itself; nothing else may fail.
     assert console.unexpected("401") == []
@@ -82,6 +82,6 @@ def test_a_key_revoked_mid_session_sends_the_user_back_to_sign_in(
     page.select_option("#status", "closed")  # the next API call answers 401
     page.wait_for_url("**/signin.html**")
     assert "sign in again" in page.inner_text("#message")
-    assert page.evaluate("sessionStorage.getItem('fleethealth.apiKey')") is None
+    assert page.evaluate("localStorage.getItem('fleethealth.apiKey')") is None
     screenshot(page, "signin-after-revocation")
     assert console.unexpected("401") == []

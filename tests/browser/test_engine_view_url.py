@@ -1,0 +1,71 @@
+"""The engine page keeps its view in the URL: a reload (or the link sent to a colleague) shows
+the same engine, design, health view, axis, date range and number of points."""
+
+from __future__ import annotations
+
+from typing import Any
+from urllib.parse import parse_qs, urlparse
+
+import httpx
+import pytest
+
+from tests.browser.conftest import Console, Server, screenshot, sign_in
+
+pytestmark = pytest.mark.browser
+FIELDS = ("design", "health", "axis", "start", "end", "max_points")
+
+
+def _view(page: Any) -> dict[str, str]:
+    return {f: page.eval_on_selector(f"#{f}", "e => e.value") for f in FIELDS}
+
+
+def _shown(page: Any) -> dict[str, Any]:
+    return page.evaluate("""(() => { const d = document.querySelector('#plot-health');
+        const line = d.data.find((t) => t.meta.role === 'line');
+        return { axis: d.layout.xaxis.type, n: line.x.filter((x) => x !== null).length,
+                 first: line.x[0], info: document.querySelector('#info').textContent }; })()""")
+
+
+def test_reload_shows_the_same_view(page: Any, server: Server, console: Console) -> None:
+    engine_id = server.seeded.engine_with_event
+    assert engine_id is not None
+    times = httpx.get(f"{server.base_url}/api/v1/engines/{engine_id}/trend",
+                      params={"max_points": 200}, headers={"X-API-Key": server.seeded.key}
+                      ).json()["time"]
+    start, end = times[len(times) // 4][:10], times[len(times) // 2][:10]
+    sign_in(page, server.seeded.key, f"/engine.html?id={engine_id}")
+    assert set(parse_qs(urlparse(page.url).query)) == {"id"}  # the defaults stay out of the URL
+    other_design = str(server.seeded.design_ids[0])  # named, not "the active design"
+    page.select_option("#design", other_design)
+    page.select_option("#health", "level")
+    page.select_option("#max_points", "200")
+    page.fill("#start", start)
+    page.fill("#end", end)
+    page.click("#form button[type=submit]")
+    page.wait_for_function(
+        "!document.querySelector('#plots section h2').textContent.includes('since baseline')")
+    page.select_option("#axis", "cycles")
+    page.wait_for_function("document.querySelector('#plot-health').layout.xaxis.type === 'linear'")
+    query = parse_qs(urlparse(page.url).query)
+    assert query == {"id": [str(engine_id)], "design": [other_design], "health": ["level"],
+                     "axis": ["cycles"], "start": [start], "end": [end],
+                     "max_points": ["200"]}
+    view, shown = _view(page), _shown(page)
+    assert "change since baseline" not in page.inner_text("#plots section:first-child h2")
+
+    page.reload()
+    page.wait_for_selector("body[data-ready=true]")
+    assert _view(page) == view
+    assert _shown(page) == shown
+    assert "change since baseline" not in page.inner_text("#plots section:first-child h2")
+    screenshot(page, "engine-view-from-url")
+
+    # Another engine keeps the view (but not the design, which belongs to its engine type).
+    other = next(e for e in server.seeded.engine_ids.values() if e != engine_id)
+    page.select_option("#engine", str(other))
+    page.wait_for_url(f"**/engine.html?id={other}*")
+    page.wait_for_selector("body[data-ready=true]")
+    assert {k: v for k, v in _view(page).items() if k != "design"} == {
+        k: v for k, v in view.items() if k != "design"}
+    assert _view(page)["design"] == ""
+    assert console.unexpected() == []
