@@ -156,6 +156,25 @@ class BiasModel:
         return BiasModel(tuple(names), self.ti_star, sub(self.accelerating),
                          sub(self.decelerating), self.x_ref, self.ti_tau_s)
 
+    def for_sensors(self, names: Sequence[str]) -> BiasModel:
+        """The model over ``names``: a sensor it was not fitted on gets no bias and no excess."""
+        known = [n for n in names if n in self.sensors]
+        idx = [self.sensors.index(n) for n in known]
+        pos = [list(names).index(n) for n in known]
+        ny = len(names)
+
+        def sub(r: BiasRegion | None) -> BiasRegion | None:
+            if r is None:
+                return None
+            c = np.zeros((3, ny))
+            e = np.zeros((ny, ny))
+            c[:, pos] = r.coeffs[:, idx]
+            e[np.ix_(pos, pos)] = r.excess[np.ix_(idx, idx)]
+            return BiasRegion(c, e, r.n_samples)
+
+        return BiasModel(tuple(names), self.ti_star, sub(self.accelerating),
+                         sub(self.decelerating), self.x_ref, self.ti_tau_s)
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready ``fleethealth.transient-bias/1`` dict."""
         return {
