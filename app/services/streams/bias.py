@@ -22,8 +22,8 @@ from app.services.streams.run import deviations, learning_residuals
 from estimation.bias import TI_STAR, BiasFitWarning, BiasModel, fit_bias
 
 JOB_KIND = "fit_transient_bias"
-__all__ = ["JOB_KIND", "MAX_RECORDINGS", "check_request", "design_operator", "fit_and_store",
-           "fit_design_bias", "store_bias", "stored_bias", "summary"]
+__all__ = ["BIAS_KEY", "JOB_KIND", "MAX_RECORDINGS", "check_request", "design_operator",
+           "fit_and_store", "fit_design_bias", "store_bias", "stored_bias", "summary"]
 MAX_RECORDINGS = 200
 
 Progress = Callable[[float, str | None], None]

@@ -142,3 +142,38 @@ def test_the_api_rejects_bad_input_and_hides_other_operators_designs(
     assert client.get(url, headers=fleet_data.other).status_code == 404
     assert client.post("/api/v1/designs/999999999/transient-bias", headers=fleet_data.analyst,
                        json={"recording_ids": [rec["id"]]}).status_code == 404
+
+
+def test_the_command_line_fits_and_stores_for_the_designs_operator(
+    client: TestClient, session: Session, fleet_data: Fleet, settings: Settings,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import contextlib
+    import json
+
+    from typer.testing import CliRunner
+
+    from app.cli import app as cli_app
+    from app.models import EstimatorDesign
+
+    model = _model()
+    design = _activate(session, fleet_data, model, _design_document(model))
+    rec = _upload_file(client, fleet_data, _flight(model, 1200, np.zeros(M_TUNERS), 4), 2)
+
+    @contextlib.contextmanager
+    def in_test_session(*_a: Any, **_k: Any):  # the command's unit of work, in this test's
+        yield session
+
+    monkeypatch.setattr("app.cli.bias.get_settings", lambda: settings)
+    monkeypatch.setattr("app.db.make_engine", lambda *_a, **_k: None)
+    monkeypatch.setattr("app.db.make_sessionmaker", lambda *_a, **_k: None)
+    monkeypatch.setattr("app.db.transaction", in_test_session)
+    runner = CliRunner()
+    ok = runner.invoke(cli_app, ["fit-bias", str(design.id), str(rec["id"]), "--ti-star", "1e-4"])
+    assert ok.exit_code == 0, ok.output
+    assert json.loads(ok.stdout.strip().splitlines()[-1])["design_id"] == design.id
+    row = session.get(EstimatorDesign, design.id)
+    assert row is not None and row.result is not None
+    assert row.result[bias.BIAS_KEY]["format"] == BIAS_FORMAT
+    bad = runner.invoke(cli_app, ["fit-bias", str(design.id), "999999999"])
+    assert bad.exit_code != 0 and "recording_ids[0]" in bad.output
