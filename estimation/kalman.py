@@ -32,6 +32,7 @@ __all__ = [
     "solve_or_nan",
     "filter_stream",
     "filter_stream_states",
+    "stream_input_terms",
 ]
 
 
@@ -222,6 +223,43 @@ class StreamEstimate(NamedTuple):
     z_hat: np.ndarray
 
 
+def stream_input_terms(
+    A: np.ndarray,
+    C: np.ndarray,
+    K: np.ndarray,
+    y: np.ndarray,
+    u: np.ndarray | None,
+    B: np.ndarray | None,
+    D: np.ndarray | None,
+    u_prev: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The terms of ``filter_stream_states`` that do not depend on x_hat, for all steps:
+    K (y[k] - D u[k]) + (I - K C) B u[k-1] [n_steps, n_engines, n], and Phi^T = ((I - K C) A)^T.
+    y [n_steps, n_engines, ny] (time-major, checked by the caller)."""
+    T, E, ny = y.shape
+    n = A.shape[0]
+    C = check_shape("C", C, (ny, n))
+    K = check_shape("K", K, (n, ny))
+    I_KC = np.eye(n) - K @ C
+    PhiT = (I_KC @ A).T
+    out = y @ K.T  # K y[k] for all steps, [T, E, n]
+    if u is not None:
+        u = np.asarray(u, float)
+        nu = u.shape[-1]
+        if u.shape != (T, E, nu):
+            raise DimensionError(
+                f"u must be [n_steps, n_engines, n_inputs] = ({T}, {E}, nu), found {u.shape}"
+            )
+        B = check_shape("B", B, (n, nu))
+        D = check_shape("D", D, (ny, nu))
+        out -= u @ (K @ D).T
+        drive = u @ (I_KC @ B).T  # applies at the next step
+        out[1:] += drive[:-1]
+        if u_prev is not None:
+            out[0] += np.broadcast_to(np.asarray(u_prev, float), (E, nu)) @ (I_KC @ B).T
+    return out, PhiT
+
+
 def filter_stream_states(
     A: np.ndarray,
     C: np.ndarray,
@@ -255,25 +293,7 @@ def filter_stream_states(
     T, E, ny = y.shape
     n = A.shape[0]
     A = check_shape("A", A, (n, n))
-    C = check_shape("C", C, (ny, n))
-    K = check_shape("K", K, (n, ny))
-    I_KC = np.eye(n) - K @ C
-    PhiT = (I_KC @ A).T
-    out = y @ K.T  # K y[k] for all steps, [T, E, n]
-    if u is not None:
-        u = np.asarray(u, float)
-        nu = u.shape[-1]
-        if u.shape != (T, E, nu):
-            raise DimensionError(
-                f"u must be [n_steps, n_engines, n_inputs] = ({T}, {E}, nu), found {u.shape}"
-            )
-        B = check_shape("B", B, (n, nu))
-        D = check_shape("D", D, (ny, nu))
-        out -= u @ (K @ D).T
-        drive = u @ (I_KC @ B).T  # applies at the next step
-        out[1:] += drive[:-1]
-        if u_prev is not None:
-            out[0] += np.broadcast_to(np.asarray(u_prev, float), (E, nu)) @ (I_KC @ B).T
+    out, PhiT = stream_input_terms(A, C, K, y, u, B, D, u_prev)
     x_prev = np.zeros((E, n)) if x0 is None else np.broadcast_to(np.asarray(x0, float), (E, n))
     out[0] += x_prev @ PhiT
     for k in range(1, T):

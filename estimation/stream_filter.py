@@ -8,7 +8,8 @@ app/services/streams/.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -33,6 +34,9 @@ class SegmentGain:
     G: np.ndarray
     K: np.ndarray
     sigma: np.ndarray  # [q | h | z] 1-sigma from the a-posteriori covariance
+    # Transient bias compensation (docs/math.md section 7): the gain of each transient-index
+    # region (-1, +1) with R_b in place of R; empty without a bias model.
+    region_gains: Mapping[int, np.ndarray] = field(default_factory=dict)
 
 
 def resample(model: LinearModel, dt: float) -> LinearModel:
@@ -63,11 +67,12 @@ def resample(model: LinearModel, dt: float) -> LinearModel:
 
 def segment_gain(
     model: LinearModel, vstar: np.ndarray, Vp: np.ndarray, Q: np.ndarray, Qh: np.ndarray,
-    dt: float,
+    dt: float, R_regions: Mapping[int, np.ndarray] | None = None,
 ) -> SegmentGain:
     """The reduced model and steady-state gain of ``model`` at sample interval ``dt``, with the
     random walks and process noise Q, Qh given per sample of the model (they scale with the
-    sample interval)."""
+    sample interval). ``R_regions`` (region -> R_b, seed 004 eq. 6) adds one gain per
+    transient-index region."""
     ratio = dt / model.dt
     model = resample(model, dt)
     red = reduced_model(model, vstar, Q * ratio, Qh * ratio)
@@ -78,7 +83,9 @@ def segment_gain(
     sigma = np.sqrt(np.maximum(np.concatenate([
         np.diag(Pq), np.diag(Vp @ Pq @ Vp.T), np.diag(red.F @ P @ red.F.T)
     ]), 0.0))
-    return SegmentGain(red.A, red.B, red.C, red.D, red.F, red.G, ss.K, sigma)
+    regions = {r: steady_state_gain(red.A, red.C, red.Q, Rb).K
+               for r, Rb in (R_regions or {}).items()}
+    return SegmentGain(red.A, red.B, red.C, red.D, red.F, red.G, ss.K, sigma, regions)
 
 
 def filter_run(g: SegmentGain, ys: np.ndarray, us: np.ndarray, x_prev: np.ndarray,

@@ -10,7 +10,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import typer
 
-from app.cli import design, engine, evaluate, importers, service, simulate
+from app.cli import bias, design, engine, evaluate, importers, service, simulate
 
 app = typer.Typer(help="fleethealth: aircraft engine fleet health trending.", no_args_is_help=True)
 service.register(app)
@@ -18,6 +18,7 @@ importers.register(app)
 design.register(app)
 evaluate.register(app)
 simulate.register(app)
+bias.register(app)
 app.add_typer(engine.cli, name="engine")
 
 

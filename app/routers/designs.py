@@ -8,10 +8,13 @@ from fastapi import APIRouter, Query, Response, status
 
 from app.schemas.designs import DesignCreate, DesignDetail, DesignOut
 from app.schemas.fleet import Page, PageParams
+from app.schemas.jobs import JobOut
+from app.schemas.stream_estimates import TransientBiasFit, TransientBiasOut
 from app.security import Analyst, CurrentPrincipal, DbSession
 from app.services.designs import service as designs
 from app.services.fleet import service as fleet
 from app.services.jobs.queue import Jobs
+from app.services.streams import bias
 
 router = APIRouter(prefix="/api/v1", tags=["designs"])
 
@@ -117,3 +120,29 @@ def active_design(
         session, operator_id=principal.operator_id, engine_type_id=engine_type.id
     )
     return DesignOut.model_validate(row) if row else None
+
+
+@router.post("/designs/{design_id}/transient-bias", response_model=JobOut,
+             status_code=status.HTTP_202_ACCEPTED)
+def fit_transient_bias(
+    design_id: int, body: TransientBiasFit, session: DbSession, principal: Analyst, jobs: Jobs,
+) -> JobOut:
+    """Queue a ``fit_transient_bias`` job: the design's bias model (seed 004) from the
+    recordings, stored with the design and applied by stream estimation (202; follow it at
+    /api/v1/jobs/{job_id})."""
+    bias.check_request(session, operator_id=principal.operator_id, design_id=design_id,
+                       recording_ids=body.recording_ids)
+    job, _created = jobs.submit(
+        session, operator_id=principal.operator_id, kind=bias.JOB_KIND,
+        parameters={"design_id": design_id, **body.model_dump()},
+    )
+    return JobOut.model_validate(job)
+
+
+@router.get("/designs/{design_id}/transient-bias", response_model=TransientBiasOut)
+def transient_bias(
+    design_id: int, session: DbSession, principal: CurrentPrincipal
+) -> TransientBiasOut:
+    """The design's stored transient bias model (404 when none is fitted)."""
+    document = bias.stored_bias(session, operator_id=principal.operator_id, design_id=design_id)
+    return TransientBiasOut(design_id=design_id, model=document)

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from pydantic import BaseModel, Field
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
 
 
 class StreamEstimatesOut(BaseModel):
@@ -24,3 +26,23 @@ class StreamEstimatesOut(BaseModel):
     z_hat: dict[str, list[float | None]]
     z_sigma: dict[str, list[float | None]]
     residual: dict[str, list[float | None]] = Field(description="innovation per sensor, % of trim")
+
+
+class TransientBiasFit(BaseModel):
+    """Fit a design's transient bias model (seed 004) on recordings of healthy engines."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    recording_ids: list[int] = Field(min_length=1, max_length=200,
+                                     description="stream recordings of healthy engines")
+    ti_star: float = Field(1e-3, ge=0.0, le=1.0,
+                           description="dead band of the transient index, 1/s")
+    ti_tau_s: float = Field(0.5, ge=0.0, le=60.0,
+                            description="time constant of the low-pass on the index, s")
+
+
+class TransientBiasOut(BaseModel):
+    """A design's stored bias model (``fleethealth.transient-bias/1``)."""
+
+    design_id: int
+    model: dict[str, Any]

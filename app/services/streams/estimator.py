@@ -20,6 +20,7 @@ from app.models.estimates import EstimateLayout
 from app.services import units
 from app.services.snapshots import estimator
 from app.signals import ACTUATORS, SENSORS, SignalSpec
+from estimation.bias import BiasModel
 from estimation.engine.schedule import EngineSchedule
 from estimation.model import LinearModel
 from estimation.snapshot_design import DesignResult
@@ -30,6 +31,8 @@ TOLERANCE = np.array([1000.0, 0.02, 2.0, 2.0])
 # Noise when a design document does not carry it (per sample of the design model).
 DEFAULT_Q_STD = 0.01
 DEFAULT_QH_STD = 0.01
+
+BIAS_KEY = "transient_bias"  # the design result's key of its bias model (docs/math.md section 7)
 
 STORED: dict[str, SignalSpec] = {s.name: s for s in SENSORS + ACTUATORS}
 
@@ -63,6 +66,7 @@ class StreamEstimator:
     Qh: np.ndarray
     schedule: EngineSchedule | None
     layout: EstimateLayout
+    bias: BiasModel | None = None  # transient bias compensation, for the sensors in use
     _gains: dict[tuple[Any, ...], SegmentGain] = field(default_factory=dict)
 
     @property
@@ -90,12 +94,42 @@ class StreamEstimator:
             at = at.select_sensors(model.sensor_names).select_health(model.health_names)
             model = replace(at.select_aux(model.aux_names),
                             sensor_noise_std=model.sensor_noise_std)
+        R_regions = None if self.bias is None else {
+            r: self.bias.covariance(r, model.R) for r in self.bias.regions()}
         try:
-            out = segment_gain(model, self.vstar, self.Vp, self.Q, self.Qh, dt)
+            out = segment_gain(model, self.vstar, self.Vp, self.Q, self.Qh, dt, R_regions)
         except ResampleError as e:
             raise StreamEstimationError(str(e)) from e
         self._gains[(*key, dt)] = out
         return out
+
+    def x_ref(self) -> np.ndarray:
+        """Reference values of the design model's states for the transient index: their trims
+        in the model (corrected, at the model's condition when there is a schedule)."""
+        model = self.model
+        if self.schedule is None:
+            return np.array([model.trim.get(n, math.nan) for n in model.state_names])
+        # sea-level static take-off, corrected (seed 004: reference state values)
+        return self._corrected_states(np.array([[0.0, 0.0, 100.0, 0.0]]))[0]
+
+    def _corrected_states(self, cond_sched: np.ndarray) -> np.ndarray:
+        """Corrected state trims [S, nx] at conditions (alt, Mach, power, dTamb); NaN for a
+        state the schedule does not trim."""
+        assert self.schedule is not None
+        names = self.schedule.trim_names
+        t = self.schedule.interpolate("trim_corrected", cond_sched)
+        cols = [t[:, names.index(n)] if n in names else np.full(len(t), math.nan)
+                for n in self.model.state_names]
+        return np.column_stack(cols)
+
+    def state_scale(self, cond: np.ndarray, x_ref: Sequence[float] | np.ndarray
+                    ) -> np.ndarray | None:
+        """s [S, nx] of ``estimation.bias.filter_compensated``: corrected state trims at the
+        samples' conditions [S, 4] over ``x_ref`` (None: fixed trims, s = 1)."""
+        if self.schedule is None or not len(x_ref):
+            return None
+        s = self._corrected_states(cond[:, [0, 1, 3, 2]]) / np.asarray(x_ref)
+        return np.where(np.isfinite(s), s, 1.0)
 
     def trims(self, cond: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Sensor and actuator trims [S, ny], [S, nu] in stored units at conditions [S, 4]
@@ -174,7 +208,14 @@ def estimator_for(
         units={"tuners": ["%"] * m, "health": ["%"] * p, "aux": ["%"] * model.n_aux,
                "sensors": ["%"] * model.n_sensors, "faults": []},
     )
-    est = StreamEstimator(design.id, model, vstar, Vp, Q, Qh, sched, layout)
+    bias = None
+    stored_bias = result.get(BIAS_KEY)
+    if isinstance(stored_bias, Mapping):
+        try:
+            bias = BiasModel.from_dict(stored_bias).for_sensors(model.sensor_names)
+        except ValueError as e:
+            raise StreamEstimationError(f"design {design.id}: its transient bias model: {e}") from e
+    est = StreamEstimator(design.id, model, vstar, Vp, Q, Qh, sched, layout, bias)
     if len(_ESTIMATORS) > 32:
         _ESTIMATORS.clear()
     _ESTIMATORS[key] = est

@@ -5,14 +5,15 @@ condition leaves the ``TOLERANCE`` box).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pyarrow as pa
 
 from app.services.streams.estimator import TOLERANCE, StreamEstimator
 from app.signals import CONDITION_COLUMNS
-from estimation.stream_filter import filter_run
+from estimation.bias import filter_compensated
+from estimation.stream_filter import SegmentGain, filter_run
 
 
 def _first_outside(cond: np.ndarray, start: int, anchor: np.ndarray) -> int:
@@ -36,6 +37,7 @@ class Carry:
     u_prev: np.ndarray
     anchor: np.ndarray | None
     switches: int
+    ti: float = 0.0  # low-passed transient index (docs/math.md section 7)
 
 
 def filter_piece(
@@ -53,6 +55,9 @@ def filter_piece(
     anchor = carry.anchor
     switches = carry.switches
     x_prev, u_prev = carry.x, carry.u_prev
+    ti_prev = carry.ti
+    bias = est.bias
+    scale = None if bias is None else est.state_scale(cond, bias.x_ref)
     captured: Carry | None = None
     i = 0
     while i < S:
@@ -64,7 +69,16 @@ def filter_piece(
             continue
         g = est.gain(est.snapped(anchor), dt)
         ys, us = dy[i:j], du[i:j]
-        x = filter_run(g, ys, us, x_prev, u_prev)
+        if bias is not None and not np.isnan(ys).any():
+            # seed 004 eq. 5-6; a segment with a missing sensor runs uncompensated
+            ce = filter_compensated(
+                g.A, g.B, g.C, g.D, {0: g.K, **g.region_gains}, ys[:, None, :],
+                us[:, None, :], nx, dt, bias=bias, x0=x_prev, u_prev=u_prev,
+                state_scale=None if scale is None else scale[i:j], ti0=ti_prev)
+            x = ce.x_hat[:, 0, :]
+            ti_prev = float(ce.ti[-1, 0])
+        else:
+            x = filter_run(g, ys, us, x_prev, u_prev)
         # Innovation dy - C x_pred - D du with x_pred = A x_hat[k-1] + B du[k-1].
         xp = np.vstack([x_prev[None, :], x[:-1]])
         up = np.vstack([u_prev[None, :], us[:-1]])
@@ -80,10 +94,47 @@ def filter_piece(
         rows[i:j, sl["z_sigma"]] = g.sigma[m + p:]
         if capture is not None and i <= capture < j:
             captured = Carry(x[capture - i].copy(), us[capture - i].copy(), anchor.copy(),
-                             switches)
+                             switches, ti_prev)
         x_prev, u_prev = x[-1].copy(), us[-1].copy()
         i = j
-    return rows, Carry(x_prev, u_prev, anchor, switches), captured
+    return rows, Carry(x_prev, u_prev, anchor, switches, ti_prev), captured
+
+
+def learning_residuals(
+    est: StreamEstimator, dt: float, cond: np.ndarray, dy: np.ndarray, du: np.ndarray,
+    x_ref: np.ndarray, ti_tau_s: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Transient index [S] and innovations [S, ny] of a healthy recording with the tuners held
+    at zero (seed 004's learning phase), scheduled like ``filter_piece``. Samples of a segment
+    with a missing sensor are NaN."""
+    S = cond.shape[0]
+    nx = est.nx
+    ti = np.full(S, np.nan)
+    innov = np.full((S, dy.shape[1]), np.nan)
+    scale = est.state_scale(cond, x_ref)
+    x_prev = np.zeros(est.n)
+    u_prev = du[0] if S else np.zeros(du.shape[1])
+    ti_prev = 0.0
+    i = 0
+    while i < S:
+        anchor = cond[i].copy()
+        j = max(i + 1, _first_outside(cond, i, anchor))
+        g: SegmentGain = est.gain(est.snapped(anchor), dt)
+        K = g.K.copy()
+        K[nx:] = 0.0  # tuners frozen at nominal health
+        ys, us = dy[i:j], du[i:j]
+        if not np.isnan(ys).any():
+            ce = filter_compensated(g.A, g.B, g.C, g.D, {0: K}, ys[:, None, :], us[:, None, :],
+                                    nx, dt, x0=x_prev, u_prev=u_prev,
+                                    state_scale=None if scale is None else scale[i:j],
+                                    ti_tau_s=ti_tau_s, ti0=ti_prev)
+            ti[i:j], innov[i:j] = ce.ti[:, 0], ce.innovation[:, 0]
+            x_prev, ti_prev = ce.x_hat[-1, 0].copy(), float(ce.ti[-1, 0])
+        else:
+            x_prev = filter_run(replace(g, K=K), ys, us, x_prev, u_prev)[-1]
+        u_prev = us[-1]
+        i = j
+    return ti, innov
 
 
 def deviations(

@@ -67,7 +67,7 @@ def _carry_of(state: Mapping[str, Any]) -> Carry:
     anchor = state.get("anchor")
     return Carry(np.asarray(state["x"], float), np.asarray(state["u_prev"], float),
                  None if anchor is None else np.asarray(anchor, float),
-                 int(state.get("switches", 0)))
+                 int(state.get("switches", 0)), float(state.get("ti", 0.0)))
 
 
 def _read_from(data_dir: Path, recording: StreamRecording, chunks: Sequence[StreamChunk],
@@ -194,6 +194,8 @@ def estimate_one(
         state.update(x=at_restart.x.tolist(), u_prev=at_restart.u_prev.tolist(),
                      anchor=None if at_restart.anchor is None else at_restart.anchor.tolist(),
                      switches=at_restart.switches)
+        if est.bias is not None:
+            state["ti"] = at_restart.ti
         state_row.restart_sample = restart
     state["x_end"] = carry.x.tolist()
     state_row.state = state
