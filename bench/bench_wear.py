@@ -19,7 +19,11 @@ The wear detector gets the records' sensor deviations too (its directional CUSUM
 ``--no-bank`` scans the tuner estimates alone (limit and rate alerts).
 
     .venv/bin/python bench/bench_wear.py [--rate 1.5e-3 --margin 6 --floor 0.03 --limit 1]
-        [--kappa 0.5 --h 3 --bank-rate 1e-3 --confidence 1.6 --hold 3] [--no-bank]
+        [--kappa 0.5 --alpha 0.05 --arl 2000 | --h 3] [--bank-rate 1e-3]
+        [--confidence 1.3 --hold 2] [--no-bank]
+
+(--h fixes the bank's threshold instead of setting it from its family-wise false-alarm rate
+--arl; --alpha 0 takes the bank's baseline as exact.)
 """
 
 from __future__ import annotations
@@ -184,6 +188,8 @@ def main() -> None:
     ap.add_argument("--floor", type=float, default=d.margin_floor)
     ap.add_argument("--limit", type=float, default=d.limit)
     ap.add_argument("--kappa", type=float, default=d.bank_reference)
+    ap.add_argument("--alpha", type=float, default=d.bank_alpha)
+    ap.add_argument("--arl", type=float, default=d.bank_arl)
     ap.add_argument("--h", type=float, default=d.bank_threshold)
     ap.add_argument("--bank-rate", type=float, default=d.bank_rate)
     ap.add_argument("--confidence", type=float, default=d.confidence)
@@ -196,7 +202,8 @@ def main() -> None:
     args = ap.parse_args()
     cfg = wear.WearSettings(limit=args.limit, rate=args.rate, margin=args.margin,
                             margin_floor=args.floor, bank_reference=args.kappa,
-                            bank_threshold=args.h, bank_rate=args.bank_rate,
+                            bank_alpha=args.alpha, bank_arl=args.arl, bank_threshold=args.h,
+                            bank_rate=args.bank_rate,
                             confidence=args.confidence, hold=args.hold)
     fd001(args.fd001, cfg, args.units, not args.no_bank, args.cache)
     if not args.skip_demo:
