@@ -143,6 +143,6 @@ def fit_transient_bias(
 def transient_bias(
     design_id: int, session: DbSession, principal: CurrentPrincipal
 ) -> TransientBiasOut:
-    """The design's stored transient bias model (404 when none is fitted)."""
+    """The design's stored transient bias model (``model`` null while none is fitted)."""
     document = bias.stored_bias(session, operator_id=principal.operator_id, design_id=design_id)
     return TransientBiasOut(design_id=design_id, model=document)

@@ -45,4 +45,4 @@ class TransientBiasOut(BaseModel):
     """A design's stored bias model (``fleethealth.transient-bias/1``)."""
 
     design_id: int
-    model: dict[str, Any]
+    model: dict[str, Any] | None = Field(description="null while no model is fitted")

@@ -122,7 +122,10 @@ function draw() {
   container.replaceChildren();
   const divs = [];
   const pending = [];
-  const groups = [...performancePanels(), ...ORDER.map((k) => trend.groups.find((g) => g.key === k)).filter(Boolean)];
+  // Health first (the change since the baseline, the view engineers read), then the
+  // performance panels in engineering units, then the rest.
+  const ordered = ORDER.map((k) => trend.groups.find((g) => g.key === k)).filter(Boolean);
+  const groups = [...ordered.slice(0, 1), ...performancePanels(), ...ordered.slice(1)];
   for (const group of groups) {
     const id = `plot-${group.key}`;
     const div = h("div", { id, class: "plot" });

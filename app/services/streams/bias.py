@@ -105,13 +105,12 @@ def store_bias(session: Session, design: EstimatorDesign, model: BiasModel) -> d
     return document
 
 
-def stored_bias(session: Session, *, operator_id: int, design_id: int) -> dict[str, Any]:
-    """The design's stored bias model document (NotFound when none is fitted)."""
+def stored_bias(session: Session, *, operator_id: int, design_id: int) -> dict[str, Any] | None:
+    """The design's stored bias model document; None while none is fitted (the design itself
+    must exist and be the operator's: NotFound otherwise)."""
     design = designs.get_design(session, operator_id=operator_id, design_id=design_id)
     document = (design.result or {}).get(BIAS_KEY)
-    if not isinstance(document, dict):
-        raise NotFound(f"design {design_id} has no transient bias model")
-    return document
+    return document if isinstance(document, dict) else None
 
 
 def design_operator(session: Session, design_id: int) -> int:

@@ -411,12 +411,12 @@ def _require_present(
                     log.add(int(index) + 1, source[name], "value is missing")
 
 
-# Physical bounds per quantity in its stored unit (app.models.ingest): wider than any engine
-# reaches (turbine exit under 3000 degR, compressor delivery under 1000 psia, spools under
-# 40000 rpm, fuel under 20 pps), narrow enough that a unit slip or a garbage value (1e308)
-# is refused rather than stored.
+# Physical bounds per quantity in its stored unit (app.signals): wider than any engine
+# reaches (the built-in engine's hottest station, T48 at take-off on a hot day, reaches about
+# 6200 degR; compressor delivery under 1000 psia, spools under 40000 rpm, fuel under 20 pps),
+# narrow enough that a unit slip or a garbage value (1e308) is refused rather than stored.
 QUANTITY_BOUNDS: dict[tuple[str, str], tuple[float, float]] = {
-    ("temperature", "degR"): (0.0, 5000.0),
+    ("temperature", "degR"): (0.0, 10000.0),
     ("pressure", "psia"): (0.0, 2000.0),
     ("rotational_speed", "rpm"): (0.0, 60000.0),
     ("mass_flow", "pps"): (0.0, 100.0),
