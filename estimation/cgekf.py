@@ -40,8 +40,8 @@ the transient simulator's chord solver, one gas-path evaluation per sample);
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from typing import NamedTuple
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -173,6 +173,9 @@ def cgekf_design(
     power_pct: float = 100.0,
     q_std: float = 0.05,
     qh_std: float = 0.005,
+    vstar: np.ndarray | None = None,
+    Q: np.ndarray | None = None,
+    Qh: np.ndarray | None = None,
 ) -> CgekfDesign:
     """Linearise the built-in engine at the design point and compute the constant gain.
 
@@ -182,18 +185,30 @@ def cgekf_design(
     R: seed 001 Table 2 noise (``sensors.noise_std_percent``). Tuners are
     a subset of the ten component health parameters (seed 001 Table 3).
     Reduced model and gain: seed 002 eq. 4-7 and the steady-state DARE gain.
+
+    A stored design's own choice replaces the defaults: vstar [m, 10] over the ten
+    component health parameters (any V*, not only rows of the identity; ``tuners``
+    then only names its rows), Q [4, 4] and Qh [10, 10] per sample at ``dt``.
     """
     full = linearize(alt_ft, mach, power_pct, dt=dt)
     model = (full.select_sensors(list(sensors)).select_health(list(HEALTH_NAMES[:_TURBO]))
              .select_aux(list(aux)))
-    unknown = [t for t in tuners if t not in HEALTH_NAMES[:_TURBO]]
-    if unknown:
-        raise DimensionError(f"tuners must be component health parameters, not {unknown}")
-    m = len(tuners)
-    vstar = np.zeros((m, _TURBO))
-    vstar[np.arange(m), [HEALTH_NAMES.index(t) for t in tuners]] = 1.0
     nx = model.n_states
-    red = reduced_model(model, vstar, q_std**2 * np.eye(nx), qh_std**2 * np.eye(_TURBO))
+    if vstar is None:
+        unknown = [t for t in tuners if t not in HEALTH_NAMES[:_TURBO]]
+        if unknown:
+            raise DimensionError(f"tuners must be component health parameters, not {unknown}")
+        m = len(tuners)
+        vstar = np.zeros((m, _TURBO))
+        vstar[np.arange(m), [HEALTH_NAMES.index(t) for t in tuners]] = 1.0
+    elif np.shape(vstar) != (len(tuners), _TURBO):
+        raise DimensionError(
+            f"Incompatible dimensions of vstar matrix; expected ({len(tuners)}, {_TURBO}) "
+            f"but found {np.shape(vstar)}"
+        )
+    Q = q_std**2 * np.eye(nx) if Q is None else np.asarray(Q, float)
+    Qh = qh_std**2 * np.eye(_TURBO) if Qh is None else np.asarray(Qh, float)
+    red = reduced_model(model, np.asarray(vstar, float), Q, Qh)
     ss = steady_state_gain(red.A, red.C, red.Q, model.R)
     trim = model.trim
     return CgekfDesign(
@@ -219,7 +234,8 @@ def run_cgekf(
     sample k; y [T, B, ny] measurements in the plant's units; x0 [B, nx] the
     a-priori state at k = 0 (plant units); d0 [B, m] a-priori tuners (default 0);
     z_true [T, B, nz] optional truth for the aux residuals (percent of truth,
-    seed 001 eq. 5). Health h_hat = V*^+ d_hat (seed 002 eq. 11).
+    seed 001 eq. 5). Health h_hat = V*^+ d_hat (seed 002 eq. 11). A NaN in y (a
+    sensor that did not report) gives a NaN residual and no correction from it.
     """
     y = np.asarray(y, float)
     if y.ndim != 3 or y.shape[2] != len(design.sensors):
@@ -240,15 +256,18 @@ def run_cgekf(
     out_y = np.empty((T, B, ny))
     out_z = np.empty((T, B, nz))
     out_r = np.empty((T, B, ny))
+    gaps = bool(np.isnan(y).any())
     for k in range(T):
         ev = plant(k, x, d)
         r = 100.0 * (y[k] - ev.y) / ev.scale_y
+        out_r[k] = r
+        if gaps:  # a sensor that did not report is not a measurement: no correction from it
+            r = np.where(np.isnan(r), 0.0, r)
         post = r @ KT  # seed 001 eq. 4: the constant gain on the residual
         out_x[k] = x + ev.scale_x / 100.0 * post[:, :nx]
         out_d[k] = d + post[:, nx:]
         out_y[k] = ev.y
         out_z[k] = ev.z + ev.scale_z / 100.0 * (r @ FKT)
-        out_r[k] = r
         step = r @ KpT
         x = ev.x_next + ev.scale_x / 100.0 * step[:, :nx]
         d = d + step[:, nx:]
@@ -322,6 +341,39 @@ class EnginePlant:
         self.vp = design.reduced.vstar_pinv
         self.idx_y = [SENSOR_NAMES.index(n) for n in design.sensors]
         self.idx_z = [AUX_NAMES.index(n) for n in design.aux]
+        self.prev: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def state(self) -> dict[str, Any]:
+        """What the plant carries from one sample to the next, JSON-ready: the gas-path
+        unknowns, the chord Jacobian inverse and sensitivities, the call count (the
+        Jacobian's refresh cycle) and the states and inputs of the last evaluation.
+        ``restore`` continues from it exactly as an uninterrupted run would."""
+        s = self.solver
+
+        def listed(a: np.ndarray | None) -> Any:
+            return None if a is None else a.tolist()
+
+        return {"z": listed(self.z_unknown), "jinv": listed(s.jinv), "dzdu": listed(s.dzdu),
+                "dkdv": listed(s.dkdv), "calls": s.calls,
+                "prev": None if self.prev is None else [a.tolist() for a in self.prev]}
+
+    def restore(self, state: Mapping[str, Any]) -> None:
+        """Continue from ``state()`` of a plant of the same design and batch."""
+        s = self.solver
+
+        def array(a: Any) -> np.ndarray | None:
+            return None if a is None else np.array(a, float)
+
+        self.z_unknown = array(state["z"])
+        s.jinv = array(state["jinv"])
+        s.dzdu = np.array(state["dzdu"], float)
+        s.dkdv = np.array(state["dkdv"], float)
+        s.calls = int(state["calls"])
+        self.prev, self.op_prev = None, None
+        if state["prev"] is not None:
+            px, pu, pe = (np.array(a, float) for a in state["prev"])
+            self.prev = (px, pu, pe)
+            self.op_prev = operating(px, pu, pe, np.zeros((px.shape[0], N_HEALTH)))
 
     def initial_state(self) -> np.ndarray:
         """A-priori states [B, 4] at k = 0: the nominal engine's steady state at the
@@ -347,6 +399,7 @@ class EnginePlant:
             z0 = self.solver.predict(z0, self.op_prev, op)
         self.z_unknown, st = self.solver.one_pass(op, z0)
         self.op_prev = op
+        self.prev = (x, self.u[k], self.env[k])
         sensors, aux = outputs_from_stations(st, op)
         xdot = np.stack([st["dnf"], st["dnc"], st["dtm_hpc"], st["dtm_hpt"]], axis=1)
         cg = self.cg
