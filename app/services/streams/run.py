@@ -14,7 +14,7 @@ import pyarrow as pa
 
 from app.models.ingest import CONDITION_COLUMNS
 from app.services.streams.estimator import TOLERANCE, StreamEstimator, _stored_affine
-from estimation.cgekf import EnginePlant, run_cgekf
+from estimation.cgekf import filter_one
 from estimation.stream_filter import filter_run
 
 
@@ -35,8 +35,8 @@ def _first_outside(cond: np.ndarray, start: int, anchor: np.ndarray) -> int:
 class Carry:
     """The filter state between samples: x_hat and du of the last sample, the anchor; for
     the constant-gain EKF, x is the a-priori [x (engine units); tuners] of the next sample
-    and ``plant`` what the on-board engine model carries (``EnginePlant.state``; None before
-    the first sample)."""
+    and ``plant`` what the on-board engine model carries (``cgekf.filter_one``'s state; None
+    before the first sample)."""
 
     x: np.ndarray
     u_prev: np.ndarray
@@ -171,29 +171,22 @@ def _cgekf_piece(
     sl = layout.slices()
     rows = np.empty((S, layout.width))
     env = cond[:, :3]  # alt ft, Mach, dTamb K
-    plant = EnginePlant(design, u[:, None, :], env[:, None, :])
-    x0, d0 = carry.x[None, :nx], carry.x[None, nx:]
-    if carry.plant is None:
-        x0 = plant.initial_state()  # the nominal engine at the first sample
-    else:
-        plant.restore(carry.plant)
     assert est.schedule is not None  # a cgekf design is on the built-in engine
     trims = est.schedule.trims_at(cond[:, [0, 1, 3, 2]])
     z_trim = np.stack([trims[n] for n in design.aux], axis=1) if design.aux else \
         np.zeros((S, 0))
     cuts = [0, S] if capture is None else [0, capture + 1, S]
+    x, plant = carry.x, carry.plant
     out, captured = carry, None
     for a, b in zip(cuts[:-1], cuts[1:], strict=True):
-        plant.u, plant.env = u[a:b, None, :], env[a:b, None, :]
-        res = run_cgekf(design, plant, y[a:b, None, :], x0, d0)
+        res, plant = filter_one(design, y[a:b], u[a:b], env[a:b], x[nx:], plant, x[:nx])
         q = res.d_hat[:, 0]
         rows[a:b, sl["q"]] = q
         rows[a:b, sl["h"]] = q @ est.Vp.T  # seed 002 eq. 11
         rows[a:b, sl["z"]] = 100.0 * (res.z_hat[:, 0] - z_trim[a:b]) / z_trim[a:b]
         rows[a:b, sl["residual"]] = res.residual[:, 0]
-        x0, d0 = res.x_next, res.d_next
-        out = Carry(np.concatenate([x0[0], d0[0]]), np.zeros(u.shape[1]), None, 0,
-                    plant.state())
+        x = np.concatenate([res.x_next[0], res.d_next[0]])
+        out = Carry(x, np.zeros(u.shape[1]), None, 0, plant)
         if capture is not None and b == capture + 1:
             captured = out
     m, p = est.vstar.shape[0], est.Vp.shape[0]

@@ -154,23 +154,23 @@ def test_a_live_chunked_cgekf_upload_equals_the_whole_flight(
         assert response.status_code == 201, response.text[:400]
         _estimate(session, settings, fleet_data, live_id)
     a, b = _rows(session, whole["id"]), _rows(session, live_id)
-    assert len(a) == len(b) == n // 20
-    assert [r[:3] for r in a] == [r[:3] for r in b]  # windows, times, counts
-    layout = EstimateLayout.from_dict(_state(session, live_id).layout)
-    va, vb = layout.unpack([r[3] for r in a]), layout.unpack([r[3] for r in b])
     # The restarts carry the engine model's whole state (gas-path unknowns, chord Jacobian,
-    # refresh cycle): the windows agree to the float32 rounding of the stored blobs (the
-    # first Jacobian refresh after a restart may differ from the uninterrupted run in the
-    # last bit of float64).
-    np.testing.assert_array_equal(va[:10], vb[:10])  # before the first refresh: exact
-    np.testing.assert_allclose(vb, va, rtol=1e-6, atol=1e-7)
+    # its refresh cycle). The filter state at the end is the uninterrupted run's to rounding
+    # (a few parts in 1e9 here; not bit for bit, unlike filter_one split in one process,
+    # tests/estimation/test_cgekf.py: the last bits of the Jacobian refreshes differ).
     np.testing.assert_allclose(np.asarray(_state(session, live_id).state["x_end"]),
                                np.asarray(_state(session, whole["id"]).state["x_end"]),
-                               rtol=0, atol=1e-7)
-    # Against a filter that did not continue (each chunk restarted from the nominal engine)
-    # the comparison above would fail: the restart state matters.
-    fresh = np.asarray(_state(session, whole["id"]).state["x_end"])
-    assert np.abs(fresh[4:]).max() > 1e-3  # tuners moved off zero during the flight
+                               rtol=1e-7, atol=1e-7)
+    assert len(a) == len(b) == n // 20
+    assert [r[:3] for r in a] == [r[:3] for r in b]  # windows, times, counts
+    # The stored rows (float32) agree to their last bit: a few windows differ there.
+    layout = EstimateLayout.from_dict(_state(session, live_id).layout)
+    va, vb = layout.unpack([r[3] for r in a]), layout.unpack([r[3] for r in b])
+    np.testing.assert_allclose(vb, va, rtol=2e-7, atol=1e-7)
+    # The kept engine state counted every sample through the restarts (the Jacobian refresh
+    # every 200 samples fell inside chunks 3 and 6, after restarts at 20 and 400).
+    plant = _state(session, live_id).state["plant"]
+    assert plant["calls"] == n and np.shape(plant["jinv"]) == (1, 5, 5)
 
 
 def test_the_stream_filter_option_is_validated_and_needs_the_builtin_engine(
