@@ -193,10 +193,16 @@ def pattern(err: dict[str, np.ndarray], label: np.ndarray, time_s: np.ndarray,
         print(f"  {name}: CGEKF better than the scheduled linear filter on {better or 'none'}")
 
 
-def speed(cg: CgekfDesign, sim: Recorded, idx: list[int], env: np.ndarray, steps: int) -> None:
+def speed(cg: CgekfDesign, sim: Recorded, idx: list[int], env: np.ndarray, steps: int,
+          start_s: float = 0.0) -> None:
     flight_steps = int(2 * 3600 / DT)
+    k0 = int(round(start_s / DT))
+    where = ("from the flight start (idle, slam, take-off)" if k0 == 0 else
+             f"from {start_s:g} s (the condition changes every sample in climb)")
     print(f"\nspeed: 2-hour flight at 20 Hz = {flight_steps} samples; slice of {steps} "
-          f"samples from the flight start (idle, slam, take-off), scaled")
+          f"samples {where}, scaled")
+    sim = sim._replace(measured=sim.measured[k0:], u=sim.u[k0:])
+    env = env[k0:]
     print(f"  load average {os.getloadavg()}, OPENBLAS_NUM_THREADS="
           f"{os.environ.get('OPENBLAS_NUM_THREADS')}")
     for b in (1, 64):
@@ -215,6 +221,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--flights", type=int, default=200)
     ap.add_argument("--speed-steps", type=int, default=1500)
+    ap.add_argument("--speed-start", type=float, default=0.0,
+                    help="where the timed slice starts [s of the flight]")
     ap.add_argument("--no-speed", action="store_true")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--cache", help="npz of the simulation and CGEKF results (kept/reused)")
@@ -289,7 +297,8 @@ def main() -> None:
         table(f"{title}: health, percent points", err_h, label, which, names_h, tt)
     pattern(err_z, label, tt, cg.aux)
     if not args.no_speed:
-        speed(cg, sim, idx, env, min(args.speed_steps, tt.size))
+        k0 = int(round(args.speed_start / DT))
+        speed(cg, sim, idx, env, min(args.speed_steps, tt.size - k0), args.speed_start)
 
 
 if __name__ == "__main__":

@@ -434,8 +434,7 @@ def filter_one(
     the last sample, JSON-ready: gas-path unknowns ``z``, chord Jacobian inverse
     ``jinv`` and sensitivities ``dzdu``, ``dkdv``, the refresh cycle's ``calls``
     and the states, commands and environment of the last sample ``prev``.
-    Continuing from it gives what an uninterrupted call gives (bit for bit in the
-    tests' process; to rounding in general).
+    Continuing from it gives bit for bit what an uninterrupted call gives.
     """
     from operator import mul
 

@@ -107,6 +107,10 @@ class StreamEstimator:
         """The constant-gain EKF of this design at sample interval ``dt`` (seed 001: one gain
         at ground maximum power, the design's V*, Q and Qh, per sample scaled with dt) and
         the 1-sigma [q | h | z] of its a-posteriori covariance."""
+        # A whole-flight upload's interval comes from its time stamps (0.05 s to a few parts in
+        # 1e15), a live recording's is declared: the same filter for both (the Euler step and
+        # the gain take dt as it is, where the linear filter's resampling treats it as equal).
+        dt = float(f"{dt:.12g}")
         cached = self._cgekf.get(dt)
         if cached is not None:
             return cached
