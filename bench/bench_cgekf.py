@@ -36,6 +36,14 @@ degraded 1.23, 0.14, 0.81, 2.33, 3.18; biased 2.66, 0.24, 1.65, 16.9, 24.3. Seed
 pattern reproduced except thrust under degradation (ground-idle window, tuners still
 converging from zero: 4.4 % there, 0.2-0.5 % from climb on). Speed: one engine 290 s per
 2-hour 20 Hz flight (target 10 s: FAIL), 64 engines 6.8 s per engine.
+
+Speed again 2026-11-24 after one engine got its float path (``cgekf.filter_one``), pinned
+to one core (taskset -c 0, OPENBLAS/OMP/MKL_NUM_THREADS=1), load average 0.9-2.0 on the 2
+shared cores, 3000-sample slices: one engine 27.2 s CPU per 2-hour 20 Hz flight from the
+flight start (--speed-start 0) and 29.4 s in the climb (--speed-start 300, the condition
+changing every sample) against 290 s before: still above the 10 s target (FAIL). About 70 %
+of what is left is the gas path on floats itself (``turbofan.gas_path_columns``, one
+evaluation a sample). 64 engines batched: 5.9 s and 4.9 s per engine.
 """
 
 from __future__ import annotations
