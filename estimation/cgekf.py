@@ -40,8 +40,8 @@ the transient simulator's chord solver, one gas-path evaluation per sample);
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from typing import NamedTuple
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -75,6 +75,7 @@ __all__ = [
     "EnginePlant",
     "LinearPlant",
     "filter_flights",
+    "filter_one",
 ]
 
 # seed 001 Table 2, sensor set no. 2 (XN12, XN25, P17, P25, T25, PS3, T3, T49), our names.
@@ -173,6 +174,9 @@ def cgekf_design(
     power_pct: float = 100.0,
     q_std: float = 0.05,
     qh_std: float = 0.005,
+    vstar: np.ndarray | None = None,
+    Q: np.ndarray | None = None,
+    Qh: np.ndarray | None = None,
 ) -> CgekfDesign:
     """Linearise the built-in engine at the design point and compute the constant gain.
 
@@ -182,18 +186,30 @@ def cgekf_design(
     R: seed 001 Table 2 noise (``sensors.noise_std_percent``). Tuners are
     a subset of the ten component health parameters (seed 001 Table 3).
     Reduced model and gain: seed 002 eq. 4-7 and the steady-state DARE gain.
+
+    A stored design's own choice replaces the defaults: vstar [m, 10] over the ten
+    component health parameters (any V*, not only rows of the identity; ``tuners``
+    then only names its rows), Q [4, 4] and Qh [10, 10] per sample at ``dt``.
     """
     full = linearize(alt_ft, mach, power_pct, dt=dt)
     model = (full.select_sensors(list(sensors)).select_health(list(HEALTH_NAMES[:_TURBO]))
              .select_aux(list(aux)))
-    unknown = [t for t in tuners if t not in HEALTH_NAMES[:_TURBO]]
-    if unknown:
-        raise DimensionError(f"tuners must be component health parameters, not {unknown}")
-    m = len(tuners)
-    vstar = np.zeros((m, _TURBO))
-    vstar[np.arange(m), [HEALTH_NAMES.index(t) for t in tuners]] = 1.0
     nx = model.n_states
-    red = reduced_model(model, vstar, q_std**2 * np.eye(nx), qh_std**2 * np.eye(_TURBO))
+    if vstar is None:
+        unknown = [t for t in tuners if t not in HEALTH_NAMES[:_TURBO]]
+        if unknown:
+            raise DimensionError(f"tuners must be component health parameters, not {unknown}")
+        m = len(tuners)
+        vstar = np.zeros((m, _TURBO))
+        vstar[np.arange(m), [HEALTH_NAMES.index(t) for t in tuners]] = 1.0
+    elif np.shape(vstar) != (len(tuners), _TURBO):
+        raise DimensionError(
+            f"Incompatible dimensions of vstar matrix; expected ({len(tuners)}, {_TURBO}) "
+            f"but found {np.shape(vstar)}"
+        )
+    Q = q_std**2 * np.eye(nx) if Q is None else np.asarray(Q, float)
+    Qh = qh_std**2 * np.eye(_TURBO) if Qh is None else np.asarray(Qh, float)
+    red = reduced_model(model, np.asarray(vstar, float), Q, Qh)
     ss = steady_state_gain(red.A, red.C, red.Q, model.R)
     trim = model.trim
     return CgekfDesign(
@@ -219,7 +235,8 @@ def run_cgekf(
     sample k; y [T, B, ny] measurements in the plant's units; x0 [B, nx] the
     a-priori state at k = 0 (plant units); d0 [B, m] a-priori tuners (default 0);
     z_true [T, B, nz] optional truth for the aux residuals (percent of truth,
-    seed 001 eq. 5). Health h_hat = V*^+ d_hat (seed 002 eq. 11).
+    seed 001 eq. 5). Health h_hat = V*^+ d_hat (seed 002 eq. 11). A NaN in y (a
+    sensor that did not report) gives a NaN residual and no correction from it.
     """
     y = np.asarray(y, float)
     if y.ndim != 3 or y.shape[2] != len(design.sensors):
@@ -240,15 +257,18 @@ def run_cgekf(
     out_y = np.empty((T, B, ny))
     out_z = np.empty((T, B, nz))
     out_r = np.empty((T, B, ny))
+    gaps = bool(np.isnan(y).any())
     for k in range(T):
         ev = plant(k, x, d)
         r = 100.0 * (y[k] - ev.y) / ev.scale_y
+        out_r[k] = r
+        if gaps:  # a sensor that did not report is not a measurement: no correction from it
+            r = np.where(np.isnan(r), 0.0, r)
         post = r @ KT  # seed 001 eq. 4: the constant gain on the residual
         out_x[k] = x + ev.scale_x / 100.0 * post[:, :nx]
         out_d[k] = d + post[:, nx:]
         out_y[k] = ev.y
         out_z[k] = ev.z + ev.scale_z / 100.0 * (r @ FKT)
-        out_r[k] = r
         step = r @ KpT
         x = ev.x_next + ev.scale_x / 100.0 * step[:, :nx]
         d = d + step[:, nx:]
@@ -372,8 +392,174 @@ def filter_flights(
     y [T, B, ny] measured sensors (``design.sensors``, engine units), u [T, B, 3]
     commands, env [T, B, 3] (alt ft, Mach, dTamb K), sampled every ``design.dt``;
     z_true [T, B, nz] optional aux truth. Starts from the nominal engine's steady
-    state at the first sample with zero tuners.
+    state at the first sample with zero tuners. One engine (B = 1) runs on the
+    float path ``filter_one``.
     """
+    if np.shape(y)[1:2] == (1,):  # one engine: the float path (same recursion, faster)
+        res, _ = filter_one(design, np.asarray(y, float)[:, 0], np.asarray(u, float)[:, 0],
+                            np.asarray(env, float)[:, 0], engine=engine)
+        if z_true is not None:
+            zt = np.asarray(z_true, float)
+            res = res._replace(z_residual=100.0 * (res.z_hat - zt) / zt)
+        return res
     plant = EnginePlant(design, u, env, engine)
     x0 = plant.initial_state()
     return run_cgekf(design, plant, y, x0, z_true=z_true)
+
+
+def filter_one(
+    design: CgekfDesign,
+    y: np.ndarray,
+    u: np.ndarray,
+    env: np.ndarray,
+    d0: np.ndarray | None = None,
+    state: Mapping[str, Any] | None = None,
+    x0: np.ndarray | None = None,
+    engine: EngineDesign | None = None,
+) -> tuple[CgekfResult, dict[str, Any]]:
+    """``run_cgekf`` with ``EnginePlant`` for one engine, on Python floats.
+
+    One engine batched as B = 1 spends its time in numpy's per-call overhead on
+    one-element arrays; here the same recursion (module docstring) runs with the
+    scalar gas path of the transient simulator (``transient_one.ScalarGasPath``,
+    the same chord steps, thresholds and Jacobian refresh cycle as
+    ``transient._GasPathSolver``) and the gain applied as nested lists, so it
+    equals the batched run to rounding.
+
+    y [T, ny], u [T, 3], env [T, 3] as in ``filter_flights`` for one engine;
+    d0 [m] a-priori tuners (default 0); state: the plant state returned by a
+    previous call, to continue a recording, with x0 [4] its a-priori states
+    (``result.x_next[0]``); without it, the nominal engine's steady state at the
+    first sample. Returns the result (arrays [T, 1, ...]) and the plant state after
+    the last sample, JSON-ready: gas-path unknowns ``z``, chord Jacobian inverse
+    ``jinv`` and sensitivities ``dzdu``, ``dkdv``, the refresh cycle's ``calls``
+    and the states, commands and environment of the last sample ``prev``.
+    Continuing from it gives bit for bit what an uninterrupted call gives.
+    """
+    from operator import mul
+
+    from estimation.engine.atmosphere import LBM, RANKINE
+    from estimation.engine.transient import (
+        _CHORD_MAX,
+        _CHORD_POLISH,
+        _CHORD_TOL,
+        _FD_EPS,
+        _ONE_PASS_LIMIT,
+        _REFRESH_EVERY,
+    )
+    from estimation.engine.transient_one import ScalarGasPath, _operating
+    from estimation.engine.xp import SCALAR
+
+    y = np.asarray(y, float)
+    u = np.asarray(u, float)
+    env = np.asarray(env, float)
+    ny = len(design.sensors)
+    if y.ndim != 2 or y.shape[1] != ny:
+        raise DimensionError(f"y must be [n_steps, {ny}] for one engine, found {y.shape}")
+    T = y.shape[0]
+    red = design.reduced
+    nx, m = red.n_states, red.n_tuners
+    nz = red.F.shape[0]
+    eng = engine or engine_design()
+    h13 = np.zeros((1, N_HEALTH))
+    solver = ScalarGasPath(eng, [0.0] * N_HEALTH, h13, _CHORD_TOL, _CHORD_POLISH, _CHORD_MAX,
+                           _ONE_PASS_LIMIT, _REFRESH_EVERY, _FD_EPS)
+    d = [0.0] * m if d0 is None else [float(v) for v in np.reshape(d0, m)]
+    prev_op: Operating | None = None
+    if state is None:
+        plant = EnginePlant(design, u[:1, None, :], env[:1, None, :], eng)
+        x = plant.initial_state()[0].tolist()
+        assert plant.z_unknown is not None
+        z = plant.z_unknown[0].tolist()
+    else:
+        if x0 is None:
+            raise DimensionError("x0 (the a-priori states) must come with a plant state")
+        x = [float(v) for v in np.reshape(x0, nx)]
+        z = [float(v) for v in np.reshape(state["z"], 5)]
+        if state["jinv"] is not None:
+            solver.jinv = [[float(v) for v in row] for row in np.reshape(state["jinv"], (5, 5))]
+        solver.dzdu = [[float(v) for v in row] for row in np.reshape(state["dzdu"], (5, 7))]
+        solver.dkdv = [[float(v) for v in row] for row in np.reshape(state["dkdv"], (4, 7))]
+        solver.calls = int(state["calls"])
+        if state["prev"] is not None:
+            px, pu, pe = (np.reshape(a, -1).tolist() for a in state["prev"])
+            prev_op = _operating(px[0], px[1], px[2] / RANKINE, px[3] / RANKINE, pu[0] * LBM,
+                                 pu[1], pu[2], flight_condition(pe[0], pe[1], pe[2], SCALAR))
+    # Constants of the loop as lists: the gain rows (a-posteriori gain K, a-priori gain
+    # K_pred, aux gain F K) and V*^+ without its zeros. The products are summed in Python, in
+    # a fixed order: a BLAS product of a small matrix may round differently from call to call
+    # (with the vector's memory alignment), and a continued recording must equal one run.
+    KK = np.vstack([design.K, design.K_pred, red.F @ design.K]).tolist()
+    n = nx + m
+    Vp = [[(j, v) for j, v in enumerate(row) if v != 0.0] for row in red.vstar_pinv.tolist()]
+
+    def health(d: list[float]) -> list[float]:
+        return [sum([v * d[j] for j, v in row]) for row in Vp]
+
+    dt = design.dt
+    idx_y = [SENSOR_NAMES.index(n) for n in design.sensors]
+    idx_z = [AUX_NAMES.index(n) for n in design.aux]
+
+    def exponents(names: Sequence[str], trims: np.ndarray) -> list[tuple[float, float, float]]:
+        return [(float(t), *CORRECTION.get(n, (0.0, 0.0))) for n, t in zip(names, trims,
+                                                                          strict=True)]
+
+    cx = exponents(STATE_NAMES, design.trim_x)
+    cy = exponents(design.sensors, design.trim_y)
+    cz = exponents(design.aux, design.trim_z)
+    prev: tuple[list[float], list[float], list[float]] | None = None
+    out_d, out_x, out_y, out_z, out_r = [], [], [], [], []
+    yl, ul, el = y.tolist(), u.tolist(), env.tolist()
+    pad = [0.0] * (N_HEALTH - _TURBO)
+    last_e: list[float] | None = None
+    fc: Any = None
+    sx = sy = sz = [0.0]
+    h = health(d)
+    for k in range(T):
+        # seed 002 eq. 11: the ten component health parameters h = V*^+ d, percent.
+        solver.hs = [v / 100.0 for v in h] + pad
+        solver.h = np.array([h + pad])  # numpy fallback only
+        uk, ek = ul[k], el[k]
+        if ek != last_e:  # the condition and the corrected scales (constant in level flight)
+            fc = flight_condition(ek[0], ek[1], ek[2], SCALAR)
+            th, de = fc.theta, fc.delta
+            sx = [t * th**a * de**b for t, a, b in cx]
+            sy = [t * th**a * de**b for t, a, b in cy]
+            sz = [t * th**a * de**b for t, a, b in cz]
+            last_e = ek
+        op = _operating(x[0], x[1], x[2] / RANKINE, x[3] / RANKINE, uk[0] * LBM, uk[1], uk[2],
+                        fc)
+        if prev_op is not None:
+            z = solver.predict(z, prev_op, op)
+        z, st = solver.one_pass(op, z)
+        prev_op, prev = op, (x, uk, ek)
+        sensors, aux = outputs_from_stations(st, op, SCALAR)
+        yk = yl[k]
+        y_hat = [sensors[i] for i in idx_y]
+        r = [100.0 * (a - b) / c for a, b, c in zip(yk, y_hat, sy, strict=True)]
+        rc = [0.0 if v != v else v for v in r]  # a sensor that did not report: no correction
+        g = [sum(map(mul, row, rc)) for row in KK]  # seed 001 eq. 4: K r, K_pred r, F K r
+        out_r.append(r)
+        out_x.append([x[i] + sx[i] / 100.0 * g[i] for i in range(nx)])
+        out_d.append([d[i] + g[nx + i] for i in range(m)])
+        out_y.append(y_hat)
+        out_z.append([aux[idx_z[i]] + sz[i] / 100.0 * g[2 * n + i] for i in range(nz)])
+        xdot = (st["dnf"], st["dnc"], st["dtm_hpc"], st["dtm_hpt"])
+        x = [x[i] + dt * xdot[i] + sx[i] / 100.0 * g[n + i] for i in range(nx)]
+        d = [d[i] + g[n + nx + i] for i in range(m)]
+        h = health(d)
+
+    def arr(rows: list[Any], width: int) -> np.ndarray:
+        return np.array(rows, float).reshape(T, 1, width)
+
+    d_hat = arr(out_d, m)
+    z_hat = arr(out_z, nz)
+    result = CgekfResult(d_hat, d_hat @ red.vstar_pinv.T, arr(out_x, nx), arr(out_y, ny), z_hat,
+                         arr(out_r, ny), np.full_like(z_hat, np.nan), design.sensors,
+                         design.aux, design.tuners, np.array([x]), np.array([d]))
+    jinv = solver.jinv
+    new_state = {"z": [list(z)], "jinv": None if jinv is None else [jinv],
+                 "dzdu": [solver.dzdu], "dkdv": [solver.dkdv], "calls": solver.calls,
+                 "prev": [[list(a)] for a in prev] if prev is not None
+                 else None if state is None else state["prev"]}
+    return result, new_state

@@ -77,13 +77,19 @@ def _cov(noise: Mapping[str, Any], key: str, n: int, default_zero: bool = False)
         raise DesignSpecError(f"'noise.{key}': {exc}") from exc
 
 
+# How stream recordings are filtered under a design (docs/design-format.md): the reduced-order
+# linear filter scheduled over the envelope (default), or seed 001's constant-gain EKF on the
+# built-in nonlinear engine (``estimation.cgekf``).
+STREAM_FILTERS = ("scheduled_linear", "cgekf")
+
+
 def parse_spec(spec: Mapping[str, Any], model: LinearModel) -> dict[str, Any]:
     """Validate a design spec against its model; return the normalised settings.
 
     Keys of the result: design_model (sensors and health selected), source_model
     (sensors selected, every health parameter), method, m, Q, Qh, Ph,
     health_weights, aux_weights, vstar (or None), faults (or None = default
-    library), lam, svd_aux, svd_row_weights, max_iter, variance.
+    library), lam, svd_aux, svd_row_weights, max_iter, variance, stream_filter.
     """
     if not isinstance(spec, Mapping):
         raise DesignSpecError("a design spec must be a JSON object")
@@ -153,6 +159,11 @@ def parse_spec(spec: Mapping[str, Any], model: LinearModel) -> dict[str, Any]:
         raise DesignSpecError(
             f"'variance' must be one of {list(theory.VARIANCE_MODES)}, found {variance!r}"
         )
+    stream_filter = spec.get("stream_filter", STREAM_FILTERS[0])
+    if stream_filter not in STREAM_FILTERS:
+        raise DesignSpecError(
+            f"'stream_filter' must be one of {list(STREAM_FILTERS)}, found {stream_filter!r}"
+        )
     return {
         "design_model": design_model,
         "source_model": source,
@@ -170,6 +181,7 @@ def parse_spec(spec: Mapping[str, Any], model: LinearModel) -> dict[str, Any]:
         "svd_row_weights": svd.get("row_weights"),
         "max_iter": max_iter,
         "variance": variance,
+        "stream_filter": stream_filter,
     }
 
 
@@ -276,12 +288,14 @@ def run_design(
     if progress is not None:
         progress(f"designing {settings['method']} tuners (m = {settings['m']})")
     design = _design(settings)
-    return design_to_dict(
+    result = design_to_dict(
         design,
         settings["source_model"],
         settings["faults"],
         settings["lam"] if design.method == "diagnostic" else None,
     )
+    result["stream_filter"] = settings["stream_filter"]
+    return result
 
 
 def design_from_result(result: Mapping[str, Any]) -> tuners.TunerDesign:

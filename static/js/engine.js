@@ -300,7 +300,22 @@ async function main() {
   $("#axis").addEventListener("change", () => { saveView(); if (trend?.n_records) draw(); });
   $("#export").addEventListener("click", () => exportCsv(id));
   await load(id);
+  await listRecordings(id);
   document.body.dataset.ready = "true";
+}
+
+// The engine's stream recordings, each linked to its recording page.
+async function listRecordings(id) {
+  const section = h("section", { class: "card", id: "recordings" }, h("h2", {}, "Stream recordings"));
+  $("main").append(section);
+  try {
+    const page = await api("/api/v1/streams", { query: { engine_id: id, limit: 50 } });
+    section.append(page.items.length ? h("ul", {}, page.items.map((r) => h("li", {},
+      h("a", { href: `/recording.html?id=${r.id}` }, `#${r.id}`), ` started ${fmtTime(r.started_at)}, ${r.n_samples} samples`)))
+      : h("p", { class: "muted" }, "No stream recordings of this engine."));
+  } catch (err) {
+    showError(section, err, "Stream recordings");
+  }
 }
 
 main();

@@ -119,8 +119,26 @@ async function main() {
   $("#upload").addEventListener("submit", upload);
   $("#upload-filter").addEventListener("change", loadUploads);
   $("#job-filter").addEventListener("change", loadJobs);
-  await Promise.all([loadUploads(), loadJobs()]);
+  await Promise.all([loadUploads(), loadJobs(), loadRecordings()]);
   document.body.dataset.ready = "true";
+}
+
+// Stream recordings (whole flights and live), each linked to its recording page.
+async function loadRecordings() {
+  const section = h("section", { class: "card", id: "recordings" }, h("h2", {}, "Stream recordings"));
+  $("main").append(section);
+  try {
+    const page = await api("/api/v1/streams", { query: { limit: 100 } });
+    section.append(page.items.length ? sortableTable([
+      { key: "id", label: "#", numeric: true, cell: (r) => h("a", { href: `/recording.html?id=${r.id}` }, `#${r.id}`) },
+      { key: "started_at", label: "Started", cell: (r) => fmtTime(r.started_at) },
+      { key: "engine_id", label: "Engine", numeric: true },
+      { key: "n_samples", label: "Samples", numeric: true },
+      { key: "status", label: "Status", cell: (r) => badge(r.status) },
+    ], page.items, { sortKey: "id", descending: true }) : h("p", { class: "muted" }, "No stream recordings yet."));
+  } catch (err) {
+    showError(section, err, "Stream recordings");
+  }
 }
 
 main();

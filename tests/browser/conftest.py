@@ -81,6 +81,9 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     factory = make_sessionmaker(engine)
     seeded = seed(factory)
     settings = Settings(data_dir=data_dir, database_url=url, log_json=False, log_level="WARNING")
+    # Jobs the server's runner executes read the settings through get_settings (the stream
+    # estimation job its data directory): the server's own.
+    patch.setattr("app.config.get_settings", lambda: settings)
     app = create_app(settings, engine, background_jobs=True)
     port = _free_port()
     config = uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", lifespan="on")

@@ -21,7 +21,11 @@ from app.services import units
 from app.services.snapshots import estimator
 from app.signals import ACTUATORS, SENSORS, SignalSpec
 from estimation.bias import BiasModel
+from estimation.cgekf import CgekfDesign, cgekf_design
+from estimation.design import STREAM_FILTERS
+from estimation.engine.health import HEALTH_NAMES
 from estimation.engine.schedule import EngineSchedule
+from estimation.engine.sensors import AUX_NAMES, SENSOR_NAMES
 from estimation.model import LinearModel
 from estimation.snapshot_design import DesignResult
 from estimation.stream_filter import ResampleError, SegmentGain, segment_gain
@@ -67,7 +71,9 @@ class StreamEstimator:
     schedule: EngineSchedule | None
     layout: EstimateLayout
     bias: BiasModel | None = None  # transient bias compensation, for the sensors in use
+    stream_filter: str = STREAM_FILTERS[0]
     _gains: dict[tuple[Any, ...], SegmentGain] = field(default_factory=dict)
+    _cgekf: dict[float, tuple[CgekfDesign, np.ndarray]] = field(default_factory=dict)
 
     @property
     def nx(self) -> int:
@@ -130,6 +136,37 @@ class StreamEstimator:
             return None
         s = self._corrected_states(cond[:, [0, 1, 3, 2]]) / np.asarray(x_ref)
         return np.where(np.isfinite(s), s, 1.0)
+    def cgekf(self, dt: float) -> tuple[CgekfDesign, np.ndarray]:
+        """The constant-gain EKF of this design at sample interval ``dt`` (seed 001: one gain
+        at ground maximum power, the design's V*, Q and Qh, per sample scaled with dt) and
+        the 1-sigma [q | h | z] of its a-posteriori covariance."""
+        # A whole-flight upload's interval comes from its time stamps (0.05 s to a few parts in
+        # 1e15), a live recording's is declared: the same filter for both (the Euler step and
+        # the gain take dt as it is, where the linear filter's resampling treats it as equal).
+        dt = float(f"{dt:.12g}")
+        cached = self._cgekf.get(dt)
+        if cached is not None:
+            return cached
+        model = self.model
+        turbo = list(HEALTH_NAMES[:10])
+        cols = [turbo.index(h) for h in model.health_names]
+        m = self.vstar.shape[0]
+        vstar = np.zeros((m, len(turbo)))
+        vstar[:, cols] = self.vstar
+        ratio = dt / model.dt
+        Qh = np.zeros((len(turbo), len(turbo)))
+        Qh[np.ix_(cols, cols)] = self.Qh * ratio
+        design = cgekf_design(model.sensor_names, self.layout.tuners, model.aux_names, dt=dt,
+                              vstar=vstar, Q=self.Q * ratio, Qh=Qh)
+        P = design.gain.P_post
+        nx = self.nx
+        Pq = P[nx:, nx:]
+        F = design.reduced.F
+        sigma = np.sqrt(np.maximum(np.concatenate([
+            np.diag(Pq), np.diag(self.Vp @ Pq @ self.Vp.T), np.diag(F @ P @ F.T)
+        ]), 0.0))
+        self._cgekf[dt] = (design, sigma)
+        return design, sigma
 
     def trims(self, cond: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Sensor and actuator trims [S, ny], [S, nu] in stored units at conditions [S, 4]
@@ -174,9 +211,15 @@ def estimator_for(
         raise StreamEstimationError(f"design {design.id}: its engine model is missing")
     result = design.result
     embedded = result.get("model")
+    stream_filter = result.get("stream_filter") or (design.spec or {}).get(
+        "stream_filter", STREAM_FILTERS[0])
+    if stream_filter not in STREAM_FILTERS:
+        raise StreamEstimationError(
+            f"design {design.id}: stream_filter must be one of {list(STREAM_FILTERS)}, "
+            f"found {stream_filter!r}")
     sched = estimator.builtin_schedule() if row.source == "builtin" else None
     key = (design.id, _document_key(result, None if isinstance(embedded, Mapping)
-                                    else row.content), tuple(signals), id(sched))
+                                    else row.content), tuple(signals), id(sched), stream_filter)
     cached = _ESTIMATORS.get(key)
     if cached is not None:
         return cached
@@ -215,8 +258,29 @@ def estimator_for(
             bias = BiasModel.from_dict(stored_bias).for_sensors(model.sensor_names)
         except ValueError as e:
             raise StreamEstimationError(f"design {design.id}: its transient bias model: {e}") from e
-    est = StreamEstimator(design.id, model, vstar, Vp, Q, Qh, sched, layout, bias)
+    if stream_filter == "cgekf":
+        _check_cgekf(design.id, row.source, model)
+    est = StreamEstimator(design.id, model, vstar, Vp, Q, Qh, sched, layout, bias=bias,
+                          stream_filter=stream_filter)
     if len(_ESTIMATORS) > 32:
         _ESTIMATORS.clear()
     _ESTIMATORS[key] = est
     return est
+
+
+def _check_cgekf(design_id: int, source: str, model: LinearModel) -> None:
+    """The constant-gain EKF runs the built-in nonlinear engine: a design of another engine
+    model, or with signals that engine does not have, cannot choose it."""
+    why = None
+    if source != "builtin":
+        why = "its engine model is not the built-in engine"
+    elif model.n_states != 4:
+        why = f"its model has {model.n_states} states, the built-in engine 4"
+    else:
+        odd = ([h for h in model.health_names if h not in HEALTH_NAMES[:10]]
+               + [s for s in model.sensor_names if s not in SENSOR_NAMES]
+               + [a for a in model.aux_names if a not in AUX_NAMES])
+        if odd:
+            why = f"the built-in engine's filter has no {odd} (component health only)"
+    if why is not None:
+        raise StreamEstimationError(f"design {design_id} chooses the cgekf stream filter but {why}")

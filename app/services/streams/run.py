@@ -1,18 +1,21 @@
 """The stream filter over samples: deviations from the trim at each sample's condition, and
 the filter scheduled piecewise over the envelope (a segment keeps its anchor's gain until the
-condition leaves the ``TOLERANCE`` box).
+condition leaves the ``TOLERANCE`` box); or, when the design chooses ``cgekf``, seed 001's
+constant-gain EKF on the built-in nonlinear engine over the samples in engine units.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
 
-from app.services.streams.estimator import TOLERANCE, StreamEstimator
+from app.services.streams.estimator import TOLERANCE, StreamEstimator, _stored_affine
 from app.signals import CONDITION_COLUMNS
 from estimation.bias import filter_compensated
+from estimation.cgekf import filter_one
 from estimation.stream_filter import SegmentGain, filter_run
 
 
@@ -31,13 +34,17 @@ def _first_outside(cond: np.ndarray, start: int, anchor: np.ndarray) -> int:
 
 @dataclass
 class Carry:
-    """The filter state between samples: x_hat and du of the last sample, the anchor."""
+    """The filter state between samples: x_hat and du of the last sample, the anchor; for
+    the constant-gain EKF, x is the a-priori [x (engine units); tuners] of the next sample
+    and ``plant`` what the on-board engine model carries (``cgekf.filter_one``'s state; None
+    before the first sample)."""
 
     x: np.ndarray
     u_prev: np.ndarray
     anchor: np.ndarray | None
     switches: int
     ti: float = 0.0  # low-passed transient index (docs/math.md section 7)
+    plant: dict[str, Any] | None = None
 
 
 def filter_piece(
@@ -47,6 +54,8 @@ def filter_piece(
     """Filter S samples from ``carry``; returns per-sample rows [S, width] (q, q 1-sigma, h,
     h 1-sigma, z, z 1-sigma, innovations), the carry after the last sample, and the carry
     after sample ``capture`` (an index into this piece) when given."""
+    if est.stream_filter == "cgekf":
+        return _cgekf_piece(est, dt, cond, dy, du, carry, capture)
     S = cond.shape[0]
     layout = est.layout
     sl = layout.slices()
@@ -167,3 +176,72 @@ def deviations(
         ok = np.isfinite(trim) & (np.abs(trim) > 1e-9) & np.isfinite(u)
         du[ok, k] = 100.0 * (u[ok] - trim[ok]) / trim[ok]
     return cond, dy, du
+
+
+def _column(table: pa.Table, name: str) -> np.ndarray:
+    """A stored column as floats (NaN throughout when the recording lacks it)."""
+    if name not in table.column_names:
+        return np.full(table.num_rows, np.nan)
+    return np.asarray(table[name].to_numpy(zero_copy_only=False), float)
+
+
+def filter_inputs(
+    est: StreamEstimator, table: pa.Table
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the design's stream filter takes: ``deviations`` for the scheduled linear filter;
+    for the constant-gain EKF, conditions [S, 4] and the sensors and commands [S, ny], [S, 3]
+    in the engine's units (a command the recording lacks is its trim at the condition)."""
+    if est.stream_filter != "cgekf":
+        return deviations(est, table)
+    cond = np.column_stack([_column(table, c) for c in CONDITION_COLUMNS])
+    _, u_trim = est.trims(cond)
+    model = est.model
+
+    def engine_units(stored: np.ndarray, names: list[str], units: list[str]) -> np.ndarray:
+        ab = np.array([_stored_affine(n, u) for n, u in zip(names, units, strict=True)])
+        return (stored - ab[:, 1]) / ab[:, 0]
+
+    y = np.column_stack([_column(table, n) for n in model.sensor_names])
+    y = engine_units(y, model.sensor_names, [s.unit for s in model.sensors])
+    u = np.column_stack([_column(table, n) if n in table.column_names else u_trim[:, k]
+                         for k, n in enumerate(model.input_names)])
+    u = engine_units(u, model.input_names, [s.unit for s in model.inputs])
+    return cond, y, u
+
+
+def _cgekf_piece(
+    est: StreamEstimator, dt: float, cond: np.ndarray, y: np.ndarray, u: np.ndarray,
+    carry: Carry, capture: int | None,
+) -> tuple[np.ndarray, Carry, Carry | None]:
+    """``filter_piece`` with the constant-gain EKF (seed 001 eq. 4): the same row layout, the
+    health V*^+ q (seed 002 eq. 11), aux in percent of the trim at each sample's condition,
+    innovations in percent of the design point's trim corrected to the inlet."""
+    design, sigma = est.cgekf(dt)
+    S, nx = cond.shape[0], est.nx
+    layout = est.layout
+    sl = layout.slices()
+    rows = np.empty((S, layout.width))
+    env = cond[:, :3]  # alt ft, Mach, dTamb K
+    assert est.schedule is not None  # a cgekf design is on the built-in engine
+    trims = est.schedule.trims_at(cond[:, [0, 1, 3, 2]])
+    z_trim = np.stack([trims[n] for n in design.aux], axis=1) if design.aux else \
+        np.zeros((S, 0))
+    cuts = [0, S] if capture is None else [0, capture + 1, S]
+    x, plant = carry.x, carry.plant
+    out, captured = carry, None
+    for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+        res, plant = filter_one(design, y[a:b], u[a:b], env[a:b], x[nx:], plant, x[:nx])
+        q = res.d_hat[:, 0]
+        rows[a:b, sl["q"]] = q
+        rows[a:b, sl["h"]] = q @ est.Vp.T  # seed 002 eq. 11
+        rows[a:b, sl["z"]] = 100.0 * (res.z_hat[:, 0] - z_trim[a:b]) / z_trim[a:b]
+        rows[a:b, sl["residual"]] = res.residual[:, 0]
+        x = np.concatenate([res.x_next[0], res.d_next[0]])
+        out = Carry(x, np.zeros(u.shape[1]), None, 0, plant=plant)
+        if capture is not None and b == capture + 1:
+            captured = out
+    m, p = est.vstar.shape[0], est.Vp.shape[0]
+    rows[:, sl["q_sigma"]] = sigma[:m]
+    rows[:, sl["h_sigma"]] = sigma[m:m + p]
+    rows[:, sl["z_sigma"]] = sigma[m + p:]
+    return rows, out, captured

@@ -55,7 +55,7 @@ from app.services import common
 from app.services.designs import service as designs
 from app.services.streams import recordings
 from app.services.streams.estimator import StreamEstimationError, estimator_for
-from app.services.streams.run import Carry, deviations, filter_piece
+from app.services.streams.run import Carry, filter_inputs, filter_piece
 
 WINDOW_S = 1.0  # stored window length (seconds of recording)
 PIECE = 65_536  # samples filtered per pass (bounds memory; aligned on windows)
@@ -67,7 +67,7 @@ def _carry_of(state: Mapping[str, Any]) -> Carry:
     anchor = state.get("anchor")
     return Carry(np.asarray(state["x"], float), np.asarray(state["u_prev"], float),
                  None if anchor is None else np.asarray(anchor, float),
-                 int(state.get("switches", 0)), float(state.get("ti", 0.0)))
+                 int(state.get("switches", 0)), float(state.get("ti", 0.0)), state.get("plant"))
 
 
 def _read_from(data_dir: Path, recording: StreamRecording, chunks: Sequence[StreamChunk],
@@ -162,7 +162,7 @@ def estimate_one(
     n_windows = 0
     for p0 in range(0, N - start, piece):
         part = table.slice(p0, piece)
-        cond, dy, du = deviations(est, part)
+        cond, dy, du = filter_inputs(est, part)
         S = part.num_rows
         capture = restart - 1 - (start + p0)
         rows, carry, got = filter_piece(est, dt, cond, dy, du, carry,
@@ -193,7 +193,7 @@ def estimate_one(
     if at_restart is not None:
         state.update(x=at_restart.x.tolist(), u_prev=at_restart.u_prev.tolist(),
                      anchor=None if at_restart.anchor is None else at_restart.anchor.tolist(),
-                     switches=at_restart.switches)
+                     switches=at_restart.switches, plant=at_restart.plant)
         if est.bias is not None:
             state["ti"] = at_restart.ti
         state_row.restart_sample = restart

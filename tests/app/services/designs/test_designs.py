@@ -89,6 +89,7 @@ def test_design_is_stored_with_the_analytic_errors_of_a_direct_design(
         ({**SPEC, "noise": {**SPEC["noise"], "Ph": [2.0] * 3}}, "Ph"),
         ({**SPEC, "sensors": ["Nf", "EGT"]}, "EGT"),
         ({**SPEC, "tuners": 8}, "sensors"),  # more tuners than the six sensors can estimate
+        ({**SPEC, "stream_filter": "ekf"}, "stream_filter"),
     ],
 )
 def test_bad_specs_are_422_naming_the_problem_and_store_nothing(
@@ -102,6 +103,15 @@ def test_bad_specs_are_422_naming_the_problem_and_store_nothing(
     assert _designs(session, tenant) == 0
     model = session.get(EngineModel, tenant.ids["model"])
     assert model is not None and model.locked_at is None  # the failed design left no lock
+
+
+def test_the_design_result_records_the_stream_filter_chosen(
+    client: TestClient, tenant: Tenant
+) -> None:
+    default = _design(client, tenant, name="default").json()
+    chosen = _design(client, tenant, {**SPEC, "stream_filter": "cgekf"}, name="cgekf").json()
+    assert default["result"]["stream_filter"] == "scheduled_linear"
+    assert chosen["result"]["stream_filter"] == "cgekf"
 
 
 def test_missing_fields_and_unknown_model(client: TestClient, tenant: Tenant) -> None:

@@ -1,0 +1,131 @@
+"""The recording page: a whole-flight stream uploaded on the engine and at the time of a seeded
+event shows its samples, the tuners and health parameters with their 1-sigma bands and the
+event; the transient index and bias correction are drawn when the estimates carry them; the
+engine page and the uploads page link to it."""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+from datetime import datetime, timedelta
+from typing import Any
+
+import httpx
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+import pytest
+
+from app.services.snapshots import estimator
+from app.services.streams import estimation
+from tests.browser.conftest import Console, Server, screenshot, sign_in, traces
+
+pytestmark = pytest.mark.browser
+
+N = 1200  # one minute at 20 Hz
+DT = 0.05
+
+
+def _get(server: Server, path: str) -> Any:
+    response = httpx.get(f"{server.base_url}{path}", headers={"X-API-Key": server.seeded.key})
+    assert response.status_code == 200, response.text
+    return response.json()
+
+
+def _cruise_csv(seed: int) -> tuple[bytes, list[str]]:
+    """A minute at cruise on the built-in schedule's trims with 0.2 % sensor noise."""
+    sched = estimator.builtin_schedule()
+    t = np.arange(N) * DT
+    cond = np.column_stack([np.full(N, 35000.0), np.full(N, 0.8), np.zeros(N), np.full(N, 80.0)])
+    trims = sched.trims_at(cond[:, [0, 1, 3, 2]])
+    rng = np.random.default_rng(seed)
+    columns: dict[str, Any] = {"time_s": t, "alt_ft": cond[:, 0], "mach": cond[:, 1],
+                               "dtamb_k": cond[:, 2], "power_pct": cond[:, 3]}
+    sensors = [s for s in sched.template.sensors if s.name != "Wf"]
+    for s in sensors:
+        a, b = estimation._stored_affine(s.name, s.unit)
+        columns[s.name] = (a * trims[s.name] + b) * (1 + rng.normal(size=N) * 0.002)
+    sink = io.BytesIO()
+    pacsv.write_csv(pa.table(columns), sink)
+    return sink.getvalue(), [s.name for s in sensors]
+
+
+def test_recording_page_samples_estimates_events_and_links(
+    page: Any, server: Server, console: Console
+) -> None:
+    seeded = server.seeded
+    assert seeded.event_id is not None
+    event = _get(server, f"/api/v1/events/{seeded.event_id}")
+    started = datetime.fromisoformat(event["detected_at"]) - timedelta(seconds=30)
+    body, sensors = _cruise_csv(seed=21)
+    response = httpx.post(
+        f"{server.base_url}/api/v1/streams", content=body,
+        headers={"X-API-Key": seeded.key, "Content-Type": "text/csv"},
+        params={"tail": event["tail"], "position": event["position"],
+                "started_at": started.isoformat()},
+    )
+    assert response.status_code == 201, response.text[:400]
+    rid = response.json()["recording"]["id"]
+    assert response.json()["recording"]["engine_id"] == event["engine_id"]
+    deadline = time.monotonic() + 120
+    while True:  # the upload queued the estimation job; the server's runner runs it
+        est = _get(server, f"/api/v1/streams/{rid}/estimates")
+        if est["n_samples_estimated"] == N:
+            break
+        failed = _get(server, "/api/v1/jobs?kind=estimate_recording&status=failed")["items"]
+        assert failed == [], failed[0]["error"]
+        assert time.monotonic() < deadline, "the recording was not estimated in time"
+        time.sleep(0.5)
+
+    sign_in(page, seeded.key, f"/recording.html?id={rid}")
+    samples = traces(page, "#samples-plot")
+    design_sensors = set(est["names"]["sensors"])
+    assert design_sensors <= {t["name"] for t in samples} <= set(sensors)
+    assert all(t["n"] == N for t in samples)  # a minute is drawn whole
+    tuners = traces(page, "#tuners-plot")
+    m = len(est["names"]["tuners"])
+    assert [t["role"] for t in tuners] == ["band", "line"] * m
+    assert [t["name"] for t in tuners if t["role"] == "line"] == est["names"]["tuners"]
+    assert all(t["n"] == N * DT for t in tuners if t["role"] == "line")  # one-second windows
+    # A band is the polygon value +- sigma: twice the windows' points.
+    assert all(t["n"] == 2 * N * DT for t in tuners if t["role"] == "band")
+    health = [t["name"] for t in traces(page, "#health-plot") if t["role"] == "line"]
+    assert health == est["names"]["health"]
+    # The seeded event falls in the recording: listed, and marked on the plots.
+    assert page.locator(f"#events a[href='/events.html?id={seeded.event_id}']").count() == 1
+    shapes = page.evaluate("document.querySelector('#tuners-plot').layout.shapes.length")
+    assert shapes == 1
+    # These estimates have neither a transient index nor a bias correction: said so.
+    assert page.locator("#transient-absent").is_visible()
+    assert page.locator("#bias-absent").is_visible()
+    screenshot(page, "recording")
+
+    # Estimates that carry them (seed 004's bias compensation) are drawn.
+    def with_bias(route: Any) -> None:
+        got = route.fetch()
+        data = got.json()
+        windows = len(data["t_s"])
+        data["transient_index"] = [0.1 * k for k in range(windows)]
+        data["bias_correction"] = {s: [0.5] * windows for s in data["names"]["sensors"][:2]}
+        route.fulfill(response=got, body=json.dumps(data))
+
+    page.route("**/api/v1/streams/*/estimates*", with_bias)
+    page.reload()
+    page.wait_for_selector("body[data-ready=true]")
+    assert [t["n"] for t in traces(page, "#transient-plot")] == [N * DT]
+    assert [t["name"] for t in traces(page, "#bias-plot")] == est["names"]["sensors"][:2]
+    page.unroute("**/api/v1/streams/*/estimates*")
+
+    # Linked from the engine page and from the uploads page.
+    page.goto(f"/engine.html?id={event['engine_id']}")
+    page.wait_for_selector("body[data-ready=true]")
+    page.click(f"#recordings a[href='/recording.html?id={rid}']")
+    page.wait_for_url(f"**/recording.html?id={rid}")
+    page.wait_for_selector("body[data-ready=true]")
+    page.goto("/uploads.html")
+    page.wait_for_selector("body[data-ready=true]")
+    page.click(f"#recordings a[href='/recording.html?id={rid}']")
+    page.wait_for_url(f"**/recording.html?id={rid}")
+    page.wait_for_selector("body[data-ready=true]")
+    assert console.unexpected() == []
