@@ -40,12 +40,13 @@ def test_snapshot_value_beyond_the_physical_bound_is_refused(
 
 
 def test_declared_unit_is_converted_before_the_bound() -> None:
-    # 2600 degC is 5171.67 degR: beyond the temperature bound once converted.
+    # 5400 degC is 10211.67 degR: beyond the temperature bound once converted (and under it
+    # if the unit were ignored).
     rows = records()
     for row in rows:
         row["T30[degC]"] = row.pop("T30") / 1.8 - 273.15
     parse_json(json.dumps({"snapshots": rows}).encode())  # in range: accepted
-    rows[0]["T30[degC]"] = 2600.0
+    rows[0]["T30[degC]"] = 5400.0
     details = rejected(parse_json, json.dumps({"snapshots": rows}).encode())
     assert [(d["row"], d["column"]) for d in details] == [(1, "T30[degC]")]
 
