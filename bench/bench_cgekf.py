@@ -13,7 +13,7 @@ Both filters get the same measurements and commands, the same sensors (seed 001
 set no. 2), the same seven tuners (seed 001 Table 3) and the same noise design:
 
   cgekf     estimation.cgekf (one gain at ground maximum power, nonlinear model)
-  linear    the product's stream filter (app/services/streams/estimation.py
+  linear    the product's stream filter (app/services/streams/run.py
             ``filter_piece``: reduced-order steady-state filter scheduled over
             the envelope on a grid of linearisations)
 
@@ -111,7 +111,8 @@ def linear_filter(cg: CgekfDesign, cond: np.ndarray, y: np.ndarray, u: np.ndarra
     """The product's stream filter over each flight: h_hat [T, B, 10], z_hat [T, B, nz]
     (engine units). cond [T, B, 4] (alt, Mach, dTamb, power)."""
     from app.models.estimates import EstimateLayout
-    from app.services.streams.estimation import Carry, StreamEstimator, filter_piece
+    from app.services.streams.estimator import StreamEstimator
+    from app.services.streams.run import Carry, filter_piece
 
     model = cg.model
     m = cg.n_tuners

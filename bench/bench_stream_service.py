@@ -40,7 +40,9 @@ from app.migrate import upgrade
 from app.models import EngineModel, EstimatorDesign
 from app.services.fleet import service as fleet
 from app.services.snapshots import estimator
-from app.services.streams import estimation
+from app.services.streams import estimator as stream_estimator
+from app.services.streams import run as stream_run
+from app.services.streams import store as stream_store
 from app.services.tenancy.service import create_operator, issue_api_key
 from estimation.design import design_to_dict
 from estimation.kalman import filter_stream_states
@@ -138,7 +140,7 @@ def main() -> None:
             rec_id = r.json()["recording"]["id"]
             t0 = time.perf_counter()
             with factory() as session, session.begin():
-                summary = estimation.estimate_recording(
+                summary = stream_store.estimate_recording(
                     session, operator_id=operator_id, recording_id=rec_id,
                     data_dir=settings.data_dir)
             t_est = time.perf_counter() - t0
@@ -161,7 +163,7 @@ def main() -> None:
                                 content=part, headers=headers)
                 assert r.status_code == 201, r.text[:300]
                 with factory() as session, session.begin():
-                    estimation.estimate_recording(
+                    stream_store.estimate_recording(
                         session, operator_id=operator_id, recording_id=live_id,
                         data_dir=settings.data_dir)
                 latencies.append(time.perf_counter() - t0)
@@ -176,11 +178,11 @@ def main() -> None:
             states = {s.recording_id: s for s in session.scalars(select(StreamFilterState))}
             x_whole = np.asarray(states[rec_id].state["x_end"])
             x_live = np.asarray(states[live_id].state["x_end"])
-            est = estimation._ESTIMATORS[next(iter(estimation._ESTIMATORS))]
+            est = stream_estimator._ESTIMATORS[next(iter(stream_estimator._ESTIMATORS))]
         engine.dispose()
 
     # Peers on the same samples: deviations once, then the filter alone.
-    cond, dy, du = estimation.deviations(est, table)
+    cond, dy, du = stream_run.deviations(est, table)
     g = est.gain(est.snapped(cond[0]), DT)
 
     def core() -> np.ndarray:
@@ -247,7 +249,7 @@ def scheduled(minutes: float) -> None:
     cols = {"time_s": np.arange(n) * DT, "alt_ft": alt, "mach": mach, "dtamb_k": np.zeros(n),
             "power_pct": power}
     for s_ in model.sensors:
-        a, b = estimation._stored_affine(s_.name, s_.unit)
+        a, b = stream_estimator._stored_affine(s_.name, s_.unit)
         cols[s_.name] = (a * trims[s_.name] + b) * (1 + rng.normal(size=n) * 0.002)
     body = csv_bytes(pa.table(cols))
     with tempfile.TemporaryDirectory() as tmp:
@@ -266,7 +268,7 @@ def scheduled(minutes: float) -> None:
             rec_id = r.json()["recording"]["id"]
         t0 = time.perf_counter()
         with factory() as session, session.begin():
-            summary = estimation.estimate_recording(
+            summary = stream_store.estimate_recording(
                 session, operator_id=operator_id, recording_id=rec_id,
                 data_dir=settings.data_dir)
         t_est = time.perf_counter() - t0

@@ -12,7 +12,7 @@ from fastapi import APIRouter, Query, Response
 
 from app.schemas.stream_estimates import StreamEstimatesOut
 from app.security import CurrentPrincipal, DbSession
-from app.services.streams import estimation
+from app.services.streams import store as stream_store
 
 router = APIRouter(prefix="/api/v1/streams", tags=["streams"])
 
@@ -50,7 +50,7 @@ def recording_estimates(
 ) -> StreamEstimatesOut | Response:
     """q_hat, h_hat, z_hat with 1-sigma and sensor residuals against recording time, as
     window means (one second each, averaged further down to ``max_points``)."""
-    series = estimation.read_estimates(
+    series = stream_store.read_estimates(
         session, operator_id=principal.operator_id, recording_id=recording_id,
         design_id=design_id, max_points=max_points,
     )

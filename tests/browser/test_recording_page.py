@@ -18,7 +18,7 @@ import pyarrow.csv as pacsv
 import pytest
 
 from app.services.snapshots import estimator
-from app.services.streams import estimation
+from app.services.streams import estimator as stream_estimator
 from tests.browser.conftest import Console, Server, screenshot, sign_in, traces
 
 pytestmark = pytest.mark.browser
@@ -44,7 +44,7 @@ def _cruise_csv(seed: int) -> tuple[bytes, list[str]]:
                                "dtamb_k": cond[:, 2], "power_pct": cond[:, 3]}
     sensors = [s for s in sched.template.sensors if s.name != "Wf"]
     for s in sensors:
-        a, b = estimation._stored_affine(s.name, s.unit)
+        a, b = stream_estimator._stored_affine(s.name, s.unit)
         columns[s.name] = (a * trims[s.name] + b) * (1 + rng.normal(size=N) * 0.002)
     sink = io.BytesIO()
     pacsv.write_csv(pa.table(columns), sink)

@@ -9,7 +9,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.orm import Session
 
 from app.services.jobs.registry import Progress, registry
-from app.services.streams import estimation
+from app.services.streams import store as stream_store
 
 
 class EstimateRecording(BaseModel):
@@ -34,7 +34,7 @@ def estimate_recording(
 ) -> dict[str, Any]:
     from app.config import get_settings
 
-    return estimation.estimate_recording(
+    return stream_store.estimate_recording(
         session,
         operator_id=operator_id,
         recording_id=parameters.recording_id,

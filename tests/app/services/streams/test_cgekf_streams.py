@@ -21,7 +21,7 @@ from app.config import Settings
 from app.models import EstimatorDesign
 from app.models.estimates import EstimateLayout
 from app.services.snapshots import estimator
-from app.services.streams import estimation
+from app.services.streams import estimator as stream_estimator
 from estimation.cgekf import AUX_ESTIMATED, SEED001_SENSORS, SEED001_TUNERS
 from estimation.design import DesignSpecError, design_to_dict, parse_spec
 from estimation.engine.flight import FlightProfile
@@ -126,9 +126,9 @@ def test_a_cgekf_design_estimates_a_flight_near_the_simulated_truth(
         active=False, result=_document(model, "scheduled_linear"))
     session.add(linear)
     session.flush()
-    other = estimation.estimator_for(session, linear, recording["signals"])
+    other = stream_estimator.estimator_for(session, linear, recording["signals"])
     assert other.stream_filter == "scheduled_linear"
-    assert estimation.estimator_for(session, design, recording["signals"]).stream_filter == \
+    assert stream_estimator.estimator_for(session, design, recording["signals"]).stream_filter == \
         "cgekf"
 
 
@@ -180,5 +180,5 @@ def test_the_stream_filter_option_is_validated_and_needs_the_builtin_engine(
     # An imported model cannot run the built-in engine's filter: the job says why.
     design = _activate(session, fleet_data, model, _document(model))
     recording = _upload_file(client, fleet_data, _flight(2.0, {}, seed=13), 2)
-    with pytest.raises(estimation.StreamEstimationError, match="built-in engine"):
-        estimation.estimator_for(session, design, recording["signals"])
+    with pytest.raises(stream_estimator.StreamEstimationError, match="built-in engine"):
+        stream_estimator.estimator_for(session, design, recording["signals"])

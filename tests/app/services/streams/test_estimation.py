@@ -27,7 +27,9 @@ from app.models import Engine, EngineModel, EstimatorDesign, Job
 from app.models.estimates import EstimateLayout
 from app.models.stream_estimates import StreamEstimate, StreamFilterState
 from app.services.snapshots import estimator
-from app.services.streams import estimation
+from app.services.streams import estimator as stream_estimator
+from app.services.streams import store as stream_store
+from estimation import stream_filter
 from estimation.design import design_to_dict
 from estimation.engine.schedule import build_schedule
 from estimation.model import LinearModel
@@ -126,7 +128,7 @@ def _upload_file(client: TestClient, fleet: Fleet, table: pa.Table, position: in
 
 def _estimate(session: Session, settings: Settings, fleet: Fleet, recording_id: int
               ) -> dict[str, Any]:
-    return estimation.estimate_recording(
+    return stream_store.estimate_recording(
         session, operator_id=fleet.operator_id, recording_id=recording_id,
         data_dir=settings.data_dir,
     )
@@ -179,7 +181,7 @@ def test_a_flight_converges_to_the_true_tuner_shift_within_its_sigma(
     layout = EstimateLayout.from_dict(state.layout)
     values = layout.unpack([r[3] for r in _rows(session, recording["id"])])
     sl = layout.slices()
-    assert values.shape[0] == n * DT / estimation.WINDOW_S
+    assert values.shape[0] == n * DT / stream_store.WINDOW_S
     q, q_sigma = values[:, sl["q"]], values[:, sl["q_sigma"]]
     tail = q[-120:]  # the last two minutes, long after the filter settled
     # Converged: the mean error is inside the filter's own 1-sigma, every tuner.
@@ -291,7 +293,7 @@ def test_the_schedule_splits_a_climb_into_gain_segments_whatever_the_chunking(
     columns: dict[str, Any] = {"time_s": t, "alt_ft": cond[:, 0], "mach": cond[:, 1],
                                "dtamb_k": cond[:, 2], "power_pct": cond[:, 3]}
     for s in est_model.sensors:
-        a, b = estimation._stored_affine(s.name, s.unit)
+        a, b = stream_estimator._stored_affine(s.name, s.unit)
         columns[s.name] = (a * trims[s.name] + b) * (1 + rng.normal(size=n) * 0.002)
     table = pa.table(columns)
     whole = _upload_file(client, fleet_data, table, 2)
@@ -326,7 +328,7 @@ def test_resampling_keeps_the_steady_state_gains() -> None:
     """A model at 15 ms resampled to 50 ms keeps G_y, G_z (closed form) and its poles move to
     lambda^(50/15) (zero-order hold of the same continuous system)."""
     fine = reference_model(dt=0.015)
-    coarse = estimation.resample(fine, DT)
+    coarse = stream_filter.resample(fine, DT)
     for a, b in zip(fine.steady_state_gains(), coarse.steady_state_gains(), strict=True):
         np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(np.sort(np.linalg.eigvals(coarse.A).real),
