@@ -137,7 +137,8 @@ async function column(id, side) {
       + `Baseline health RMS ${fmtNum(engine.health.rms_turbomachinery, 2)} %, 95 % interval coverage ${fmtNum(100 * engine.health.coverage_turbomachinery, 0)} % (ten turbomachinery parameters).`),
     vis.not_visible.length ? h("p", { class: "notice engine-invisible" },
       `No visible signature: ${vis.not_visible.map((f) => `${f} (${fmtNum(vis.event_sigmas[engine.faults.indexOf(f)], 1)} σ per event)`).join(", ")}. `
-      + `Below ${fmtNum(vis.threshold_sigmas, 0)} noise sigmas over an event, no design can isolate these faults on this engine.`) : null,
+      + `Below ${fmtNum(vis.threshold_sigmas, 0)} noise sigmas over an event, no design can isolate these faults on this engine`
+      + (vis.ceiling_percent_correct != null ? `; isolating the ones under 1 σ at chance, no design can expect more than ${fmtNum(vis.ceiling_percent_correct, 1)} % of all ${engine.faults.length}.` : ".")) : null,
     engine.ambiguity_groups.length ? h("p", { class: "engine-groups" },
       `Ambiguity groups: ${engine.ambiguity_groups.map((g) => g.join(" or ")).join("; ")} (naming the group is right for ${fmtNum(engine.group_percent_correct, 1)} % of the visible faults).`) : null,
     engineConf,
