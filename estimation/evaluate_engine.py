@@ -43,16 +43,19 @@ high power.
 
 What no design can do: over all eight faults of the library the expected ceiling is
 ``chance_ceiling`` = (7 x 100 + 12.5) / 8 = 89.1 %, because the VBV fault shows nothing and is
-isolated at chance. What the design does change (bench/bench_isolation.py, 20 engines a
-fault, 30 + 20 take-off and cruise records): the number of tuners (the baseline's fit of the
-engine before the fault: SVD m = 8 isolates 4-5 points better than m = 6), fuel flow as a
-sensor at the closed-loop gain (+3 to +6 points), secant signatures (+3 to +8 points, mostly
-the 4 % LPC fault, where the linear gains fail), and the event's length (60 records instead
-of 20 take VSV from 20-50 % to 40-85 %). The diagnostics-aware design (seed 002 KF design 3)
-buys nothing here (-3 to +1 point against SVD of the same m, within the sampling noise, at
-0.3-0.5 % worse health RMS): its objective separates the faults in tuner space on the linear
-cruise model, but the isolation here is in sensor space, where a fault's signature g_ij does
-not pass through the tuners at all; V* enters only through the baseline h_0.
+isolated at chance. What the design does change (bench/bench_isolation.py, 50 engines a
+fault, 30 + 20 take-off and cruise records; percent of all eight): the number of tuners (the
+baseline's fit of the engine before the fault: SVD m = 8 75.2 % against m = 6 69.8 %), fuel
+flow as a sensor at the closed-loop gain (+1 to +3 points), secant signatures (+2 to +4,
+mostly the 4 % LPC fault, where the linear gains fail), and the event's length (60 records
+instead of 20 take VSV from 34-48 % to 48-66 %: the evidence grows as the root of the record
+count). The diagnostics-aware design (seed 002 KF design 3)
+buys nothing here: against SVD of the same m, path and records it scores -2.5 to 0 points
+at m = 8 and -10 to +3 at m = 6 over the bench's five record mixes and two event lengths
+(the sampling noise is about 2 points), at 0.3-0.5 % worse health RMS. Its objective
+separates the faults in tuner space on the linear cruise model, but the isolation here is in
+sensor space, where a fault's signature g_ij does not pass through the tuners at all; V*
+enters only through the baseline h_0.
 
 Pure: numpy and the engine model; randomness from the ``rng`` passed in.
 """

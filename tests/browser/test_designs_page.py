@@ -66,6 +66,8 @@ def test_two_designs_side_by_side(page: Any, server: Server, console: Console) -
     assert engine["visibility"]["not_visible"]  # VBV on this engine
     for fault in engine["visibility"]["not_visible"]:
         assert fault in page.inner_text("#design-a .engine-invisible")
+    ceiling = engine["visibility"]["ceiling_percent_correct"]
+    assert f"more than {ceiling:.1f} % of all" in page.inner_text("#design-a .engine-invisible")
     # Design B has no evaluation yet: theory only, and a button to run one.
     assert [t["name"] for t in traces(page, "#health-b")] == [
         "squared bias (theory)", "variance (theory)"
