@@ -30,8 +30,8 @@ VBV), the baseline health RMS over the ten turbomachinery parameters, and the co
 diagonal; the diagnostics-aware design against the SVD design of the same m and path. A
 summary with the targets beside closes the run.
 
-    PYTHONPATH=. python bench/bench_isolation.py            # 20 engines per fault (~4 min)
-    PYTHONPATH=. python bench/bench_isolation.py --engines 50 --mixes takeoff+cruise --after 20
+    PYTHONPATH=. python bench/bench_isolation.py            # 20 engines per fault (~10 min)
+    PYTHONPATH=. python bench/bench_isolation.py --engines 50 --mixes takeoff+cruise  # ~6 min
 """
 
 from __future__ import annotations

@@ -121,7 +121,7 @@ def test_isolation_of_the_library_over_all_eight_faults() -> None:
     with a strong signature (Fan .. Wf) are isolated at least 90 %; the VBV bias shows less
     than 0.1 sigma over its whole event, so the expected ceiling over all eight faults is
     (7 x 100 + 100 / 8) / 8 = 89.1 %, under the 90 % target for every design; the product's
-    path scores at least 70 % of the eight (77 % here, 72.5 % on 20 engines a fault)."""
+    path scores at least 70 % of the eight (77 % here, 76.2 % on 50 engines a fault)."""
     rec = ee.simulate_records(6, rng=np.random.default_rng(0), n_before=30, n_after=20)
     event = np.sqrt(np.sum(ee.fault_sigmas(rec) ** 2, axis=1))
     median = np.array([np.median(event[rec.fault == i]) for i in range(len(rec.faults))])
