@@ -21,6 +21,12 @@ class Settings(BaseSettings):
     )
     redis_url: str = "redis://127.0.0.1:6379/0"
     job_runner: str = Field(default="inprocess", pattern="^(inprocess|celery)$")
+    job_host: str = Field(
+        default="process", pattern="^(process|thread)$",
+        description="Where the embedded runner (job_runner=inprocess) runs jobs: a child process "
+        "of the server (both cores, requests never wait on a job's compute) or threads of the "
+        "server process.",
+    )
     job_heartbeat_seconds: float = Field(
         default=15.0, gt=0, description="How often a running job marks itself alive."
     )

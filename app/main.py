@@ -19,6 +19,7 @@ from app.db import make_engine, make_sessionmaker
 from app.errors import install_error_handlers
 from app.jobs.background import start_background_jobs
 from app.jobs.celery_app import CeleryDispatch
+from app.jobs.host import JobHost, start_job_host
 from app.jobs.kinds import load_kinds
 from app.limits import BodyLimitMiddleware
 from app.log import configure_logging, install_request_logging
@@ -65,21 +66,30 @@ def create_app(
     engine: Engine | None = None,
     *,
     background_jobs: bool = False,
+    job_host: JobHost | None = None,
 ) -> FastAPI:
     """Build the application; ``engine`` lets tests hand in their own database.
 
-    ``background_jobs`` starts the in-process job runner and scheduler with the app when
-    ``settings.job_runner`` is ``inprocess`` (the embedded default; ``fleethealth serve``).
+    ``background_jobs`` starts the embedded job runner and scheduler with the app when
+    ``settings.job_runner`` is ``inprocess`` (the embedded default; ``fleethealth serve``): in a
+    child process (``app.jobs.host``, ``settings.job_host`` = ``process``, the default) or in
+    threads of this process (``thread``). ``job_host``: the child process, started already
+    (``fleethealth serve`` starts it first thing, so that both start up at once).
     Without it queued jobs wait for a runner (tests run them with ``run_pending``).
     """
     settings = settings or get_settings()
     configure_logging(settings.log_level, settings.log_json)
+    jobs_in_child = background_jobs and settings.job_host == "process"
     engine = engine or make_engine(settings.resolved_database_url)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        background = None
-        if background_jobs and settings.job_runner == "inprocess":
+        background, host = None, None
+        if background_jobs and settings.job_runner == "inprocess" and jobs_in_child:
+            host = job_host or start_job_host(settings)
+            host.begin()
+            app.state.job_dispatcher = host
+        elif background_jobs and settings.job_runner == "inprocess":
             background = start_background_jobs(
                 app.state.sessionmaker,
                 app.state.job_registry,
@@ -90,6 +100,8 @@ def create_app(
         yield
         if background is not None:
             background.stop()
+        if host is not None:
+            host.stop()
         engine.dispose()
 
     app = FastAPI(
@@ -111,7 +123,7 @@ def create_app(
     app.state.job_registry = load_kinds()
     dispatcher: Dispatcher = CeleryDispatch() if settings.job_runner == "celery" else NoDispatch()
     # Uploads keep their records in memory for the estimation job only where it runs here.
-    fresh_records.configure(enabled=settings.job_runner != "celery")
+    fresh_records.configure(enabled=settings.job_runner != "celery" and not jobs_in_child)
     app.state.job_dispatcher = dispatcher
 
     # Not "404.html": StaticFiles(html=True) would send that for unknown API paths too.

@@ -48,6 +48,13 @@ def serve(
     ),
 ) -> None:
     """Migrate, then serve the API and the dashboard with uvicorn."""
+    settings = get_settings()
+    job_host = None
+    if jobs and settings.job_runner == "inprocess" and settings.job_host == "process":
+        from app.jobs.host import start_job_host
+
+        job_host = start_job_host(settings)  # first: its start-up overlaps the server's
+
     import uvicorn
 
     from app.db import make_engine, make_sessionmaker, transaction
@@ -55,7 +62,6 @@ def serve(
     from app.migrate import upgrade
     from app.services.demo.operator import ensure_demo_operator
 
-    settings = get_settings()
     host = host or settings.host
     port = port or settings.port
     if not skip_migrate:
@@ -78,7 +84,7 @@ def serve(
     typer.echo(f"API documentation:     {base}/docs")
     if key:
         typer.echo(f"demo API key:          {key}")
-    app = create_app(settings, engine, background_jobs=jobs)
+    app = create_app(settings, engine, background_jobs=jobs, job_host=job_host)
     uvicorn.run(app, host=host, port=port, log_level="warning")
 
 

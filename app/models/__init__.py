@@ -3,6 +3,7 @@
 from app.models.base import Base
 from app.models.designs import EngineModel, EngineType, EstimatorDesign
 from app.models.estimates import (
+    DeteriorationBucket,
     Estimate,
     EstimationBacklog,
     Event,
@@ -20,6 +21,7 @@ __all__ = [
     "Aircraft",
     "ApiKey",
     "Base",
+    "DeteriorationBucket",
     "Engine",
     "EngineModel",
     "EngineType",

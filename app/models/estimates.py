@@ -93,6 +93,31 @@ class FilterState(Base):
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
 
 
+class DeteriorationBucket(Base):
+    """One engine's estimates under one design summed over a week or a calendar month: what the
+    fleet deterioration reads instead of every estimate.
+
+    ``sums`` holds, as little-endian float64, the sums of the health and auxiliary values
+    (``layout`` blocks h then z) over the ``n`` estimates whose record falls in the period that
+    starts at ``start`` (weeks start on Monday, months on the 1st, 00:00 UTC). The estimation
+    pipeline rewrites an engine's periods from the first record it (re)computes on, in the
+    transaction that stores the estimates (``app.services.snapshots.buckets``).
+    """
+
+    __tablename__ = "deterioration_buckets"
+    __table_args__ = (CheckConstraint("period IN ('week', 'month')", name="period"),)
+
+    design_id: Mapped[int] = mapped_column(
+        ForeignKey("estimator_designs.id", ondelete="CASCADE"), primary_key=True
+    )
+    period: Mapped[str] = mapped_column(String(8), primary_key=True)
+    engine_id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    start: Mapped[datetime] = mapped_column(UTCDateTime(), primary_key=True)
+    operator_id: Mapped[int] = mapped_column(Integer)
+    n: Mapped[int] = mapped_column(Integer)
+    sums: Mapped[bytes] = mapped_column(LargeBinary)
+
+
 class EstimationBacklog(Base):
     """A mark on an engine whose snapshots its estimates do not cover yet: the estimation job's
     to-do list.

@@ -111,6 +111,9 @@ class Snapshot(Base):
     __table_args__ = (
         CheckConstraint(_in("phase", PHASES), name="phase"),
         CheckConstraint("position BETWEEN 1 AND 4", name="position"),
+        # An installation recorded or corrected re-resolves its tail position's snapshots over
+        # its period (``fleet.installation_records``): without it, a scan of every snapshot.
+        Index("ix_snapshots_aircraft_position_time", "aircraft_id", "position", "recorded_at"),
     )
 
     # Keyed by the engine and the time (migration 0010): a snapshot is one engine's report at

@@ -2,16 +2,25 @@
 
 from __future__ import annotations
 
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
+import numpy as np
 import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
-from sqlalchemy import inspect
+from sqlalchemy import inspect, select
 
-from app.db import make_engine
+from app.db import make_engine, make_sessionmaker, transaction
 from app.migrate import downgrade, upgrade
-from app.models import Base
+from app.models import Base, DeteriorationBucket
+from tests.app.services.trends.test_trends import (
+    LAYOUT,
+    add_aircraft,
+    add_engine,
+    add_estimates,
+    make_fleet,
+)
 from tests.conftest import BACKENDS, fresh_database_url
 
 
@@ -70,6 +79,43 @@ def test_engine_type_limits_come_and_go_with_migration_0011(
         assert "limits" not in columns() and "name" in columns()
         upgrade(url)
         assert "limits" in columns()
+        engine.dispose()
+    finally:
+        urls.close()
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_migration_0013_fills_the_deterioration_periods_from_stored_estimates(
+    backend: str, tmp_path: Path
+) -> None:
+    """Estimates stored before 0013 get their periods at the upgrade: the same rows the
+    pipeline keeps (here, those the test helper writes beside its estimates)."""
+    urls = fresh_database_url(backend, tmp_path)
+    url = next(urls)
+    try:
+        upgrade(url)
+        engine = make_engine(url)
+        factory = make_sessionmaker(engine)
+        rng = np.random.default_rng(3)
+        with transaction(factory) as session:
+            fleet = make_fleet(session, "Migrating Air")
+            aircraft = add_aircraft(session, fleet, "F-MIG")
+            for esn in ("M1", "M2"):
+                times = [datetime(2026, 1, 1, tzinfo=UTC) + timedelta(hours=20 * k)
+                         for k in range(150)]
+                add_estimates(session, fleet, add_engine(session, fleet, esn), aircraft,
+                              rng.normal(size=(150, LAYOUT.width)), times)
+
+        def periods() -> list[tuple]:
+            with factory() as session:
+                return sorted((b.engine_id, b.period, b.start, b.n, bytes(b.sums))
+                              for b in session.scalars(select(DeteriorationBucket)))
+
+        kept = periods()
+        assert len({(p[1], p[2]) for p in kept}) > 10
+        downgrade(url, "0012")
+        upgrade(url)
+        assert periods() == kept
         engine.dispose()
     finally:
         urls.close()

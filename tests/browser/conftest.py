@@ -80,7 +80,9 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     engine = make_engine(url)
     factory = make_sessionmaker(engine)
     seeded = seed(factory)
-    settings = Settings(data_dir=data_dir, database_url=url, log_json=False, log_level="WARNING")
+    # Jobs in threads of this process: they see the schedule patched above.
+    settings = Settings(data_dir=data_dir, database_url=url, log_json=False, log_level="WARNING",
+                        job_host="thread")
     # Jobs the server's runner executes read the settings through get_settings (the stream
     # estimation job its data directory): the server's own.
     patch.setattr("app.config.get_settings", lambda: settings)

@@ -37,7 +37,13 @@ from app.models import (
     Snapshot,
 )
 from app.models.designs import effective_limits
-from app.models.estimates import Estimate, EstimateLayout, Event, FilterState
+from app.models.estimates import (
+    DeteriorationBucket,
+    Estimate,
+    EstimateLayout,
+    Event,
+    FilterState,
+)
 from app.services.events.service import latest_open_events, open_event_counts
 from app.services.fleet import performance
 from app.services.fleet.severity import LEVELS, LimitValue, severity
@@ -416,25 +422,15 @@ def _series(
     ]
 
 
-def _bucket_starts(epoch: np.ndarray, bucket: str) -> np.ndarray:
-    """Start (epoch seconds) of the week (Monday) or calendar month of each time."""
-    days = np.floor(epoch / 86400.0).astype("datetime64[D]")
-    if bucket == "week":
-        # 1970-01-01 was a Thursday: shift so weeks start on Monday.
-        weeks = (days - np.datetime64("1969-12-29")).astype(np.int64) // 7
-        starts = np.datetime64("1969-12-29") + weeks * 7
-    else:
-        starts = days.astype("datetime64[M]").astype("datetime64[D]")
-    return starts.astype("datetime64[s]").astype(np.int64).astype(float)
-
-
 def fleet_deterioration(
     session: Session, operator_id: int, bucket: str = "month"
 ) -> dict[str, Any]:
     """Fleet-average health and auxiliary estimates per week or month, per active design.
 
     Each engine first counts once per bucket (the mean of its estimates there), then the
-    fleet mean and spread are taken over engines, so a busy engine does not dominate.
+    fleet mean and spread are taken over engines, so a busy engine does not dominate. Read
+    from the per-engine sums the pipeline keeps (``deterioration_buckets``): one row per
+    engine and period, whatever the number of estimates.
     """
     if bucket not in ("week", "month"):
         raise InvalidInput(
@@ -456,30 +452,29 @@ def fleet_deterioration(
             continue
         layout = EstimateLayout.from_dict(layout_doc)
         rows = session.execute(
-            select(Estimate.engine_id, Estimate.recorded_at, Estimate.packed)
-            .where(Estimate.design_id == design_id, Estimate.operator_id == operator_id)
+            select(DeteriorationBucket.engine_id, DeteriorationBucket.start,
+                   DeteriorationBucket.n, DeteriorationBucket.sums)
+            .where(DeteriorationBucket.design_id == design_id,
+                   DeteriorationBucket.period == bucket,
+                   DeteriorationBucket.operator_id == operator_id)
         ).all()
         if not rows:
             continue
-        engine_ids = np.fromiter((r[0] for r in rows), np.int64, len(rows))
-        epoch = np.fromiter((r[1].timestamp() for r in rows), float, len(rows))
-        values = layout.unpack([r[2] for r in rows])
-        s = layout.slices()
-        hz = np.concatenate([values[:, s["h"]], values[:, s["z"]]], axis=1)
-        starts = _bucket_starts(epoch, bucket)
+        width = len(layout.health) + len(layout.aux)
+        starts = np.fromiter((r[1].timestamp() for r in rows), float, len(rows))
+        counts = np.fromiter((r[2] for r in rows), float, len(rows))
+        sums = np.frombuffer(b"".join(r[3] for r in rows), "<f8").reshape(len(rows), width)
+        # Each engine counts once per period (the mean of its estimates there), then the
+        # fleet's mean and spread are taken over engines.
+        per_engine = sums / counts[:, None]
         buckets, b_index = np.unique(starts, return_inverse=True)
-        # Per (engine, bucket) mean, then mean and spread over engines.
-        keys, k_index = np.unique(np.stack([b_index, engine_ids]), axis=1, return_inverse=True)
-        k_index = np.ravel(k_index)
-        sums = np.zeros((keys.shape[1], hz.shape[1]))
-        np.add.at(sums, k_index, hz)
-        per_engine = sums / np.bincount(k_index, minlength=keys.shape[1])[:, None]
-        n_engines = np.bincount(keys[0], minlength=len(buckets))
-        mean = np.zeros((len(buckets), hz.shape[1]))
-        np.add.at(mean, keys[0], per_engine)
+        b_index = np.ravel(b_index)
+        n_engines = np.bincount(b_index, minlength=len(buckets))
+        mean = np.zeros((len(buckets), width))
+        np.add.at(mean, b_index, per_engine)
         mean /= n_engines[:, None]
         sq = np.zeros_like(mean)
-        np.add.at(sq, keys[0], (per_engine - mean[keys[0]]) ** 2)
+        np.add.at(sq, b_index, (per_engine - mean[b_index]) ** 2)
         spread = np.sqrt(sq / n_engines[:, None])
         p = len(layout.health)
         units = layout.units

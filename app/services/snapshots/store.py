@@ -41,7 +41,7 @@ from app.models import Engine, EstimatorDesign, MaintenanceAction, Snapshot
 from app.models.base import utcnow
 from app.models.estimates import Estimate, Event, FilterCheckpoint, FilterState
 from app.services import fresh_records
-from app.services.snapshots import backlog, detector, rows
+from app.services.snapshots import backlog, buckets, detector, rows
 from app.services.snapshots.estimator import SnapshotEstimator, estimator_for_design
 from app.services.snapshots.run import EngineOutput, EngineRun, PipelineState, run_filters
 from estimation.snapshot import SnapshotState
@@ -227,10 +227,13 @@ def estimate_engines(
                     affected if marks is None else {e: m.earliest for e, m in marks.items()},
                     marks or {},
                 )
+                periods = buckets.BucketCollector(est.layout)
                 with rows.EstimateWriter(
                     session, operator_id=operator_id, design_id=est.design_id
                 ) as writer:
-                    outputs = run_filters(est, runs, sink=writer.add)
+                    outputs = run_filters(est, runs, sink=periods.passing_to(writer.add))
+                buckets.refresh(session, operator_id=operator_id, design_id=est.design_id,
+                                layout=est.layout, collected=periods)
                 _store_batch(session, est, runs, states, outputs)
                 if marks is not None:
                     backlog.settle(session, marks.values())

@@ -915,7 +915,9 @@ def test_the_app_runs_jobs_in_process_when_background_jobs_are_on(
     url, factory = live
     with transaction(factory) as session:
         _operator, key = make_operator(session, "Embedded Air", role="analyst")
-    settings = Settings(data_dir=tmp_path / "data", database_url=url, log_json=False)
+    # Threads: the test's own job kinds (a child process would load the product's).
+    settings = Settings(data_dir=tmp_path / "data", database_url=url, log_json=False,
+                        job_host="thread")
     app = create_app(settings, background_jobs=True)
     app.state.job_registry = make_registry()
     with TestClient(app) as client:

@@ -25,6 +25,7 @@ from app.models import (
     Upload,
 )
 from app.models.estimates import Estimate, EstimateLayout, FilterState
+from app.services.snapshots import buckets
 from app.services.tenancy.service import create_operator, issue_api_key
 from app.services.trends import service as trends
 
@@ -92,7 +93,8 @@ def add_estimates(
     session: Session, fleet: Fleet, engine: Engine, aircraft: Aircraft, values: np.ndarray,
     times: list[datetime],
 ) -> None:
-    """Snapshots at ``times`` and an estimate per snapshot with ``values`` (n, width)."""
+    """Snapshots at ``times`` and an estimate per snapshot with ``values`` (n, width), with
+    the engine's deterioration periods."""
     snaps = [
         Snapshot(
             operator_id=fleet.operator_id, engine_id=engine.id, aircraft_id=aircraft.id,
@@ -120,6 +122,9 @@ def add_estimates(
         )
     )
     session.flush()
+    # The periods the pipeline keeps beside the estimates it writes.
+    buckets.rebuild(session, operator_id=fleet.operator_id, design_id=fleet.design.id,
+                    layout=LAYOUT, engine_ids=[engine.id])
 
 
 def _values(rng: np.random.Generator, n: int) -> np.ndarray:

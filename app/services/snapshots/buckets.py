@@ -1,0 +1,156 @@
+"""Per-engine weekly and monthly sums of the health and auxiliary estimates, kept as the
+estimates are stored, so that the fleet deterioration reads one row per engine and period
+instead of every estimate (``deterioration_buckets``; read by ``app.services.fleet.status``).
+
+An estimation run writes an engine's estimates from its first (re)computed record on. Every
+period from the one holding that record is therefore rewritten: its rows are deleted, the
+estimates the run kept before its first record in that period are read back (at most one
+period's worth), and the new estimates, taken from the writer's blocks as they go to the
+database, are added. The sums are those of the stored float32 values, so the fleet figures
+equal those of a full scan of the estimates.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from datetime import UTC, datetime
+
+import numpy as np
+from sqlalchemy import and_, delete, insert, or_, select
+from sqlalchemy.orm import Session
+
+from app.models.estimates import DeteriorationBucket, Estimate, EstimateLayout
+from app.services.snapshots.rows import Block
+
+PERIODS = ("week", "month")
+_MONDAY = np.datetime64("1969-12-29")  # 1970-01-01 was a Thursday
+
+
+def period_starts(epoch: np.ndarray, period: str) -> np.ndarray:
+    """Start (epoch seconds) of the week (Monday 00:00 UTC) or calendar month of each time."""
+    days = np.floor(np.asarray(epoch, float) / 86400.0).astype("datetime64[D]")
+    if period == "week":
+        starts = _MONDAY + ((days - _MONDAY).astype(np.int64) // 7) * 7
+    elif period == "month":
+        starts = days.astype("datetime64[M]").astype("datetime64[D]")
+    else:
+        raise ValueError(f"unknown period {period!r}")
+    return starts.astype("datetime64[s]").astype(np.int64).astype(float)
+
+
+def value_columns(layout: EstimateLayout) -> np.ndarray:
+    """Indices of the health (h) then auxiliary (z) values in an estimate's packed row."""
+    s = layout.slices()
+    return np.r_[np.arange(s["h"].start, s["h"].stop), np.arange(s["z"].start, s["z"].stop)]
+
+
+class BucketCollector:
+    """The blocks an ``EstimateWriter`` stores, reduced to what the periods need: each engine's
+    record times and health and auxiliary values (a sink to chain with the writer's)."""
+
+    def __init__(self, layout: EstimateLayout) -> None:
+        self.columns = value_columns(layout)
+        self.epoch: dict[int, list[np.ndarray]] = {}
+        self.values: dict[int, list[np.ndarray]] = {}
+
+    def passing_to(self, sink: Callable[[Block], None]) -> Callable[[Block], None]:
+        """A sink that hands each block to ``sink`` (the writer), then keeps what it needs."""
+
+        def both(block: Block) -> None:
+            sink(block)
+            self.add(block)
+
+        return both
+
+    def add(self, block: Block) -> None:
+        engine_id, _seq, epoch, _phase, packed = block
+        if not len(epoch):
+            return
+        self.epoch.setdefault(engine_id, []).append(np.asarray(epoch, float))
+        self.values.setdefault(engine_id, []).append(
+            np.asarray(packed, np.float32)[:, self.columns].astype(np.float64))
+
+
+def _sums(epoch: np.ndarray, values: np.ndarray, period: str
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(period starts, counts, sums [k, width]) of one engine's records."""
+    starts, index = np.unique(period_starts(epoch, period), return_inverse=True)
+    index = np.ravel(index)
+    sums = np.zeros((len(starts), values.shape[1]))
+    np.add.at(sums, index, values)
+    return starts, np.bincount(index, minlength=len(starts)), sums
+
+
+def refresh(
+    session: Session, *, operator_id: int, design_id: int, layout: EstimateLayout,
+    collected: BucketCollector,
+) -> None:
+    """Rewrite the periods of every engine the collector saw, from its first new record on.
+    Call after the estimates are written (the writer closed), in the same transaction."""
+    engines = sorted(collected.epoch)
+    if not engines:
+        return
+    epoch = {e: np.concatenate(collected.epoch[e]) for e in engines}
+    values = {e: np.concatenate(collected.values[e]) for e in engines}
+    first = {e: float(epoch[e].min()) for e in engines}
+    # Per engine, the earliest period start over both periods: where kept estimates matter.
+    b0 = {e: float(min(period_starts(np.array([first[e]]), p)[0] for p in PERIODS))
+          for e in engines}
+    for period in PERIODS:
+        p0 = {e: float(period_starts(np.array([first[e]]), period)[0]) for e in engines}
+        session.execute(delete(DeteriorationBucket).where(
+            DeteriorationBucket.design_id == design_id, DeteriorationBucket.period == period,
+            or_(*(and_(DeteriorationBucket.engine_id == e,
+                       DeteriorationBucket.start >= _time(p0[e])) for e in engines)),
+        ))
+    kept = session.execute(
+        select(Estimate.engine_id, Estimate.recorded_at, Estimate.packed).where(
+            Estimate.design_id == design_id,
+            or_(*(and_(Estimate.engine_id == e, Estimate.recorded_at >= _time(b0[e]),
+                       Estimate.recorded_at < _time(first[e])) for e in engines)),
+        )
+    ).all()
+    if kept:
+        unpacked = layout.unpack([row[2] for row in kept])[:, value_columns(layout)]
+        kept_ids = np.array([row[0] for row in kept])
+        kept_epoch = np.array([row[1].timestamp() for row in kept])
+        for e in engines:
+            mine = kept_ids == e
+            if mine.any():
+                epoch[e] = np.concatenate([kept_epoch[mine], epoch[e]])
+                values[e] = np.concatenate([unpacked[mine], values[e]])
+    rows: list[dict[str, object]] = []
+    for period in PERIODS:
+        for e in engines:
+            keep = epoch[e] >= float(period_starts(np.array([first[e]]), period)[0])
+            starts, counts, sums = _sums(epoch[e][keep], values[e][keep], period)
+            rows.extend(
+                {"design_id": design_id, "period": period, "engine_id": e,
+                 "start": _time(start), "operator_id": operator_id, "n": int(n),
+                 "sums": np.ascontiguousarray(total, "<f8").tobytes()}
+                for start, n, total in zip(starts, counts, sums, strict=True)
+            )
+    if rows:
+        session.execute(insert(DeteriorationBucket), rows)
+
+
+def _time(epoch: float) -> datetime:
+    return datetime.fromtimestamp(epoch, UTC)
+
+
+def rebuild(session: Session, *, operator_id: int, design_id: int, layout: EstimateLayout,
+            engine_ids: Sequence[int]) -> None:
+    """Recompute the periods of ``engine_ids`` from all their estimates (migrations, repairs)."""
+    collector = BucketCollector(layout)
+    for engine_id in engine_ids:
+        stored = session.execute(
+            select(Estimate.recorded_at, Estimate.packed)
+            .where(Estimate.design_id == design_id, Estimate.engine_id == engine_id)
+            .order_by(Estimate.seq)
+        ).all()
+        if stored:
+            collector.add((engine_id, 0, np.array([r[0].timestamp() for r in stored]), [],
+                           np.frombuffer(b"".join(r[1] for r in stored), np.float32)
+                           .reshape(len(stored), layout.width)))
+    refresh(session, operator_id=operator_id, design_id=design_id, layout=layout,
+            collected=collector)

@@ -1,0 +1,207 @@
+"""Concurrent small uploads and reads against ``fleethealth serve``, on SQLite and PostgreSQL.
+
+The server runs in its own process as deployed (uvicorn, the in-process job runner) on a fresh
+database: an embedded SQLite file (the default install) and a fresh PostgreSQL database. The
+fleet's engine type has an active design (the reference linear model, six tuners), so every
+upload queues an estimation job that the server's runner executes while the uploads go on:
+the writes of the jobs compete with the writes of the uploads, as in service.
+
+``--writers`` threads (16 by default) each send ``--uploads`` small CSV uploads (``--rows``
+snapshots each, for its own tail) back to back through real HTTP; ``--readers`` threads
+meanwhile read the fleet status and one engine's trend in turn, each a read every
+``--read-interval`` seconds (0.5 s: four engineers clicking through dashboards without pause).
+Every request's latency is recorded; the bench prints p50 / p95 / p99 / max and the errors
+of writers and readers, the stored row count against the rows acknowledged, and the load
+average.
+
+Targets (issue 15): on SQLite, with 16 concurrent writers, upload p99 <= 1 s with 0 errors;
+readers meanwhile p99 <= 300 ms.
+
+    .venv/bin/python bench/bench_concurrency.py [--backends sqlite,postgresql] [--writers 16]
+        [--uploads 20] [--rows 50] [--readers 4]
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import os
+import tempfile
+import threading
+import time
+import uuid
+from dataclasses import dataclass, field
+from datetime import timedelta
+
+import _common  # noqa: F401  (import path)
+import httpx
+import numpy as np
+import pyarrow.csv as pacsv
+from bench_ingest import POSTGRES_URL, T0, add_design, build_fleet, serving, snapshots
+from sqlalchemy import create_engine, text
+from sqlalchemy.engine import make_url
+
+from app.db import make_engine
+from app.migrate import upgrade
+
+P99_WRITE_S, P99_READ_S = 1.0, 0.300
+
+
+@dataclass
+class Latencies:
+    """Request latencies [s] and failures of one kind of client."""
+
+    times: list[float] = field(default_factory=list)
+    errors: list[str] = field(default_factory=list)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def add(self, seconds: float, error: str | None) -> None:
+        with self.lock:
+            self.times.append(seconds)
+            if error:
+                self.errors.append(error)
+
+    def line(self, what: str) -> str:
+        t = np.array(self.times) * 1e3
+        if not len(t):
+            return f"{what:8s} no requests"
+        q = np.percentile(t, [50, 95, 99])
+        return (f"{what:8s} {len(t):6d} requests  p50 {q[0]:7.1f} ms  p95 {q[1]:7.1f} ms  "
+                f"p99 {q[2]:7.1f} ms  max {t.max():7.1f} ms  errors {len(self.errors)}")
+
+    def p99(self) -> float:
+        return float(np.percentile(self.times, 99)) if self.times else float("inf")
+
+
+def csv_body(writer: int, upload: int, rows: int) -> bytes:
+    """``rows`` snapshots of tail ``writer`` (both positions), at times of its own."""
+    start = T0 + timedelta(days=1 + upload, hours=writer)
+    table = snapshots(rows, 1, start, seed=writer * 100_000 + upload)
+    tail = f"B{writer:04d}"
+    table = table.set_column(table.schema.get_field_index("tail"), "tail",
+                             [[tail] * rows])
+    sink = io.BytesIO()
+    pacsv.write_csv(table, sink)
+    return sink.getvalue()
+
+
+def run(url: str, label: str, args: argparse.Namespace) -> bool:
+    upgrade(url)
+    key, where, operator_id = build_fleet(url, args.writers)
+    if not args.no_estimate:
+        add_design(url, operator_id)
+    engine_id = next(iter(where.values()))[0]
+    bodies = [[csv_body(w, u, args.rows) for u in range(args.uploads)]
+              for w in range(args.writers)]
+    writes, reads = Latencies(), Latencies()
+    done = threading.Event()
+    acknowledged = [0]
+    count_lock = threading.Lock()
+
+    with serving(url) as base:
+        def writer(w: int) -> None:
+            with httpx.Client(base_url=base, timeout=120, headers={"X-API-Key": key}) as client:
+                for u, body in enumerate(bodies[w]):
+                    t0 = time.perf_counter()
+                    try:
+                        r = client.post("/api/v1/snapshots/file", content=body, headers={
+                            "Content-Type": "text/csv", "Idempotency-Key": f"w{w}-u{u}"})
+                        error = None if r.status_code in (200, 201, 202) else (
+                            f"{r.status_code} {r.text[:120]}")
+                        if error is None:
+                            with count_lock:
+                                acknowledged[0] += args.rows
+                    except httpx.HTTPError as exc:
+                        error = repr(exc)
+                    writes.add(time.perf_counter() - t0, error)
+
+        def reader(i: int) -> None:
+            paths = ("/api/v1/fleet/status", f"/api/v1/engines/{engine_id}/trend?groups=health")
+            with httpx.Client(base_url=base, timeout=120, headers={"X-API-Key": key}) as client:
+                k = i
+                while not done.is_set():
+                    t0 = time.perf_counter()
+                    try:
+                        r = client.get(paths[k % len(paths)])
+                        error = None if r.status_code == 200 else f"{r.status_code} {r.text[:120]}"
+                    except httpx.HTTPError as exc:
+                        error = repr(exc)
+                    elapsed = time.perf_counter() - t0
+                    reads.add(elapsed, error)
+                    k += 1
+                    done.wait(max(args.read_interval - elapsed, 0.0))
+
+        threads = [threading.Thread(target=writer, args=(w,)) for w in range(args.writers)]
+        readers = [threading.Thread(target=reader, args=(i,)) for i in range(args.readers)]
+        t0 = time.perf_counter()
+        for t in readers + threads:
+            t.start()
+        for t in threads:
+            t.join()
+        wall = time.perf_counter() - t0
+        done.set()
+        for t in readers:
+            t.join()
+
+    engine = make_engine(url)
+    with engine.connect() as connection:
+        stored = connection.execute(text(
+            "SELECT count(*) FROM snapshots WHERE operator_id = :o"), {"o": operator_id}
+        ).scalar_one()
+    engine.dispose()
+    ok_write = writes.p99() <= P99_WRITE_S and not writes.errors
+    ok_read = reads.p99() <= P99_READ_S and not reads.errors
+    print(f"\n== {label}: {args.writers} writers x {args.uploads} uploads x {args.rows} rows, "
+          f"{args.readers} readers (a read every {args.read_interval:g} s each); {wall:.1f} s wall")
+    print(writes.line("uploads"))
+    print(reads.line("reads"))
+    print(f"rows acknowledged {acknowledged[0]}, stored {stored} "
+          f"({'none lost' if stored >= acknowledged[0] else 'ROWS LOST'})")
+    for kind, errors in (("upload", writes.errors), ("read", reads.errors)):
+        for error in sorted(set(errors))[:5]:
+            print(f"  {kind} error: {error}")
+    print(f"upload p99 {writes.p99() * 1e3:.0f} ms (target <= {P99_WRITE_S * 1e3:.0f} ms, 0 "
+          f"errors): {'PASS' if ok_write else 'FAIL'}; read p99 {reads.p99() * 1e3:.0f} ms "
+          f"(target <= {P99_READ_S * 1e3:.0f} ms): {'PASS' if ok_read else 'FAIL'}")
+    return ok_write and ok_read and stored >= acknowledged[0]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--backends", default="sqlite,postgresql")
+    ap.add_argument("--writers", type=int, default=16)
+    ap.add_argument("--uploads", type=int, default=20)
+    ap.add_argument("--rows", type=int, default=50)
+    ap.add_argument("--readers", type=int, default=4)
+    ap.add_argument("--read-interval", type=float, default=0.5,
+                    help="seconds from one read's start to the next, per reader (0: back to back)")
+    ap.add_argument("--no-estimate", action="store_true",
+                    help="no active design: the uploads queue no estimation job")
+    args = ap.parse_args()
+    print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} "
+          f"{os.getloadavg()[2]:.2f}; {os.cpu_count()} cores; OMP/BLAS threads "
+          f"{os.environ.get('OMP_NUM_THREADS', 'unset')}")
+    ok = True
+    for backend in args.backends.split(","):
+        if backend == "sqlite":
+            with tempfile.TemporaryDirectory(prefix="fh-bench-") as tmp:
+                ok &= run(f"sqlite:///{tmp}/fleethealth.db", "SQLite (embedded default)", args)
+        else:
+            name = f"fh_bench_{uuid.uuid4().hex[:10]}"
+            admin = create_engine(POSTGRES_URL, isolation_level="AUTOCOMMIT")
+            with admin.connect() as connection:
+                connection.execute(text(f'CREATE DATABASE "{name}"'))
+            try:
+                url = make_url(POSTGRES_URL).set(database=name).render_as_string(
+                    hide_password=False)
+                ok &= run(url, "PostgreSQL", args)
+            finally:
+                with admin.connect() as connection:
+                    connection.execute(text(f'DROP DATABASE "{name}" WITH (FORCE)'))
+                admin.dispose()
+    print(f"load average at the end {os.getloadavg()[0]:.2f}")
+    print("PASS" if ok else "FAIL")
+
+
+if __name__ == "__main__":
+    main()
