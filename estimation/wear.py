@@ -119,7 +119,7 @@ class WearSettings:
     margin: float = 10.0
     margin_floor: float = 0.03
     # Chosen on bench/bench_wear.py (FD001 lead and HPC share, demo fleet false alerts).
-    bank_reference: float = 0.5
+    bank_reference: float = 0.25
     bank_alpha: float = 0.05
     bank_arl: float = 2000.0
     bank_threshold: float | None = None
