@@ -18,9 +18,16 @@ in flights, default settings), on FD001 with the design ``fleethealth import-cma
 The wear detector gets the records' sensor deviations too (its directional CUSUM bank);
 ``--no-bank`` scans the tuner estimates alone (limit and rate alerts).
 
+The acceptance block prints the product's wear events and the naive CUSUM side by side with
+PASS/FAIL. The frontier (``frontier``; ``--skip-frontier``) asks how early the bank could
+cross at all at its stated false-alarm rate: the threshold set by a seeded Monte Carlo on
+white matched-filter outputs so that a healthy engine crosses within ``--horizon`` armed
+records with the design's probability 1 - exp(-horizon / bank_arl), and the naive CUSUM's
+own probability on the same noise.
+
     .venv/bin/python bench/bench_wear.py [--rate 1.5e-3 --margin 6 --floor 0.03 --limit 1]
-        [--kappa 0.5 --alpha 0.05 --arl 2000 | --h 3] [--bank-rate 1e-3]
-        [--confidence 1.3 --hold 2] [--no-bank]
+        [--kappa 0.25 --alpha 0.05 --arl 2000 | --h 3] [--bank-rate 1e-3]
+        [--confidence 1.3 --hold 2] [--no-bank] [--horizon 350 --runs 2000 | --skip-frontier]
 
 (--h fixes the bank's threshold instead of setting it from its family-wise false-alarm rate
 --arl; --alpha 0 takes the bank's baseline as exact.)

@@ -117,15 +117,22 @@ def test_directional_bank_alerts_a_sensor_drift_sooner_and_names_the_fault() -> 
     x = rng.normal(scale=0.01, size=(S, H.shape[0])) + ramp * H[:, true_fault]
     dy = rng.normal(size=(S, ny)) + 25.0 * ramp * sig[:, true_fault]
     cycles = np.arange(S, dtype=float)
-    scan = wear.wear_scan(x, H, W, cycles, dy=dy, var=np.ones(ny), signatures=sig)
+    # A fast drift (the true fault's matched filter gains about a quarter of a standard
+    # deviation a record): a bank referenced to a one-standard-deviation shift. The default
+    # reference (0.25, for slow wear) ties the tuners' rate alert on this one.
+    cfg = wear.WearSettings(bank_reference=0.5)
+    scan = wear.wear_scan(x, H, W, cycles, settings=cfg, dy=dy, var=np.ones(ny), signatures=sig)
     assert scan.bank is not None and len(scan.alerts) == 1
     alert = scan.alerts[0]
     assert alert.kind == wear.DIRECTIONAL and alert.fault == true_fault
-    tuners_only = wear.wear_scan(x, H, W, cycles).alerts[0]
+    tuners_only = wear.wear_scan(x, H, W, cycles, settings=cfg).alerts[0]
     assert onset < alert.index < tuners_only.index
     assert alert.statistic > alert.threshold
+    default = wear.wear_scan(x, H, W, cycles, dy=dy, var=np.ones(ny), signatures=sig).alerts
+    assert default[0].fault == true_fault and alert.index < default[0].index
+    assert default[0].index <= tuners_only.index
     # Per-record signatures [S, ny, n] are the same bank.
-    again = wear.wear_scan(x, H, W, cycles, dy=dy, var=np.ones((S, ny)),
+    again = wear.wear_scan(x, H, W, cycles, settings=cfg, dy=dy, var=np.ones((S, ny)),
                            signatures=np.broadcast_to(sig, (S, ny, sig.shape[1])))
     assert again.alerts[0].index == alert.index
     np.testing.assert_allclose(again.bank, scan.bank)
@@ -187,7 +194,7 @@ def test_signature_cusum_is_the_recursion_on_the_matched_filter() -> None:
 @pytest.fixture(scope="module")
 def fd001_figures() -> dict[str, object]:
     """All 100 FD001 train engines (the targets are on the whole set; about 10 s). On the
-    first 20 alone the median lead is 108 against the naive CUSUM's 126.5."""
+    first 20 alone the median lead is 110 against the naive CUSUM's 126.5."""
     from tests.support import fd001_replay
 
     est = fd001_replay.fd001_estimator(fd001_replay.fd001_schedule())
@@ -224,8 +231,11 @@ def test_fd001_every_engine_alerted_before_failure_and_attributed_to_hpc(
 
 @pytest.mark.skipif(not FD001.exists(), reason=f"no C-MAPSS file at {FD001}")
 @pytest.mark.xfail(strict=True, reason=(
-    "target missed since the bank's threshold is set by its family-wise false-alarm rate: "
-    "median lead 101.0 against the naive CUSUM's 121.5, which itself alarms on 25 of 50 "
+    "target missed at the bank's designed false-alarm rate: median lead 103.5 against the "
+    "naive CUSUM's 121.5. Even with its threshold calibrated by Monte Carlo to exactly the "
+    "designed rate (P = 0.16 of a false crossing in 350 armed records) the bank crosses only "
+    "116.5 cycles ahead, before its attribution (bench/bench_wear.py, frontier); the naive "
+    "CUSUM alarms on 43 % of white-noise engines over the same records and on 25 of 50 "
     "healthy steady engines (tests/app/services/snapshots/test_wear_events.py)"))
 def test_fd001_median_lead_at_least_the_naive_signature_cusum(
     fd001_figures: dict[str, object],
@@ -333,3 +343,17 @@ def test_short_baseline_bank_false_alarms_within_its_design() -> None:
     allowed = engines * design + 3 * np.sqrt(engines * design * (1 - design))
     assert counts[base.bank_alpha] <= allowed, (counts, engines * design)
     assert counts[0.0] > allowed, (counts, engines * design)
+
+
+def test_naive_signature_cusum_false_alarms_far_beyond_the_banks_design() -> None:
+    """The peer of the FD001 lead on white matched-filter outputs over the records of the
+    healthy steady fleet test (50 records, then 350 armed): the naive CUSUM (its 30-record
+    baseline taken as exact, reference 0.5, threshold 5, one direction) alarms on more than
+    twice as many engines as the bank's design allows for all its directions together,
+    1 - exp(-350 / bank_arl). Its lead is bought with that rate."""
+    rng = np.random.default_rng(31)
+    engines, records = 600, 400
+    design = 1.0 - np.exp(-(records - 50) / wear.WearSettings().bank_arl)
+    hits = sum(wear.signature_cusum(rng.normal(size=(records, 1)), np.ones(1), np.ones(1))
+               is not None for _ in range(engines))
+    assert hits > 2.0 * design * engines, (hits, design * engines)
