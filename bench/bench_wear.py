@@ -26,11 +26,12 @@ records with the design's probability 1 - exp(-horizon / bank_arl), and the naiv
 own probability on the same noise.
 
     .venv/bin/python bench/bench_wear.py [--rate 1.5e-3 --margin 6 --floor 0.03 --limit 1]
-        [--kappa 0.25 --alpha 0.05 --arl 2000 | --h 3] [--bank-rate 1e-3]
+        [--kappa 0.25 --alpha 0.05 --per-year 0.5 | --arl 730 | --h 3] [--bank-rate 1e-3]
         [--confidence 1.3 --hold 2] [--no-bank] [--horizon 350 --runs 2000 | --skip-frontier]
 
-(--h fixes the bank's threshold instead of setting it from its family-wise false-alarm rate
---arl; --alpha 0 takes the bank's baseline as exact.)
+(The bank's threshold is set from its designed false alerts per engine-year --per-year and
+each engine's record rate over its baseline; --arl gives the family-wise ARL in records
+instead, --h the threshold itself; --alpha 0 takes the bank's baseline as exact.)
 """
 
 from __future__ import annotations
@@ -71,12 +72,15 @@ def fd001(path: Path, cfg: wear.WearSettings, units: int | None, use_sensors: bo
     ours, naive, product, kinds = [], [], [], []
     hpc_hits = 0
     zs: list[tuple[np.ndarray, np.ndarray]] = []
+    rates = []
     for e, tr in zip(engines, tracks, strict=True):
         dy, var, sig = fd001_replay.sensor_deviations(est, e.run)
         zs.append((wear.matched_filter(dy, var, sig)[:, cand], e.cycle.astype(float)))
         sensors = {"dy": dy, "var": var, "signatures": sig} if use_sensors else {}
+        b1 = cfg.settle + cfg.n_base
+        rates.append(wear.record_rate(e.run.epoch[:b1]))
         scan = wear.wear_scan(tr.q, est.H, W, e.cycle.astype(float), candidates=cand,
-                              settings=cfg, **sensors)
+                              settings=cfg, epoch=e.run.epoch, **sensors)
         if scan.alerts:
             a = scan.alerts[0]
             ours.append(int(e.cycle[-1] - e.cycle[a.index]))
@@ -100,7 +104,13 @@ def fd001(path: Path, cfg: wear.WearSettings, units: int | None, use_sensors: bo
             wear_events.append((first, int(e.cycle[-1]) - _cycle_at(e, first.epoch)))
     t_product = time.perf_counter() - t1
     n = len(engines)
+    rate = float(np.median([r for r in rates if r is not None]))
+    design = wear.bank_design(cfg, int(cand.sum()), rate)
     print(f"FD001 train, {n} engines ({time.perf_counter() - t0:.1f} s); settings {cfg}")
+    print(f"bank design: {rate:.1f} records per engine-year (one cycle a day, as imported), "
+          f"{cfg.false_alerts_per_year:g} false alerts per engine-year -> family-wise ARL "
+          f"{wear.bank_arl(cfg, rate):.0f} records, h = {design.threshold:.2f} "
+          f"(reference {design.reference:.3f}, scale {design.scale:.3f})")
     print(f"{'':34s}{'alerted':>10s}{'median lead':>13s}{'HPC share':>11s}")
     print(f"{'target':34s}{n:>7d}/{n:<3d}{'>= naive':>13s}{'>= 90 %':>11s}")
     print(f"{'filter + wear detector':34s}{len(ours):>7d}/{n:<3d}"
@@ -128,7 +138,7 @@ def fd001(path: Path, cfg: wear.WearSettings, units: int | None, use_sensors: bo
     ]
     for name, target, ours_s, naive_s, ok in rows:
         print(f"{name:34s}{target:>12s}{ours_s:>10s}{naive_s:>10s}   {'PASS' if ok else 'FAIL'}")
-    return Fd001Figures(zs, naive, cfg)
+    return Fd001Figures(zs, naive, cfg, rate)
 
 
 @dataclass(frozen=True)
@@ -139,6 +149,7 @@ class Fd001Figures:
     z: list[tuple[np.ndarray, np.ndarray]]
     naive: list[int]
     cfg: wear.WearSettings
+    records_per_year: float
 
 
 def _bank_max(z: np.ndarray, cycles: np.ndarray, cfg: wear.WearSettings, reference: float,
@@ -166,7 +177,8 @@ def frontier(fig: Fd001Figures, horizon: int, runs: int) -> None:
     cfg = fig.cfg
     n = fig.z[0][0].shape[1]
     b1 = cfg.settle + cfg.n_base
-    p = 1.0 - np.exp(-horizon / cfg.bank_arl)
+    arl = wear.bank_arl(cfg, fig.records_per_year)
+    p = 1.0 - np.exp(-horizon / arl)
     rng = np.random.default_rng(20261124)
     white = [rng.normal(size=(b1 + horizon, n)) for _ in range(runs)]
     cyc = np.arange(1.0, b1 + horizon + 1.0)
@@ -175,7 +187,7 @@ def frontier(fig: Fd001Figures, horizon: int, runs: int) -> None:
     print(f"\nfrontier: bank crossings (no attribution condition) with h calibrated on {runs} "
           f"white engines to P(false crossing within {horizon} armed records) = {p:.3f}")
     print(f"{'standardisation':44s}{'h':>7s}{'P(false crossing)':>20s}{'median lead':>13s}")
-    design = wear.bank_design(cfg, n)
+    design = wear.bank_design(cfg, n, fig.records_per_year)
     variants = [
         (f"allowances at alpha {cfg.bank_alpha:g}, h from the ARL", design.reference,
          design.scale, design.threshold),
@@ -251,7 +263,7 @@ def demo(cfg: wear.WearSettings, cache: Path, use_sensors: bool) -> None:
                     product_in_fault += 1
                 else:
                     product_false += 1
-        scan = wear.wear_scan(q, est.H, W, cycles, resets, cand, cfg, **sensors)
+        scan = wear.wear_scan(q, est.H, W, cycles, resets, cand, cfg, epoch=t, **sensors)
         for a in scan.alerts:
             if faulty[a.index]:
                 in_fault += 1
@@ -279,7 +291,10 @@ def main() -> None:
     ap.add_argument("--limit", type=float, default=d.limit)
     ap.add_argument("--kappa", type=float, default=d.bank_reference)
     ap.add_argument("--alpha", type=float, default=d.bank_alpha)
-    ap.add_argument("--arl", type=float, default=d.bank_arl)
+    ap.add_argument("--per-year", type=float, default=d.false_alerts_per_year,
+                    help="the bank's designed false alerts per engine-year")
+    ap.add_argument("--arl", type=float, default=d.bank_arl,
+                    help="the bank's family-wise ARL in records instead")
     ap.add_argument("--h", type=float, default=d.bank_threshold)
     ap.add_argument("--bank-rate", type=float, default=d.bank_rate)
     ap.add_argument("--confidence", type=float, default=d.confidence)
@@ -296,7 +311,8 @@ def main() -> None:
     args = ap.parse_args()
     cfg = wear.WearSettings(limit=args.limit, rate=args.rate, margin=args.margin,
                             margin_floor=args.floor, bank_reference=args.kappa,
-                            bank_alpha=args.alpha, bank_arl=args.arl, bank_threshold=args.h,
+                            bank_alpha=args.alpha, false_alerts_per_year=args.per_year,
+                            bank_arl=args.arl, bank_threshold=args.h,
                             bank_rate=args.bank_rate,
                             confidence=args.confidence, hold=args.hold)
     fig = fd001(args.fd001, cfg, args.units, not args.no_bank, args.cache)
