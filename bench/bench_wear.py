@@ -232,6 +232,7 @@ def demo(cfg: wear.WearSettings, cache: Path, use_sensors: bool) -> None:
     cand = health_candidates(est.S_full, len(est.layout.health))
     s = est.layout.slices()
     false, in_fault, years = [], 0, 0.0
+    rates = []
     product_false, product_in_fault = 0, 0
     outs = run.run_filters(est, [e.run for e in engines])
     for data, out in zip(engines, outs, strict=True):
@@ -263,6 +264,7 @@ def demo(cfg: wear.WearSettings, cache: Path, use_sensors: bool) -> None:
                     product_in_fault += 1
                 else:
                     product_false += 1
+        rates.append(wear.record_rate(t[: cfg.settle + cfg.n_base]))
         scan = wear.wear_scan(q, est.H, W, cycles, resets, cand, cfg, epoch=t, **sensors)
         for a in scan.alerts:
             if faulty[a.index]:
@@ -271,6 +273,10 @@ def demo(cfg: wear.WearSettings, cache: Path, use_sensors: bool) -> None:
                 false.append((data.esn, a.kind, est.layout.faults[a.fault]
                               if a.fault is not None else None, round(a.magnitude, 2)))
     rate = len(false) / years if years else float("nan")
+    r = float(np.median([v for v in rates if v is not None]))
+    print(f"demo bank design: median {r:.0f} records per engine-year over the first baselines "
+          f"-> ARL {wear.bank_arl(cfg, r):.0f} records, "
+          f"h = {wear.bank_design(cfg, int(cand.sum()), r).threshold:.2f}")
     print(f"demo fleet ({len(engines)} engines, {time.perf_counter() - t0:.1f} s): "
           f"{len(false)} false wear alerts in {years:.1f} healthy engine-years = "
           f"{rate:.2f} per engine-year (target <= 1); {in_fault} alerts in fault windows")
