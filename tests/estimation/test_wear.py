@@ -117,16 +117,26 @@ def test_directional_bank_alerts_a_sensor_drift_sooner_and_names_the_fault() -> 
     x = rng.normal(scale=0.01, size=(S, H.shape[0])) + ramp * H[:, true_fault]
     dy = rng.normal(size=(S, ny)) + 25.0 * ramp * sig[:, true_fault]
     cycles = np.arange(S, dtype=float)
-    scan = wear.wear_scan(x, H, W, cycles, dy=dy, var=np.ones(ny), signatures=sig)
+    day = {"epoch": 86400.0 * cycles}  # one record a day (as C-MAPSS cycles are imported)
+    # A fast drift (the true fault's matched filter gains about a quarter of a standard
+    # deviation a record): a bank referenced to a one-standard-deviation shift. The default
+    # reference (0.25, for slow wear) ties the tuners' rate alert on this one.
+    cfg = wear.WearSettings(bank_reference=0.5)
+    scan = wear.wear_scan(x, H, W, cycles, settings=cfg, dy=dy, var=np.ones(ny), signatures=sig,
+                          **day)
     assert scan.bank is not None and len(scan.alerts) == 1
     alert = scan.alerts[0]
     assert alert.kind == wear.DIRECTIONAL and alert.fault == true_fault
-    tuners_only = wear.wear_scan(x, H, W, cycles).alerts[0]
+    tuners_only = wear.wear_scan(x, H, W, cycles, settings=cfg).alerts[0]
     assert onset < alert.index < tuners_only.index
     assert alert.statistic > alert.threshold
+    default = wear.wear_scan(x, H, W, cycles, dy=dy, var=np.ones(ny), signatures=sig,
+                             **day).alerts
+    assert default[0].fault == true_fault and alert.index < default[0].index
+    assert default[0].index <= tuners_only.index
     # Per-record signatures [S, ny, n] are the same bank.
-    again = wear.wear_scan(x, H, W, cycles, dy=dy, var=np.ones((S, ny)),
-                           signatures=np.broadcast_to(sig, (S, ny, sig.shape[1])))
+    again = wear.wear_scan(x, H, W, cycles, settings=cfg, dy=dy, var=np.ones((S, ny)),
+                           signatures=np.broadcast_to(sig, (S, ny, sig.shape[1])), **day)
     assert again.alerts[0].index == alert.index
     np.testing.assert_allclose(again.bank, scan.bank)
 
@@ -187,7 +197,7 @@ def test_signature_cusum_is_the_recursion_on_the_matched_filter() -> None:
 @pytest.fixture(scope="module")
 def fd001_figures() -> dict[str, object]:
     """All 100 FD001 train engines (the targets are on the whole set; about 10 s). On the
-    first 20 alone the median lead is 108 against the naive CUSUM's 126.5."""
+    first 20 alone the median lead is 110 against the naive CUSUM's 126.5."""
     from tests.support import fd001_replay
 
     est = fd001_replay.fd001_estimator(fd001_replay.fd001_schedule())
@@ -201,7 +211,7 @@ def fd001_figures() -> dict[str, object]:
     for e, tr in zip(engines, tracks, strict=True):
         dy, var, sig = fd001_replay.sensor_deviations(est, e.run)
         alerts = wear.wear_scan(tr.q, est.H, W, e.cycle.astype(float), candidates=cand,
-                                dy=dy, var=var, signatures=sig).alerts
+                                dy=dy, var=var, signatures=sig, epoch=e.run.epoch).alerts
         if alerts:
             ours.append(int(e.cycle[-1] - e.cycle[alerts[0].index]))
             faults.append(alerts[0].fault)
@@ -224,9 +234,13 @@ def test_fd001_every_engine_alerted_before_failure_and_attributed_to_hpc(
 
 @pytest.mark.skipif(not FD001.exists(), reason=f"no C-MAPSS file at {FD001}")
 @pytest.mark.xfail(strict=True, reason=(
-    "target missed since the bank's threshold is set by its family-wise false-alarm rate: "
-    "median lead 101.0 against the naive CUSUM's 121.5, which itself alarms on 25 of 50 "
-    "healthy steady engines (tests/app/services/snapshots/test_wear_events.py)"))
+    "target missed with the bank designed for 0.5 false alerts per engine-year (half the "
+    "issue's budget) at FD001's one record a day: median lead 105.5 against the naive "
+    "CUSUM's 121.5. Siegmund's threshold with the Bonferroni bound and the baseline "
+    "allowance is conservative (a false crossing in 350 armed records on 8.6 % of white "
+    "engines where 38 % are designed); with its threshold calibrated by Monte Carlo to "
+    "exactly the designed rate the bank crosses 121.5 cycles ahead, and the attribution's "
+    "wait then leaves 112.0 (bench/bench_wear.py, frontier)"))
 def test_fd001_median_lead_at_least_the_naive_signature_cusum(
     fd001_figures: dict[str, object],
 ) -> None:
@@ -246,9 +260,10 @@ def test_record_by_record_steps_give_the_scans_alerts_however_split(
     bank: bool, seed: int
 ) -> None:
     """``wear_steps`` against ``wear_scan`` on drifting engines with resets and two records a
-    flight; then the same records in random pieces, each continuing from the state the last
-    left: the same alerts (the bank's sums are quantised to 2^-24: statistics to 1e-5) and
-    bit-identical final states."""
+    flight, dated (the bank's threshold from each stretch's record rate, parked for 40 days
+    within two baselines); then the same records in random pieces, each continuing from the
+    state the last left: the same alerts (the bank's sums are quantised to 2^-24:
+    statistics to 1e-5) and bit-identical final states."""
     rng = np.random.default_rng(seed)
     H, W = _library(rng)
     m, n = H.shape
@@ -271,17 +286,20 @@ def test_record_by_record_steps_give_the_scans_alerts_however_split(
         sensors = {"dy": dy, "var": var, "signatures": sig}
         z = wear.matched_rows(dy, var, sig)
     cycles = np.cumsum(new_cycle).astype(float)
-    scan = wear.wear_scan(x, H, W, cycles, resets, cand, cfg, **sensors)
+    gaps = np.where(new_cycle, rng.uniform(4.0, 30.0, S) * 3600.0, 1800.0)
+    gaps[[20, 270]] += 40 * 86400.0
+    epoch = 1.7e9 + np.cumsum(gaps)
+    scan = wear.wear_scan(x, H, W, cycles, resets, cand, cfg, epoch=epoch, **sensors)
     assert scan.alerts, "the drift should alert"
     assert (wear.DIRECTIONAL in {a.kind for a in scan.alerts}) == bank
     det = wear.WearDetector(H, W, cand, cfg)
-    whole = wear.wear_steps(det, wear.WearState(), x, new_cycle, resets, z)
+    whole = wear.wear_steps(det, wear.WearState(), x, new_cycle, resets, z, epoch=epoch)
     assert [_alert_key(a) for a in whole.alerts] == [_alert_key(a) for a in scan.alerts]
     cuts = np.sort(rng.choice(np.arange(1, S), size=25, replace=False))
     st, alerts = wear.WearState(), []
     for a, b in zip(np.r_[0, cuts], np.r_[cuts, S], strict=True):
         part = wear.wear_steps(det, st, x[a:b], new_cycle[a:b], resets[a:b],
-                               None if z is None else z[a:b])
+                               None if z is None else z[a:b], epoch=epoch[a:b])
         alerts += [(a + al.index, al.kind, al.fault, al.magnitude, al.statistic)
                    for al in part.alerts]
         st = part.state
@@ -290,16 +308,27 @@ def test_record_by_record_steps_give_the_scans_alerts_however_split(
     assert st == whole.state
 
 
-def test_bank_threshold_is_set_by_the_family_wise_false_alarm_rate() -> None:
+def test_bank_threshold_is_set_by_the_false_alerts_per_engine_year() -> None:
     """h solves Siegmund's ARL(kappa', h) = n * bank_arl, kappa' the reference with the
-    baseline allowance; bank_alpha = 0 leaves the reference and scale as given."""
+    baseline allowance and bank_arl = records per engine-year / false alerts per engine-year
+    (the nominal rate, or the one given); bank_arl set overrides; bank_alpha = 0 leaves the
+    reference and scale as given."""
     cfg = wear.WearSettings()
     d = wear.bank_design(cfg, 5)
     assert d.reference == pytest.approx(cfg.bank_reference + 1.6449 / np.sqrt(cfg.n_base),
                                         rel=1e-4)
     assert d.scale > 1.0
-    assert wear.siegmund_arl(d.reference, d.threshold) == pytest.approx(5 * cfg.bank_arl,
+    nominal = cfg.records_per_year / cfg.false_alerts_per_year
+    assert wear.bank_arl(cfg) == nominal
+    assert wear.siegmund_arl(d.reference, d.threshold) == pytest.approx(5 * nominal,
                                                                          rel=1e-9)
+    # One record a day: a false crossing every 2 engine-years is 730.5 records.
+    daily = wear.bank_design(cfg, 5, 365.25)
+    assert wear.siegmund_arl(daily.reference, daily.threshold) == pytest.approx(
+        5 * 730.5, rel=1e-9)
+    assert daily.threshold < d.threshold
+    fixed = replace(cfg, bank_arl=1000.0)
+    assert wear.bank_design(fixed, 5, 365.25) == wear.bank_design(fixed, 5)
     plain = wear.bank_design(wear.WearSettings(bank_alpha=0.0, bank_threshold=2.0), 5)
     assert (plain.reference, plain.scale, plain.threshold) == (cfg.bank_reference, 1.0, 2.0)
 
@@ -333,3 +362,68 @@ def test_short_baseline_bank_false_alarms_within_its_design() -> None:
     allowed = engines * design + 3 * np.sqrt(engines * design * (1 - design))
     assert counts[base.bank_alpha] <= allowed, (counts, engines * design)
     assert counts[0.0] > allowed, (counts, engines * design)
+
+
+def test_naive_signature_cusum_false_alarms_far_beyond_the_banks_design() -> None:
+    """The peer of the FD001 lead on white matched-filter outputs over the records of the
+    healthy steady fleet test (50 records, then 350 armed): the naive CUSUM (its 30-record
+    baseline taken as exact, reference 0.5, threshold 5, one direction) alarms on more than
+    twice as many engines as the bank's design allows for all its directions together,
+    1 - exp(-350 / bank_arl) (the nominal record rate, that of those records). Its lead is
+    bought with that rate."""
+    rng = np.random.default_rng(31)
+    engines, records = 600, 400
+    design = 1.0 - np.exp(-(records - 50) / wear.bank_arl(wear.WearSettings()))
+    hits = sum(wear.signature_cusum(rng.normal(size=(records, 1)), np.ones(1), np.ones(1))
+               is not None for _ in range(engines))
+    assert hits > 2.0 * design * engines, (hits, design * engines)
+
+
+def test_record_rate_counts_the_records_of_the_time_flown() -> None:
+    """Records per engine-year from the gaps between records, those of 30 days or more (the
+    engine on the ground) left out; None without time to measure."""
+    day = 86400.0
+    twice_a_day = 43200.0 * np.arange(50)
+    assert wear.record_rate(twice_a_day) == pytest.approx(2 * 365.25)
+    parked = np.r_[twice_a_day, twice_a_day[-1] + 60 * day + 43200.0 * np.arange(10)]
+    assert wear.record_rate(parked) == pytest.approx(2 * 365.25)
+    assert wear.record_rate(np.zeros(5)) is None and wear.record_rate(np.ones(1)) is None
+
+
+def test_the_measured_record_rate_sets_the_banks_threshold_in_scan_and_steps() -> None:
+    """The same healthy records dated once a day and four times a day: the bank's threshold
+    (the alert's) is the rate's design, in ``wear_scan`` and in ``wear_steps`` alike."""
+    rng = np.random.default_rng(41)
+    H, W = _library(rng)
+    m, n = H.shape
+    S, ny = 200, 6
+    sig = rng.normal(size=(ny, n))
+    x = rng.normal(scale=0.01, size=(S, m))
+    x[60:] += np.outer(np.arange(S - 60) * 0.02, H[:, 0])
+    dy = rng.normal(size=(S, ny))
+    dy[60:] += np.outer(np.arange(S - 60) * 0.05, sig[:, 0])
+    cycles = np.arange(S, dtype=float)
+    cfg = wear.WearSettings(confidence=0.0)
+    det = wear.WearDetector(H, W, np.ones(n, bool), cfg)
+    z = wear.matched_rows(dy, np.ones((S, ny)), sig)
+    for per_day in (1.0, 4.0):
+        epoch = 1.7e9 + cycles * 86400.0 / per_day
+        scan = wear.wear_scan(x, H, W, cycles, settings=cfg, dy=dy, var=np.ones(ny),
+                              signatures=sig, epoch=epoch).alerts
+        steps = wear.wear_steps(det, wear.WearState(), x, np.ones(S, bool), np.zeros(S, bool),
+                                z, epoch=epoch).alerts
+        want = wear.bank_design(cfg, n, 365.25 * per_day).threshold
+        assert scan and steps and scan[0].kind == wear.DIRECTIONAL
+        assert scan[0].threshold == pytest.approx(want, rel=1e-12)
+        assert steps[0].threshold == pytest.approx(want, rel=1e-12)
+        assert (steps[0].index, steps[0].fault) == (scan[0].index, scan[0].fault)
+    # Undated records, or a state stored before the rate was measured: the nominal rate's.
+    nominal = wear.bank_design(cfg, n).threshold
+    undated = wear.wear_steps(det, wear.WearState(), x, np.ones(S, bool), np.zeros(S, bool), z)
+    assert undated.alerts[0].threshold == nominal
+    first = wear.wear_steps(det, wear.WearState(), x[:55], np.ones(55, bool), np.zeros(55, bool),
+                            z[:55], epoch=epoch[:55]).state
+    assert first.bank_h is not None and first.x0 is not None and not first.alerted
+    later = wear.wear_steps(det, wear.replace_state(first, bank_h=None), x[55:],
+                            np.ones(S - 55, bool), np.zeros(S - 55, bool), z[55:]).alerts
+    assert later[0].threshold == nominal

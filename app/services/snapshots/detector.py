@@ -141,19 +141,22 @@ def wear_document(state: WearState) -> dict[str, Any]:
     records of a stretch)."""
     return {
         "cycle": state.cycle, "k": state.k, "x_rows": [list(r) for r in state.x_rows],
-        "z_rows": [list(r) for r in state.z_rows],
+        "z_rows": [list(r) for r in state.z_rows], "t_rows": list(state.t_rows),
         "x0": None if state.x0 is None else list(state.x0), "delta": list(state.delta),
         "c_min": list(state.c_min), "c_b": state.c_b, "mu": list(state.mu),
         "sd": list(state.sd), "bank_sum": list(state.bank_sum),
         "bank_min": list(state.bank_min), "crossed": state.crossed,
         "bank_stat": state.bank_stat, "bank_top": state.bank_top,
         "recent": [[b, ok] for b, ok in state.recent], "alerted": state.alerted,
+        "bank_h": state.bank_h,
     }
 
 
 def wear_from_document(d: Mapping[str, Any] | None) -> WearState:
     """A stored wear state (``wear_document``); none (states written before the wear detector
-    ran) is a fresh one: the engine's next records start its baseline."""
+    ran) is a fresh one: the engine's next records start its baseline. States stored before
+    the record rate was measured (no ``t_rows``, ``bank_h``) read with none: the bank's
+    threshold is then the nominal rate's."""
     if d is None:
         return WearState()
 
@@ -161,14 +164,17 @@ def wear_from_document(d: Mapping[str, Any] | None) -> WearState:
         return tuple(float(v) for v in d[key])
 
     x0 = d.get("x0")
+    bank_h = d.get("bank_h")
     return WearState(
         cycle=float(d["cycle"]), k=int(d["k"]), x_rows=_rows(d["x_rows"]),
-        z_rows=_rows(d["z_rows"]), x0=None if x0 is None else tuple(map(float, x0)),
+        z_rows=_rows(d["z_rows"]), t_rows=tuple(float(v) for v in d.get("t_rows", ())),
+        x0=None if x0 is None else tuple(map(float, x0)),
         delta=floats("delta"), c_min=floats("c_min"), c_b=float(d["c_b"]), mu=floats("mu"),
         sd=floats("sd"), bank_sum=tuple(int(v) for v in d["bank_sum"]),
         bank_min=tuple(int(v) for v in d["bank_min"]), crossed=bool(d["crossed"]),
         bank_stat=float(d["bank_stat"]), bank_top=int(d["bank_top"]),
         recent=tuple((int(b), bool(ok)) for b, ok in d["recent"]), alerted=bool(d["alerted"]),
+        bank_h=None if bank_h is None else float(bank_h),
     )
 
 

@@ -299,12 +299,12 @@ def _wear_watched(
     base = r.seq0 + c0
     marks = out.checkpoints[first_checkpoint:]
     keep = [cp.seq - base - 1 for cp in marks]
-    run = wear_steps(det, state, q, new_flight, resets, z, keep)
+    epoch = r.epoch[c0 : c0 + len(q)]
+    run = wear_steps(det, state, q, new_flight, resets, z, keep, epoch)
     kept = dict(run.states)
     for i, cp in enumerate(marks, start=first_checkpoint):
         out.checkpoints[i] = cp._replace(
             state=dataclasses.replace(cp.state, wear=kept[cp.seq - base - 1]))
-    epoch = r.epoch[c0 : c0 + len(q)]
     for alert in run.alerts:
         out.events.append(detector.wear_event(
             est, alert, base + alert.index, float(epoch[alert.index]),

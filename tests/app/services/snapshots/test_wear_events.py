@@ -20,7 +20,7 @@ from sqlalchemy.orm import Session
 from app.cli.importers import CMAPSS_START, ENGINE_TYPE, esn_of, import_cmapss
 from app.models import EngineType, EstimatorDesign
 from app.services.demo import fleet
-from app.services.snapshots import estimator, run, store
+from app.services.snapshots import detector, estimator, run, store
 from app.services.tenancy import service as tenancy
 from estimation import wear
 from estimation.engine.fleet import fleet_snapshots, plan_fleet
@@ -34,7 +34,6 @@ from tests.support.paths import FD001
 # set. On a subset it need not hold: units 1-10 give 92.5 cycles against the naive 132.
 UNITS = 100
 YEAR_S = 365.25 * 86400.0
-BANK_ARL = 2000.0  # records to the directional bank's first false crossing, as designed
 
 
 @pytest.fixture(scope="module")
@@ -101,9 +100,11 @@ def test_fd001_import_alerts_every_unit_before_failure_and_names_hpc(
 
 @pytest.mark.skipif(not FD001.exists(), reason=f"no C-MAPSS file at {FD001}")
 @pytest.mark.xfail(strict=True, reason=(
-    "target missed since the bank's threshold is set by its family-wise false-alarm rate: "
-    "median lead 101.0 against the naive CUSUM's 121.5 (which itself alarms on half of a "
-    "25 of 50 healthy steady engines, below)"))
+    "target missed with the bank designed for 0.5 false alerts per engine-year (half the "
+    "issue's budget; one record a day as imported): median lead 105.5 against the naive "
+    "CUSUM's 121.5; with its threshold calibrated by Monte Carlo to exactly that rate the "
+    "bank crosses 121.5 cycles ahead and alerts, after the attribution's wait, 112.0 ahead "
+    "(bench/bench_wear.py, frontier)"))
 def test_fd001_import_median_lead_at_least_the_naive_signature_cusum(
     fd001_product: dict[str, list[int]],
 ) -> None:
@@ -162,21 +163,25 @@ def _steady_fleet(engines: int, records: int, seed: int) -> tuple[
     return est, runs
 
 
-def test_healthy_steady_fleet_raises_wear_alerts_at_most_at_the_designed_rate() -> None:
-    """50 healthy engines x 400 records at one steady condition through ``run.run_filters``
-    (``wear_steps``) and ``wear_scan`` on the same estimates and deviations. The directional
-    bank is designed for a family-wise mean run length of ``bank_arl`` records to a false
-    crossing (run lengths nearly exponential), and a crossing is necessary for a directional
-    alert: at most 1 - exp(-T / bank_arl) of the engines over T armed records (8 of 50 for
-    2000 records), plus three binomial standard deviations. The limit alert needs a whole
-    nominal fault's magnitude, nowhere near on noise. Before the bank was so designed (h = 2
-    with its baseline taken as exact) 34 of these 50 engines were alerted; the naive
-    signature CUSUM alarms on 25."""
+def test_healthy_steady_fleet_raises_at_most_one_wear_alert_per_engine_year() -> None:
+    """50 healthy engines x 400 records (two a flight, two flights a day: 0.27 engine-years
+    each) at one steady condition through ``run.run_filters`` (``wear_steps``) and
+    ``wear_scan`` on the same estimates, deviations and times. The issue's criterion: at most
+    1 false wear alert per engine-year. The directional bank is designed for half of it
+    (``false_alerts_per_year``) at each engine's record rate, and a crossing is necessary for
+    a directional alert: at most 1 - exp(-T / ARL) of the engines over T armed records, plus
+    three binomial standard deviations. The limit alert needs a whole nominal fault's
+    magnitude, nowhere near on noise. Before the bank's threshold was designed at all (h = 2,
+    its baseline taken as exact) 34 of these 50 engines were alerted; the naive signature
+    CUSUM alarms on 25 (1.8 per engine-year)."""
     engines, records = 50, 400
     est, runs = _steady_fleet(engines, records, seed=2024)
     cfg = wear.WearSettings()
     T = records - (cfg.settle + cfg.n_base)
-    p = 1.0 - np.exp(-T / BANK_ARL)
+    rate = wear.record_rate(runs[0].epoch)
+    assert rate == pytest.approx(4 * 365.25, rel=0.01)
+    years = engines * (runs[0].epoch[-1] - runs[0].epoch[0]) / YEAR_S
+    p = 1.0 - np.exp(-T / wear.bank_arl(cfg, rate))
     allowed = engines * p + 3.0 * np.sqrt(engines * p * (1.0 - p))
     outs = run.run_filters(est, runs)
     product = sum(any(ev.kind == "wear" for ev in out.events) for out in outs)
@@ -187,10 +192,26 @@ def test_healthy_steady_fleet_raises_wear_alerts_at_most_at_the_designed_rate() 
         dy, var, sig = fd001_replay.sensor_deviations(est, r)
         cycles = np.cumsum(np.r_[True, np.diff(r.epoch) > run.NEW_FLIGHT_S]).astype(float)
         scan = wear.wear_scan(out.packed.astype(np.float64)[:, s["q"]], det.H, det.W, cycles,
-                              candidates=det.candidates, dy=dy, var=var, signatures=sig)
+                              candidates=det.candidates, dy=dy, var=var, signatures=sig,
+                              epoch=r.epoch)
         scanned += bool(scan.alerts)
     print(f"\nhealthy steady fleet: {product} (product) / {scanned} (scan) of {engines} "
-          f"engines alerted; design {engines * p:.1f}, allowed {allowed:.1f}")
+          f"engines alerted in {years:.1f} engine-years; design {engines * p:.1f} "
+          f"(+3 sd {allowed:.1f})")
+    assert product / years <= 1.0 and scanned / years <= 1.0
     assert product <= allowed
     assert scanned <= allowed
-    assert cfg.bank_arl == BANK_ARL
+
+
+def test_wear_states_stored_before_the_record_rate_read_with_the_nominal_threshold() -> None:
+    """A wear state round-trips through its stored document; one stored before the record
+    rate was measured (no ``t_rows``, ``bank_h``) reads, and its bank then runs at the
+    nominal rate's threshold."""
+    st = wear.WearState(cycle=12.0, k=3, x_rows=((0.1, 0.2),), z_rows=((1.0,),),
+                        t_rows=(1.7e9, 1.7e9 + 1800.0), bank_h=4.25)
+    assert detector.wear_from_document(detector.wear_document(st)) == st
+    old = detector.wear_document(st)
+    del old["t_rows"], old["bank_h"]
+    read = detector.wear_from_document(old)
+    assert read.t_rows == () and read.bank_h is None
+    assert read == wear.replace_state(st, t_rows=(), bank_h=None)
