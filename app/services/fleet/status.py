@@ -280,9 +280,14 @@ def _active_events(
     return out
 
 
-def fleet_status(session: Session, operator_id: int) -> dict[str, Any]:
-    """Every engine of the operator with current tail/position, type, last data, latest health
-    summary and open events (``app.schemas.estimates.FleetStatus``)."""
+def fleet_status(
+    session: Session, operator_id: int, *, in_state: str | None = None,
+    limit: int | None = None, offset: int = 0,
+) -> dict[str, Any]:
+    """The operator's engines ranked by severity with current tail/position, type, last data,
+    latest health summary and open events (``app.schemas.estimates.FleetStatus``): those in
+    ``in_state`` (all when None), ``limit`` of them from ``offset``, with the counts per state of
+    the whole fleet."""
     operator = session.get(Operator, operator_id)
     engine_rows = session.execute(
         select(Engine.id, Engine.esn, Engine.engine_type_id, EngineType.name, EngineType.limits)
@@ -398,11 +403,20 @@ def fleet_status(session: Session, operator_id: int) -> dict[str, Any]:
     ))
     for rank, item in enumerate(out, start=1):
         item["rank"] = rank
+    states = {name: 0 for name in (*STATE_OF_LEVEL.values(), "no_data")}
+    for item in out:
+        states[item["state"]] += 1
+    matching = out if in_state is None else [item for item in out if item["state"] == in_state]
+    end = None if limit is None else offset + limit
     return {
         "operator": "" if operator is None else operator.name,
         "n_engines": len(out),
         "n_open_events": sum(counts.values()),
-        "engines": out,
+        "states": states,
+        "total": len(matching),
+        "limit": len(out) if limit is None else limit,
+        "offset": offset,
+        "engines": matching[offset:end],
     }
 
 
