@@ -403,16 +403,16 @@ def fleet_status(
     ))
     for rank, item in enumerate(out, start=1):
         item["rank"] = rank
-    states = {name: 0 for name in (*STATE_OF_LEVEL.values(), "no_data")}
+    per_state = {name: 0 for name in (*STATE_OF_LEVEL.values(), "no_data")}
     for item in out:
-        states[item["state"]] += 1
+        per_state[item["state"]] += 1
     matching = out if in_state is None else [item for item in out if item["state"] == in_state]
     end = None if limit is None else offset + limit
     return {
         "operator": "" if operator is None else operator.name,
         "n_engines": len(out),
         "n_open_events": sum(counts.values()),
-        "states": states,
+        "states": per_state,
         "total": len(matching),
         "limit": len(out) if limit is None else limit,
         "offset": offset,
