@@ -38,11 +38,11 @@ from app.models import (
 )
 from app.models.designs import effective_limits
 from app.models.estimates import (
-    DeteriorationBucket,
     Estimate,
     EstimateLayout,
     Event,
     FilterState,
+    FleetPeriod,
 )
 from app.services.events.service import latest_open_events, open_event_counts
 from app.services.fleet import performance
@@ -443,8 +443,8 @@ def fleet_deterioration(
 
     Each engine first counts once per bucket (the mean of its estimates there), then the
     fleet mean and spread are taken over engines, so a busy engine does not dominate. Read
-    from the per-engine sums the pipeline keeps (``deterioration_buckets``): one row per
-    engine and period, whatever the number of estimates.
+    from the sums the pipeline keeps (``fleet_periods``): one row per period, whatever the
+    number of engines and estimates.
     """
     if bucket not in ("week", "month"):
         raise InvalidInput(
@@ -466,30 +466,23 @@ def fleet_deterioration(
             continue
         layout = EstimateLayout.from_dict(layout_doc)
         rows = session.execute(
-            select(DeteriorationBucket.engine_id, DeteriorationBucket.start,
-                   DeteriorationBucket.n, DeteriorationBucket.sums)
-            .where(DeteriorationBucket.design_id == design_id,
-                   DeteriorationBucket.period == bucket,
-                   DeteriorationBucket.operator_id == operator_id)
+            select(FleetPeriod.start, FleetPeriod.n_engines, FleetPeriod.sums,
+                   FleetPeriod.squares)
+            .where(FleetPeriod.design_id == design_id, FleetPeriod.period == bucket,
+                   FleetPeriod.operator_id == operator_id)
+            .order_by(FleetPeriod.start)
         ).all()
         if not rows:
             continue
         width = len(layout.health) + len(layout.aux)
-        starts = np.fromiter((r[1].timestamp() for r in rows), float, len(rows))
-        counts = np.fromiter((r[2] for r in rows), float, len(rows))
-        sums = np.frombuffer(b"".join(r[3] for r in rows), "<f8").reshape(len(rows), width)
-        # Each engine counts once per period (the mean of its estimates there), then the
-        # fleet's mean and spread are taken over engines.
-        per_engine = sums / counts[:, None]
-        buckets, b_index = np.unique(starts, return_inverse=True)
-        b_index = np.ravel(b_index)
-        n_engines = np.bincount(b_index, minlength=len(buckets))
-        mean = np.zeros((len(buckets), width))
-        np.add.at(mean, b_index, per_engine)
-        mean /= n_engines[:, None]
-        sq = np.zeros_like(mean)
-        np.add.at(sq, b_index, (per_engine - mean[b_index]) ** 2)
-        spread = np.sqrt(sq / n_engines[:, None])
+        buckets = np.fromiter((r[0].timestamp() for r in rows), float, len(rows))
+        n_engines = np.fromiter((r[1] for r in rows), np.int64, len(rows))
+        sums = np.frombuffer(b"".join(r[2] for r in rows), "<f8").reshape(len(rows), width)
+        squares = np.frombuffer(b"".join(r[3] for r in rows), "<f8").reshape(len(rows), width)
+        # Each engine counts once per period (the mean of its estimates there); the fleet's
+        # mean and spread are over engines.
+        mean = sums / n_engines[:, None]
+        spread = np.sqrt(np.maximum(squares / n_engines[:, None] - mean**2, 0.0))
         p = len(layout.health)
         units = layout.units
 
