@@ -10,6 +10,7 @@ from app.models.estimates import (
     EventComment,
     FilterCheckpoint,
     FilterState,
+    FleetPeriod,
 )
 from app.models.fleet import Aircraft, Engine, Installation, MaintenanceAction
 from app.models.ingest import Snapshot, StreamChunk, StreamRecording, Upload
@@ -32,6 +33,7 @@ __all__ = [
     "EventComment",
     "FilterCheckpoint",
     "FilterState",
+    "FleetPeriod",
     "Installation",
     "Job",
     "JobSchedule",

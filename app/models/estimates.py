@@ -118,6 +118,28 @@ class DeteriorationBucket(Base):
     sums: Mapped[bytes] = mapped_column(LargeBinary)
 
 
+class FleetPeriod(Base):
+    """A design's fleet over one week or month: how many engines have estimates in it, and the
+    sums over those engines of their period means and of the squares of those means (little-
+    endian float64, health then auxiliary values), so that the fleet deterioration reads one
+    row per period, whatever the fleet's size. Kept by the pipeline with the engines' periods
+    (``DeteriorationBucket``): each rewrite of an engine's period takes its old mean out and
+    puts its new one in."""
+
+    __tablename__ = "fleet_periods"
+    __table_args__ = (CheckConstraint("period IN ('week', 'month')", name="period"),)
+
+    design_id: Mapped[int] = mapped_column(
+        ForeignKey("estimator_designs.id", ondelete="CASCADE"), primary_key=True
+    )
+    period: Mapped[str] = mapped_column(String(8), primary_key=True)
+    start: Mapped[datetime] = mapped_column(UTCDateTime(), primary_key=True)
+    operator_id: Mapped[int] = mapped_column(Integer)
+    n_engines: Mapped[int] = mapped_column(Integer)
+    sums: Mapped[bytes] = mapped_column(LargeBinary)
+    squares: Mapped[bytes] = mapped_column(LargeBinary)
+
+
 class EstimationBacklog(Base):
     """A mark on an engine whose snapshots its estimates do not cover yet: the estimation job's
     to-do list.

@@ -180,11 +180,19 @@ class EngineStatus(BaseModel):
     latest_event: OpenEventBrief | None
 
 
+EngineState = Literal["alert", "watch", "normal", "no_data"]
+
+
 class FleetStatus(BaseModel):
     operator: str
-    n_engines: int
+    n_engines: int = Field(description="every engine of the operator")
     n_open_events: int
-    engines: list[EngineStatus]
+    states: dict[EngineState, int] = Field(description="engines per state, the whole fleet")
+    total: int = Field(description="engines that match the state asked for (all without one)")
+    limit: int
+    offset: int
+    engines: list[EngineStatus] = Field(
+        description="the page: ranked by severity (red, amber, normal, no data), worst first")
 
 
 class DeteriorationSeries(BaseModel):

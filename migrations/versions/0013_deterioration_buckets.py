@@ -1,4 +1,5 @@
-"""deterioration buckets: per-engine weekly and monthly sums of the health and aux estimates
+"""deterioration buckets: per-engine and fleet weekly and monthly sums of the health and aux
+estimates
 
 Revision ID: 0013
 Revises: 0012
@@ -6,7 +7,9 @@ Create Date: 2026-11-24 20:00:00
 
 The fleet deterioration read every estimate of a design (21 s at 2M rows). The estimation
 pipeline now keeps, per engine, design and week or month, the count and the sums of the health
-and auxiliary values (``app.services.snapshots.buckets``); the fleet deterioration reads those.
+and auxiliary values, and per design and period the sums over engines of their period means
+and of their squares (``app.services.snapshots.buckets``); the fleet deterioration reads the
+latter, one row per period.
 The upgrade fills the table from the stored estimates, engine by engine; downgrade drops it.
 """
 from collections.abc import Sequence
@@ -35,6 +38,19 @@ def upgrade() -> None:
         sa.ForeignKeyConstraint(['design_id'], ['estimator_designs.id'], name=op.f('fk_deterioration_buckets_design_id_estimator_designs'), ondelete='CASCADE'),
         sa.PrimaryKeyConstraint('design_id', 'period', 'engine_id', 'start', name=op.f('pk_deterioration_buckets')),
     )
+    op.create_table(
+        'fleet_periods',
+        sa.Column('design_id', sa.Integer(), nullable=False),
+        sa.Column('period', sa.String(length=8), nullable=False),
+        sa.Column('start', sa.DateTime(timezone=True), nullable=False),
+        sa.Column('operator_id', sa.Integer(), nullable=False),
+        sa.Column('n_engines', sa.Integer(), nullable=False),
+        sa.Column('sums', sa.LargeBinary(), nullable=False),
+        sa.Column('squares', sa.LargeBinary(), nullable=False),
+        sa.CheckConstraint("period IN ('week', 'month')", name=op.f('ck_fleet_periods_period')),
+        sa.ForeignKeyConstraint(['design_id'], ['estimator_designs.id'], name=op.f('fk_fleet_periods_design_id_estimator_designs'), ondelete='CASCADE'),
+        sa.PrimaryKeyConstraint('design_id', 'period', 'start', name=op.f('pk_fleet_periods')),
+    )
     # Fill from the estimates already stored (the code of this revision's time, engine by engine).
     from app.models.estimates import EstimateLayout
     from app.services.snapshots.buckets import rebuild
@@ -51,4 +67,5 @@ def upgrade() -> None:
 
 
 def downgrade() -> None:
+    op.drop_table('fleet_periods')
     op.drop_table('deterioration_buckets')

@@ -4,6 +4,10 @@ import { $, badge, fmtNum, fmtTime, h, showError, sortableTable, startPage, tail
 import { axisTitle, layout, plot, styleFor, unitOf } from "./plots.js";
 
 let engines = [];
+// Engines per page: the API ranks the whole fleet, worst first, and sends a page of it.
+const PAGE = 200;
+let offset = 0;
+let total = 0;
 
 function columns() {
   return [
@@ -25,21 +29,35 @@ function columns() {
   ];
 }
 
+function pager() {
+  if (total <= PAGE) return h("span");
+  const go = (to) => h("button", { type: "button", onclick: () => { offset = to; loadStatus().catch((err) => showError($("#message"), err, "Fleet status")); } });
+  const prev = go(Math.max(0, offset - PAGE));
+  prev.textContent = "◀ more severe";
+  prev.disabled = offset === 0;
+  const next = go(offset + PAGE);
+  next.textContent = "less severe ▶";
+  next.disabled = offset + PAGE >= total;
+  return h("div", { class: "toolbar", id: "pager" }, prev,
+    h("span", { class: "muted" }, `engines ${offset + 1}–${Math.min(offset + PAGE, total)} of ${total}, worst first`), next);
+}
+
 function drawTable() {
   const text = $("#filter").value.trim().toLowerCase();
-  const state = $("#state").value;
   const open = $("#open").value;
-  const rows = engines.filter((e) => (!state || e.state === state) && (!open || e.open_events > 0) &&
+  const rows = engines.filter((e) => (!open || e.open_events > 0) &&
     (!text || [e.esn, e.tail, e.engine_type, e.health?.worst_health, e.state].some((v) => v && String(v).toLowerCase().includes(text))));
-  $("#count").textContent = `${rows.length} of ${engines.length} engines`;
+  $("#count").textContent = total > engines.length ? `${rows.length} of ${engines.length} engines on this page (${total} in all)` : `${rows.length} of ${total} engines`;
   $("#table").replaceChildren(rows.length ? sortableTable(columns(), rows, { sortKey: "rank", descending: true, rowClass: (e) => `state-${e.state}` })
-    : h("p", { class: "muted" }, engines.length ? "No engine matches the filter." : "No engines yet: add engines and upload snapshots."));
+    : h("p", { class: "muted" }, total ? "No engine matches the filter." : "No engines yet: add engines and upload snapshots."), pager());
 }
 
 async function loadStatus() {
-  const status = await api("/api/v1/fleet/status");
+  const state = $("#state").value;
+  const status = await api("/api/v1/fleet/status", { query: { limit: PAGE, offset, ...(state ? { state } : {}) } });
   engines = status.engines;
-  const by = (s) => engines.filter((e) => e.state === s).length;
+  total = status.total;
+  const by = (s) => status.states[s];
   $("#summary").replaceChildren(
     h("div", { class: "card" }, h("div", { class: "muted" }, "Engines"), h("div", { class: "big" }, status.n_engines)),
     h("div", { class: "card" }, h("div", { class: "muted" }, "Active events"), h("a", { class: "big", href: "/events.html?status=active" }, status.n_open_events)),
@@ -85,7 +103,8 @@ async function loadDeterioration() {
 
 async function main() {
   await startPage("fleet");
-  for (const id of ["filter", "state", "open"]) $(`#${id}`).addEventListener("input", drawTable);
+  for (const id of ["filter", "open"]) $(`#${id}`).addEventListener("input", drawTable);
+  $("#state").addEventListener("change", () => { offset = 0; loadStatus().catch((err) => showError($("#message"), err, "Fleet status")); });
   for (const id of ["bucket", "which"]) $(`#${id}`).addEventListener("change", loadDeterioration);
   try { await loadStatus(); } catch (err) { showError($("#message"), err, "Fleet status"); }
   await loadDeterioration();

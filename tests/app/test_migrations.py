@@ -13,7 +13,7 @@ from sqlalchemy import inspect, select
 
 from app.db import make_engine, make_sessionmaker, transaction
 from app.migrate import downgrade, upgrade
-from app.models import Base, DeteriorationBucket
+from app.models import Base, DeteriorationBucket, FleetPeriod
 from tests.app.services.trends.test_trends import (
     LAYOUT,
     add_aircraft,
@@ -108,8 +108,11 @@ def test_migration_0013_fills_the_deterioration_periods_from_stored_estimates(
 
         def periods() -> list[tuple]:
             with factory() as session:
-                return sorted((b.engine_id, b.period, b.start, b.n, bytes(b.sums))
-                              for b in session.scalars(select(DeteriorationBucket)))
+                return sorted(
+                    [(b.engine_id, b.period, b.start, b.n, bytes(b.sums))
+                     for b in session.scalars(select(DeteriorationBucket))]
+                    + [(0, f.period, f.start, f.n_engines, bytes(f.sums) + bytes(f.squares))
+                       for f in session.scalars(select(FleetPeriod))])
 
         kept = periods()
         assert len({(p[1], p[2]) for p in kept}) > 10

@@ -38,11 +38,11 @@ from app.models import (
 )
 from app.models.designs import effective_limits
 from app.models.estimates import (
-    DeteriorationBucket,
     Estimate,
     EstimateLayout,
     Event,
     FilterState,
+    FleetPeriod,
 )
 from app.services.events.service import latest_open_events, open_event_counts
 from app.services.fleet import performance
@@ -280,9 +280,14 @@ def _active_events(
     return out
 
 
-def fleet_status(session: Session, operator_id: int) -> dict[str, Any]:
-    """Every engine of the operator with current tail/position, type, last data, latest health
-    summary and open events (``app.schemas.estimates.FleetStatus``)."""
+def fleet_status(
+    session: Session, operator_id: int, *, in_state: str | None = None,
+    limit: int | None = None, offset: int = 0,
+) -> dict[str, Any]:
+    """The operator's engines ranked by severity with current tail/position, type, last data,
+    latest health summary and open events (``app.schemas.estimates.FleetStatus``): those in
+    ``in_state`` (all when None), ``limit`` of them from ``offset``, with the counts per state of
+    the whole fleet."""
     operator = session.get(Operator, operator_id)
     engine_rows = session.execute(
         select(Engine.id, Engine.esn, Engine.engine_type_id, EngineType.name, EngineType.limits)
@@ -398,11 +403,20 @@ def fleet_status(session: Session, operator_id: int) -> dict[str, Any]:
     ))
     for rank, item in enumerate(out, start=1):
         item["rank"] = rank
+    per_state = {name: 0 for name in (*STATE_OF_LEVEL.values(), "no_data")}
+    for item in out:
+        per_state[item["state"]] += 1
+    matching = out if in_state is None else [item for item in out if item["state"] == in_state]
+    end = None if limit is None else offset + limit
     return {
         "operator": "" if operator is None else operator.name,
         "n_engines": len(out),
         "n_open_events": sum(counts.values()),
-        "engines": out,
+        "states": per_state,
+        "total": len(matching),
+        "limit": len(out) if limit is None else limit,
+        "offset": offset,
+        "engines": matching[offset:end],
     }
 
 
@@ -429,8 +443,8 @@ def fleet_deterioration(
 
     Each engine first counts once per bucket (the mean of its estimates there), then the
     fleet mean and spread are taken over engines, so a busy engine does not dominate. Read
-    from the per-engine sums the pipeline keeps (``deterioration_buckets``): one row per
-    engine and period, whatever the number of estimates.
+    from the sums the pipeline keeps (``fleet_periods``): one row per period, whatever the
+    number of engines and estimates.
     """
     if bucket not in ("week", "month"):
         raise InvalidInput(
@@ -452,30 +466,23 @@ def fleet_deterioration(
             continue
         layout = EstimateLayout.from_dict(layout_doc)
         rows = session.execute(
-            select(DeteriorationBucket.engine_id, DeteriorationBucket.start,
-                   DeteriorationBucket.n, DeteriorationBucket.sums)
-            .where(DeteriorationBucket.design_id == design_id,
-                   DeteriorationBucket.period == bucket,
-                   DeteriorationBucket.operator_id == operator_id)
+            select(FleetPeriod.start, FleetPeriod.n_engines, FleetPeriod.sums,
+                   FleetPeriod.squares)
+            .where(FleetPeriod.design_id == design_id, FleetPeriod.period == bucket,
+                   FleetPeriod.operator_id == operator_id)
+            .order_by(FleetPeriod.start)
         ).all()
         if not rows:
             continue
         width = len(layout.health) + len(layout.aux)
-        starts = np.fromiter((r[1].timestamp() for r in rows), float, len(rows))
-        counts = np.fromiter((r[2] for r in rows), float, len(rows))
-        sums = np.frombuffer(b"".join(r[3] for r in rows), "<f8").reshape(len(rows), width)
-        # Each engine counts once per period (the mean of its estimates there), then the
-        # fleet's mean and spread are taken over engines.
-        per_engine = sums / counts[:, None]
-        buckets, b_index = np.unique(starts, return_inverse=True)
-        b_index = np.ravel(b_index)
-        n_engines = np.bincount(b_index, minlength=len(buckets))
-        mean = np.zeros((len(buckets), width))
-        np.add.at(mean, b_index, per_engine)
-        mean /= n_engines[:, None]
-        sq = np.zeros_like(mean)
-        np.add.at(sq, b_index, (per_engine - mean[b_index]) ** 2)
-        spread = np.sqrt(sq / n_engines[:, None])
+        buckets = np.fromiter((r[0].timestamp() for r in rows), float, len(rows))
+        n_engines = np.fromiter((r[1] for r in rows), np.int64, len(rows))
+        sums = np.frombuffer(b"".join(r[2] for r in rows), "<f8").reshape(len(rows), width)
+        squares = np.frombuffer(b"".join(r[3] for r in rows), "<f8").reshape(len(rows), width)
+        # Each engine counts once per period (the mean of its estimates there); the fleet's
+        # mean and spread are over engines.
+        mean = sums / n_engines[:, None]
+        spread = np.sqrt(np.maximum(squares / n_engines[:, None] - mean**2, 0.0))
         p = len(layout.health)
         units = layout.units
 

@@ -19,7 +19,7 @@ import numpy as np
 from sqlalchemy import and_, delete, insert, or_, select
 from sqlalchemy.orm import Session
 
-from app.models.estimates import DeteriorationBucket, Estimate, EstimateLayout
+from app.models.estimates import DeteriorationBucket, Estimate, EstimateLayout, FleetPeriod
 from app.services.snapshots.rows import Block
 
 PERIODS = ("week", "month")
@@ -96,13 +96,19 @@ def refresh(
     # Per engine, the earliest period start over both periods: where kept estimates matter.
     b0 = {e: float(min(period_starts(np.array([first[e]]), p)[0] for p in PERIODS))
           for e in engines}
+    change = FleetChange()
     for period in PERIODS:
         p0 = {e: float(period_starts(np.array([first[e]]), period)[0]) for e in engines}
-        session.execute(delete(DeteriorationBucket).where(
+        rewritten = and_(
             DeteriorationBucket.design_id == design_id, DeteriorationBucket.period == period,
             or_(*(and_(DeteriorationBucket.engine_id == e,
                        DeteriorationBucket.start >= _time(p0[e])) for e in engines)),
-        ))
+        )
+        for start, n, sums in session.execute(select(
+            DeteriorationBucket.start, DeteriorationBucket.n, DeteriorationBucket.sums
+        ).where(rewritten)):
+            change.add(period, start.timestamp(), np.frombuffer(sums, "<f8") / n, -1)
+        session.execute(delete(DeteriorationBucket).where(rewritten))
     kept = session.execute(
         select(Estimate.engine_id, Estimate.recorded_at, Estimate.packed).where(
             Estimate.design_id == design_id,
@@ -124,14 +130,63 @@ def refresh(
         for e in engines:
             keep = epoch[e] >= float(period_starts(np.array([first[e]]), period)[0])
             starts, counts, sums = _sums(epoch[e][keep], values[e][keep], period)
-            rows.extend(
-                {"design_id": design_id, "period": period, "engine_id": e,
-                 "start": _time(start), "operator_id": operator_id, "n": int(n),
-                 "sums": np.ascontiguousarray(total, "<f8").tobytes()}
-                for start, n, total in zip(starts, counts, sums, strict=True)
-            )
+            for start, n, total in zip(starts, counts, sums, strict=True):
+                rows.append({"design_id": design_id, "period": period, "engine_id": e,
+                             "start": _time(start), "operator_id": operator_id, "n": int(n),
+                             "sums": np.ascontiguousarray(total, "<f8").tobytes()})
+                change.add(period, float(start), total / n, +1)
     if rows:
         session.execute(insert(DeteriorationBucket), rows)
+    change.apply(session, operator_id=operator_id, design_id=design_id)
+
+
+class FleetChange:
+    """What a rewrite of engines' periods changes in the fleet's periods: per (period, start)
+    the change in the number of engines and in the sums of their means and squared means."""
+
+    def __init__(self) -> None:
+        self.delta: dict[tuple[str, float], tuple[int, np.ndarray, np.ndarray]] = {}
+
+    def add(self, period: str, start: float, mean: np.ndarray, sign: int) -> None:
+        """One engine's period mean going in (sign +1) or out (-1)."""
+        n, sums, squares = self.delta.get((period, start), (0, 0.0 * mean, 0.0 * mean))
+        self.delta[(period, start)] = (n + sign, sums + sign * mean, squares + sign * mean**2)
+
+    def apply(self, session: Session, *, operator_id: int, design_id: int) -> None:
+        if not self.delta:
+            return
+        keys = list(self.delta)
+        stored = {
+            (row.period, row.start.timestamp()): row
+            for row in session.scalars(
+                select(FleetPeriod).where(
+                    FleetPeriod.design_id == design_id,
+                    or_(*(and_(FleetPeriod.period == p, FleetPeriod.start == _time(t))
+                          for p, t in keys)),
+                ).with_for_update()
+            )
+        }
+        for key, (dn, dsums, dsquares) in self.delta.items():
+            row = stored.get(key)
+            if row is None:
+                if dn > 0:
+                    session.add(FleetPeriod(
+                        design_id=design_id, period=key[0], start=_time(key[1]),
+                        operator_id=operator_id, n_engines=dn,
+                        sums=_blob(dsums), squares=_blob(dsquares)))
+                continue
+            n = row.n_engines + dn
+            if n <= 0:
+                session.delete(row)
+                continue
+            row.n_engines = n
+            row.sums = _blob(np.frombuffer(row.sums, "<f8") + dsums)
+            row.squares = _blob(np.frombuffer(row.squares, "<f8") + dsquares)
+        session.flush()
+
+
+def _blob(values: np.ndarray) -> bytes:
+    return np.ascontiguousarray(values, "<f8").tobytes()
 
 
 def _time(epoch: float) -> datetime:

@@ -58,6 +58,23 @@ def test_status_lists_every_engine_with_its_latest_state(
     assert health["worst_health"] == LAYOUT.health[worst]
     assert abs(health["worst_health_value"] - last[h][worst]) < 1e-3
     assert abs(health["thrust_deficit"] + last[LAYOUT.slices()["z"]][0]) < 1e-3  # Fn first
+
+    # A page at a time, worst first, with the whole fleet's counts per state.
+    states = body["states"]
+    assert sum(states.values()) == body["n_engines"] == body["total"] == 3
+    assert states["alert"] == 1 and states["no_data"] == 1
+    ranked = [e["esn"] for e in body["engines"]]
+    pages = [client.get("/api/v1/fleet/status", params={"limit": 2, "offset": o},
+                        headers={"X-API-Key": fleet.key}).json() for o in (0, 2)]
+    assert [e["esn"] for p in pages for e in p["engines"]] == ranked
+    assert [len(p["engines"]) for p in pages] == [2, 1]
+    assert all(p["total"] == 3 and p["states"] == states for p in pages)
+    only = client.get("/api/v1/fleet/status", params={"state": "no_data"},
+                      headers={"X-API-Key": fleet.key}).json()
+    assert [e["esn"] for e in only["engines"]] == ["S2"] and only["total"] == 1
+    for bad in ({"limit": 0}, {"limit": 100_000}, {"offset": -1}, {"state": "red"}):
+        response = client.get("/api/v1/fleet/status", params=bad, headers={"X-API-Key": fleet.key})
+        assert response.status_code == 422, bad
     # The default limits: health change amber 5 % red 8 %, thrust deficit amber 5 % red 10 %.
     worst_h, deficit = np.abs(last[h]).max(), -last[LAYOUT.slices()["z"]][0]
     expected = ("alert" if worst_h >= 8 or deficit >= 10

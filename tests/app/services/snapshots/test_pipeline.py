@@ -19,6 +19,7 @@ from app.models.estimates import (
     EstimateLayout,
     Event,
     FilterState,
+    FleetPeriod,
 )
 from app.services.snapshots import backlog, buckets, estimator, run, store
 from estimation import isolation
@@ -191,6 +192,16 @@ def test_split_and_late_uploads_equal_one_uninterrupted_run(session: Session) ->
     for key, (n, sums) in expected.items():
         assert periods[key][0] == n
         assert np.allclose(np.frombuffer(periods[key][1], "<f8"), sums, rtol=1e-12, atol=1e-9)
+    # The fleet's periods: three engines with the same means, however many rewrites it took.
+    fleet_periods = {(p.period, p.start): p for p in session.scalars(
+        select(FleetPeriod).where(FleetPeriod.design_id == fleet.design.id))}
+    assert fleet_periods.keys() == expected.keys()
+    for key, (n, sums) in expected.items():
+        row = fleet_periods[key]
+        assert row.n_engines == 3
+        assert np.allclose(np.frombuffer(row.sums, "<f8"), 3 * sums / n, rtol=1e-9, atol=1e-9)
+        assert np.allclose(np.frombuffer(row.squares, "<f8"), 3 * (sums / n) ** 2, rtol=1e-9,
+                           atol=1e-9)
 
     # Running again with nothing new changes nothing and duplicates nothing.
     store.estimate_engines(session, fleet.operator_id, {whole.id: times[0]})
