@@ -5,7 +5,8 @@ computes).
 Per record the pipeline stores q_hat, h_hat = V*^+ q_hat and z_hat = G_z V*^+ q_hat + G_zu du
 (the aux outputs at the record's inputs: on the built-in engine along the power setting's
 fan-speed loop, ``estimator.ScheduledGains``) with their 1-sigma (from the filter covariance
-P), the innovation per sensor, and the WSSR of every library fault (seed 002 eq. 21-23) for the tuner change against the baseline.
+P), the innovation per sensor, and the WSSR of every library fault (seed 002 eq. 21-23) for
+the tuner change against the baseline.
 
 Between a reset and an alarm the detector's baselines, level statistics and WSSR are computed
 for a run of records at once (``estimation.shift_scan``, the same sums as one record alone),
