@@ -165,6 +165,33 @@ def engineering_units(
     return out
 
 
+# Series whose estimate's 1-sigma is shown (the aux estimate's sigma from the filter covariance,
+# z_sigma, in percent of the record's trim). Scored on simulated fleets against the truth
+# (tests/app/services/trends/test_performance_truth.py): the thrust's covers its error; the stall
+# margins' does not (their error is mostly the design's bias: HPC and LPC margins follow the
+# actuator biases and the unestimated health), so they carry no band.
+SIGMA_SERIES = ("Fn", "Fn_rated", "thrust_deficit")
+
+
+def engineering_sigma(
+    schedule: EngineSchedule,
+    layout: EstimateLayout,
+    z_sigma: np.ndarray,
+    records: RecordConditions,
+) -> dict[str, np.ndarray]:
+    """1-sigma [n] of the ``SIGMA_SERIES`` in their engineering units, from the aux estimates'
+    1-sigma z_sigma [n, n_aux] (percent of the record's trim)."""
+    aux = list(layout.aux)
+    if THRUST not in aux or len(records.conditions) == 0:
+        return {}
+    cond = np.asarray(records.conditions, float)
+    fn_trim = schedule.trims_at(cond[:, [0, 1, 3, 2]])[THRUST]
+    sz = np.asarray(z_sigma[:, aux.index(THRUST)], float)
+    fn = fn_trim * sz / 100.0
+    return {"Fn": fn, "Fn_rated": 100.0 * fn / type_reference(schedule).rated_thrust_lbf,
+            "thrust_deficit": sz}
+
+
 def nominal_margin_c(schedule: EngineSchedule, egt_redline_c: float) -> float:
     """EGT margin of the nominal engine (dEGT = 0)."""
     return egt_redline_c - type_reference(schedule).egt_reference_c

@@ -64,22 +64,36 @@ def performance_group(
     )
     if not series:
         return None
+    sigmas = performance.engineering_sigma(
+        schedule, layout, np.asarray(values[:, layout.slices()["z_sigma"]], dtype=float), records
+    )
     matrix = np.stack([v for _n, _u, v in series], axis=1)
+    banded = [j for j, (name, _u, _v) in enumerate(series) if name in sigmas]
+    sigma = (np.stack([sigmas[series[j][0]] for j in banded], axis=1) if banded
+             else np.empty((len(epoch), 0)))
     rows: dict[str, np.ndarray] = {}
     if starts is None:
         rows["value"] = matrix
+        sigma_rows = sigma
     else:
         counts = np.diff(np.append(starts, len(epoch)))
         rows["value"] = np.add.reduceat(matrix, starts, axis=0) / counts[:, None]
         rows["min"] = np.minimum.reduceat(matrix, starts, axis=0)
         rows["max"] = np.maximum.reduceat(matrix, starts, axis=0)
+        # A bucket's sigma: that of its mean's records, taken as the mean sigma (the errors of
+        # consecutive records are mostly the same design bias, not independent).
+        sigma_rows = (np.add.reduceat(sigma, starts, axis=0) / counts[:, None] if banded
+                      else sigma[: len(starts)])
     encoded = {key: columns_of(np.ascontiguousarray(m.T)) for key, m in rows.items()}
+    sigma_columns = columns_of(np.ascontiguousarray(sigma_rows.T)) if banded else []
     items = []
     for j, (name, unit, _v) in enumerate(series):
         item: dict[str, Any] = {"name": name, "unit": unit, "value": None, "sigma": None,
                                 "min": None, "max": None}
         for key, columns in encoded.items():
             item[key] = columns[j]
+        if j in banded:
+            item["sigma"] = sigma_columns[banded.index(j)]
         items.append(item)
     nominal = performance.nominal_margin_c(schedule, limits["egt_redline_c"])
     return {"key": "performance", "label": LABEL, "series": items,
