@@ -5,8 +5,9 @@ Reads a database holding the demo fleet (``fleethealth serve`` seeds it on first
 FLEETHEALTH_DATA_DIR at its data directory), regenerates the demo's fleet plan from its seed
 (cheap: no snapshots), and compares each engine's status with its true health after the last
 round: the take-off dEGT on an ISA+15 K day (corrected, over theta2 there, like the status's)
-and the thrust change at take-off power, both from the steady-state solver. Engines removed before the end (their last data is older) are
-compared against a health they no longer had when last reported.
+and the thrust change at take-off power, both from the steady-state solver. Engines removed
+before the end (their last data is older) are compared against a health they no longer had
+when last reported.
 
     FLEETHEALTH_DATA_DIR=data .venv/bin/python bench/bench_severity.py
 """
