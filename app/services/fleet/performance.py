@@ -182,11 +182,12 @@ def engineering_units(
     return out
 
 
-# Series whose estimate's 1-sigma is shown (the aux estimate's sigma from the filter covariance,
-# z_sigma, in percent of the record's trim). Scored on simulated fleets against the truth
-# (tests/app/services/trends/test_performance_truth.py): the thrust's covers its error; the stall
-# margins' does not (their error is mostly the design's bias: HPC and LPC margins follow the
-# actuator biases and the unestimated health), so they carry no band.
+# Series whose estimate's 1-sigma is shown: the thrust estimate's sigma from the filter
+# covariance (z_sigma, percent of the record's trim) and, for a calibrated design, its model
+# error fitted on the simulated calibration fleets (``designs.calibration.aux_errors``). Scored
+# against the truth in tests/app/services/trends/test_performance_truth.py. The stall margins
+# carry no band: their error is mostly the design's bias (the HPC and LPC margins follow the
+# actuator biases and the health the tuners do not span), which the filter sigma misses.
 SIGMA_SERIES = ("Fn", "Fn_rated", "thrust_deficit")
 
 
@@ -195,15 +196,17 @@ def engineering_sigma(
     layout: EstimateLayout,
     z_sigma: np.ndarray,
     records: RecordConditions,
+    thrust_model_std: float = 0.0,
 ) -> dict[str, np.ndarray]:
     """1-sigma [n] of the ``SIGMA_SERIES`` in their engineering units, from the aux estimates'
-    1-sigma z_sigma [n, n_aux] (percent of the record's trim)."""
+    filter 1-sigma z_sigma [n, n_aux] and the thrust estimate's calibrated model error
+    ``thrust_model_std`` (both percent of the record's trim, added in quadrature)."""
     aux = list(layout.aux)
     if THRUST not in aux or len(records.conditions) == 0:
         return {}
     cond = np.asarray(records.conditions, float)
     fn_trim = schedule.trims_at(cond[:, [0, 1, 3, 2]])[THRUST]
-    sz = np.asarray(z_sigma[:, aux.index(THRUST)], float)
+    sz = np.sqrt(np.asarray(z_sigma[:, aux.index(THRUST)], float) ** 2 + thrust_model_std**2)
     fn = fn_trim * sz / 100.0
     return {"Fn": fn, "Fn_rated": 100.0 * fn / type_reference(schedule).rated_thrust_lbf,
             "thrust_deficit": sz}

@@ -17,6 +17,7 @@ from sqlalchemy.orm import Session
 from app.models import Engine, EngineType
 from app.models.estimates import EstimateLayout
 from app.services.fleet import performance
+from estimation import uncertainty
 
 LABEL = "Engineering units: thrust, stall margins, EGT margin, deltas"
 
@@ -44,9 +45,11 @@ def performance_group(
     values: np.ndarray,
     starts: np.ndarray | None,
     columns_of: Any,
+    calibration: uncertainty.Calibration | None = None,
 ) -> dict[str, Any] | None:
     """The group for records (epoch [n], packed values [n, width]); None when the design's
-    engine has no schedule."""
+    engine has no schedule. The thrust series' 1-sigma is the filter's, with the design's
+    calibrated model error of the thrust estimate when ``calibration`` has one."""
     schedule = performance.builtin_schedule_for_design(session, design_id)
     if schedule is None or len(epoch) == 0:
         return None
@@ -64,8 +67,11 @@ def performance_group(
     )
     if not series:
         return None
+    model_std = (calibration.aux_model_std(performance.THRUST) if calibration is not None
+                 else None)
     sigmas = performance.engineering_sigma(
-        schedule, layout, np.asarray(values[:, layout.slices()["z_sigma"]], dtype=float), records
+        schedule, layout, np.asarray(values[:, layout.slices()["z_sigma"]], dtype=float), records,
+        model_std or 0.0,
     )
     matrix = np.stack([v for _n, _u, v in series], axis=1)
     banded = [j for j, (name, _u, _v) in enumerate(series) if name in sigmas]
