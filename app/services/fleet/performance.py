@@ -29,7 +29,6 @@ from __future__ import annotations
 import collections
 import functools
 import hashlib
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -85,6 +84,14 @@ def _reference(_key: int, schedule: EngineSchedule) -> TypeReference:
     )
 
 
+def schedule_trims(schedule: EngineSchedule, conditions: np.ndarray) -> dict[str, np.ndarray]:
+    """The schedule's interpolated trims at records' conditions [n, 4] (snapshot order)."""
+    cond = np.asarray(conditions, float)
+    if cond.shape[0] == 0:
+        return {k: np.empty(0) for k in schedule.trim_names}
+    return schedule.trims_at(cond[:, [0, 1, 3, 2]])
+
+
 def smooth(values: np.ndarray, weight: float = SMOOTHING) -> np.ndarray:
     """Exponential smoothing over records along axis 0 [n, k]; a missing value (NaN) keeps the
     previous smoothed value, and the filter starts at the first value present.
@@ -133,16 +140,18 @@ def engineering_units(
     records: RecordConditions,
     egt_redline_c: float,
     baseline: Mapping[str, np.ndarray] | None = None,
+    trims: Mapping[str, np.ndarray] | None = None,
 ) -> list[tuple[str, str, np.ndarray]]:
     """Series (name, unit, [n] values) in engineering units for estimates z [n, n_aux].
 
     ``baseline``: sensor trims of the nominal engine at each record's condition (name -> [n],
-    engine units); None takes the schedule's interpolated trims.
+    engine units); None takes the schedule's interpolated trims. ``trims``: the schedule's
+    interpolated trims at the records (``schedule_trims``), when the caller has them.
     """
     cond = np.asarray(records.conditions, float)
     n = cond.shape[0]
-    sched_cond = cond[:, [0, 1, 3, 2]]
-    trims = schedule.trims_at(sched_cond) if n else {k: np.empty(0) for k in schedule.trim_names}
+    if trims is None:
+        trims = schedule_trims(schedule, cond)
     base = dict(trims)
     if baseline is not None:
         base.update({k: np.asarray(v, float) for k, v in baseline.items()})
@@ -197,6 +206,7 @@ def engineering_sigma(
     z_sigma: np.ndarray,
     records: RecordConditions,
     thrust_model_std: float = 0.0,
+    trims: Mapping[str, np.ndarray] | None = None,
 ) -> dict[str, np.ndarray]:
     """1-sigma [n] of the ``SIGMA_SERIES`` in their engineering units, from the aux estimates'
     filter 1-sigma z_sigma [n, n_aux] and the thrust estimate's calibrated model error
@@ -204,8 +214,8 @@ def engineering_sigma(
     aux = list(layout.aux)
     if THRUST not in aux or len(records.conditions) == 0:
         return {}
-    cond = np.asarray(records.conditions, float)
-    fn_trim = schedule.trims_at(cond[:, [0, 1, 3, 2]])[THRUST]
+    fn_trim = (trims if trims is not None
+               else schedule_trims(schedule, records.conditions))[THRUST]
     sz = np.sqrt(np.asarray(z_sigma[:, aux.index(THRUST)], float) ** 2 + thrust_model_std**2)
     fn = fn_trim * sz / 100.0
     return {"Fn": fn, "Fn_rated": 100.0 * fn / type_reference(schedule).rated_thrust_lbf,
@@ -240,9 +250,13 @@ _BASELINE_CACHE: collections.OrderedDict[tuple[str, int, bytes], dict[str, np.nd
     collections.OrderedDict())
 
 
-def baseline_trims(conditions: np.ndarray, schedule: EngineSchedule) -> dict[str, np.ndarray]:
+def baseline_trims(
+    conditions: np.ndarray, schedule: EngineSchedule,
+    trims: Mapping[str, np.ndarray] | None = None,
+) -> dict[str, np.ndarray]:
     """Sensor trims of the nominal built-in engine solved at each record's condition [n, 4]
-    (snapshot order), the schedule's interpolation where the solver cannot."""
+    (snapshot order), the schedule's interpolation (``trims``, computed when not given) where
+    the solver cannot."""
     from app.services.snapshots.estimator import exact_nominal_trims
 
     cond = np.ascontiguousarray(conditions, dtype=float)
@@ -251,7 +265,7 @@ def baseline_trims(conditions: np.ndarray, schedule: EngineSchedule) -> dict[str
     if cached is not None:
         _BASELINE_CACHE.move_to_end(key)
         return {k: v.copy() for k, v in cached.items()}
-    interpolated = schedule.trims_at(cond[:, [0, 1, 3, 2]]) if len(cond) else {}
+    interpolated = trims if trims is not None else schedule_trims(schedule, cond)
     wanted = {k: v for k, v in interpolated.items() if k in MEASURED_COLUMNS}
     out = exact_nominal_trims(cond, wanted)
     _BASELINE_CACHE[key] = {k: v.copy() for k, v in out.items()}
@@ -287,7 +301,7 @@ def record_conditions(
     ).all()
     if not rows:
         return RecordConditions(cond, measured)
-    data = np.array([[math.nan if v is None else float(v) for v in row] for row in rows])
+    data = np.array(rows, dtype=float)  # None (a missing value) becomes NaN
     order = np.argsort(data[:, 0], kind="stable")
     data = data[order]
     # Estimate and snapshot share (engine, recorded_at); the two epoch expressions may differ

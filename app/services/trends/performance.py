@@ -61,9 +61,10 @@ def performance_group(
               else EngineType().effective_limits)
     records = performance.record_conditions(session, engine_id, epoch)
     z = np.asarray(values[:, layout.slices()["z"]], dtype=float)
-    baseline = performance.baseline_trims(records.conditions, schedule)
+    trims = performance.schedule_trims(schedule, records.conditions)
+    baseline = performance.baseline_trims(records.conditions, schedule, trims)
     series = performance.engineering_units(
-        schedule, layout, z, records, limits["egt_redline_c"], baseline
+        schedule, layout, z, records, limits["egt_redline_c"], baseline, trims
     )
     if not series:
         return None
@@ -71,7 +72,7 @@ def performance_group(
                  else None)
     sigmas = performance.engineering_sigma(
         schedule, layout, np.asarray(values[:, layout.slices()["z_sigma"]], dtype=float), records,
-        model_std or 0.0,
+        model_std or 0.0, trims,
     )
     matrix = np.stack([v for _n, _u, v in series], axis=1)
     banded = [j for j, (name, _u, _v) in enumerate(series) if name in sigmas]
