@@ -78,10 +78,12 @@ def test_trend_plots_every_group_with_bands_markers_and_units(
     health = next(g for g in api["groups"] if g["key"] == "health")
     assert health["view"] == "change"
     assert "change since baseline" in page.inner_text("#plots section:first-child h2")
-    # One solid vermilion line per event, at its detection time.
+    # One solid line per event at its detection time: vermilion for a shift, pink for wear.
     shapes = page.evaluate("document.querySelector('#plot-health').layout.shapes")
-    event_lines = [s for s in shapes if s["line"]["color"] == "#D55E00"]
-    assert sorted(s["x0"] for s in event_lines) == sorted(e["detected_at"] for e in api["events"])
+    for colour, wear in (("#D55E00", False), ("#CC79A7", True)):
+        lines_of = [s["x0"] for s in shapes if s["line"]["color"] == colour]
+        assert sorted(lines_of) == sorted(
+            e["detected_at"] for e in api["events"] if (e["kind"] == "wear") == wear)
     screenshot(page, "engine-trend")
 
     # Decimated to 200 buckets: residuals and WSSR (no sigma) get their bucket min-max band.
