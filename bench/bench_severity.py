@@ -4,9 +4,10 @@ status's EGT and thrust figures against the simulator's truth.
 Reads a database holding the demo fleet (``fleethealth serve`` seeds it on first start; point
 FLEETHEALTH_DATA_DIR at its data directory), regenerates the demo's fleet plan from its seed
 (cheap: no snapshots), and compares each engine's status with its true health after the last
-round: the take-off dEGT on an ISA+15 K day and the thrust change at take-off power, both from
-the steady-state solver. Engines removed before the end (their last data is older) are
-compared against a health they no longer had when last reported.
+round: the take-off dEGT on an ISA+15 K day (corrected, over theta2 there, like the status's)
+and the thrust change at take-off power, both from the steady-state solver. Engines removed
+before the end (their last data is older) are compared against a health they no longer had
+when last reported.
 
     FLEETHEALTH_DATA_DIR=data .venv/bin/python bench/bench_severity.py
 """
@@ -72,7 +73,8 @@ def main() -> None:
         if "egt_margin" not in checks:
             continue
         redline = 1100.0  # the built-in type's default
-        d_true = (true.sensors[k, 7] - nominal.sensors[0, 7]) / 1.8
+        # Corrected (over theta2 at the reference, ISA+15 K), as the status's dEGT is.
+        d_true = (true.sensors[k, 7] - nominal.sensors[0, 7]) / 1.8 / ref.theta_reference
         d_status = (redline - checks["egt_margin"] - ref.egt_reference_c) / ref.theta_reference
         fn_true = 100.0 * (1.0 - true.aux[k, 0] / nominal.aux[0, 0])
         current = (last - e["last_data"]).days < 2  # type: ignore[index]

@@ -127,6 +127,10 @@ class Calibration:
     observable: np.ndarray  # bool
     bias_scale: np.ndarray | None = None  # [p] a of a^2 bias2 (fit_bias_scale); None: 1
     source: Mapping[str, Any] = field(default_factory=dict)
+    # Aux outputs (thrust, margins): s of each, percent of the record's trim, fitted like
+    # level_std on the filter's aux variance (``fit_model_std``); empty: not calibrated.
+    aux_names: tuple[str, ...] = ()
+    aux_std: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         p = len(self.names)
@@ -142,6 +146,19 @@ class Calibration:
             object.__setattr__(self, name, value)
         object.__setattr__(self, "names", tuple(self.names))
         object.__setattr__(self, "source", dict(self.source))
+        object.__setattr__(self, "aux_names", tuple(self.aux_names))
+        aux_std = np.asarray(np.zeros(0) if self.aux_std is None else self.aux_std, float)
+        if aux_std.shape != (len(self.aux_names),):
+            raise DimensionError(f"Incompatible dimensions of aux_std; expected "
+                                 f"({len(self.aux_names)},) but found {aux_std.shape}")
+        object.__setattr__(self, "aux_std", aux_std)
+
+    def aux_model_std(self, name: str) -> float | None:
+        """s of one aux output (percent of trim); None when it was not calibrated."""
+        if name not in self.aux_names:
+            return None
+        value = float(np.asarray(self.aux_std)[self.aux_names.index(name)])
+        return value if np.isfinite(value) else None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form (``fleethealth.uncertainty-calibration/1``; NaN as null)."""
@@ -160,6 +177,8 @@ class Calibration:
             "observable": [bool(x) for x in self.observable],
             "bias_scale": listed(np.asarray(self.bias_scale)),
             "source": dict(self.source),
+            "aux_names": list(self.aux_names),
+            "aux_std": listed(np.asarray(self.aux_std)),
         }
 
     @classmethod
@@ -176,6 +195,8 @@ class Calibration:
             observable=np.array(d["observable"], bool),
             bias_scale=arr("bias_scale") if "bias_scale" in d else None,
             source=dict(d.get("source", {})),
+            aux_names=tuple(d.get("aux_names", ())),
+            aux_std=arr("aux_std") if "aux_std" in d else None,
         )
 
 

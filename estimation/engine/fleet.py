@@ -247,7 +247,10 @@ class _Engines:
         self.scatter = rng.normal(0.0, cfg.scatter_std, (n, N_TURBO))
         self.bias = rng.normal(0.0, 1.0, (n, 3)) * np.array(cfg.bias_std)
         age = rng.uniform(0.0, cfg.initial_cycles_max, n)
-        since_wash = rng.uniform(0.0, cfg.wash_interval, n)
+        # An engine has fouled at most since it first flew: with washes rarer than the fleet's
+        # age (a wash_interval of 1e5 cycles for "no washes"), an uncapped draw gave engines up
+        # to 1e5 cycles of fouling, efficiencies 20-60 % down.
+        since_wash = np.minimum(rng.uniform(0.0, cfg.wash_interval, n), age)
         self.perm = self.rate * age[:, None]
         self.foul = self.foul_rate * since_wash[:, None]
         self.fault = np.zeros((n, N_HEALTH))

@@ -22,19 +22,34 @@ const PERFORMANCE_PANELS = [
   { key: "perf-egt", title: "EGT margin (take-off, ISA+15 K)", ylabel: "EGT margin", series: ["egt_margin"] },
   { key: "perf-degt", title: "ΔEGT against the baseline (corrected, smoothed)", ylabel: "ΔEGT", series: ["dEGT"] },
   { key: "perf-deltas", title: "ΔWf, ΔN2, ΔN1 against the baseline (smoothed)", ylabel: "Delta", series: ["dWf", "dN2", "dN1"] },
-  { key: "perf-thrust", title: "Net thrust", ylabel: "Thrust", series: ["Fn"] },
-  { key: "perf-deficit", title: "Thrust deficit and thrust in % of rated", ylabel: "Thrust", series: ["thrust_deficit", "Fn_rated"] },
+  // Thrust itself differs fourfold between take-off and cruise: one line per phase.
+  { key: "perf-thrust", title: "Net thrust, per flight phase", ylabel: "Thrust", series: ["Fn"], byPhase: true },
+  { key: "perf-rated", title: "Net thrust in % of rated (take-off, sea level, ISA), per flight phase", ylabel: "Thrust", series: ["Fn_rated"], byPhase: true },
+  { key: "perf-deficit", title: "Thrust deficit against the nominal engine at the same condition", ylabel: "Thrust deficit", series: ["thrust_deficit"] },
   { key: "perf-margins", title: "Stall margins", ylabel: "Stall margin", series: ["SM_fan", "SM_LPC", "SM_HPC"] },
   { key: "perf-margin-change", title: "Stall-margin change from the baseline", ylabel: "Change", series: ["SM_fan_change", "SM_LPC_change", "SM_HPC_change"] },
 ];
 const UNIT_LABELS = { degC: "°C", pts: "margin points" };
+
+// A series split by flight phase: the records of each phase (a bucket mixing phases has none),
+// with their indices into the trend's points (``idx``).
+function byPhase(s) {
+  const phases = [...new Set(trend.phase.filter(Boolean))];
+  const pick = (arr, idx) => (arr ? idx.map((i) => arr[i]) : arr);
+  return phases.map((phase) => {
+    const idx = trend.phase.map((p, i) => (p === phase ? i : -1)).filter((i) => i >= 0);
+    return { ...s, name: `${s.name} (${phase})`, idx, value: pick(s.value, idx), sigma: pick(s.sigma, idx),
+      min: pick(s.min, idx), max: pick(s.max, idx) };
+  }).filter((p) => p.idx.length);
+}
 
 function performancePanels() {
   const group = trend.groups.find((g) => g.key === "performance");
   if (!group) return [];
   return PERFORMANCE_PANELS.map((panel) => ({
     key: panel.key, label: panel.ylabel, title: panel.title,
-    series: group.series.filter((s) => panel.series.includes(s.name)).map((s) => ({ ...s, unit: UNIT_LABELS[s.unit] || s.unit })),
+    series: group.series.filter((s) => panel.series.includes(s.name)).map((s) => ({ ...s, unit: UNIT_LABELS[s.unit] || s.unit }))
+      .flatMap((s) => (panel.byPhase ? byPhase(s) : [s])),
     limits: (group.limits || []).filter((l) => panel.series.includes(l.series)),
   })).filter((panel) => panel.series.length);
 }
@@ -141,7 +156,9 @@ function draw() {
     const title = group.key === "health" && group.view === "change" ? "Health parameters: change since baseline" : group.title || TITLES[group.key] || group.label;
     container.append(h("section", { class: "card" }, h("h2", {}, title),
       ...notes.map((n) => h("p", { class: "muted" }, n)), div));
-    const traces = group.series.filter((s) => !hidden.has(s.name)).flatMap((s, i) => lineWithBand(x, broken(s), i));
+    const raw = axis === "date" ? trend.time : trend.seq;
+    const traces = group.series.filter((s) => !hidden.has(s.name)).flatMap((s, i) => (s.idx
+      ? lineWithBand(s.idx.map((k) => raw[k]), s, i) : lineWithBand(x, broken(s), i)));
     // Event markers as points too: hovering one names the event.
     const events = marks.filter((m) => m.kind === "event" || m.kind === "wear");
     if (events.length) {

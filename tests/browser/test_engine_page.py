@@ -38,10 +38,18 @@ def test_trend_plots_every_group_with_bands_markers_and_units(
     # The performance group in engineering units is drawn as one panel per quantity, with the
     # type's limit lines as dashed amber and red shapes.
     drawn = []
-    for panel in ("perf-egt", "perf-degt", "perf-deltas", "perf-thrust", "perf-deficit",
-                  "perf-margins", "perf-margin-change"):
+    for panel in ("perf-egt", "perf-degt", "perf-deltas", "perf-thrust", "perf-rated",
+                  "perf-deficit", "perf-margins", "perf-margin-change"):
         drawn += [t["name"] for t in traces(page, f"#plot-{panel}") if t["role"] == "line"]
-    assert sorted(drawn) == sorted(s["name"] for s in performance["series"])
+    # Thrust and thrust in % of rated: one line per flight phase (take-off and cruise differ
+    # fourfold); the rest one line per series.
+    phases = sorted({p for p in api["phase"] if p})
+    expected = [f"{s['name']} ({p})" if s["name"] in ("Fn", "Fn_rated") else s["name"]
+                for s in performance["series"]
+                for p in (phases if s["name"] in ("Fn", "Fn_rated") else [None])]
+    assert sorted(drawn) == sorted(expected)
+    thrust = [t for t in traces(page, "#plot-perf-thrust") if t["role"] == "line"]
+    assert sum(t["n"] for t in thrust) <= api["n_points"]
     egt_title = page.evaluate("document.querySelector('#plot-perf-egt').layout.yaxis.title.text")
     assert egt_title == "EGT margin [°C]"
     limit_values = page.evaluate(
@@ -70,10 +78,12 @@ def test_trend_plots_every_group_with_bands_markers_and_units(
     health = next(g for g in api["groups"] if g["key"] == "health")
     assert health["view"] == "change"
     assert "change since baseline" in page.inner_text("#plots section:first-child h2")
-    # One solid vermilion line per event, at its detection time.
+    # One solid line per event at its detection time: vermilion for a shift, pink for wear.
     shapes = page.evaluate("document.querySelector('#plot-health').layout.shapes")
-    event_lines = [s for s in shapes if s["line"]["color"] == "#D55E00"]
-    assert sorted(s["x0"] for s in event_lines) == sorted(e["detected_at"] for e in api["events"])
+    for colour, wear in (("#D55E00", False), ("#CC79A7", True)):
+        lines_of = [s["x0"] for s in shapes if s["line"]["color"] == colour]
+        assert sorted(lines_of) == sorted(
+            e["detected_at"] for e in api["events"] if (e["kind"] == "wear") == wear)
     screenshot(page, "engine-trend")
 
     # Decimated to 200 buckets: residuals and WSSR (no sigma) get their bucket min-max band.

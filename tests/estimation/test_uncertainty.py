@@ -159,12 +159,19 @@ def test_calibration_json_round_trip() -> None:
         names=("a", "b"), level_std=np.array([0.1, 0.2]), change_std=np.array([0.0, 0.3]),
         slope_error=np.array([np.nan, -0.1]), bias2=np.array([0.01, 1.0]),
         drift=np.array([0.0, 0.05]), observable=np.array([True, False]),
-        source={"seed": 1, "design": "svd:6"},
+        source={"seed": 1, "design": "svd:6"}, aux_names=("Fn", "SM_HPC"),
+        aux_std=np.array([0.3, np.nan]),
     )
     back = unc.Calibration.from_dict(json.loads(json.dumps(cal.to_dict())))
     assert back.names == cal.names and back.source == cal.source
-    for name in ("level_std", "change_std", "slope_error", "bias2", "drift", "observable"):
+    for name in ("level_std", "change_std", "slope_error", "bias2", "drift", "observable",
+                 "aux_std"):
         np.testing.assert_array_equal(getattr(back, name), getattr(cal, name))
+    assert back.aux_model_std("Fn") == 0.3
+    assert back.aux_model_std("SM_HPC") is None and back.aux_model_std("T40") is None
+    # A document from before the aux outputs were calibrated: none of them is.
+    old = {k: v for k, v in cal.to_dict().items() if not k.startswith("aux_")}
+    assert unc.Calibration.from_dict(old).aux_model_std("Fn") is None
     with pytest.raises(DimensionError):
         unc.Calibration(names=("a",), level_std=np.zeros(2), change_std=np.zeros(1),
                         slope_error=np.zeros(1), bias2=np.zeros(1), drift=np.zeros(1),

@@ -34,8 +34,10 @@ from app.services.designs.service import get_design
 from app.services.snapshots import estimator
 from app.services.snapshots import run as snapshots_run
 from estimation import uncertainty
+from estimation.engine.errors import EngineConvergenceError
 from estimation.engine.fleet import FleetConfig, FleetPlan, Snapshots, fleet_snapshots, plan_fleet
-from estimation.engine.sensors import SENSOR_NAMES
+from estimation.engine.sensors import AUX_NAMES, SENSOR_NAMES
+from estimation.engine.steady import steady_state
 
 ACTUATOR_NAMES = ("Wf", "VSV", "VBV")
 RESULT_KEY = "uncertainty"
@@ -66,6 +68,9 @@ SETTLE_FLIGHTS = 30
 CALIBRATION_SEEDS = (20260102, 20260103, 20260104)
 CALIBRATION_AIRCRAFT = 8
 CALIBRATION_FLIGHTS = 730
+# The aux outputs' model error is fitted on every AUX_EVERY-th settled record (each needs two
+# steady-state solves; consecutive records of an engine carry nearly the same error).
+AUX_EVERY = 4
 
 ProgressFn = Callable[[float, str | None], None]
 
@@ -89,6 +94,11 @@ class HealthTrack:
     h_hat: np.ndarray  # [S, p]
     h_sigma: np.ndarray  # [S, p]
     h_true: np.ndarray  # [S, p]
+    # The aux estimates (percent of trim) with their filter 1-sigma, and each record's
+    # condition [S, 4] (alt, mach, dtamb, power); None where not kept.
+    z_hat: np.ndarray | None = None  # [S, nz]
+    z_sigma: np.ndarray | None = None  # [S, nz]
+    conditions: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -188,8 +198,41 @@ def tracks(
             for k in range(len(t)):
                 flights[k] = len(np.unique(data.flight_id[(t >= last_reset[k]) & (t <= t[k])]))
             out.append(HealthTrack(data.esn, rounds, flights > settle, values[:, s["h"]],
-                                   values[:, s["h_sigma"]], h_true))
+                                   values[:, s["h_sigma"]], h_true, values[:, s["z"]],
+                                   values[:, s["z_sigma"]], data.run.conditions))
     return out
+
+
+def aux_errors(
+    plan: FleetPlan, track_list: Sequence[HealthTrack], names: Sequence[str],
+    every: int = AUX_EVERY,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Errors of the aux estimates against the simulator's truth, and their filter variance
+    ([N, nz] each, percent of the nominal engine's value at the record's condition), over every
+    ``every``-th settled record: the truth is the steady state of the record's true health
+    (``FleetPlan.health``, actuator biases included) at its condition and power setting,
+    against the nominal engine's there."""
+    idx = [AUX_NAMES.index(n) for n in names]
+    errs, variances = [], []
+    for t in track_list:
+        if t.z_hat is None or t.z_sigma is None or t.conditions is None:
+            continue
+        rows = np.flatnonzero(t.settled)[::every]
+        if rows.size == 0:
+            continue
+        c = t.conditions[rows]
+        health = plan.health[t.round[rows], plan.esns.index(t.esn)]
+        try:
+            true = steady_state(c[:, :3], power=c[:, 3], health=health)
+            nominal = steady_state(c[:, :3], power=c[:, 3])
+        except (EngineConvergenceError, ValueError):
+            continue  # an engine the solver cannot hold there: no truth to score against
+        z_true = 100.0 * (true.aux[:, idx] / nominal.aux[:, idx] - 1.0)
+        errs.append(t.z_hat[rows] - z_true)
+        variances.append(t.z_sigma[rows] ** 2)
+    if not errs:
+        return np.empty((0, len(idx))), np.empty((0, len(idx)))
+    return np.concatenate(errs), np.concatenate(variances)
 
 
 def segments(plan: FleetPlan, track_list: Sequence[HealthTrack]) -> list[Segment]:
@@ -287,8 +330,15 @@ def calibrate(
     segs: list[Segment] = []
     fleet_of: list[int] = []  # the fleet of each segment
     B_hs = []
+    aux = tuple(est.layout.aux)
+    aux_err, aux_var = [], []
     for k, (plan, snaps) in enumerate(fleets):
-        part = segments(plan, tracks(est, plan, snaps))
+        track_list = tracks(est, plan, snaps)
+        part = segments(plan, track_list)
+        if aux and all(n in AUX_NAMES for n in aux):
+            e, v = aux_errors(plan, track_list, aux)
+            aux_err.append(e)
+            aux_var.append(v)
         segs.extend(part)
         fleet_of.extend([k] * len(part))
         B_hs.append(bias_matrix(est, snaps))
@@ -323,7 +373,12 @@ def calibrate(
               & (cover2.min(axis=0) >= BAND_TWO_SIGMA))
     if len(per_fleet) > 1:
         shown &= stable
+    aux_std = None
+    if aux_err and sum(len(e) for e in aux_err):
+        aux_std = uncertainty.fit_model_std(np.concatenate(aux_err), np.concatenate(aux_var),
+                                            one_sigma, two_sigma)
     return uncertainty.Calibration(
+        aux_names=aux if aux_std is not None else (), aux_std=aux_std,
         names=tuple(est.layout.health), level_std=level_std, change_std=change_std,
         slope_error=slope_error, bias2=bias2, drift=drift, observable=shown, bias_scale=scale,
         source={"design": design, "seeds": None if seeds is None else list(seeds),

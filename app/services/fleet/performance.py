@@ -26,13 +26,15 @@ few degrees.
 
 from __future__ import annotations
 
+import collections
 import functools
-import math
+import hashlib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy import signal
 from sqlalchemy import Float, cast, func, select
 from sqlalchemy.orm import Session
 
@@ -82,18 +84,40 @@ def _reference(_key: int, schedule: EngineSchedule) -> TypeReference:
     )
 
 
+def schedule_trims(schedule: EngineSchedule, conditions: np.ndarray) -> dict[str, np.ndarray]:
+    """The schedule's interpolated trims at records' conditions [n, 4] (snapshot order)."""
+    cond = np.asarray(conditions, float)
+    if cond.shape[0] == 0:
+        return {k: np.empty(0) for k in schedule.trim_names}
+    return schedule.trims_at(cond[:, [0, 1, 3, 2]])
+
+
 def smooth(values: np.ndarray, weight: float = SMOOTHING) -> np.ndarray:
     """Exponential smoothing over records along axis 0 [n, k]; a missing value (NaN) keeps the
-    previous smoothed value, and the filter starts at the first value present."""
+    previous smoothed value, and the filter starts at the first value present.
+
+    Per column, over its present values x_0, x_1, ...: s_0 = x_0, s_i = s_(i-1) + w (x_i -
+    s_(i-1)), a first-order recursive filter (``scipy.signal.lfilter``); a missing record
+    carries the last s forward.
+    """
+    values = np.asarray(values, float)
     out = np.full(values.shape, np.nan)
-    state = np.full(values.shape[1:], np.nan)
-    for i in range(values.shape[0]):
-        x = values[i]
-        fresh = np.isnan(state) & ~np.isnan(x)
-        state = np.where(fresh, x, state)
-        step = ~np.isnan(x) & ~fresh
-        state = np.where(step, state + weight * (x - state), state)
-        out[i] = state
+    flat = values.reshape(values.shape[0], -1)
+    res = out.reshape(values.shape[0], -1)
+    for j in range(flat.shape[1]):
+        present = np.flatnonzero(~np.isnan(flat[:, j]))
+        if present.size == 0:
+            continue
+        x = flat[present, j]
+        s = np.empty_like(x)
+        s[0] = x[0]
+        if x.size > 1:
+            s[1:], _ = signal.lfilter([weight], [1.0, weight - 1.0], x[1:],
+                                      zi=[(1.0 - weight) * x[0]])
+        # Each record takes the smoothed value of the last present record at or before it.
+        last = np.searchsorted(present, np.arange(flat.shape[0]), side="right") - 1
+        known = last >= 0
+        res[known, j] = s[last[known]]
     return out
 
 
@@ -116,16 +140,18 @@ def engineering_units(
     records: RecordConditions,
     egt_redline_c: float,
     baseline: Mapping[str, np.ndarray] | None = None,
+    trims: Mapping[str, np.ndarray] | None = None,
 ) -> list[tuple[str, str, np.ndarray]]:
     """Series (name, unit, [n] values) in engineering units for estimates z [n, n_aux].
 
     ``baseline``: sensor trims of the nominal engine at each record's condition (name -> [n],
-    engine units); None takes the schedule's interpolated trims.
+    engine units); None takes the schedule's interpolated trims. ``trims``: the schedule's
+    interpolated trims at the records (``schedule_trims``), when the caller has them.
     """
     cond = np.asarray(records.conditions, float)
     n = cond.shape[0]
-    sched_cond = cond[:, [0, 1, 3, 2]]
-    trims = schedule.trims_at(sched_cond) if n else {k: np.empty(0) for k in schedule.trim_names}
+    if trims is None:
+        trims = schedule_trims(schedule, cond)
     base = dict(trims)
     if baseline is not None:
         base.update({k: np.asarray(v, float) for k, v in baseline.items()})
@@ -165,6 +191,37 @@ def engineering_units(
     return out
 
 
+# Series whose estimate's 1-sigma is shown: the thrust estimate's sigma from the filter
+# covariance (z_sigma, percent of the record's trim) and, for a calibrated design, its model
+# error fitted on the simulated calibration fleets (``designs.calibration.aux_errors``). Scored
+# against the truth in tests/app/services/trends/test_performance_truth.py. The stall margins
+# carry no band: their error is mostly the design's bias (the HPC and LPC margins follow the
+# actuator biases and the health the tuners do not span), which the filter sigma misses.
+SIGMA_SERIES = ("Fn", "Fn_rated", "thrust_deficit")
+
+
+def engineering_sigma(
+    schedule: EngineSchedule,
+    layout: EstimateLayout,
+    z_sigma: np.ndarray,
+    records: RecordConditions,
+    thrust_model_std: float = 0.0,
+    trims: Mapping[str, np.ndarray] | None = None,
+) -> dict[str, np.ndarray]:
+    """1-sigma [n] of the ``SIGMA_SERIES`` in their engineering units, from the aux estimates'
+    filter 1-sigma z_sigma [n, n_aux] and the thrust estimate's calibrated model error
+    ``thrust_model_std`` (both percent of the record's trim, added in quadrature)."""
+    aux = list(layout.aux)
+    if THRUST not in aux or len(records.conditions) == 0:
+        return {}
+    fn_trim = (trims if trims is not None
+               else schedule_trims(schedule, records.conditions))[THRUST]
+    sz = np.sqrt(np.asarray(z_sigma[:, aux.index(THRUST)], float) ** 2 + thrust_model_std**2)
+    fn = fn_trim * sz / 100.0
+    return {"Fn": fn, "Fn_rated": 100.0 * fn / type_reference(schedule).rated_thrust_lbf,
+            "thrust_deficit": sz}
+
+
 def nominal_margin_c(schedule: EngineSchedule, egt_redline_c: float) -> float:
     """EGT margin of the nominal engine (dEGT = 0)."""
     return egt_redline_c - type_reference(schedule).egt_reference_c
@@ -184,15 +241,37 @@ def builtin_schedule_for_design(session: Session, design_id: int) -> EngineSched
     return builtin_schedule()
 
 
-def baseline_trims(conditions: np.ndarray, schedule: EngineSchedule) -> dict[str, np.ndarray]:
+# Baseline trims of recent reads, by the schedule and the records' conditions: the steady-state
+# solve is most of an engine trend's read (~0.1 ms a record), and the same records are read
+# again when the page reloads or switches views. At most BASELINE_CACHE_SIZE reads are kept
+# (about 50 kB each for a year of an engine's records).
+BASELINE_CACHE_SIZE = 256
+_BASELINE_CACHE: collections.OrderedDict[tuple[str, int, bytes], dict[str, np.ndarray]] = (
+    collections.OrderedDict())
+
+
+def baseline_trims(
+    conditions: np.ndarray, schedule: EngineSchedule,
+    trims: Mapping[str, np.ndarray] | None = None,
+) -> dict[str, np.ndarray]:
     """Sensor trims of the nominal built-in engine solved at each record's condition [n, 4]
-    (snapshot order), the schedule's interpolation where the solver cannot."""
+    (snapshot order), the schedule's interpolation (``trims``, computed when not given) where
+    the solver cannot."""
     from app.services.snapshots.estimator import exact_nominal_trims
 
-    cond = np.asarray(conditions, float)
-    interpolated = schedule.trims_at(cond[:, [0, 1, 3, 2]]) if len(cond) else {}
+    cond = np.ascontiguousarray(conditions, dtype=float)
+    key = (schedule.fingerprint, len(cond), hashlib.blake2b(cond.tobytes()).digest())
+    cached = _BASELINE_CACHE.get(key)
+    if cached is not None:
+        _BASELINE_CACHE.move_to_end(key)
+        return {k: v.copy() for k, v in cached.items()}
+    interpolated = trims if trims is not None else schedule_trims(schedule, cond)
     wanted = {k: v for k, v in interpolated.items() if k in MEASURED_COLUMNS}
-    return exact_nominal_trims(cond, wanted)
+    out = exact_nominal_trims(cond, wanted)
+    _BASELINE_CACHE[key] = {k: v.copy() for k, v in out.items()}
+    while len(_BASELINE_CACHE) > BASELINE_CACHE_SIZE:
+        _BASELINE_CACHE.popitem(last=False)
+    return out
 
 
 def _snapshot_epoch(session: Session) -> Any:
@@ -222,7 +301,7 @@ def record_conditions(
     ).all()
     if not rows:
         return RecordConditions(cond, measured)
-    data = np.array([[math.nan if v is None else float(v) for v in row] for row in rows])
+    data = np.array(rows, dtype=float)  # None (a missing value) becomes NaN
     order = np.argsort(data[:, 0], kind="stable")
     data = data[order]
     # Estimate and snapshot share (engine, recorded_at); the two epoch expressions may differ

@@ -28,6 +28,7 @@ from app.models.estimates import EstimateLayout
 from app.services import units
 from app.signals import ACTUATORS, SENSORS, SignalSpec
 from estimation.detection import CusumDesign, design_cusum
+from estimation.engine.power_setting import held_speed_aux_gains
 from estimation.engine.schedule import EngineSchedule
 from estimation.model import LinearModel
 from estimation.shift_detector import SHIFT_LEVEL
@@ -48,6 +49,9 @@ START_STD = 5.0
 # interpolated between schedule nodes, and the linearisation of an engine several percent from
 # its trim, are off by about this much.
 MODEL_ERROR = 0.2
+# The built-in engine's power setting: the controller holds this sensor (the fan speed) at its
+# demand by moving this input (the fuel flow).
+HELD_LOOP = ("Nf", "Wf")
 
 SNAPSHOT_SIGNALS: dict[str, SignalSpec] = {s.name: s for s in SENSORS + ACTUATORS}
 
@@ -60,7 +64,11 @@ class ScheduledGains(NamedTuple):
     """Linear model quantities at each record's operating condition (S records).
 
     y_trim [S, ny], u_trim [S, nu] in stored units; G_y [S, ny, p], G_u [S, ny, nu],
-    G_z [S, nz, p] in percent of trim per percent.
+    G_z [S, nz, p] in percent of trim per percent. The aux estimate of a record is
+    z = G_z h + G_zu du with the record's input deviations du: on the built-in engine G_z and
+    G_zu are taken with the fan speed held at the power setting's demand
+    (``estimation.engine.power_setting``), so the fuel-flow column of G_zu is zero; a model
+    at one operating point gives its open-loop gains (the inputs as measured).
     """
 
     y_trim: np.ndarray
@@ -71,6 +79,7 @@ class ScheduledGains(NamedTuple):
     noise_std: np.ndarray | None = None  # [S, ny] sensor noise, percent of y_trim (None: the
     # design model's)
     constant: bool = False  # the same trims and gains at every condition (a linear model)
+    G_zu: np.ndarray | None = None  # [S, nz, nu] aux per input deviation (None: no input term)
 
 
 Schedule = Callable[[np.ndarray], ScheduledGains]  # conditions [S, 4] -> gains
@@ -94,7 +103,7 @@ def _stored_unit(name: str, unit: str, value: float) -> float:
 def single_point_schedule(model: LinearModel) -> Schedule:
     """An imported model at one operating point: the same gains and trims for every record."""
     G_y, G_z = model.steady_state_gains()
-    G_u, _ = model.steady_state_input_gains()
+    G_u, G_zu = model.steady_state_input_gains()
     y_trim = np.array(
         [_stored_unit(s.name, s.unit, model.trim.get(s.name, math.nan)) for s in model.sensors]
     )
@@ -114,6 +123,7 @@ def single_point_schedule(model: LinearModel) -> Schedule:
             np.broadcast_to(G_u, (S, *G_u.shape)),
             np.broadcast_to(G_z, (S, *G_z.shape)),
             constant=True,
+            G_zu=np.broadcast_to(G_zu, (S, *G_zu.shape)),
         )
 
     return schedule
@@ -336,6 +346,11 @@ def engine_schedule_for(
     from estimation.engine.fleet import engine_noise_std
     from estimation.engine.sensors import SENSOR_NAMES
 
+    # The controller holds the fan speed at the power setting's demand through the fuel flow:
+    # the aux gains are taken along that loop (``estimation.engine.power_setting``).
+    loop = (model.input_names.index(HELD_LOOP[1])
+            if HELD_LOOP[0] in tmpl.sensor_names and HELD_LOOP[1] in model.input_names else None)
+    held = tmpl.sensor_names.index(HELD_LOOP[0]) if loop is not None else 0
     noise_engine = engine_noise_std()
     noise_abs = np.array([noise_engine[SENSOR_NAMES.index(n)] for n in model.sensor_names])
     noise_abs = noise_abs * np.abs(ya)
@@ -349,10 +364,16 @@ def engine_schedule_for(
             trims = exact_nominal_trims(np.asarray(conditions, float), trims)
         y_trim = np.stack([trims[n] for n in model.sensor_names], axis=1) * ya + yb
         u_trim = np.stack([trims[n] for n in model.input_names], axis=1) * ua + ub
-        Gy = sched.interpolate("Gy", c)[:, yi][:, :, hi]
-        Guy = sched.interpolate("Guy", c)[:, yi][:, :, ui]
+        Gy_all = sched.interpolate("Gy", c)
+        Guy_all = sched.interpolate("Guy", c)
+        Gy = Gy_all[:, yi][:, :, hi]
+        Guy = Guy_all[:, yi][:, :, ui]
         Gz = sched.interpolate("Gz", c)[:, zi][:, :, hi]
+        Guz = sched.interpolate("Guz", c)[:, zi][:, :, ui]
+        if loop is not None:
+            Gz, Guz = held_speed_aux_gains(Gz, Guz, Gy_all[:, held][:, hi],
+                                           Guy_all[:, held][:, ui], loop)
         noise = 100.0 * noise_abs / np.abs(y_trim)
-        return ScheduledGains(y_trim, u_trim, Gy, Guy, Gz, noise)
+        return ScheduledGains(y_trim, u_trim, Gy, Guy, Gz, noise, G_zu=Guz)
 
     return schedule

@@ -2,9 +2,11 @@
 a batch of engines in memory (``estimation_runs`` reads their records and stores what it
 computes).
 
-Per record the pipeline stores q_hat, h_hat = V*^+ q_hat and z_hat = G_z V*^+ q_hat with their
-1-sigma (from the filter covariance P), the innovation per sensor, and the WSSR of every
-library fault (seed 002 eq. 21-23) for the tuner change against the baseline.
+Per record the pipeline stores q_hat, h_hat = V*^+ q_hat and z_hat = G_z V*^+ q_hat + G_zu du
+(the aux outputs at the record's inputs: on the built-in engine along the power setting's
+fan-speed loop, ``estimator.ScheduledGains``) with their 1-sigma (from the filter covariance
+P), the innovation per sensor, and the WSSR of every library fault (seed 002 eq. 21-23) for
+the tuner change against the baseline.
 
 Between a reset and an alarm the detector's baselines, level statistics and WSSR are computed
 for a run of records at once (``estimation.shift_scan``, the same sums as one record alone),
@@ -220,7 +222,15 @@ def run_filters(
         )
         values_all[..., s["h"]] = q_all @ est.Vp.T
         values_all[..., s["h_sigma"]] = result.h_std
-        values_all[..., s["z"]] = (Gz_Vp @ q_all[..., None])[..., 0]
+        z_hat = (Gz_Vp @ q_all[..., None])[..., 0]
+        if g.G_zu is not None:
+            z_u = np.zeros((E, S, z_hat.shape[-1]))
+            G_zu = np.asarray(g.G_zu)
+            # Summed input by input: a record's value does not depend on its batch.
+            z_u[slot_e, slot_j] = sum(G_zu[..., k] * u_dev[:, k, None]
+                                      for k in range(u_dev.shape[1]))
+            z_hat = z_hat + z_u
+        values_all[..., s["z"]] = z_hat
         z_var = ((Gz_Vp @ P_all) * Gz_Vp).sum(axis=-1)
         values_all[..., s["z_sigma"]] = np.sqrt(np.maximum(z_var, 0.0))
         values_all[..., s["residual"]] = result.innovation

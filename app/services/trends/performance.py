@@ -17,6 +17,7 @@ from sqlalchemy.orm import Session
 from app.models import Engine, EngineType
 from app.models.estimates import EstimateLayout
 from app.services.fleet import performance
+from estimation import uncertainty
 
 LABEL = "Engineering units: thrust, stall margins, EGT margin, deltas"
 
@@ -44,9 +45,11 @@ def performance_group(
     values: np.ndarray,
     starts: np.ndarray | None,
     columns_of: Any,
+    calibration: uncertainty.Calibration | None = None,
 ) -> dict[str, Any] | None:
     """The group for records (epoch [n], packed values [n, width]); None when the design's
-    engine has no schedule."""
+    engine has no schedule. The thrust series' 1-sigma is the filter's, with the design's
+    calibrated model error of the thrust estimate when ``calibration`` has one."""
     schedule = performance.builtin_schedule_for_design(session, design_id)
     if schedule is None or len(epoch) == 0:
         return None
@@ -58,28 +61,46 @@ def performance_group(
               else EngineType().effective_limits)
     records = performance.record_conditions(session, engine_id, epoch)
     z = np.asarray(values[:, layout.slices()["z"]], dtype=float)
-    baseline = performance.baseline_trims(records.conditions, schedule)
+    trims = performance.schedule_trims(schedule, records.conditions)
+    baseline = performance.baseline_trims(records.conditions, schedule, trims)
     series = performance.engineering_units(
-        schedule, layout, z, records, limits["egt_redline_c"], baseline
+        schedule, layout, z, records, limits["egt_redline_c"], baseline, trims
     )
     if not series:
         return None
+    model_std = (calibration.aux_model_std(performance.THRUST) if calibration is not None
+                 else None)
+    sigmas = performance.engineering_sigma(
+        schedule, layout, np.asarray(values[:, layout.slices()["z_sigma"]], dtype=float), records,
+        model_std or 0.0, trims,
+    )
     matrix = np.stack([v for _n, _u, v in series], axis=1)
+    banded = [j for j, (name, _u, _v) in enumerate(series) if name in sigmas]
+    sigma = (np.stack([sigmas[series[j][0]] for j in banded], axis=1) if banded
+             else np.empty((len(epoch), 0)))
     rows: dict[str, np.ndarray] = {}
     if starts is None:
         rows["value"] = matrix
+        sigma_rows = sigma
     else:
         counts = np.diff(np.append(starts, len(epoch)))
         rows["value"] = np.add.reduceat(matrix, starts, axis=0) / counts[:, None]
         rows["min"] = np.minimum.reduceat(matrix, starts, axis=0)
         rows["max"] = np.maximum.reduceat(matrix, starts, axis=0)
+        # A bucket's sigma: that of its mean's records, taken as the mean sigma (the errors of
+        # consecutive records are mostly the same design bias, not independent).
+        sigma_rows = (np.add.reduceat(sigma, starts, axis=0) / counts[:, None] if banded
+                      else sigma[: len(starts)])
     encoded = {key: columns_of(np.ascontiguousarray(m.T)) for key, m in rows.items()}
+    sigma_columns = columns_of(np.ascontiguousarray(sigma_rows.T)) if banded else []
     items = []
     for j, (name, unit, _v) in enumerate(series):
         item: dict[str, Any] = {"name": name, "unit": unit, "value": None, "sigma": None,
                                 "min": None, "max": None}
         for key, columns in encoded.items():
             item[key] = columns[j]
+        if j in banded:
+            item["sigma"] = sigma_columns[banded.index(j)]
         items.append(item)
     nominal = performance.nominal_margin_c(schedule, limits["egt_redline_c"])
     return {"key": "performance", "label": LABEL, "series": items,

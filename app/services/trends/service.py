@@ -514,6 +514,7 @@ def engine_trend(
             session, target.engine_id, target.design_id,
             start if health == "level" else None, end, target.layout,
         )
+    calib = None
     if data is not None and len(data.epoch) and target.design_id is not None:
         calib = health_view.design_calibration(session, target.design_id)
         resets = (health_view.baseline_resets(session, target.engine_id)
@@ -555,7 +556,7 @@ def engine_trend(
         assert target.design_id is not None
         extra = performance_group(
             session, target.engine_id, target.design_id, data.layout, data.epoch, data.values,
-            starts, columns_of,
+            starts, columns_of, calib,
         )
         if extra is not None:
             groups.append(extra)

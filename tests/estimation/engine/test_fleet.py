@@ -280,3 +280,14 @@ def test_stream_progress_reaches_the_end() -> None:
                                   max_batch=1, on_progress=seen.append))
     assert len(flights) == 2
     assert seen == sorted(seen) and seen[0] == 0.0 and seen[-1] == 1.0
+
+
+def test_an_engine_has_fouled_no_longer_than_it_has_flown() -> None:
+    # Washes rarer than the engines' age ("no washes" as 1e5 cycles): the fouling at the start
+    # is that of the engine's own cycles, so health stays within what its age allows.
+    config = FleetConfig(n_aircraft=6, n_flights=2, initial_cycles_max=1000.0,
+                         wash_interval=1e5, fault_rate=0.0, scatter_std=0.0)
+    plan = plan_fleet(config, np.random.default_rng(3))
+    # Percent per cycle at a 4-sigma rate multiplier, times the oldest engine.
+    worst = np.abs(DETERIORATION_RATES + FOULING_RATES) / 1000.0 * np.exp(4 * config.rate_spread)
+    assert np.all(np.abs(plan.health[0, :, :10]) <= worst * config.initial_cycles_max + 1e-9)

@@ -125,3 +125,14 @@ def test_trend_of_a_builtin_design_carries_the_performance_group(
     # The decimated trend keeps the group, bucketed.
     small = trends.engine_trend(session, fleet.operator_id, engine.id, max_points=2)
     assert any(g["key"] == "performance" for g in small["groups"])
+
+
+def test_baseline_trims_of_a_second_read_are_the_first_reads(schedule: EngineSchedule) -> None:
+    cond = np.array([[35000.0, 0.8, 0.0, 80.0], [0.0, 0.2, 10.0, 100.0]])
+    first = performance.baseline_trims(cond, schedule)
+    first["T48"][:] = 0.0  # a caller's change does not reach the cache
+    again = performance.baseline_trims(cond.copy(), schedule)
+    solved = estimator.exact_nominal_trims(cond, {k: v for k, v in schedule.trims_at(
+        cond[:, [0, 1, 3, 2]]).items() if k in performance.MEASURED_COLUMNS})
+    for name, values in solved.items():
+        np.testing.assert_array_equal(again[name], values)
