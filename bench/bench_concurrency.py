@@ -43,6 +43,7 @@ from sqlalchemy.engine import make_url
 
 from app.db import make_engine
 from app.migrate import upgrade
+from tests.estimation.models import reference_model
 
 P99_WRITE_S, P99_READ_S = 1.0, 0.300
 
@@ -80,6 +81,11 @@ def csv_body(writer: int, upload: int, rows: int) -> bytes:
     tail = f"B{writer:04d}"
     table = table.set_column(table.schema.get_field_index("tail"), "tail",
                              [[tail] * rows])
+    # The reference model's parameters only: the bench's engine type takes no other.
+    model = reference_model()
+    keep = {"recorded_at", "tail", "position", "phase", "flight_id", "alt_ft", "mach",
+            "dtamb_k", "power_pct", *model.sensor_names, *model.input_names}
+    table = table.select([c for c in table.column_names if c in keep])
     sink = io.BytesIO()
     pacsv.write_csv(table, sink)
     return sink.getvalue()
