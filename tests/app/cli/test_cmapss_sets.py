@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import uuid
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -24,7 +25,10 @@ from app.cli.importers import (
     read_cmapss,
 )
 from app.models import Aircraft, Engine, EngineType, EstimatorDesign, Snapshot
+from app.services.snapshots import estimator
+from app.services.snapshots import store as snapshots_store
 from app.services.tenancy import service as tenancy
+from estimation.engine.schedule import EngineSchedule, build_schedule
 from tests.support.paths import FD001
 
 # FD002's six conditions: altitude (kft), Mach, TRA.
@@ -174,3 +178,44 @@ def test_the_command_line_names_a_renamed_file_by_its_options(
     assert result.exit_code == 0, result.output
     esns = session.scalars(select(Engine.esn).where(Engine.operator_id == operator_id)).all()
     assert esns == ["FD003-test-001"]
+
+
+@pytest.fixture(scope="module")
+def default_schedule() -> EngineSchedule:
+    """The built-in engine's schedule on its default grid (0 to 40,000 ft): what a server
+    builds on first use."""
+    return build_schedule()
+
+
+def _numbers(value: Any) -> list[float]:
+    if isinstance(value, dict):
+        return [x for v in value.values() for x in _numbers(v)]
+    if isinstance(value, list):
+        return [x for v in value for x in _numbers(v)]
+    return [float(value)] if isinstance(value, int | float) and not isinstance(value, bool) \
+        else []
+
+
+@pytest.mark.skipif(not FD001.exists(), reason=f"no C-MAPSS file at {FD001}")
+def test_six_condition_sets_trend_on_the_design_import_cmapss_makes(
+    analyst_client: tuple[TestClient, int], session: Session, tmp_path: Path,
+    default_schedule: EngineSchedule, monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """FD002's six conditions, the 42 kft one above the schedule's edge included: the
+    estimation job estimates every record and the trend reads finite health."""
+    monkeypatch.setattr(estimator, "builtin_schedule", lambda: default_schedule)
+    client, operator_id = analyst_client
+    data = write_six_condition_file(tmp_path / "train_FD002.txt", units=2)
+    summary = import_cmapss(tmp_path / "train_FD002.txt", client)
+    assert summary.design_created
+    totals = snapshots_store.catch_up(session, operator_id)
+    assert totals["records"] == len(data) and totals["engines"] == 2
+    engine = session.scalar(select(Engine).where(
+        Engine.operator_id == operator_id, Engine.esn == "FD002-train-001"))
+    assert engine is not None
+    trend = client.get(f"/api/v1/engines/{engine.id}/trend").json()
+    assert trend["n_records"] == CYCLES and trend["design_id"] == summary.design_id
+    health = [g for g in trend["groups"] if g["key"] == "health"]
+    assert len(health) == 1 and len(health[0]["series"]) == 10  # the design's ten
+    values = _numbers(health[0]["series"])
+    assert len(values) >= 10 * CYCLES and np.isfinite(values).all()
