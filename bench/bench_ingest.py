@@ -176,7 +176,8 @@ def add_design(url: str, operator_id: int) -> estimator.SnapshotEstimator:
 def healthy_snapshots(
     n: int, tails: int, start: datetime, seed: int, est: estimator.SnapshotEstimator
 ) -> pa.Table:
-    """``snapshots`` with the design's sensors and actuators at their trims plus 0.1 % noise."""
+    """``snapshots`` with the design's sensors and actuators at their trims plus 0.1 % noise,
+    and no other signal."""
     rows = snapshots(n, tails, start, seed)
     rng = np.random.default_rng(seed + 10_000)
     g = est.schedule(np.zeros((1, 4)))
@@ -189,7 +190,12 @@ def healthy_snapshots(
                 at = rows.schema.get_field_index(name)
                 rows = (rows.set_column(at, name, pa.array(values)) if at >= 0
                         else rows.append_column(name, pa.array(values)))
-    return rows
+    # Only the engine type's parameters: its model's sensors and inputs (other signals of the
+    # catalogue are refused for this type).
+    mine = set(est.sensor_columns) | set(est.input_columns)
+    return rows.select([name for name in rows.column_names
+                        if name not in estimator.SNAPSHOT_SIGNALS
+                        or estimator.SNAPSHOT_SIGNALS[name].column in mine])
 
 
 def raw_copy_body(

@@ -1,27 +1,38 @@
 """Importers that load foreign data through the REST API, like any other client.
 
-``fleethealth import-cmapss PATH`` reads NASA C-MAPSS ``train_FD001.txt`` (columns in
-``shared/data/cmapss/SOURCE.md``): each unit becomes an engine (ESN ``FD001-007``) installed on
-its own tail (``CM007``, position 1), each cycle one take-off snapshot, one day apart from a
-fixed start (UTC). The three settings are the operating condition (altitude in kft -> alt_ft,
-Mach, TRA 100 -> power_pct 100); the sensors that exist in the built-in engine keep their
-C-MAPSS units, declared in the CSV header (T24, T30, T50 degR; P15, P30 psia; Nf, Nc rpm).
-C-MAPSS's Ps30 (~47.5 "psia") and phi (fuel flow / Ps30) are not on the scale of P30 and are
-left out, as are T2/P2 (the inlet follows from the operating condition) and the derived
-columns (epr, NRf, NRc, BPR, farB, htBleed, demands, bleeds W31/W32).
+``fleethealth import-cmapss PATH`` reads a NASA C-MAPSS file, ``train_FD001.txt`` to
+``test_FD004.txt`` (columns in ``shared/data/cmapss/SOURCE.md``), and names everything after the
+file (``CmapssSet``): each unit becomes an engine (ESN ``FD002-test-007``) installed on its own
+tail (``CM-FD002-test-007``, position 1) and of the set's engine type (``CMAPSS-FD002``: train
+and test units of one set are the same simulated engine, so a design made on one trends the
+other), each cycle one take-off snapshot, one day apart from a fixed start (UTC). Two sets
+imported into one server never share an engine, a tail or a type. The three settings are the
+operating condition (altitude in kft -> alt_ft, Mach, TRA -> power_pct; FD001 and FD003 fly
+sea level static at TRA 100, FD002 and FD004 six conditions up to 42 kft); the sensors that
+exist in the built-in engine keep their C-MAPSS units, declared in the CSV header (T24, T30,
+T50 degR; P15, P30 psia; Nf, Nc rpm). C-MAPSS's Ps30 (~47.5 "psia") and phi (fuel flow /
+Ps30) are not on the scale of P30 and are left out, as are T2/P2 (the inlet follows from the
+operating condition) and the derived columns (epr, NRf, NRc, BPR, farB, htBleed, demands, bleeds
+W31/W32).
 
-Unless told not to, the import also leaves the engine type ready to trend and alert: the
-built-in engine linearised at FD001's operating condition (sea level static, TRA 100:
-``POST /api/v1/engine-models/builtin``), a design on it (SVD, ``FD001_TUNERS`` tuners, the
-C-MAPSS sensors above, the ten turbomachinery health parameters: ``fd001_design_spec``) and
-that design activated, so the estimation job that follows runs the filter, the shift detector
-and the wear detector on every unit. An engine type that already has an active design keeps it.
+The data is mapped to the built-in engine, not to a type identified from the data: C-MAPSS
+carries no health parameters and no linear model, and its sensors are the built-in engine's
+(same stations, same units), so the built-in engine's models, scheduled on each record's
+operating condition, are the ones its deterioration is read against. Unless told not to, the
+import leaves the set's engine type ready to trend and alert: the built-in engine linearised at
+sea level static, TRA 100 (a condition of every set: ``POST /api/v1/engine-models/builtin``;
+the estimator schedules its trims and gains on each record's condition), a design on it (SVD,
+``FD001_TUNERS`` tuners, the C-MAPSS sensors above, the ten turbomachinery health parameters:
+``fd001_design_spec``) and that design activated, so the estimation job that follows runs the
+filter, the shift detector and the wear detector on every unit. An engine type that already has
+an active design keeps it.
 """
 
 from __future__ import annotations
 
 import hashlib
 import io
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
@@ -50,11 +61,12 @@ CMAPSS_SENSORS = {
     "Nc": "Nc[rpm]",
 }
 CMAPSS_START = datetime(2020, 1, 1, tzinfo=UTC)
-ENGINE_TYPE = "CMAPSS-FD001"
-# FD001 flies one condition: sea level static, TRA 100 (power 100 %).
+CMAPSS_DATASETS = ("FD001", "FD002", "FD003", "FD004")
+CMAPSS_SPLITS = ("train", "test")
+_FILE_NAME = re.compile(r"^(train|test)_(FD00[1-4])\.txt$", re.IGNORECASE)
+# Sea level static, TRA 100 (power 100 %): FD001's one condition and one of FD002's six; the
+# design model of every set is linearised there.
 FD001_CONDITION = {"alt_ft": 0.0, "mach": 0.0, "power_pct": 100.0, "dtamb_k": 0.0}
-FD001_MODEL = "FD001 sea level static"
-FD001_DESIGN = "FD001 SVD 7 tuners"
 FD001_TUNERS = 7
 _RANKINE = 1.8
 _T_SL = 288.15
@@ -64,6 +76,56 @@ _FT = 0.3048
 
 class CmapssImportError(RuntimeError):
     """The server refused a step of the import; the message carries its answer."""
+
+
+@dataclass(frozen=True)
+class CmapssSet:
+    """Which C-MAPSS file is imported (``FD002``, ``test``): the names of its engines, tails,
+    engine type, model and design."""
+
+    dataset: str
+    split: str
+
+    def __post_init__(self) -> None:
+        if self.dataset not in CMAPSS_DATASETS or self.split not in CMAPSS_SPLITS:
+            raise CmapssImportError(
+                f"unknown C-MAPSS set {self.dataset!r} {self.split!r}: "
+                f"one of {', '.join(CMAPSS_DATASETS)}, train or test")
+
+    @classmethod
+    def of_file(cls, path: Path) -> CmapssSet:
+        """The set named by NASA's file name (``train_FD001.txt`` ... ``test_FD004.txt``)."""
+        match = _FILE_NAME.match(path.name)
+        if match is None:
+            raise CmapssImportError(
+                f"{path.name}: not a C-MAPSS file name (train_FD001.txt ... test_FD004.txt); "
+                "name the set with --dataset and --split")
+        return cls(match.group(2).upper(), match.group(1).lower())
+
+    @property
+    def label(self) -> str:
+        return f"{self.dataset}-{self.split}"
+
+    @property
+    def engine_type(self) -> str:
+        return f"CMAPSS-{self.dataset}"
+
+    @property
+    def model_name(self) -> str:
+        return f"{self.dataset} sea level static"
+
+    @property
+    def design_name(self) -> str:
+        return f"{self.dataset} SVD {FD001_TUNERS} tuners"
+
+    def esn(self, unit: int) -> str:
+        return f"{self.label}-{unit:03d}"
+
+    def tail(self, unit: int) -> str:
+        return f"CM-{self.label}-{unit:03d}"
+
+
+FD001_TRAIN = CmapssSet("FD001", "train")
 
 
 @dataclass(frozen=True)
@@ -88,7 +150,9 @@ def fd001_design_spec(health_names: list[str], tuners: int = FD001_TUNERS) -> di
     }
 
 
-def ensure_design(client: httpx.Client, engine_type_id: int) -> tuple[int, bool]:
+def ensure_design(
+    client: httpx.Client, engine_type_id: int, cmapss: CmapssSet = FD001_TRAIN
+) -> tuple[int, bool]:
     """The engine type's active design, or a new one made and activated through the API
     (the built-in engine at ``FD001_CONDITION``, ``fd001_design_spec``): (design id, created).
     A design that fails is an error naming the server's reason."""
@@ -98,20 +162,21 @@ def ensure_design(client: httpx.Client, engine_type_id: int) -> tuple[int, bool]
         return int(active["id"]), False
     model = _check(
         client.post("/api/v1/engine-models/builtin",
-                    json={"engine_type_id": engine_type_id, "name": FD001_MODEL,
+                    json={"engine_type_id": engine_type_id, "name": cmapss.model_name,
                           **FD001_CONDITION}),
-        "linearise the built-in engine at FD001's condition",
+        "linearise the built-in engine at sea level static, TRA 100",
     )
     design = _check(
         client.post("/api/v1/designs",
-                    json={"engine_model_id": model["id"], "name": FD001_DESIGN,
+                    json={"engine_model_id": model["id"], "name": cmapss.design_name,
                           "spec": fd001_design_spec(model["health_names"])}),
-        "create the FD001 design",
+        f"create the {cmapss.dataset} design",
     )
     if design["status"] != "ready":
-        raise CmapssImportError(
-            f"the FD001 design {design['id']} is {design['status']}: {design.get('failure')}")
-    _check(client.post(f"/api/v1/designs/{design['id']}/activate"), "activate the FD001 design")
+        raise CmapssImportError(f"the {cmapss.dataset} design {design['id']} is "
+                                f"{design['status']}: {design.get('failure')}")
+    _check(client.post(f"/api/v1/designs/{design['id']}/activate"),
+           f"activate the {cmapss.dataset} design")
     return int(design["id"]), True
 
 
@@ -134,22 +199,17 @@ def select_units(data: np.ndarray, units: int | None) -> tuple[np.ndarray, list[
     return data, unit_ids
 
 
-def tail_of(unit: int) -> str:
-    return f"CM{unit:03d}"
-
-
-def esn_of(unit: int) -> str:
-    return f"FD001-{unit:03d}"
-
-
-def cmapss_snapshots(data: np.ndarray, start: datetime = CMAPSS_START) -> pa.Table:
+def cmapss_snapshots(
+    data: np.ndarray, start: datetime = CMAPSS_START, cmapss: CmapssSet = FD001_TRAIN
+) -> pa.Table:
     """Rows of the C-MAPSS array as upload columns (docs/upload-format.md), sensors in
-    C-MAPSS units."""
+    C-MAPSS units, engines and tails named after ``cmapss``."""
     col = {name: data[:, i] for i, name in enumerate(CMAPSS_COLUMNS)}
     units = col["unit"].astype(np.int64)
     cycles = col["cycle"].astype(np.int64)
     alt_ft = col["setting1"] * 1000.0
-    # FD001's Mach setting scatters around 0 by +-0.0009; a negative Mach is noise, not flight.
+    # Settings scatter around their condition (FD001's Mach by +-0.0009); a negative Mach is
+    # noise, not flight.
     mach = np.clip(col["setting2"], 0.0, None)
     # dTamb from the inlet: T2 is total temperature, T_amb = T2 / (1 + 0.2 M^2), against ISA.
     t_amb = col["T2"] / _RANKINE / (1.0 + 0.2 * mach**2)
@@ -157,11 +217,11 @@ def cmapss_snapshots(data: np.ndarray, start: datetime = CMAPSS_START) -> pa.Tab
     times = np.datetime64(start.replace(tzinfo=None), "us") + (cycles - 1) * np.timedelta64(1, "D")
     columns: dict[str, Any] = {
         "recorded_at": pa.array(times, pa.timestamp("us", tz="UTC")),
-        "tail": pa.array([tail_of(u) for u in units]),
+        "tail": pa.array([cmapss.tail(u) for u in units]),
         "position": pa.array(np.ones(len(units), dtype=np.int64)),
         "phase": pa.array(["takeoff"] * len(units)),
         "flight_id": pa.array(
-            [f"{esn_of(u)}-C{c:04d}" for u, c in zip(units, cycles, strict=True)]
+            [f"{cmapss.esn(u)}-C{c:04d}" for u, c in zip(units, cycles, strict=True)]
         ),
         "alt_ft": alt_ft,
         "mach": mach,
@@ -186,7 +246,8 @@ def _find_one(client: httpx.Client, path: str, **params: Any) -> dict[str, Any] 
     return items[0] if items else None
 
 
-def ensure_engine_type(client: httpx.Client, name: str = ENGINE_TYPE) -> int:
+def ensure_engine_type(client: httpx.Client, cmapss: CmapssSet = FD001_TRAIN) -> int:
+    name = cmapss.engine_type
     offset = 0
     while True:
         page = _check(
@@ -202,16 +263,20 @@ def ensure_engine_type(client: httpx.Client, name: str = ENGINE_TYPE) -> int:
     created = _check(
         client.post(
             "/api/v1/engine-types",
-            json={"name": name, "description": "NASA C-MAPSS FD001 engines (imported)"},
+            json={"name": name,
+                  "description": f"NASA C-MAPSS {cmapss.dataset} engines (imported)"},
         ),
         "create engine type",
     )
     return int(created["id"])
 
 
-def ensure_unit(client: httpx.Client, unit: int, engine_type_id: int, start: datetime) -> int:
+def ensure_unit(
+    client: httpx.Client, unit: int, engine_type_id: int, start: datetime,
+    cmapss: CmapssSet = FD001_TRAIN,
+) -> int:
     """Aircraft, engine and installation of one C-MAPSS unit (created once); the engine id."""
-    tail, esn = tail_of(unit), esn_of(unit)
+    tail, esn = cmapss.tail(unit), cmapss.esn(unit)
     aircraft = _find_one(client, "/api/v1/aircraft", tail=tail) or _check(
         client.post("/api/v1/aircraft", json={"tail": tail, "engine_positions": 1}),
         f"create aircraft {tail}",
@@ -246,21 +311,24 @@ def import_cmapss(
     start: datetime = CMAPSS_START,
     progress: Callable[[int], None] | None = None,
     design: bool = True,
+    cmapss: CmapssSet | None = None,
 ) -> ImportSummary:
-    """Create the fleet and upload the snapshots of the first ``units`` units (all: None).
+    """Create the fleet and upload the snapshots of the first ``units`` units (all: None),
+    named after ``cmapss`` (None: the set the file name says).
 
     Each batch carries an Idempotency-Key derived from the file and the batch, so running
     the import again stores nothing new. ``progress`` is called with the rows of each batch.
     With ``design`` the engine type gets a ready, active design first (``ensure_design``),
     so the uploads' estimation trends and alerts at once.
     """
+    cmapss = cmapss or CmapssSet.of_file(path)
     data, unit_ids = select_units(read_cmapss(path), units)
-    engine_type_id = ensure_engine_type(client)
-    design_id, design_created = (ensure_design(client, engine_type_id) if design
+    engine_type_id = ensure_engine_type(client, cmapss)
+    design_id, design_created = (ensure_design(client, engine_type_id, cmapss) if design
                                  else (None, False))
     for unit in unit_ids:
-        ensure_unit(client, unit, engine_type_id, start)
-    table = cmapss_snapshots(data, start)
+        ensure_unit(client, unit, engine_type_id, start, cmapss)
+    table = cmapss_snapshots(data, start, cmapss)
     file_digest = hashlib.sha256(path.read_bytes()).hexdigest()[:16]
     stored = duplicates = 0
     uploads: list[int] = []
@@ -268,7 +336,8 @@ def import_cmapss(
         batch = table.slice(offset, batch_rows)
         sink = io.BytesIO()
         pacsv.write_csv(batch, sink)
-        key = f"cmapss:{file_digest}:{start.date()}:{len(unit_ids)}:{batch_rows}:{index}"
+        key = (f"cmapss:{cmapss.label}:{file_digest}:{start.date()}:{len(unit_ids)}:"
+               f"{batch_rows}:{index}")
         result = _check(
             client.post(
                 "/api/v1/snapshots/file",
@@ -291,23 +360,35 @@ def import_cmapss(
 
 def import_cmapss_command(
     path: Annotated[
-        Path, typer.Argument(exists=True, dir_okay=False, help="C-MAPSS train_FD001.txt")
+        Path, typer.Argument(exists=True, dir_okay=False,
+                             help="C-MAPSS train_FD001.txt ... test_FD004.txt")
     ],
     url: str = typer.Option("http://127.0.0.1:8000", help="fleethealth server URL."),
     api_key: str = typer.Option(..., envvar="FLEETHEALTH_API_KEY", help="An analyst key."),
     units: int | None = typer.Option(None, min=1, help="Import only the first N units."),
     batch_rows: int = typer.Option(5000, min=1, help="Snapshots per upload request."),
     design: bool = typer.Option(
-        True, help="Give the engine type a ready, active design at FD001's condition "
+        True, help="Give the engine type a ready, active design at sea level static, TRA 100 "
         "(unless it has one)."),
+    dataset: str | None = typer.Option(
+        None, help="FD001 ... FD004, for a file not under NASA's name (with --split)."),
+    split: str | None = typer.Option(None, help="train or test (with --dataset)."),
 ) -> None:
-    """Upload NASA C-MAPSS FD001 through the REST API: one engine and tail per unit."""
+    """Upload a NASA C-MAPSS file (FD001-FD004, train or test) through the REST API: one
+    engine and tail per unit, named after the file, and an engine type per set."""
+    try:
+        if (dataset is None) != (split is None):
+            raise CmapssImportError("--dataset and --split go together")
+        cmapss = (CmapssSet(dataset.upper(), split.lower()) if dataset and split
+                  else CmapssSet.of_file(path))
+    except CmapssImportError as exc:
+        raise typer.BadParameter(str(exc)) from exc
     total = select_units(read_cmapss(path), units)[0].shape[0]
     with httpx.Client(base_url=url, headers={"X-API-Key": api_key}, timeout=300) as client:
         with typer.progressbar(length=total, label="uploading snapshots") as bar:
             summary = import_cmapss(
                 path, client, units=units, batch_rows=batch_rows, progress=bar.update,
-                design=design,
+                design=design, cmapss=cmapss,
             )
     typer.echo(
         f"{summary.units} engines, {summary.snapshots} snapshots: {summary.stored} stored, "
@@ -316,7 +397,7 @@ def import_cmapss_command(
     if summary.design_id is not None:
         typer.echo(f"design {summary.design_id} "
                    f"{'created and activated' if summary.design_created else 'already active'}"
-                   f" for {ENGINE_TYPE}: estimation runs in the server's jobs")
+                   f" for {cmapss.engine_type}: estimation runs in the server's jobs")
 
 
 def register(app: typer.Typer) -> None:

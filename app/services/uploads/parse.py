@@ -8,6 +8,11 @@ element of ``snapshots``). At most ``MAX_ERRORS`` errors are collected, then che
 Column names are the upload names of docs/upload-format.md; a ``[unit]`` suffix declares a unit
 (``T30[degC]``), otherwise the stored unit is assumed. A column mapping renames foreign
 columns (``{"HPC_T": "T30"}``) or drops them (``{"Ps30_raw": null}``) before anything else.
+
+Snapshots are parsed ``by_type``: any signal column is read as numbers with its declared unit,
+and which columns a row may carry, which it must, and the units they convert from are decided
+once the row's engine, hence its engine type, is known (``app.services.uploads.parameters``).
+Streams are checked here against the signal catalogue.
 """
 
 from __future__ import annotations
@@ -17,7 +22,7 @@ import io
 import json
 import re
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -45,6 +50,8 @@ SNAPSHOT_KEYS = ("recorded_at", "tail", "position", "phase", "flight_id")
 SNAPSHOT_REQUIRED = ("recorded_at", "tail", "position", "phase") + tuple(
     s.name for s in OPERATING_CONDITION
 )
+# Required of every snapshot whatever its engine type (the rest: its parameter set).
+SNAPSHOT_REQUIRED_BY_TYPE = ("recorded_at", "tail", "position")
 STREAM_REQUIRED = ("time_s",) + tuple(s.name for s in OPERATING_CONDITION)
 SIGNAL_BY_NAME: dict[str, SignalSpec] = {s.name: s for s in SIGNALS}
 MAX_POSITION = 4
@@ -143,6 +150,10 @@ class ParsedTable:
     """
 
     table: pa.Table
+    # by_type: the declared unit of each signal column (None: undeclared) and the file column
+    # it came from; values are as sent, not converted yet.
+    units: Mapping[str, str | None] = field(default_factory=dict)
+    sources: Mapping[str, str] = field(default_factory=dict)
 
     @property
     def num_rows(self) -> int:
@@ -167,7 +178,7 @@ def split_unit(header: str) -> tuple[str, str | None]:
 def resolve_columns(
     headers: Iterable[str],
     *,
-    allowed: Iterable[str],
+    allowed: Iterable[str] | None,
     required: Iterable[str],
     mapping: Mapping[str, str | None] | None = None,
     units: Mapping[str, str] | None = None,
@@ -177,10 +188,12 @@ def resolve_columns(
 
     ``mapping`` keys are file column names (with or without their ``[unit]``); a None value
     drops the column. ``units`` declares units by upload name (the JSON ``"units"`` object).
+    ``allowed`` None takes any name as a signal whose unit is checked later (by type).
     """
     mapping = dict(mapping or {})
     units = dict(units or {})
-    allowed_set = set(allowed)
+    by_type = allowed is None
+    allowed_set = set(allowed or ())
     specs: list[ColumnSpec] = []
     seen: dict[str, str] = {}
     for header in headers:
@@ -193,7 +206,10 @@ def resolve_columns(
             unit = mapped_unit or unit
         else:
             target = name
-        if target not in allowed_set:
+        if not target:
+            log.add(None, header, "a column has no name")
+            continue
+        if not by_type and target not in allowed_set:
             log.add(None, header, f"unknown column {target!r}")
             continue
         if target in seen:
@@ -201,13 +217,15 @@ def resolve_columns(
             continue
         seen[target] = header
         unit = unit or units.get(target)
-        if unit is not None:
+        if unit is not None and by_type and target in SNAPSHOT_KEYS:
+            log.add(None, header, f"column {target!r} takes no unit (got {unit!r})")
+        elif unit is not None and not by_type:
             _check_unit(target, unit, header, log)
         specs.append(ColumnSpec(header, target, unit))
     for name in units:
         if name not in seen and name in SIGNAL_BY_NAME:
             continue  # a declared unit for an absent optional column is harmless
-        if name not in allowed_set:
+        if not by_type and name not in allowed_set:
             log.add(None, name, f"unit declared for unknown column {name!r}")
     for name in required:
         if name not in seen:
@@ -445,34 +463,49 @@ def _convert_signals(
         signal = SIGNAL_BY_NAME.get(spec.target)
         if signal is None:
             continue
-        values = columns[spec.target]
-        if spec.unit is not None and spec.unit != signal.unit:
-            a, b = affine(
-                signal.quantity, spec.unit, signal.unit, reference=signal.percent_reference
-            )
-            values = pc.add(pc.multiply(values, a), b)
-            columns[spec.target] = values
-        numbers = values.to_numpy(zero_copy_only=False)
-        unit = f" {signal.unit}" if signal.unit not in ("1", "%") else signal.unit
-        low, high = signal_bounds(signal)
-        if low is not None:
-            with np.errstate(invalid="ignore"):
-                below = numbers < low
-            log.add_rows(
-                below,
-                spec.source,
-                lambda v, b=low, u=unit: f"{v:g}{u} is below {b:g}{u}",
-                numbers,
-            )
-        if high is not None:
-            with np.errstate(invalid="ignore"):
-                above = numbers > high
-            log.add_rows(
-                above,
-                spec.source,
-                lambda v, b=high, u=unit: f"{v:g}{u} is above the physical bound {b:g}{u}",
-                numbers,
-            )
+        columns[spec.target] = convert_signal(
+            columns[spec.target], spec.source, spec.unit or signal.unit, signal, log)
+
+
+def convert_signal(
+    values: pa.ChunkedArray | pa.Array,
+    source: str,
+    unit: str,
+    signal: SignalSpec,
+    log: ErrorLog,
+    rows: np.ndarray | None = None,
+) -> pa.ChunkedArray | pa.Array:
+    """``values`` sent in ``unit`` as ``signal`` stores them (its unit), with its physical
+    range checked; errors name the file column ``source``. ``rows`` (a boolean mask) limits
+    both to those rows: the others are returned as given."""
+    if unit != signal.unit:
+        a, b = affine(signal.quantity, unit, signal.unit, reference=signal.percent_reference)
+        converted = pc.add(pc.multiply(values, a), b)
+        values = converted if rows is None else pc.if_else(pa.array(rows), converted, values)
+    numbers = values.to_numpy(zero_copy_only=False)
+    if rows is not None:
+        numbers = np.where(rows, numbers, np.nan)
+    shown = f" {signal.unit}" if signal.unit not in ("1", "%") else signal.unit
+    low, high = signal_bounds(signal)
+    if low is not None:
+        with np.errstate(invalid="ignore"):
+            below = numbers < low
+        log.add_rows(
+            below,
+            source,
+            lambda v, b=low, u=shown: f"{v:g}{u} is below {b:g}{u}",
+            numbers,
+        )
+    if high is not None:
+        with np.errstate(invalid="ignore"):
+            above = numbers > high
+        log.add_rows(
+            above,
+            source,
+            lambda v, b=high, u=shown: f"{v:g}{u} is above the physical bound {b:g}{u}",
+            numbers,
+        )
+    return values
 
 
 def _check_duplicates(table: pa.Table, log: ErrorLog) -> None:
@@ -511,6 +544,7 @@ def _build(
     *,
     kind: str,
     log: ErrorLog,
+    by_type: bool = False,
 ) -> ParsedTable:
     """Coerce every raw column, validate, convert units and return the validated table."""
     coerced: dict[str, pa.ChunkedArray] = {}
@@ -535,16 +569,20 @@ def _build(
             coerced[spec.target] = phases
         else:
             coerced[spec.target] = coerce_float(raw, spec.source, log)
-    required = SNAPSHOT_REQUIRED if kind == "snapshots" else STREAM_REQUIRED
     table = pa.table(coerced)
-    _require_present(table, specs, required, log)
-    _convert_signals(coerced, specs, log)
-    table = pa.table(coerced)
+    _require_present(table, specs, _required(kind, by_type), log)
+    if not by_type:
+        _convert_signals(coerced, specs, log)
+        table = pa.table(coerced)
     if kind == "snapshots":
         _check_duplicates(table, log)
     else:
         _check_time_axis(table, log)
-    return ParsedTable(table)
+    if not by_type:
+        return ParsedTable(table)
+    signals = [s for s in specs if s.target not in SNAPSHOT_KEYS]
+    return ParsedTable(table, {s.target: s.unit for s in signals},
+                       {s.target: s.source for s in signals})
 
 
 def _check_time_axis(table: pa.Table, log: ErrorLog) -> None:
@@ -574,12 +612,16 @@ def _check_time_axis(table: pa.Table, log: ErrorLog) -> None:
 # ---------------------------------------------------------------- formats
 
 
-def _allowed(kind: str) -> tuple[str, ...]:
+def _allowed(kind: str, by_type: bool = False) -> tuple[str, ...] | None:
+    if by_type:
+        return None
     signals = tuple(SIGNAL_BY_NAME)
     return (SNAPSHOT_KEYS + signals) if kind == "snapshots" else ("time_s",) + signals
 
 
-def _required(kind: str) -> tuple[str, ...]:
+def _required(kind: str, by_type: bool = False) -> tuple[str, ...]:
+    if by_type:
+        return SNAPSHOT_REQUIRED_BY_TYPE
     return SNAPSHOT_REQUIRED if kind == "snapshots" else STREAM_REQUIRED
 
 
@@ -594,11 +636,12 @@ def _typed(target: str) -> pa.DataType:
 
 
 def _finish(
-    raw: dict[str, pa.ChunkedArray], specs: list[ColumnSpec], kind: str, log: ErrorLog
+    raw: dict[str, pa.ChunkedArray], specs: list[ColumnSpec], kind: str, log: ErrorLog,
+    by_type: bool = False,
 ) -> ParsedTable:
     parsed: ParsedTable | None = None
     try:
-        parsed = _build(raw, specs, kind=kind, log=log)
+        parsed = _build(raw, specs, kind=kind, log=log, by_type=by_type)
     except ErrorLimitReached:
         pass
     log.raise_if_any()
@@ -611,6 +654,7 @@ def parse_csv(
     *,
     kind: str = "snapshots",
     mapping: Mapping[str, str | None] | None = None,
+    by_type: bool = False,
 ) -> ParsedTable:
     """CSV with a header line (comma separated, UTF-8)."""
     log = ErrorLog()
@@ -624,7 +668,8 @@ def parse_csv(
     specs: list[ColumnSpec] = []
     try:
         specs = resolve_columns(
-            headers, allowed=_allowed(kind), required=_required(kind), mapping=mapping, log=log
+            headers, allowed=_allowed(kind, by_type), required=_required(kind, by_type),
+            mapping=mapping, log=log,
         )
     except ErrorLimitReached:
         pass
@@ -663,7 +708,7 @@ def parse_csv(
     if table.num_rows == 0:
         raise UploadRejected([RowError(None, None, "the CSV has a header but no rows")])
     raw = {s.target: table[s.source] for s in specs}
-    return _finish(raw, specs, kind, log)
+    return _finish(raw, specs, kind, log, by_type)
 
 
 def _arrow_reason(exc: Exception) -> str:
@@ -676,6 +721,7 @@ def parse_parquet(
     *,
     kind: str = "snapshots",
     mapping: Mapping[str, str | None] | None = None,
+    by_type: bool = False,
 ) -> ParsedTable:
     """Parquet; column names may carry ``[unit]``; timestamps must be tz-aware or zoned text."""
     log = ErrorLog()
@@ -691,8 +737,8 @@ def parse_parquet(
     try:
         specs = resolve_columns(
             table.column_names,
-            allowed=_allowed(kind),
-            required=_required(kind),
+            allowed=_allowed(kind, by_type),
+            required=_required(kind, by_type),
             mapping=mapping,
             log=log,
         )
@@ -702,7 +748,7 @@ def parse_parquet(
     if table.num_rows == 0:
         raise UploadRejected([RowError(None, None, "the Parquet file has no rows")])
     raw = {s.target: table[s.source] for s in specs}
-    return _finish(raw, specs, kind, log)
+    return _finish(raw, specs, kind, log, by_type)
 
 
 def _reject_constant(name: str) -> float:
@@ -710,7 +756,7 @@ def _reject_constant(name: str) -> float:
     return float(name.replace("Infinity", "inf"))
 
 
-def parse_json(body: bytes, *, kind: str = "snapshots") -> ParsedTable:
+def parse_json(body: bytes, *, kind: str = "snapshots", by_type: bool = False) -> ParsedTable:
     """``{"units": {...}?, "columns": {...}?, "snapshots": [{...}, ...]}``."""
     if not body.strip():
         raise UploadRejected([RowError(None, None, "the body is empty")])
@@ -752,8 +798,8 @@ def parse_json(body: bytes, *, kind: str = "snapshots") -> ParsedTable:
             keys.update(dict.fromkeys(record))
         specs = resolve_columns(
             keys,
-            allowed=_allowed(kind),
-            required=_required(kind),
+            allowed=_allowed(kind, by_type),
+            required=_required(kind, by_type),
             mapping=mapping,
             units=units,
             log=log,
@@ -762,7 +808,7 @@ def parse_json(body: bytes, *, kind: str = "snapshots") -> ParsedTable:
         raw = {s.target: _json_column(records, s, log) for s in specs}
     except ErrorLimitReached:
         log.raise_if_any()
-    return _finish(raw, specs, kind, log)
+    return _finish(raw, specs, kind, log, by_type)
 
 
 def _json_column(records: list[dict[str, Any]], spec: ColumnSpec, log: ErrorLog) -> pa.ChunkedArray:
@@ -826,12 +872,14 @@ def parse_body(
     *,
     kind: str = "snapshots",
     mapping: Mapping[str, str | None] | None = None,
+    by_type: bool = False,
 ) -> ParsedTable:
-    """Dispatch on the body's format: ``csv``, ``json`` or ``parquet``."""
+    """Dispatch on the body's format: ``csv``, ``json`` or ``parquet``. ``by_type``
+    (snapshots): signals are left in the units sent, for ``uploads.parameters``."""
     if content_format == "csv":
-        return parse_csv(body, kind=kind, mapping=mapping)
+        return parse_csv(body, kind=kind, mapping=mapping, by_type=by_type)
     if content_format == "parquet":
-        return parse_parquet(body, kind=kind, mapping=mapping)
+        return parse_parquet(body, kind=kind, mapping=mapping, by_type=by_type)
     if content_format == "json":
-        return parse_json(body, kind=kind)
+        return parse_json(body, kind=kind, by_type=by_type)
     raise UploadRejected([RowError(None, None, f"unsupported format {content_format!r}")])

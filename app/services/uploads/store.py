@@ -40,6 +40,7 @@ from app.services import common, fresh_records
 from app.services.encoding.pgcopy import HEADER, TRAILER, binary_copy_rows
 from app.services.fleet import service as fleet
 from app.services.snapshots import backlog
+from app.services.uploads import parameters
 from app.services.uploads.parse import (
     MAX_ERRORS,
     ErrorLimitReached,
@@ -270,8 +271,11 @@ def ingest_snapshots(
     )
     if earlier is not None:
         return UploadResult(earlier, replayed=True)
-    parsed = parse_body(body, content_format, kind="snapshots", mapping=mapping)
-    rows = resolve_rows(session, operator_id=operator_id, parsed=parsed)
+    parsed = parse_body(body, content_format, kind="snapshots", mapping=mapping, by_type=True)
+    typed = parameters.check_parameters(
+        session, resolve_rows(session, operator_id=operator_id, parsed=parsed), parsed)
+    parameters.unstorable(typed, parsed)
+    rows = typed.table
     replay = functools.partial(
         find_replay, session, operator_id=operator_id, kind="snapshots", checksum=checksum,
         idempotency_key=idempotency_key,

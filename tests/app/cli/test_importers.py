@@ -10,7 +10,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from app.cli.importers import CMAPSS_START, esn_of, import_cmapss
+from app.cli.importers import CMAPSS_START, FD001_TRAIN, import_cmapss
 from app.models import Engine, Snapshot
 from app.services.tenancy import service as tenancy
 from tests.support.paths import FD001
@@ -57,7 +57,8 @@ def test_import_creates_one_engine_per_unit_and_one_snapshot_per_cycle(
 
     for unit, lines in expected.items():
         engine = session.scalar(
-            select(Engine).where(Engine.operator_id == operator_id, Engine.esn == esn_of(unit))
+            select(Engine).where(Engine.operator_id == operator_id,
+                                 Engine.esn == FD001_TRAIN.esn(unit))
         )
         assert engine is not None
         rows = session.execute(
@@ -78,11 +79,12 @@ def test_import_creates_one_engine_per_unit_and_one_snapshot_per_cycle(
 
     # Through the API as well: the first unit's trend, as a client would read it.
     engine_id = session.scalar(
-        select(Engine.id).where(Engine.operator_id == operator_id, Engine.esn == esn_of(1))
+        select(Engine.id).where(Engine.operator_id == operator_id, Engine.esn == FD001_TRAIN.esn(1))
     )
     body = client.get(f"/api/v1/engines/{engine_id}/snapshots").json()
     assert body["count"] == len(expected[1])
-    assert body["snapshots"][0]["tail"] == "CM001" and body["snapshots"][0]["phase"] == "takeoff"
+    assert body["snapshots"][0]["tail"] == FD001_TRAIN.tail(1)
+    assert body["snapshots"][0]["phase"] == "takeoff"
     assert body["snapshots"][0]["power_pct"] == float(expected[1][0][4])
 
     # Running it again creates nothing and stores nothing.
@@ -140,8 +142,8 @@ def test_import_leaves_a_ready_active_design_at_fd001s_condition(
     ``design=False`` (``--no-design``) makes none."""
     from app.cli.importers import (
         CMAPSS_SENSORS,
-        ENGINE_TYPE,
         FD001_CONDITION,
+        FD001_TRAIN,
         FD001_TUNERS,
         ensure_engine_type,
     )
@@ -175,5 +177,5 @@ def test_import_leaves_a_ready_active_design_at_fd001s_condition(
     assert client.post(f"/api/v1/designs/{design.id}/deactivate").status_code == 200
     none = import_cmapss(FD001, client, units=1, design=False)
     assert none.design_id is None
-    type_id = ensure_engine_type(client, ENGINE_TYPE)
+    type_id = ensure_engine_type(client, FD001_TRAIN)
     assert client.get(f"/api/v1/engine-types/{type_id}/active-design").json() is None

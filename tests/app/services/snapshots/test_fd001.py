@@ -13,7 +13,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from app.cli.importers import CMAPSS_SENSORS, ENGINE_TYPE, import_cmapss
+from app.cli.importers import CMAPSS_SENSORS, FD001_TRAIN, import_cmapss
 from app.models import Engine, EngineType
 from app.services.designs import engine_models
 from app.services.designs import service as designs
@@ -47,7 +47,7 @@ def test_hpc_carries_the_largest_deterioration_at_end_of_life(
 
     engine_type = session.scalar(
         select(EngineType).where(
-            EngineType.operator_id == operator.id, EngineType.name == ENGINE_TYPE
+            EngineType.operator_id == operator.id, EngineType.name == FD001_TRAIN.engine_type
         )
     )
     assert engine_type is not None

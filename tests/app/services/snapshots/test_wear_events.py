@@ -17,7 +17,7 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy.orm import Session
 
-from app.cli.importers import CMAPSS_START, ENGINE_TYPE, esn_of, import_cmapss
+from app.cli.importers import CMAPSS_START, FD001_TRAIN, import_cmapss
 from app.models import EngineType, EstimatorDesign
 from app.services.demo import fleet
 from app.services.snapshots import detector, estimator, run, store
@@ -67,13 +67,13 @@ def fd001_product(
     design = session.get(EstimatorDesign, summary.design_id)
     assert design is not None and design.active and design.status == "ready"
     engine_type = session.get(EngineType, design.engine_type_id)
-    assert engine_type is not None and engine_type.name == ENGINE_TYPE
+    assert engine_type is not None and engine_type.name == FD001_TRAIN.engine_type
     est = estimator.estimator_for_design(session, design)
     hpc = est.layout.faults.index("HPC")
     ours, naive, named_hpc = [], [], 0
     for engine in fd001_replay.fd001_runs(FD001, est, UNITS):
         last = int(engine.cycle[-1])
-        event = first.get(esn_of(engine.unit))
+        event = first.get(FD001_TRAIN.esn(engine.unit))
         assert event is not None, f"unit {engine.unit}: no wear event"
         cycle = (np.datetime64(event["detected_at"][:19]) - np.datetime64(
             CMAPSS_START.replace(tzinfo=None))).astype("timedelta64[D]").astype(int) + 1

@@ -329,3 +329,29 @@ def test_stored_signals_are_the_built_in_engines_sensors_in_its_units() -> None:
     engine = dict(zip(SENSOR_NAMES, SENSOR_UNITS, strict=True))
     assert {name: stored[name] for name in engine} == engine
     assert set(stored) - set(engine) == {"VSV", "VBV"}  # actuator positions, not sensors
+
+
+def test_by_type_keeps_any_signal_as_sent_with_its_declared_unit() -> None:
+    """Snapshots parsed by type: names and units are decided per row's engine type later, so
+    any signal column is read as numbers, unconverted, with its declared unit and file column;
+    the operating condition and phase are no longer required here."""
+    body = (b"recorded_at,tail,position,EGT[degC],N1,T30[degC]\n"
+            b"2026-03-01T00:00:00Z,N1,1,505.5,98.5,600\n"
+            b"2026-03-01T00:10:00Z,N1,1,,99,\n")
+    parsed = parse_body(body, "csv", by_type=True)
+    assert parsed.table["EGT"].to_pylist() == [505.5, None]
+    assert parsed.table["T30"].to_pylist() == [600.0, None]  # not converted yet
+    assert dict(parsed.units) == {"EGT": "degC", "N1": None, "T30": "degC"}
+    assert dict(parsed.sources) == {"EGT": "EGT[degC]", "N1": "N1", "T30": "T30[degC]"}
+    # Keys stay keys: a unit on one, or a missing one, is refused here.
+    errors = rejected(parse_body, b"recorded_at,tail,position[m],EGT\n"
+                      b"2026-03-01T00:00:00Z,N1,1,1\n", "csv", by_type=True)
+    assert errors[0]["reason"] == "column 'position' takes no unit (got 'm')"
+    errors = rejected(parse_body, b"recorded_at,position,EGT\n2026-03-01T00:00:00Z,1,1\n",
+                      "csv", by_type=True)
+    assert errors == [
+        {"row": None, "column": "tail", "reason": "required column 'tail' is missing"}]
+    # Text in a signal column is still refused by row.
+    errors = rejected(parse_body, b"recorded_at,tail,position,EGT\n"
+                      b"2026-03-01T00:00:00Z,N1,1,hot\n", "csv", by_type=True)
+    assert errors[0]["row"] == 1 and errors[0]["column"] == "EGT"
