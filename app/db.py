@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -75,53 +76,68 @@ def writing(session: Session) -> Session:
 
 
 class WriteGate:
-    """One writing transaction at a time on a SQLite file in this process, first come first
-    served.
+    """At most ``capacity`` writing transactions at a time on one database in this process,
+    first come first served.
 
     SQLite lets one writer in at a time; the others wait in its busy handler, which polls with
     sleeps growing to 100 ms. Under many concurrent writers that is unfair (a writer can lose
     every race for many seconds while others pass) and it wastes the gaps between writers.
-    Writers of this process therefore queue here, in ticket order, before they take SQLite's
-    write lock; the busy handler stays the guard against writers of other processes.
+    Writers of this process therefore queue here, in arrival order, before they take SQLite's
+    write lock (capacity 1); the busy handler stays the guard against other processes.
+
+    PostgreSQL takes concurrent writers, but a write request is mostly Python work (parse,
+    validate, resolve), and this process runs Python one thread at a time: sixteen uploads
+    admitted at once share the interpreter and each takes sixteen times as long, while the
+    pages being read wait behind them. A few at a time (``POSTGRES_WRITERS``), in order, finish
+    sooner on average and leave readers their turn.
     """
 
-    def __init__(self) -> None:
-        self._turn = threading.Condition()
-        self._next = 0
-        self._serving = 0
-        self._abandoned: set[int] = set()
+    def __init__(self, capacity: int = 1) -> None:
+        self._lock = threading.Lock()
+        self._free = capacity
+        self._waiting: deque[threading.Event] = deque()
 
     def acquire(self, timeout: float) -> bool:
-        """Wait for this writer's turn, at most ``timeout`` seconds; False if it never came."""
-        with self._turn:
-            ticket = self._next
-            self._next += 1
-            if self._turn.wait_for(lambda: self._serving == ticket, timeout):
+        """Wait for a turn, at most ``timeout`` seconds; False if none came."""
+        with self._lock:
+            if self._free > 0 and not self._waiting:
+                self._free -= 1
                 return True
-            self._abandoned.add(ticket)  # skipped when its turn comes
+            turn = threading.Event()
+            self._waiting.append(turn)
+        if turn.wait(timeout):
+            return True
+        with self._lock:
+            if turn.is_set():  # handed over just as the wait ran out
+                return True
+            self._waiting.remove(turn)
             return False
 
     def release(self) -> None:
-        with self._turn:
-            self._serving += 1
-            while self._serving in self._abandoned:
-                self._abandoned.remove(self._serving)
-                self._serving += 1
-            self._turn.notify_all()
+        with self._lock:
+            if self._waiting:
+                self._waiting.popleft().set()  # the turn passes straight to the next in line
+            else:
+                self._free += 1
 
 
+# Concurrent writing transactions per PostgreSQL database in one process (see WriteGate).
+POSTGRES_WRITERS = 2
 _gates: dict[str, WriteGate] = {}
 _gates_lock = threading.Lock()
 
 
 def write_gate(engine: Engine) -> WriteGate | None:
-    """The write gate of ``engine``'s SQLite file (one per file in this process); None for
-    other databases, where writers do not exclude one another."""
-    if engine.dialect.name != "sqlite" or engine.url.database in (None, "", ":memory:"):
-        return None
-    key = str(Path(engine.url.database).resolve())
+    """The write gate of ``engine``'s database in this process: one writer at a time on a
+    SQLite file, ``POSTGRES_WRITERS`` on PostgreSQL; None for an in-memory SQLite database."""
+    if engine.dialect.name == "sqlite":
+        if engine.url.database in (None, "", ":memory:"):
+            return None
+        key, capacity = str(Path(engine.url.database).resolve()), 1
+    else:
+        key, capacity = engine.url.render_as_string(hide_password=True), POSTGRES_WRITERS
     with _gates_lock:
-        return _gates.setdefault(key, WriteGate())
+        return _gates.setdefault(key, WriteGate(capacity))
 
 
 def make_sessionmaker(engine: Engine) -> sessionmaker[Session]:

@@ -4,6 +4,7 @@ made inside it as savepoints (what every test relies on), and a savepoint rolls 
 from __future__ import annotations
 
 import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -11,7 +12,14 @@ from sqlalchemy import Engine, func, select, text
 from sqlalchemy.exc import OperationalError
 from sqlalchemy.orm import Session
 
-from app.db import make_engine, make_sessionmaker, record_after_rollback, transaction, writing
+from app.db import (
+    WriteGate,
+    make_engine,
+    make_sessionmaker,
+    record_after_rollback,
+    transaction,
+    writing,
+)
 from app.models import Operator
 
 
@@ -166,3 +174,30 @@ def test_a_record_asked_for_survives_the_rollback_of_its_unit(tmp_path: Path) ->
         notes = connection.execute(text("SELECT text FROM notes")).scalars().all()
     assert notes == ["refused", "next"]
     engine.dispose()
+
+
+def test_the_write_gate_admits_in_arrival_order_up_to_its_capacity() -> None:
+    gate = WriteGate(capacity=2)
+    assert gate.acquire(0.1) and gate.acquire(0.1)
+    assert not gate.acquire(0.05)  # full: the wait runs out, and the turn is given up
+    order: list[int] = []
+    waiters = []
+    for k in range(4):
+        ready = threading.Event()
+
+        def wait(k: int = k, ready: threading.Event = ready) -> None:
+            ready.set()
+            assert gate.acquire(5.0)
+            order.append(k)
+
+        thread = threading.Thread(target=wait)
+        thread.start()
+        ready.wait()
+        time.sleep(0.05)  # queued before the next one arrives
+        waiters.append(thread)
+    for _ in range(4):
+        gate.release()
+        time.sleep(0.05)
+    for thread in waiters:
+        thread.join(5.0)
+    assert order == [0, 1, 2, 3]
