@@ -1,4 +1,4 @@
-"""event assignment and history
+"""event assignment and history; borescope findings
 
 Revision ID: 0015
 Revises: 0014
@@ -6,8 +6,9 @@ Create Date: 2026-11-24 20:15:00
 
 An alert can be assigned to a person (an analyst or admin API key of the operator:
 ``events.assignee_key_id``), and every step of its handling is kept in ``event_history``: who
-assigned, acknowledged, commented on or closed it, when, and the reason given. Downgrade drops
-the history and the assignments.
+assigned, acknowledged, commented on or closed it, when, and the reason given. A maintenance
+action may be a borescope finding (kind ``borescope_finding``). Downgrade drops the history,
+the assignments and the borescope findings.
 """
 from collections.abc import Sequence
 
@@ -20,7 +21,15 @@ branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 
 
+OLD_KINDS = "kind IN ('water_wash', 'module_change', 'shop_visit')"
+NEW_KINDS = "kind IN ('water_wash', 'module_change', 'shop_visit', 'borescope_finding')"
+
+
 def upgrade() -> None:
+    with op.batch_alter_table('maintenance_actions', schema=None) as batch_op:
+        batch_op.drop_constraint(batch_op.f('ck_maintenance_actions_kind'), type_='check')
+        batch_op.create_check_constraint(batch_op.f('ck_maintenance_actions_kind'), NEW_KINDS)
+
     with op.batch_alter_table('events', schema=None) as batch_op:
         batch_op.add_column(sa.Column('assignee_key_id', sa.Integer(), nullable=True))
         batch_op.create_foreign_key(
@@ -61,3 +70,8 @@ def downgrade() -> None:
             batch_op.f('fk_events_assignee_key_id_api_keys'), type_='foreignkey'
         )
         batch_op.drop_column('assignee_key_id')
+
+    op.execute("DELETE FROM maintenance_actions WHERE kind = 'borescope_finding'")
+    with op.batch_alter_table('maintenance_actions', schema=None) as batch_op:
+        batch_op.drop_constraint(batch_op.f('ck_maintenance_actions_kind'), type_='check')
+        batch_op.create_check_constraint(batch_op.f('ck_maintenance_actions_kind'), OLD_KINDS)

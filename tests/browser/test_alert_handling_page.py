@@ -13,6 +13,19 @@ from tests.browser.conftest import Console, Server, screenshot, sign_in
 pytestmark = pytest.mark.browser
 
 
+def _unnamed(page: Any, section: str) -> list[str]:
+    """Form controls without a label and buttons without a name in ``section``."""
+    result: list[str] = page.evaluate(
+        """(sel) => [...document.querySelectorAll(`${sel} input, ${sel} select, ${sel} textarea`)]
+            .filter((el) => !el.labels || !el.labels.length).map((el) => el.id || el.name)
+            .concat([...document.querySelectorAll(`${sel} button`)]
+            .filter((b) => !b.textContent.trim() && !b.getAttribute('aria-label'))
+            .map((b) => b.id))""",
+        section,
+    )
+    return result
+
+
 def _get(server: Server, path: str, **params: Any) -> Any:
     response = httpx.get(
         f"{server.base_url}{path}", params=params, headers={"X-API-Key": server.seeded.key}
@@ -59,4 +72,5 @@ def test_assign_acknowledge_with_a_reason_and_see_the_history(
     assert [s["action"] for s in after["history"]] == ["assigned", "acknowledged"]
     assert all(s["actor"] == "admin" for s in after["history"])
     screenshot(page, "event-alert-handling")
+    assert _unnamed(page, "#review") == []
     assert console.unexpected() == []
