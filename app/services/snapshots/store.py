@@ -40,6 +40,7 @@ from sqlalchemy.orm import Session, defer
 from app.models import Engine, EstimatorDesign, MaintenanceAction, Snapshot
 from app.models.base import utcnow
 from app.models.estimates import Estimate, Event, FilterCheckpoint, FilterState
+from app.models.fleet import BASELINE_RESET_KINDS
 from app.services import fresh_records
 from app.services.snapshots import backlog, buckets, detector, rows
 from app.services.snapshots.estimator import SnapshotEstimator, estimator_for_design
@@ -291,7 +292,8 @@ def _prepare_runs(
     maintenance = _by_engine(
         session,
         select(MaintenanceAction.engine_id, MaintenanceAction.performed_at).where(
-            MaintenanceAction.engine_id.in_(ids)
+            MaintenanceAction.engine_id.in_(ids),
+            MaintenanceAction.kind.in_(BASELINE_RESET_KINDS),
         ),
     )
     events = _by_engine(
