@@ -15,6 +15,11 @@ from app.models.estimates import (
 from app.models.fleet import Aircraft, Engine, Installation, MaintenanceAction
 from app.models.ingest import Snapshot, StreamChunk, StreamRecording, Upload
 from app.models.jobs import Job, JobSchedule
+from app.models.notifications import (
+    DeliveryAttempt,
+    NotificationChannel,
+    NotificationDelivery,
+)
 from app.models.stream_estimates import StreamEstimate, StreamFilterState
 from app.models.tenancy import ApiKey, Operator
 
@@ -22,6 +27,7 @@ __all__ = [
     "Aircraft",
     "ApiKey",
     "Base",
+    "DeliveryAttempt",
     "DeteriorationBucket",
     "Engine",
     "EngineModel",
@@ -38,6 +44,8 @@ __all__ = [
     "Job",
     "JobSchedule",
     "MaintenanceAction",
+    "NotificationChannel",
+    "NotificationDelivery",
     "Operator",
     "Snapshot",
     "StreamChunk",

@@ -39,6 +39,8 @@ from app.models.designs import JSONDocument
 
 EVENT_KINDS = ("shift", "isolated_fault", "wear")
 EVENT_STATUSES = ("open", "acknowledged", "closed")
+# The severity an open event gives its engine (kinds not named: amber).
+EVENT_LEVEL = {"isolated_fault": "red", "shift": "amber"}
 
 
 class Estimate(Base):

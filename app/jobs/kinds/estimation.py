@@ -10,7 +10,8 @@ from sqlalchemy.orm import Session
 
 from app.services.fleet import diagnostics
 from app.services.jobs.registry import Progress, registry
-from app.services.jobs.store import queue_estimation
+from app.services.jobs.store import queue_estimation, queue_sending
+from app.services.notifications import outbox
 from app.services.snapshots import store as snapshots_store
 
 # The default schedule of the fleet-wide diagnostic job (seconds): once a day.
@@ -38,7 +39,16 @@ class EstimateEngines(BaseModel):
 def estimate_engines(
     session: Session, parameters: EstimateEngines, progress: Progress, *, operator_id: int
 ) -> dict[str, Any]:
-    return snapshots_store.catch_up(session, operator_id, progress=progress, commit=session.commit)
+    """Notifications of the events raised were queued with them; their sending is queued here,
+    committed with the job's result and dispatched after."""
+    summary = snapshots_store.catch_up(
+        session, operator_id, progress=progress, commit=session.commit
+    )
+    if outbox.has_pending(session, operator_id):
+        summary["notifications_job_id"] = queue_sending(
+            session, operator_id=operator_id, job_registry=registry
+        ).id
+    return summary
 
 
 class FleetDiagnostics(BaseModel):
