@@ -77,8 +77,8 @@ class ChannelOut(Row):
     url: str | None
     smtp_host: str | None
     smtp_port: int | None
-    starttls: bool = Field(validation_alias="smtp_starttls")
-    username: str | None = Field(validation_alias="smtp_username")
+    starttls: bool
+    username: str | None
     has_password: bool = False
     mail_from: str | None
     mail_to: list[str] | None
@@ -92,7 +92,7 @@ class ChannelOut(Row):
         return {
             "id": data.id, "kind": data.kind, "name": data.name, "enabled": data.enabled,
             "url": data.url, "smtp_host": data.smtp_host, "smtp_port": data.smtp_port,
-            "smtp_starttls": data.smtp_starttls, "smtp_username": data.smtp_username,
+            "starttls": data.smtp_starttls, "username": data.smtp_username,
             "has_password": data.smtp_password is not None, "mail_from": data.mail_from,
             "mail_to": None if data.mail_to is None
             else [a.strip() for a in data.mail_to.split(",") if a.strip()],
