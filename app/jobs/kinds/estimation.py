@@ -64,9 +64,15 @@ class FleetDiagnostics(BaseModel):
 def fleet_diagnostics(
     session: Session, parameters: FleetDiagnostics, progress: Progress, *, operator_id: int
 ) -> dict[str, Any]:
-    """The summary; snapshots left unestimated are marked and get an estimation job queued."""
+    """The summary; snapshots left unestimated are marked and get an estimation job queued,
+    and notifications left pending (an estimation job that failed after committing some
+    batches queued no sending) get their sending queued."""
     summary = diagnostics.fleet_diagnostics(session, operator_id, progress=progress)
     if summary["n_engines_waiting"]:
         job = queue_estimation(session, operator_id=operator_id, job_registry=registry)
         summary["estimation_job_id"] = job.id
+    if outbox.has_pending(session, operator_id):
+        summary["notifications_job_id"] = queue_sending(
+            session, operator_id=operator_id, job_registry=registry
+        ).id
     return summary

@@ -258,3 +258,21 @@ def test_an_event_raised_by_the_estimation_job_is_sent_after_it_commits(
         digest = hmac.new(secret.encode(), f"{timestamp}.".encode() + request.body,
                           hashlib.sha256).hexdigest()
         assert request.headers["X-Fleethealth-Signature"] == f"sha256={digest}"
+
+
+def test_the_daily_diagnostics_job_sends_deliveries_left_pending(
+    session: Session, session_factory: sessionmaker[Session]
+) -> None:
+    operator_id, _headers = _admin(session, "Leftover Air")
+    with webhook_receiver() as receiver:
+        row, _secret = channels.create_webhook(
+            session, operator_id=operator_id,
+            spec=channels.WebhookSpec(name="ops", url=receiver.url))
+        outbox.queue_test(session, channel=row)  # as if its sending had never been queued
+        jobs_store.submit(session, operator_id=operator_id, kind="fleet_diagnostics",
+                          parameters={}, registry=load_kinds())
+        session.commit()
+        ran = run_pending(session_factory)
+    kinds = [session.get(Job, job_id, populate_existing=True).kind for job_id in ran]  # type: ignore[union-attr]
+    assert kinds == ["fleet_diagnostics", "send_notifications"]
+    assert len(receiver.requests) == 1
