@@ -17,6 +17,7 @@ from app.models.ingest import Snapshot, StreamChunk, StreamRecording, Upload
 from app.models.jobs import Job, JobSchedule
 from app.models.notifications import (
     DeliveryAttempt,
+    EngineAlertLevel,
     NotificationChannel,
     NotificationDelivery,
 )
@@ -30,6 +31,7 @@ __all__ = [
     "DeliveryAttempt",
     "DeteriorationBucket",
     "Engine",
+    "EngineAlertLevel",
     "EngineModel",
     "EngineType",
     "Estimate",

@@ -99,3 +99,21 @@ class DeliveryAttempt(Base):
     status_code: Mapped[int | None] = mapped_column(Integer, default=None)
     error: Mapped[str | None] = mapped_column(Text, default=None)
     duration_ms: Mapped[float] = mapped_column(Float)
+
+
+class EngineAlertLevel(Base):
+    """An engine's severity when notifications last looked (``normal``, ``amber``, ``red``):
+    an engine whose limit checks go red from another level is notified once, not at every
+    estimation run while it stays red."""
+
+    __tablename__ = "engine_alert_levels"
+    __table_args__ = (CheckConstraint("level IN ('normal', 'amber', 'red')", name="level"),)
+
+    engine_id: Mapped[int] = mapped_column(
+        ForeignKey("engines.id", ondelete="CASCADE"), primary_key=True
+    )
+    operator_id: Mapped[int] = mapped_column(
+        ForeignKey("operators.id", ondelete="CASCADE"), index=True
+    )
+    level: Mapped[str] = mapped_column(String(8))
+    changed_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)

@@ -1,11 +1,12 @@
-"""notification channels, deliveries and their attempts
+"""notification channels, deliveries, their attempts and engine alert levels
 
 Revision ID: 0016
 Revises: 0015
 Create Date: 2026-11-24 20:15:00
 
 An operator's webhooks and e-mail (SMTP) channels; the deliveries the estimation pipeline queues
-for the events it raises, and every attempt to send one (the delivery log).
+for the events it raises, and every attempt to send one (the delivery log); each engine's
+severity when notifications last looked (an engine turning red is notified once).
 """
 from collections.abc import Sequence
 
@@ -107,9 +108,32 @@ def upgrade() -> None:
     op.create_index(
         op.f('ix_delivery_attempts_delivery_id'), 'delivery_attempts', ['delivery_id']
     )
+    op.create_table(
+        'engine_alert_levels',
+        sa.Column('engine_id', sa.Integer(), nullable=False),
+        sa.Column('operator_id', sa.Integer(), nullable=False),
+        sa.Column('level', sa.String(length=8), nullable=False),
+        sa.Column('changed_at', sa.DateTime(timezone=True), nullable=False),
+        sa.CheckConstraint(
+            "level IN ('normal', 'amber', 'red')", name=op.f('ck_engine_alert_levels_level')
+        ),
+        sa.ForeignKeyConstraint(
+            ['engine_id'], ['engines.id'],
+            name=op.f('fk_engine_alert_levels_engine_id_engines'), ondelete='CASCADE',
+        ),
+        sa.ForeignKeyConstraint(
+            ['operator_id'], ['operators.id'],
+            name=op.f('fk_engine_alert_levels_operator_id_operators'), ondelete='CASCADE',
+        ),
+        sa.PrimaryKeyConstraint('engine_id', name=op.f('pk_engine_alert_levels')),
+    )
+    op.create_index(
+        op.f('ix_engine_alert_levels_operator_id'), 'engine_alert_levels', ['operator_id']
+    )
 
 
 def downgrade() -> None:
+    op.drop_table('engine_alert_levels')
     op.drop_table('delivery_attempts')
     op.drop_table('notification_deliveries')
     op.drop_table('notification_channels')

@@ -8,7 +8,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.orm import Session
 
-from app.services.fleet import diagnostics
+from app.services.fleet import diagnostics, red_alerts
 from app.services.jobs.registry import Progress, registry
 from app.services.jobs.store import queue_estimation, queue_sending
 from app.services.notifications import outbox
@@ -39,11 +39,13 @@ class EstimateEngines(BaseModel):
 def estimate_engines(
     session: Session, parameters: EstimateEngines, progress: Progress, *, operator_id: int
 ) -> dict[str, Any]:
-    """Notifications of the events raised were queued with them; their sending is queued here,
-    committed with the job's result and dispatched after."""
+    """Notifications of the events raised were queued with them, those of engines whose limits
+    turned red are queued here; their sending is queued too, committed with the job's result
+    and dispatched after."""
     summary = snapshots_store.catch_up(
         session, operator_id, progress=progress, commit=session.commit
     )
+    summary["engines_turned_red"] = red_alerts.queue_turned_red(session, operator_id)
     if outbox.has_pending(session, operator_id):
         summary["notifications_job_id"] = queue_sending(
             session, operator_id=operator_id, job_registry=registry

@@ -6,6 +6,7 @@ breaks the pipeline."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from sqlalchemy import exists, select
@@ -37,6 +38,49 @@ def event_subject(event: Event, esn: str) -> str:
     fault = f" ({event.fault})" if event.fault else ""
     level = EVENT_LEVEL.get(event.kind, "amber")
     return f"[{level}] engine {esn}: {what}{fault} at {event.detected_at:%Y-%m-%d %H:%M} UTC"
+
+
+@dataclass(frozen=True)
+class TurnedRed:
+    """An engine whose limit checks went red: what a channel is told."""
+
+    engine_id: int
+    esn: str
+    tail: str | None
+    position: int | None
+    reason: str | None
+    red_checks: tuple[dict[str, Any], ...]
+
+
+def has_channels(session: Session, operator_id: int) -> bool:
+    """Whether the operator has an enabled channel (else nothing needs judging)."""
+    return bool(session.scalar(select(exists().where(
+        NotificationChannel.operator_id == operator_id,
+        NotificationChannel.enabled.is_(True),
+    ))))
+
+
+def queue_turned_red(session: Session, operator_id: int, engines: Sequence[TurnedRed]) -> int:
+    """A pending delivery per enabled channel for each engine turned red; how many."""
+    channels = _enabled(session, operator_id) if engines else []
+    now = utcnow()
+    rows = [
+        NotificationDelivery(
+            operator_id=operator_id, channel_id=channel.id, event_id=None,
+            subject=f"[red] engine {e.esn}"
+            + (f" on {e.tail} position {e.position}" if e.tail else "")
+            + f": {e.reason or 'limits exceeded'}"[:250],
+            payload={"type": "engine.turned_red", "engine": {
+                "id": e.engine_id, "esn": e.esn, "tail": e.tail, "position": e.position,
+                "severity": "red", "reason": e.reason, "checks": list(e.red_checks)}},
+            status="pending", attempts=0, next_attempt_at=now, created_at=now,
+        )
+        for e in engines
+        for channel in channels
+    ]
+    session.add_all(rows)
+    session.flush()
+    return len(rows)
 
 
 def _enabled(session: Session, operator_id: int) -> list[NotificationChannel]:

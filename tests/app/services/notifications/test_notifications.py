@@ -276,3 +276,35 @@ def test_the_daily_diagnostics_job_sends_deliveries_left_pending(
     kinds = [session.get(Job, job_id, populate_existing=True).kind for job_id in ran]  # type: ignore[union-attr]
     assert kinds == ["fleet_diagnostics", "send_notifications"]
     assert len(receiver.requests) == 1
+
+
+def test_an_engine_whose_limits_turn_red_is_notified_once(
+    session: Session, session_factory: sessionmaker[Session]
+) -> None:
+    fleet = _fleet_with_design(session)
+    aircraft = add_aircraft(session, fleet, "F-RED")
+    engine = add_engine(session, fleet, "E-RED")
+    times, y = _records(seed=13)  # slow deterioration only: no shift event
+    fleet.engine_type.limits = {"health_change": {"amber": 50.0, "red": 80.0}}
+
+    def estimate() -> list[dict]:
+        jobs_store.queue_estimation(session, operator_id=fleet.operator_id,
+                                    job_registry=load_kinds())
+        session.commit()
+        run_pending(session_factory)
+        return [json.loads(r.body) for r in receiver.requests
+                if json.loads(r.body)["type"] == "engine.turned_red"]
+
+    with webhook_receiver() as receiver:
+        channels.create_webhook(session, operator_id=fleet.operator_id,
+                                spec=channels.WebhookSpec(name="ops", url=receiver.url))
+        earliest = _store_rows(session, fleet, engine.id, aircraft.id, times, y, range(N))
+        backlog.mark(session, fleet.operator_id, {engine.id: (earliest, N)})
+        assert estimate() == []  # within its limits: nothing
+        # The type's health-change limits tightened below the engine's change: it turns red.
+        fleet.engine_type.limits = {"health_change": {"amber": 1e-7, "red": 1e-6}}
+        [turned] = estimate()
+        assert turned["engine"]["esn"] == "E-RED" and turned["engine"]["severity"] == "red"
+        assert [c["limit"] for c in turned["engine"]["checks"]] == ["health_change"]
+        assert turned["engine"]["tail"] is None or turned["engine"]["tail"] == "F-RED"
+        assert len(estimate()) == 1  # still red: not notified again
