@@ -308,3 +308,25 @@ def test_an_engine_whose_limits_turn_red_is_notified_once(
         assert [c["limit"] for c in turned["engine"]["checks"]] == ["health_change"]
         assert turned["engine"]["tail"] is None or turned["engine"]["tail"] == "F-RED"
         assert len(estimate()) == 1  # still red: not notified again
+
+
+def test_channels_are_the_operators_own_and_can_be_disabled_and_deleted(
+    client: TestClient, session: Session
+) -> None:
+    operator_id, headers = _admin(session, "Own Air")
+    _other_id, other = _admin(session, "Other Air")
+    created = client.post(f"{API}/channels", headers=headers,
+                          json={"kind": "webhook", "name": "ops", "url": "https://example.org/h"})
+    channel_id = created.json()["id"]
+    assert client.get(f"{API}/channels", headers=other).json() == []
+    assert client.patch(f"{API}/channels/{channel_id}", headers=other,
+                        json={"enabled": False}).status_code == 404
+    assert client.post(f"{API}/channels/{channel_id}/test", headers=other).status_code == 404
+    assert client.delete(f"{API}/channels/{channel_id}", headers=other).status_code == 404
+    assert outbox.has_channels(session, operator_id)
+    patched = client.patch(f"{API}/channels/{channel_id}", headers=headers,
+                           json={"enabled": False})
+    assert patched.status_code == 200 and patched.json()["enabled"] is False
+    assert not outbox.has_channels(session, operator_id)  # disabled: no deliveries queued
+    assert client.delete(f"{API}/channels/{channel_id}", headers=headers).status_code == 200
+    assert client.get(f"{API}/channels", headers=headers).json() == []
