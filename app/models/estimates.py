@@ -41,6 +41,8 @@ EVENT_KINDS = ("shift", "isolated_fault", "wear")
 EVENT_STATUSES = ("open", "acknowledged", "closed")
 # What an event's history records: who assigned, acknowledged, commented on or closed it.
 EVENT_ACTIONS = ("assigned", "unassigned", "acknowledged", "commented", "closed")
+# The severity an open event gives its engine (kinds not named: amber).
+EVENT_LEVEL = {"isolated_fault": "red", "shift": "amber"}
 
 
 class Estimate(Base):
