@@ -39,6 +39,7 @@ from app.routers import (
     keys,
     maintenance,
     me,
+    notifications,
     stream_estimates,
     streams,
     trends,
@@ -147,6 +148,7 @@ def create_app(
     app.include_router(engines.router)
     app.include_router(installations.router)
     app.include_router(keys.router)
+    app.include_router(notifications.router)
     app.include_router(maintenance.router)
     app.include_router(uploads.router)
     app.include_router(streams.router)

@@ -8,6 +8,7 @@ from app.models.estimates import (
     EstimationBacklog,
     Event,
     EventComment,
+    EventHistory,
     FilterCheckpoint,
     FilterState,
     FleetPeriod,
@@ -15,6 +16,12 @@ from app.models.estimates import (
 from app.models.fleet import Aircraft, Engine, Installation, MaintenanceAction
 from app.models.ingest import Snapshot, StreamChunk, StreamRecording, Upload
 from app.models.jobs import Job, JobSchedule
+from app.models.notifications import (
+    DeliveryAttempt,
+    EngineAlertLevel,
+    NotificationChannel,
+    NotificationDelivery,
+)
 from app.models.stream_estimates import StreamEstimate, StreamFilterState
 from app.models.tenancy import ApiKey, Operator
 
@@ -22,8 +29,10 @@ __all__ = [
     "Aircraft",
     "ApiKey",
     "Base",
+    "DeliveryAttempt",
     "DeteriorationBucket",
     "Engine",
+    "EngineAlertLevel",
     "EngineModel",
     "EngineType",
     "Estimate",
@@ -31,6 +40,7 @@ __all__ = [
     "EstimatorDesign",
     "Event",
     "EventComment",
+    "EventHistory",
     "FilterCheckpoint",
     "FilterState",
     "FleetPeriod",
@@ -38,6 +48,8 @@ __all__ = [
     "Job",
     "JobSchedule",
     "MaintenanceAction",
+    "NotificationChannel",
+    "NotificationDelivery",
     "Operator",
     "Snapshot",
     "StreamChunk",

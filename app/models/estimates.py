@@ -39,6 +39,10 @@ from app.models.designs import JSONDocument
 
 EVENT_KINDS = ("shift", "isolated_fault", "wear")
 EVENT_STATUSES = ("open", "acknowledged", "closed")
+# What an event's history records: who assigned, acknowledged, commented on or closed it.
+EVENT_ACTIONS = ("assigned", "unassigned", "acknowledged", "commented", "closed")
+# The severity an open event gives its engine (kinds not named: amber).
+EVENT_LEVEL = {"isolated_fault": "red", "shift": "amber"}
 
 
 class Estimate(Base):
@@ -236,10 +240,17 @@ class Event(Base):
     closed_by: Mapped[int | None] = mapped_column(
         ForeignKey("api_keys.id", ondelete="SET NULL"), default=None
     )
+    # The person (an analyst or admin API key of the operator) the alert is assigned to.
+    assignee_key_id: Mapped[int | None] = mapped_column(
+        ForeignKey("api_keys.id", ondelete="SET NULL"), default=None
+    )
     created_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
 
     comments: Mapped[list[EventComment]] = relationship(
         back_populates="event", cascade="all, delete-orphan", order_by="EventComment.id"
+    )
+    history: Mapped[list[EventHistory]] = relationship(
+        back_populates="event", cascade="all, delete-orphan", order_by="EventHistory.id"
     )
 
 
@@ -258,6 +269,37 @@ class EventComment(Base):
     created_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
 
     event: Mapped[Event] = relationship(back_populates="comments")
+
+
+class EventHistory(Base):
+    """One step of an alert's handling: who (``actor``, the key's name at the time) did what
+    (``action``) and when; ``reason`` is the reason given to acknowledge or close, or the
+    comment's text; ``assignee`` the name of the key an assignment went to."""
+
+    __tablename__ = "event_history"
+    __table_args__ = (
+        CheckConstraint(
+            "action IN (" + ", ".join(f"'{a}'" for a in EVENT_ACTIONS) + ")", name="action"
+        ),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    event_id: Mapped[int] = mapped_column(
+        ForeignKey("events.id", ondelete="CASCADE"), index=True
+    )
+    action: Mapped[str] = mapped_column(String(16))
+    actor_key_id: Mapped[int | None] = mapped_column(
+        ForeignKey("api_keys.id", ondelete="SET NULL"), default=None
+    )
+    actor: Mapped[str] = mapped_column(String(200))
+    assignee_key_id: Mapped[int | None] = mapped_column(
+        ForeignKey("api_keys.id", ondelete="SET NULL"), default=None
+    )
+    assignee: Mapped[str | None] = mapped_column(String(200), default=None)
+    reason: Mapped[str | None] = mapped_column(Text, default=None)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
+
+    event: Mapped[Event] = relationship(back_populates="history")
 
 
 # The blocks of an estimate's ``packed`` blob, in order: (block, names group).

@@ -18,7 +18,10 @@ from app.models.base import Base, UTCDateTime, utcnow
 from app.models.designs import EngineType
 
 MAX_POSITIONS = 4
-MAINTENANCE_KINDS = ("water_wash", "module_change", "shop_visit")
+# Maintenance that restarts the engine's detection baseline; a borescope finding is an
+# inspection's record (notes), which changes nothing on the engine.
+BASELINE_RESET_KINDS = ("water_wash", "module_change", "shop_visit")
+MAINTENANCE_KINDS = (*BASELINE_RESET_KINDS, "borescope_finding")
 
 
 class Aircraft(Base):
@@ -83,7 +86,8 @@ class Installation(Base):
 
 
 class MaintenanceAction(Base):
-    """A water wash, module change or shop visit; the detection baseline restarts after it."""
+    """A water wash, module change, shop visit (the detection baseline restarts after these)
+    or a borescope finding (notes only)."""
 
     __tablename__ = "maintenance_actions"
     __table_args__ = (

@@ -1,4 +1,4 @@
-"""Events: list, show, acknowledge, comment, close."""
+"""Events: list, show, assign, acknowledge, comment, close; who they can be assigned to."""
 
 from __future__ import annotations
 
@@ -7,6 +7,8 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 
 from app.schemas.estimates import (
+    Assignee,
+    AssignIn,
     CommentIn,
     EventAction,
     EventKind,
@@ -43,18 +45,28 @@ def list_events(
     )
 
 
+@router.get("/assignees", response_model=list[Assignee])
+def list_assignees(session: DbSession, principal: CurrentPrincipal) -> object:
+    """Who an event can be assigned to: the operator's active analyst and admin keys."""
+    return events.assignees(session, principal.operator_id)
+
+
 @router.get("/{event_id}", response_model=EventOut)
 def show_event(event_id: int, session: DbSession, principal: CurrentPrincipal) -> object:
     """One event with the WSSR of every fault hypothesis and its comments."""
     return events.show_event(session, principal.operator_id, event_id)
 
 
+@router.post("/{event_id}/assign", response_model=EventOut)
+def assign(event_id: int, body: AssignIn, session: DbSession, principal: Analyst) -> object:
+    """Assign the event to an analyst or admin key of the operator (null: to no one)."""
+    return events.assign(session, principal, event_id, body.assignee_key_id)
+
+
 @router.post("/{event_id}/ack", response_model=EventOut)
-def acknowledge(
-    event_id: int, session: DbSession, principal: Analyst, body: EventAction | None = None
-) -> object:
-    """Acknowledge an open event (a repeat is a no-op), optionally with a comment."""
-    return events.acknowledge(session, principal, event_id, None if body is None else body.comment)
+def acknowledge(event_id: int, body: EventAction, session: DbSession, principal: Analyst) -> object:
+    """Acknowledge an open event with a reason (a repeat is a no-op)."""
+    return events.acknowledge(session, principal, event_id, body.reason)
 
 
 @router.post("/{event_id}/comments", response_model=EventOut, status_code=201)
@@ -64,8 +76,6 @@ def comment(event_id: int, body: CommentIn, session: DbSession, principal: Analy
 
 
 @router.post("/{event_id}/close", response_model=EventOut)
-def close(
-    event_id: int, session: DbSession, principal: Analyst, body: EventAction | None = None
-) -> object:
-    """Close an event, optionally with a comment."""
-    return events.close(session, principal, event_id, None if body is None else body.comment)
+def close(event_id: int, body: EventAction, session: DbSession, principal: Analyst) -> object:
+    """Close an event with a reason (closing a closed event is a no-op)."""
+    return events.close(session, principal, event_id, body.reason)

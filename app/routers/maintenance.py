@@ -1,4 +1,5 @@
-"""Maintenance actions (water wash, module change, shop visit): they reset detection baselines."""
+"""Maintenance actions (water wash, module change, shop visit: they reset detection baselines;
+borescope finding) and the recovery measured after one."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from app.schemas.fleet import (
     MaintenanceCreate,
     MaintenanceKind,
     MaintenanceOut,
+    MaintenanceRecoveryOut,
     MaintenanceUpdate,
     Page,
     PageParams,
@@ -19,6 +21,7 @@ from app.schemas.fleet import (
 from app.security import Analyst, CurrentPrincipal, DbSession
 from app.services.fleet import maintenance
 from app.services.jobs.queue import Jobs
+from app.services.trends import recovery
 
 router = APIRouter(prefix="/api/v1/maintenance-actions", tags=["maintenance"])
 
@@ -66,6 +69,20 @@ def get_action(
         session, operator_id=principal.operator_id, action_id=maintenance_action_id
     )
     return MaintenanceOut.model_validate(row)
+
+
+@router.get("/{maintenance_action_id}/recovery", response_model=MaintenanceRecoveryOut)
+def get_recovery(
+    maintenance_action_id: int, session: DbSession, principal: CurrentPrincipal,
+    design_id: int | None = None,
+) -> MaintenanceRecoveryOut:
+    """The change of the engine's health parameters and EGT margin across the action: the mean
+    of the settled records after it minus the mean of the records before it (a wash's
+    recovery), with its standard error."""
+    measured = recovery.recovery(
+        session, principal.operator_id, maintenance_action_id, design_id=design_id
+    )
+    return MaintenanceRecoveryOut.model_validate(measured)
 
 
 @router.patch("/{maintenance_action_id}", response_model=MaintenanceOut)

@@ -14,6 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 EventKind = Literal["shift", "isolated_fault", "wear"]
 EventStatus = Literal["open", "acknowledged", "closed"]
+EventActionKind = Literal["assigned", "unassigned", "acknowledged", "commented", "closed"]
 # A list filter: "active" is every event not closed (open or acknowledged), the events that
 # the fleet page counts.
 EventStatusFilter = Literal["open", "acknowledged", "closed", "active"]
@@ -226,6 +227,29 @@ class CommentOut(BaseModel):
     created_at: datetime
 
 
+class HistoryEntryOut(BaseModel):
+    """One step of an alert's handling."""
+
+    model_config = ConfigDict(from_attributes=True)
+
+    id: int
+    action: EventActionKind
+    actor: str = Field(description="name of the API key that acted")
+    actor_key_id: int | None
+    assignee: str | None = Field(description="name of the key assigned (assigned only)")
+    assignee_key_id: int | None
+    reason: str | None = Field(description="reason to acknowledge or close, or the comment")
+    created_at: datetime
+
+
+class Assignee(BaseModel):
+    """A person an alert can be assigned to: an active analyst or admin key of the operator."""
+
+    key_id: int
+    name: str
+    role: str
+
+
 class ConfusionRow(BaseModel):
     true_fault: str
     faults: list[str]
@@ -288,7 +312,13 @@ class EventOut(BaseModel):
     acknowledged_by: int | None
     closed_at: datetime | None
     closed_by: int | None
+    acknowledged_reason: str | None = Field(None, description="why it was acknowledged")
+    closed_reason: str | None = Field(None, description="why it was closed")
+    assignee: Assignee | None = Field(None, description="the person the alert is assigned to")
     comments: list[CommentOut]
+    history: list[HistoryEntryOut] = Field(
+        default_factory=list, description="assigned, acknowledged, commented, closed: oldest first"
+    )
     confidence: EventConfidence | None = Field(
         None, description="posterior over the fault hypotheses; null without stored WSSR"
     )
@@ -308,8 +338,17 @@ class CommentIn(BaseModel):
 
 
 class EventAction(BaseModel):
-    """Optional comment sent with acknowledge or close."""
+    """The reason, required, to acknowledge or close an event."""
 
     model_config = ConfigDict(extra="forbid", str_strip_whitespace=True)
 
-    comment: str | None = Field(None, max_length=10_000)
+    reason: str = Field(min_length=1, max_length=10_000)
+
+
+class AssignIn(BaseModel):
+    """Assign an event to an analyst or admin key of the operator; null takes the assignment
+    away."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    assignee_key_id: int | None

@@ -27,7 +27,7 @@ Esn = Annotated[
     str, StringConstraints(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9][A-Za-z0-9\-_./]*$")
 ]
 Position = Annotated[int, Field(ge=1, le=4, description="engine position on the aircraft, 1..4")]
-MaintenanceKind = Literal["water_wash", "module_change", "shop_visit"]
+MaintenanceKind = Literal["water_wash", "module_change", "shop_visit", "borescope_finding"]
 Role = Literal["viewer", "analyst", "admin"]
 
 
@@ -289,3 +289,32 @@ class ApiKeyOut(Row):
 
 class ApiKeyCreated(ApiKeyOut):
     key: str = Field(description="the key itself; shown only in this response")
+
+
+# ---------------------------------------------------------------------------- maintenance recovery
+
+
+class SeriesRecoveryOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+    group: Literal["health", "performance"]
+    name: str
+    unit: str
+    before: float = Field(description="mean of the records before the action")
+    after: float = Field(description="mean of the settled records after the action")
+    change: float = Field(description="after - before: positive is a recovery")
+    standard_error: float | None = Field(description="of the change, from the records' scatter")
+
+
+class MaintenanceRecoveryOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+    maintenance_action_id: int
+    engine_id: int
+    kind: str
+    performed_at: AwareDatetime
+    design_id: int | None
+    n_before: int = Field(description="records averaged before the action")
+    n_after: int = Field(description="records averaged after it")
+    series: list[SeriesRecoveryOut]
+    note: str | None = Field(description="why nothing is measured, when so")

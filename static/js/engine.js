@@ -3,6 +3,7 @@
 import { api, apiText, download } from "./api.js";
 import { $, fmtTime, h, params, showError, startPage, tailLink } from "./ui.js";
 import { MARKER_COLOURS, axisTitle, layout, limitShapes, lineWithBand, markerAnnotations, markerShapes, plot, syncZoom, unitOf } from "./plots.js";
+import { maintenancePanel } from "./maintenance.js";
 
 const ORDER = ["health", "aux", "tuners", "residuals", "wssr"];
 const TITLES = {
@@ -318,6 +319,7 @@ async function main() {
   $("#export").addEventListener("click", () => exportCsv(id));
   await load(id);
   await listRecordings(id);
+  await maintenancePanel(id, () => load(id));
   document.body.dataset.ready = "true";
 }
 

@@ -1,7 +1,8 @@
 // Event review (an abrupt shift, or wear: the change accumulated since a baseline): the detected
 // shift, the WSSR of every fault hypothesis, the isolated fault and its magnitude, the confidence
-// (posterior over the hypotheses, ambiguity group, the design's confusion row); acknowledge,
-// comment, close. Without ?id= the list of events.
+// (posterior over the hypotheses, ambiguity group, the design's confusion row); the alert's
+// handling: assign to a person, acknowledge or close with a reason, comment, and the history of
+// who did what. Without ?id= the list of events.
 import { api } from "./api.js";
 import { $, badge, fmtNum, fmtTime, h, params, showError, sortableTable, startPage, tailLink } from "./ui.js";
 import { MARKER_COLOURS, PALETTE, axisTitle, layout, lineWithBand, markerShapes, plot, unitOf } from "./plots.js";
@@ -34,6 +35,8 @@ async function showList() {
     { key: "confidence", label: "Confidence", value: (e) => (e.confidence ? e.confidence.probability : -1),
       cell: (e) => (e.confidence ? `${e.confidence.label} (${fmtNum(100 * e.confidence.probability, 0)} %)` : "–") },
     { key: "status", label: "Status", cell: (e) => badge(e.status) },
+    { key: "assignee", label: "Assigned to", value: (e) => (e.assignee ? e.assignee.name : ""),
+      cell: (e) => (e.assignee ? e.assignee.name : h("span", { class: "muted" }, "no one")) },
   ];
   content.replaceChildren(h("section", { class: "card" },
     h("div", { class: "toolbar" }, h("label", {}, "Status", filter), h("label", {}, "Kind", kindFilter), h("span", { class: "muted" }, `${page.total} event${page.total === 1 ? "" : "s"}`)),
@@ -177,31 +180,65 @@ async function windowPlot(div, event) {
   }));
 }
 
-function actions(event, principal, refresh) {
+const ACTION_TEXT = {
+  assigned: (s) => `assigned it to ${s.assignee}`,
+  unassigned: () => "took the assignment away",
+  acknowledged: () => "acknowledged",
+  commented: () => "commented",
+  closed: () => "closed",
+};
+
+function timeline(event) {
+  if (!event.history.length) return h("p", { class: "muted", id: "history" }, "Nothing done yet.");
+  return h("ol", { class: "timeline", id: "history", "aria-label": "Alert history, oldest first" }, event.history.map((s) =>
+    h("li", { class: `step ${s.action}` },
+      h("time", { datetime: s.created_at }, fmtTime(s.created_at)), " ",
+      h("strong", {}, s.actor), ` ${ACTION_TEXT[s.action](s)}`,
+      s.reason ? h("div", { class: "reason" }, s.action === "commented" ? s.reason : `Reason: ${s.reason}`) : null)));
+}
+
+function actions(event, principal, refresh, people) {
   const canWrite = principal.role !== "viewer";
-  const text = h("textarea", { id: "comment", rows: 3, placeholder: "Comment (what was found, what was done)", style: "width:100%" });
-  const message = h("div");
+  const open = event.status !== "closed";
+  const reason = h("textarea", { id: "reason", rows: 2, style: "width:100%", placeholder: "what was found, what was done" });
+  const text = h("textarea", { id: "comment", rows: 2, style: "width:100%" });
+  const assignee = h("select", { id: "assignee", disabled: !canWrite || !open },
+    h("option", { value: "" }, "no one"),
+    people.map((p) => h("option", { value: String(p.key_id), selected: event.assignee && event.assignee.key_id === p.key_id }, `${p.name} (${p.role})`)));
+  const message = h("div", { role: "status" });
   const run = async (path, body) => {
     message.replaceChildren();
     try {
       const updated = await api(`/api/v1/events/${event.id}/${path}`, { method: "POST", body });
-      text.value = "";
       refresh(updated);
     } catch (err) {
       showError(message, err, "Not saved");
     }
   };
-  const comment = () => (text.value.trim() ? { comment: text.value.trim() } : undefined);
-  return h("section", { class: "card", id: "review" }, h("h2", {}, "Review"),
-    canWrite ? null : h("p", { class: "notice" }, "Your key is a viewer key: acknowledging and commenting need an analyst key."),
-    text, message,
+  const withReason = (path) => {
+    if (!reason.value.trim()) { showError(message, new Error("Give a reason first.")); reason.focus(); return; }
+    run(path, { reason: reason.value.trim() });
+  };
+  return h("section", { class: "card", id: "review" }, h("h2", {}, "Alert handling"),
+    canWrite ? null : h("p", { class: "notice" }, "Your key is a viewer key: assigning, acknowledging and commenting need an analyst key."),
+    h("p", { id: "assigned-to" }, "Assigned to: ", h("strong", {}, event.assignee ? event.assignee.name : "no one")),
+    h("div", { class: "toolbar" },
+      h("label", { for: "assignee" }, "Assign to", assignee),
+      h("button", { id: "assign", type: "button", class: "secondary", disabled: !canWrite || !open, onclick: () =>
+        run("assign", { assignee_key_id: assignee.value ? Number(assignee.value) : null }) }, "Assign")),
+    h("label", { for: "reason", style: "display:block;margin-top:.6rem" }, "Reason (required to acknowledge or close)", reason),
     h("div", { class: "toolbar", style: "margin-top:.5rem" },
-      h("button", { id: "ack", type: "button", disabled: !canWrite || event.status !== "open", onclick: () => run("ack", comment()) }, "Acknowledge"),
+      h("button", { id: "ack", type: "button", disabled: !canWrite || event.status !== "open", onclick: () => withReason("ack") }, "Acknowledge"),
+      h("button", { id: "close", type: "button", class: "secondary", disabled: !canWrite || !open, onclick: () => withReason("close") }, "Close event")),
+    h("label", { for: "comment", style: "display:block;margin-top:.6rem" }, "Comment", text),
+    h("div", { class: "toolbar", style: "margin-top:.5rem" },
       h("button", { id: "add-comment", type: "button", class: "secondary", disabled: !canWrite, onclick: () => {
         if (!text.value.trim()) { showError(message, new Error("Write a comment first.")); return; }
         run("comments", { body: text.value.trim() });
-      } }, "Add comment"),
-      h("button", { id: "close", type: "button", class: "secondary", disabled: !canWrite || event.status === "closed", onclick: () => run("close", comment()) }, "Close event")),
+      } }, "Add comment")),
+    message,
+    h("h3", {}, "History"),
+    timeline(event),
     h("h3", {}, `Comments (${event.comments.length})`),
     event.comments.length ? h("ul", { class: "comments", id: "comments" }, event.comments.map((c) =>
       h("li", {}, h("div", { class: "muted" }, `${c.author} · ${fmtTime(c.created_at)}`), c.body))) : h("p", { class: "muted" }, "No comments yet."));
@@ -212,12 +249,12 @@ function statusLine(event) {
     event.closed_at ? ` · closed ${fmtTime(event.closed_at)}` : ""];
 }
 
-function showEvent(event, principal) {
+function showEvent(event, principal, people) {
   $("#title").textContent = `Event #${event.id} · ${event.esn}`;
-  // After acknowledge/comment/close only the status and the review card change.
+  // After assign/acknowledge/comment/close only the status and the handling card change.
   const refresh = (updated) => {
     $("#status").replaceChildren(...statusLine(updated));
-    $("#review").replaceWith(actions(updated, principal, refresh));
+    $("#review").replaceWith(actions(updated, principal, refresh, people));
   };
   const wear = event.kind === "wear";
   const isolated = event.fault
@@ -240,7 +277,7 @@ function showEvent(event, principal) {
       h("section", { class: "card" }, h("h2", {}, "WSSR of every fault hypothesis"), wssr)),
     confidence,
     h("section", { class: "card" }, h("h2", {}, `Health parameters ±${WINDOW_DAYS} days around the detection, against their mean over the ${BASELINE_RECORDS} records before it`), around),
-    actions(event, principal, refresh));
+    actions(event, principal, refresh, people));
   return Promise.all([shiftPlot(shift, event), wssrPlot(wssr, event), windowPlot(around, event),
     confidence.draw ? confidence.draw() : null]);
 }
@@ -249,7 +286,10 @@ async function main() {
   const principal = await startPage("events");
   const id = params().get("id");
   try {
-    if (id) await showEvent(await api(`/api/v1/events/${id}`), principal);
+    if (id) {
+      const [event, people] = await Promise.all([api(`/api/v1/events/${id}`), api("/api/v1/events/assignees")]);
+      await showEvent(event, principal, people);
+    }
     else await showList();
   } catch (err) {
     showError($("#message"), err, id ? `Event ${id}` : "Events");

@@ -8,6 +8,7 @@ const PAGES = [
   ["events", "/events.html", "Events"],
   ["designs", "/designs.html", "Estimator designs"],
   ["uploads", "/uploads.html", "Uploads and jobs"],
+  ["settings", "/settings.html", "Notifications"],
 ];
 
 export function h(tag, attrs = {}, ...children) {

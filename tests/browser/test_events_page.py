@@ -1,5 +1,5 @@
 """Event review in the browser: the list, the detected shift, WSSR bars of every fault
-hypothesis, acknowledge with a comment; a viewer cannot write."""
+hypothesis, acknowledge with a reason, comment; a viewer cannot write."""
 
 from __future__ import annotations
 
@@ -69,15 +69,16 @@ def test_event_review_plots_shift_and_wssr_and_acknowledges(
     screenshot(page, "event-review")
 
     if event["status"] == "open":
-        page.fill("#comment", "borescope booked for the next night stop")
+        page.fill("#reason", "borescope booked for the next night stop")
         page.click("#ack")
         page.wait_for_selector("#status .badge.acknowledged")
-        assert "borescope booked" in page.inner_text("#comments")
+        assert "borescope booked" in page.inner_text("#history")
         after = _get(server, f"/api/v1/events/{event_id}")
         assert after["status"] == "acknowledged"
-        assert after["comments"][-1]["body"] == "borescope booked for the next night stop"
+        assert after["acknowledged_reason"] == "borescope booked for the next night stop"
     page.fill("#comment", "second look: shift confirmed")
     page.click("#add-comment")
+    page.wait_for_selector("#comments")
     page.wait_for_function(
         "document.querySelector('#comments').innerText.includes('second look')"
     )
@@ -88,5 +89,6 @@ def test_event_review_plots_shift_and_wssr_and_acknowledges(
 def test_a_viewer_cannot_acknowledge(page: Any, server: Server, console: Console) -> None:
     sign_in(page, server.seeded.viewer_key, f"/events.html?id={server.seeded.event_id}")
     assert page.locator("#ack").is_disabled() and page.locator("#add-comment").is_disabled()
+    assert page.locator("#assign").is_disabled()
     assert "viewer key" in page.inner_text("main")
     assert console.unexpected() == []

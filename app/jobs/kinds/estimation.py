@@ -8,9 +8,10 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.orm import Session
 
-from app.services.fleet import diagnostics
+from app.services.fleet import diagnostics, red_alerts
 from app.services.jobs.registry import Progress, registry
-from app.services.jobs.store import queue_estimation
+from app.services.jobs.store import queue_estimation, queue_sending
+from app.services.notifications import outbox
 from app.services.snapshots import store as snapshots_store
 
 # The default schedule of the fleet-wide diagnostic job (seconds): once a day.
@@ -38,7 +39,18 @@ class EstimateEngines(BaseModel):
 def estimate_engines(
     session: Session, parameters: EstimateEngines, progress: Progress, *, operator_id: int
 ) -> dict[str, Any]:
-    return snapshots_store.catch_up(session, operator_id, progress=progress, commit=session.commit)
+    """Notifications of the events raised were queued with them, those of engines whose limits
+    turned red are queued here; their sending is queued too, committed with the job's result
+    and dispatched after."""
+    summary = snapshots_store.catch_up(
+        session, operator_id, progress=progress, commit=session.commit
+    )
+    summary["engines_turned_red"] = red_alerts.queue_turned_red(session, operator_id)
+    if outbox.has_pending(session, operator_id):
+        summary["notifications_job_id"] = queue_sending(
+            session, operator_id=operator_id, job_registry=registry
+        ).id
+    return summary
 
 
 class FleetDiagnostics(BaseModel):
@@ -54,9 +66,15 @@ class FleetDiagnostics(BaseModel):
 def fleet_diagnostics(
     session: Session, parameters: FleetDiagnostics, progress: Progress, *, operator_id: int
 ) -> dict[str, Any]:
-    """The summary; snapshots left unestimated are marked and get an estimation job queued."""
+    """The summary; snapshots left unestimated are marked and get an estimation job queued,
+    and notifications left pending (an estimation job that failed after committing some
+    batches queued no sending) get their sending queued."""
     summary = diagnostics.fleet_diagnostics(session, operator_id, progress=progress)
     if summary["n_engines_waiting"]:
         job = queue_estimation(session, operator_id=operator_id, job_registry=registry)
         summary["estimation_job_id"] = job.id
+    if outbox.has_pending(session, operator_id):
+        summary["notifications_job_id"] = queue_sending(
+            session, operator_id=operator_id, job_registry=registry
+        ).id
     return summary

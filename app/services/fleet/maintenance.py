@@ -1,9 +1,11 @@
-"""Maintenance actions (water wash, module change, shop visit) of an operator's engines.
+"""Maintenance actions (water wash, module change, shop visit, borescope finding) of an
+operator's engines.
 
-Each action restarts the engine's detection baseline: ``baseline_resets`` gives the times the
-detection step starts a new baseline from. Recording, moving or deleting an action marks the
-engine in the estimation backlog from the action's time, so the estimation job re-runs what
-the action changes.
+Each wash, module change and shop visit restarts the engine's detection baseline
+(``baseline_resets`` gives the times the detection step starts a new baseline from); a
+borescope finding is the record of an inspection and restarts nothing. Recording, moving or
+deleting an action marks the engine in the estimation backlog from the action's time, so the
+estimation job re-runs what the action changes.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.models import Engine, MaintenanceAction
+from app.models.fleet import BASELINE_RESET_KINDS
 from app.services.common import apply_changes, delete_or_conflict, owned, paginate, referenced
 from app.services.snapshots import backlog
 
@@ -101,9 +104,11 @@ def delete_action(session: Session, *, operator_id: int, action_id: int) -> None
 def baseline_resets(
     session: Session, *, operator_id: int, engine_id: int, since: datetime | None = None
 ) -> list[datetime]:
-    """Times of the engine's maintenance actions, oldest first: each starts a new baseline."""
+    """Times of the engine's maintenance actions that restart the detection baseline, oldest
+    first: each starts a new baseline."""
     stmt = select(MaintenanceAction.performed_at).where(
-        MaintenanceAction.operator_id == operator_id, MaintenanceAction.engine_id == engine_id
+        MaintenanceAction.operator_id == operator_id, MaintenanceAction.engine_id == engine_id,
+        MaintenanceAction.kind.in_(BASELINE_RESET_KINDS),
     )
     if since is not None:
         stmt = stmt.where(MaintenanceAction.performed_at >= since)

@@ -15,6 +15,8 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from app.models.estimates import EVENT_LEVEL
+
 LEVELS = ("normal", "amber", "red")
 LABELS = {
     "health_change": "health change",
@@ -23,7 +25,6 @@ LABELS = {
     "rate_of_change": "rate of change",
 }
 UNIT_TEXT = {"degC": " °C", "%": " %", "%/100 records": " %/100 records"}
-EVENT_LEVEL = {"isolated_fault": "red", "shift": "amber"}
 
 
 @dataclass(frozen=True)

@@ -65,6 +65,13 @@ class JobQueue:
         store.dispatch_after_commit(session, self.dispatcher.dispatch, job.id)
         return job
 
+    def notify(self, session: Session, *, operator_id: int) -> Job:
+        """Queue the sending of the operator's pending notifications, dispatched once the
+        caller's transaction commits; see ``store.queue_sending``."""
+        job = store.queue_sending(session, operator_id=operator_id, job_registry=self.registry)
+        store.dispatch_after_commit(session, self.dispatcher.dispatch, job.id)
+        return job
+
     def estimate_recording(
         self, session: Session, *, operator_id: int, recording_id: int, through_sample: int
     ) -> Job:

@@ -149,6 +149,21 @@ def queue_estimation(session: Session, *, operator_id: int, job_registry: JobReg
     return job
 
 
+def queue_sending(session: Session, *, operator_id: int, job_registry: JobRegistry) -> Job:
+    """Queue the sending of the operator's pending notifications (the caller dispatches it once
+    committed); like ``queue_estimation``, a follow-up when one runs already."""
+    job, _created = submit(
+        session, operator_id=operator_id, kind="send_notifications", parameters={},
+        registry=job_registry,
+    )
+    if job.status == "running":
+        job, _created = submit(
+            session, operator_id=operator_id, kind="send_notifications",
+            parameters={"follow_up": True}, registry=job_registry,
+        )
+    return job
+
+
 def dispatch_after_commit(session: Session, dispatch: Callable[[int], None], job_id: int) -> None:
     """Call ``dispatch(job_id)`` once the session commits, so a worker can see the row.
 

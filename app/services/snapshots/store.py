@@ -40,7 +40,9 @@ from sqlalchemy.orm import Session, defer
 from app.models import Engine, EstimatorDesign, MaintenanceAction, Snapshot
 from app.models.base import utcnow
 from app.models.estimates import Estimate, Event, FilterCheckpoint, FilterState
+from app.models.fleet import BASELINE_RESET_KINDS
 from app.services import fresh_records
+from app.services.notifications import outbox
 from app.services.snapshots import backlog, buckets, detector, rows
 from app.services.snapshots.estimator import SnapshotEstimator, estimator_for_design
 from app.services.snapshots.run import EngineOutput, EngineRun, PipelineState, run_filters
@@ -291,7 +293,8 @@ def _prepare_runs(
     maintenance = _by_engine(
         session,
         select(MaintenanceAction.engine_id, MaintenanceAction.performed_at).where(
-            MaintenanceAction.engine_id.in_(ids)
+            MaintenanceAction.engine_id.in_(ids),
+            MaintenanceAction.kind.in_(BASELINE_RESET_KINDS),
         ),
     )
     events = _by_engine(
@@ -331,16 +334,21 @@ def _store_batch(
     ]
     if checkpoints:
         session.execute(insert(FilterCheckpoint), checkpoints)
+    raised: list[Event] = []
     for run, fs, out in zip(runs, states, outputs, strict=True):
-        _store(session, est, run, fs, out)
+        raised += _store(session, est, run, fs, out)
     session.flush()
+    if raised:
+        # Their notifications go in this same transaction; a job sends them after it commits.
+        outbox.queue_events(session, raised[0].operator_id, raised)
 
 
 def _store(
     session: Session, est: SnapshotEstimator, run: EngineRun, fs: FilterState | None,
     out: EngineOutput,
-) -> None:
-    """One engine's events (redone ones updated in place) and filter state."""
+) -> list[Event]:
+    """One engine's events (redone ones updated in place) and filter state; the events new
+    to it."""
     redo = dict(run.redo)
     fresh = []
     for draft in out.events:
@@ -364,13 +372,12 @@ def _store(
         session.delete(stale)
     if run.redo:
         session.flush()  # stale events go before new ones may take their sequence numbers
-    for seq, detection in fresh:
-        session.add(
-            Event(
-                operator_id=run.operator_id, engine_id=run.engine_id, design_id=est.design_id,
-                seq=seq, status="open", **detection,
-            )
-        )
+    raised = [
+        Event(operator_id=run.operator_id, engine_id=run.engine_id, design_id=est.design_id,
+              seq=seq, status="open", **detection)
+        for seq, detection in fresh
+    ]
+    session.add_all(raised)
     n_records = run.seq0 + len(run.epoch)
     last_time = (
         datetime.fromtimestamp(float(run.epoch[-1]), UTC) if len(run.epoch)
@@ -386,6 +393,7 @@ def _store(
     if len(run.epoch) or run.seq0 == 0:
         fs.last_recorded_at = last_time
     fs.updated_at = utcnow()
+    return raised
 
 
 def pending_work(

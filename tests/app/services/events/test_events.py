@@ -46,18 +46,23 @@ def test_list_filter_acknowledge_comment_close(client: TestClient, session: Sess
     assert shown["wssr"] == {"HPC": 1.5, "Fan": 30.0} and shown["fault_shift"] == {"hpc_eff": -2.2}
     assert min(shown["wssr"], key=shown["wssr"].get) == shown["fault"]
 
-    acked = client.post(f"/api/v1/events/{first.id}/ack", json={"comment": "borescope"},
+    acked = client.post(f"/api/v1/events/{first.id}/ack", json={"reason": "borescope"},
                         headers=h)
     assert acked.status_code == 200 and acked.json()["status"] == "acknowledged"
-    again = client.post(f"/api/v1/events/{first.id}/ack", headers=h).json()
+    again = client.post(f"/api/v1/events/{first.id}/ack", json={"reason": "again"},
+                        headers=h).json()
     assert again["acknowledged_at"] == acked.json()["acknowledged_at"]  # a repeat is a no-op
     commented = client.post(f"/api/v1/events/{first.id}/comments", json={"body": "HPC wash"},
                             headers=h)
     assert commented.status_code == 201
-    assert [c["body"] for c in commented.json()["comments"]] == ["borescope", "HPC wash"]
-    closed = client.post(f"/api/v1/events/{first.id}/close", headers=h).json()
+    assert [c["body"] for c in commented.json()["comments"]] == ["HPC wash"]
+    assert commented.json()["acknowledged_reason"] == "borescope"
+    closed = client.post(f"/api/v1/events/{first.id}/close", json={"reason": "washed"},
+                         headers=h).json()
     assert closed["status"] == "closed" and closed["closed_at"] is not None
-    assert client.post(f"/api/v1/events/{first.id}/ack", headers=h).status_code == 409
+    assert closed["closed_reason"] == "washed"
+    assert client.post(f"/api/v1/events/{first.id}/ack", json={"reason": "x"},
+                       headers=h).status_code == 409
     open_now = client.get("/api/v1/events", params={"status": "open"}, headers=h).json()
     assert [e["id"] for e in open_now["items"]] == [second.id]
 
@@ -69,14 +74,17 @@ def test_tenancy_and_roles(client: TestClient, session: Session) -> None:
     assert operator is not None
     _row, viewer = issue_api_key(session, operator=operator, role="viewer", name="viewer")
     session.commit()
-    for method, path in (("get", f"/api/v1/events/{event.id}"),
-                         ("post", f"/api/v1/events/{event.id}/ack"),
-                         ("post", f"/api/v1/events/{event.id}/close")):
-        assert getattr(client, method)(path, headers={"X-API-Key": mine.key}).status_code == 404
+    assert client.get(f"/api/v1/events/{event.id}", headers={"X-API-Key": mine.key}
+                      ).status_code == 404
+    for action, body in (("ack", {"reason": "r"}), ("close", {"reason": "r"}),
+                         ("assign", {"assignee_key_id": None})):
+        assert client.post(f"/api/v1/events/{event.id}/{action}", json=body,
+                           headers={"X-API-Key": mine.key}).status_code == 404
     assert client.get("/api/v1/events", headers={"X-API-Key": mine.key}).json()["total"] == 0
     v = {"X-API-Key": viewer}
     assert client.get(f"/api/v1/events/{event.id}", headers=v).status_code == 200
-    assert client.post(f"/api/v1/events/{event.id}/ack", headers=v).status_code == 403
+    assert client.post(f"/api/v1/events/{event.id}/ack", json={"reason": "r"},
+                       headers=v).status_code == 403
     assert client.post(f"/api/v1/events/{event.id}/comments", json={"body": "x"},
                        headers=v).status_code == 403
     assert session.query(ApiKey).filter_by(operator_id=theirs.operator_id).count() == 2
@@ -104,12 +112,16 @@ def test_fleet_and_events_pages_count_the_same_events_after_ack_and_close(
             by_esn[e["esn"]] = by_esn.get(e["esn"], 0) + 1
         return status["n_open_events"], per_engine, listed["total"], by_esn
 
+    def act(event_id: int, action: str) -> int:
+        return client.post(f"/api/v1/events/{event_id}/{action}", json={"reason": "r"},
+                           headers=h).status_code
+
     assert counts() == (3, {"C1": 2, "C2": 1}, 3, {"C1": 2, "C2": 1})
-    assert client.post(f"/api/v1/events/{a.id}/ack", headers=h).status_code == 200
+    assert act(a.id, "ack") == 200
     assert counts() == (3, {"C1": 2, "C2": 1}, 3, {"C1": 2, "C2": 1})
-    assert client.post(f"/api/v1/events/{c.id}/close", headers=h).status_code == 200
+    assert act(c.id, "close") == 200
     assert counts() == (2, {"C1": 2}, 2, {"C1": 2})
-    assert client.post(f"/api/v1/events/{a.id}/close", headers=h).status_code == 200
+    assert act(a.id, "close") == 200
     assert counts() == (1, {"C1": 1}, 1, {"C1": 1})
     # The plain statuses still filter exactly.
     acked = client.get("/api/v1/events", params={"status": "acknowledged"}, headers=h).json()

@@ -95,9 +95,11 @@ def test_state_follows_events_when_acknowledged_and_closed(
         return item["state"], active, item["reason"]
 
     assert status() == ("alert", 1, f"open event #{event.id}: isolated fault HPC")
-    assert client.post(f"/api/v1/events/{event.id}/ack", headers=headers).status_code == 200
+    assert client.post(f"/api/v1/events/{event.id}/ack", json={"reason": "seen"},
+                       headers=headers).status_code == 200
     assert status() == ("alert", 1, f"acknowledged event #{event.id}: isolated fault HPC")
-    assert client.post(f"/api/v1/events/{event.id}/close", headers=headers).status_code == 200
+    assert client.post(f"/api/v1/events/{event.id}/close", json={"reason": "washed"},
+                       headers=headers).status_code == 200
     assert status() == ("normal", 0, None)
 
 

@@ -303,18 +303,26 @@ def test_maintenance_action_restarts_the_baseline(session: Session) -> None:
     jump[model.health_index(["hpc_eff", "hpc_flow"])] = 2.0
     times, y = _records(seed=21, jump=jump, jump_at=600)
     without, with_action = add_engine(session, fleet, "MX0"), add_engine(session, fleet, "MX1")
+    scoped = add_engine(session, fleet, "MX2")
     session.add(
         MaintenanceAction(operator_id=fleet.operator_id, engine_id=with_action.id,
                           kind="shop_visit", performed_at=times[599] + timedelta(hours=1))
     )
+    # A borescope finding records an inspection: it restarts no baseline.
+    session.add(
+        MaintenanceAction(operator_id=fleet.operator_id, engine_id=scoped.id,
+                          kind="borescope_finding", performed_at=times[599] + timedelta(hours=1),
+                          notes="HPC blades inspected")
+    )
     affected = {
         e.id: _store(session, fleet, e.id, aircraft.id, times, y, range(N))
-        for e in (without, with_action)
+        for e in (without, with_action, scoped)
     }
     store.estimate_engines(session, fleet.operator_id, affected)
     # Unannounced, the recovery is a shift; after the recorded shop visit it is the new normal.
     assert [e[0] >= 600 for e in _shift_events(session, without.id)] == [True]
     assert _shift_events(session, with_action.id) == []
+    assert _shift_events(session, scoped.id) == _shift_events(session, without.id)
 
 
 def test_catch_up_estimates_exactly_the_snapshots_without_estimates(session: Session) -> None:
