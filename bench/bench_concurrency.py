@@ -55,12 +55,18 @@ class Latencies:
     times: list[float] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)
     lock: threading.Lock = field(default_factory=threading.Lock)
+    what: list[str] = field(default_factory=list)
 
-    def add(self, seconds: float, error: str | None) -> None:
+    def add(self, seconds: float, error: str | None, what: str = "") -> None:
         with self.lock:
             self.times.append(seconds)
+            self.what.append(what)
             if error:
                 self.errors.append(error)
+
+    def slowest(self, k: int = 3) -> str:
+        order = np.argsort(self.times)[::-1][:k]
+        return ", ".join(f"{1e3 * self.times[i]:.0f} ms {self.what[i]}" for i in order)
 
     def line(self, what: str) -> str:
         t = np.array(self.times) * 1e3
@@ -101,6 +107,7 @@ def run(url: str, label: str, args: argparse.Namespace) -> bool:
               for w in range(args.writers)]
     writes, reads = Latencies(), Latencies()
     done = threading.Event()
+    started = [0.0]
     acknowledged = [0]
     count_lock = threading.Lock()
 
@@ -133,7 +140,8 @@ def run(url: str, label: str, args: argparse.Namespace) -> bool:
                     except httpx.HTTPError as exc:
                         error = repr(exc)
                     elapsed = time.perf_counter() - t0
-                    reads.add(elapsed, error)
+                    reads.add(elapsed, error, f"{paths[k % len(paths)].split('?')[0]} at "
+                              f"{t0 - started[0]:.1f} s")
                     k += 1
                     done.wait(max(args.read_interval - elapsed, 0.0))
 
@@ -144,6 +152,7 @@ def run(url: str, label: str, args: argparse.Namespace) -> bool:
         threads = [threading.Thread(target=writer, args=(w,)) for w in range(args.writers)]
         readers = [threading.Thread(target=reader, args=(i,)) for i in range(args.readers)]
         t0 = time.perf_counter()
+        started[0] = t0
         for t in readers + threads:
             t.start()
         for t in threads:
@@ -165,6 +174,7 @@ def run(url: str, label: str, args: argparse.Namespace) -> bool:
           f"{args.readers} readers (a read every {args.read_interval:g} s each); {wall:.1f} s wall")
     print(writes.line("uploads"))
     print(reads.line("reads"))
+    print(f"slowest reads: {reads.slowest()}")
     print(f"rows acknowledged {acknowledged[0]}, stored {stored} "
           f"({'none lost' if stored >= acknowledged[0] else 'ROWS LOST'})")
     for kind, errors in (("upload", writes.errors), ("read", reads.errors)):
