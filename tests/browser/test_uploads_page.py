@@ -1,6 +1,7 @@
 """Uploads and jobs in the browser: a file sent with upload progress is stored and its
 estimation job shows up with progress; a bad file is refused with row-level errors that the
-upload history keeps."""
+upload history keeps; the history names each file and its source, and an upload's detail is
+brought into view when it is clicked."""
 
 from __future__ import annotations
 
@@ -43,6 +44,12 @@ def test_upload_with_progress_then_refused_file_with_row_errors(
     assert page.evaluate("window.progressSeen")[-1] == 100
     uploads = _get(server, "/api/v1/uploads?limit=5")["items"]
     assert uploads[0]["status"] == "stored" and uploads[0]["rows_stored"] == table.num_rows
+    assert (uploads[0]["filename"], uploads[0]["source"]) == (good.name, "browser")
+    # The history names the file and where it came from (the page, with the key's name).
+    row = page.wait_for_selector(f"#uploads tr:has(a:text-is('#{uploads[0]['id']}'))")
+    cells = row.inner_text()
+    assert good.name in cells and "uploads page" in cells
+    assert f"key {uploads[0]['api_key_name']}" in cells
     # The estimation job the upload queued appears and runs to the end (list refreshes itself).
     page.wait_for_selector(
         "#jobs tr.job-estimate_engines :is(.badge.succeeded, .badge.failed)", timeout=90_000
@@ -68,8 +75,36 @@ def test_upload_with_progress_then_refused_file_with_row_errors(
     page.wait_for_selector("#uploads tr.upload-rejected")
     page.click("#uploads tr.upload-rejected a")
     errors = page.wait_for_selector("#upload-errors").inner_text()
-    assert "recorded_at" in errors
+    assert "recorded_at" in errors and bad.name in errors and "uploads page" in errors
     rejected = _get(server, "/api/v1/uploads?status=rejected")["items"]
     assert len(rejected) == 1 and rejected[0]["rows_stored"] == 0
     screenshot(page, "uploads-rejected")
+
+    # A long history (files from another client, refused: they change no engine's data) in a
+    # short window: the newest upload's detail is drawn far below its link, then scrolled to.
+    for k in range(15):
+        response = httpx.post(
+            f"{server.base_url}/api/v1/snapshots/file",
+            params={"filename": f"unknown-tail-{k}.csv"},
+            content=b"recorded_at,tail,position,phase\n2026-01-01T00:00:00Z,ZZ-NONE,1,cruise\n",
+            headers={"X-API-Key": server.seeded.key, "Content-Type": "text/csv"},
+        )
+        assert response.status_code == 422, response.text
+    page.set_viewport_size({"width": 1280, "height": 480})
+    page.select_option("#upload-filter", "rejected")
+    page.wait_for_selector("#uploads tr:has-text('unknown-tail-14.csv')")
+    page.evaluate("window.scrollTo(0, 0)")
+    link = page.locator("#uploads tbody tr").first.locator("a")
+    assert "unknown-tail-14.csv" in page.locator("#uploads tbody tr").first.inner_text()
+    link.scroll_into_view_if_needed()
+    gap = page.evaluate("document.querySelector('#upload-detail').getBoundingClientRect().top")
+    assert gap > 480  # out of view before the click
+    link.click()
+    detail = page.wait_for_selector("#upload-errors:has-text('unknown-tail-14.csv')")
+    assert "API" in detail.inner_text()
+    page.wait_for_function(
+        """() => { const r = document.querySelector('#upload-errors').getBoundingClientRect();
+          return r.top >= 0 && r.top < window.innerHeight; }""", timeout=5_000)
+    assert page.evaluate("document.activeElement.closest('#upload-errors') !== null")
+    screenshot(page, "uploads-detail-in-view")
     assert console.unexpected("422") == []
