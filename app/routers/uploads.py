@@ -179,6 +179,16 @@ def get_upload(upload_id: int, session: DbSession, principal: CurrentPrincipal) 
     return detail.model_copy(update={"events": events})
 
 
+@router.get("/events/{event_id}/uploads", response_model=list[UploadOut])
+def event_uploads(
+    event_id: int, session: DbSession, principal: CurrentPrincipal
+) -> list[UploadOut]:
+    """The uploads that caused an event: the one its record came from, and back-dated ones
+    whose re-run reached it (docs/upload-format.md)."""
+    rows = back_dating.uploads_of_event(session, principal.operator_id, event_id)
+    return [UploadOut.model_validate(r) for r in rows]
+
+
 @router.get(
     "/engines/{engine_id}/snapshots",
     response_model=EngineSnapshots,

@@ -23,6 +23,7 @@ from sqlalchemy import ColumnElement, and_, func, or_, select
 from sqlalchemy.orm import Session
 
 from app.models import Engine, EstimatorDesign, Event, FilterState, Snapshot, Upload
+from app.services import common
 
 
 def estimated_until(session: Session, engine_ids: Iterable[int]) -> dict[int, datetime]:
@@ -67,3 +68,33 @@ def caused_events(session: Session, upload: Upload) -> list[Event]:
                Event.created_at >= upload.created_at, or_(*per_engine))
         .order_by(Event.detected_at, Event.id)
     ))
+
+
+def uploads_of_event(session: Session, operator_id: int, event_id: int) -> list[Upload]:
+    """The uploads that caused the event (the inverse of ``caused_events``), oldest first:
+    the upload of the record it was detected at, and the back-dated uploads whose re-run
+    reached it."""
+    event = common.owned(session, Event, operator_id, event_id, "event")
+    found: dict[int, Upload] = {}
+    own = session.scalar(
+        select(Upload).join(Snapshot, Snapshot.upload_id == Upload.id).where(
+            Snapshot.engine_id == event.engine_id, Snapshot.recorded_at == event.detected_at,
+            Upload.operator_id == operator_id, Upload.created_at <= event.created_at,
+        )
+    )
+    if own is not None:
+        found[own.id] = own
+    back_dated = session.scalars(
+        select(Upload).where(
+            Upload.operator_id == operator_id, Upload.status == "stored",
+            Upload.back_dated.is_(True), Upload.created_at <= event.created_at,
+        )
+    )
+    for upload in back_dated:
+        for a in upload.affected:
+            until = a.get("estimated_until")
+            if (int(a["engine_id"]) == event.engine_id and until is not None
+                    and datetime.fromisoformat(a["earliest"]) <= event.detected_at
+                    <= datetime.fromisoformat(until)):
+                found[upload.id] = upload
+    return [found[k] for k in sorted(found)]

@@ -205,6 +205,15 @@ def test_a_back_dated_upload_is_flagged_and_links_the_events_its_rerun_created(
     own = {t.isoformat().replace("+00:00", "Z") for t in times_b[440:470]}
     assert any(e["kind"] == "isolated_fault" and e["fault"] == "HPC" and e["detected_at"] in own
                for e in detail["events"])
+    # And back: each linked event names the back-dated upload among the uploads that caused it.
+    for e in detail["events"]:
+        causes = client.get(f"/api/v1/events/{e['id']}/uploads", headers=key).json()
+        assert back_out["id"] in [u["id"] for u in causes]
+    unlinked = [e for e in every if e.id not in {x["id"] for x in detail["events"]}]
+    for e in unlinked:
+        causes = client.get(f"/api/v1/events/{e.id}/uploads", headers=key).json()
+        assert back_out["id"] not in [u["id"] for u in causes]
+    assert client.get("/api/v1/events/999999/uploads", headers=key).status_code == 404
     first_detail = client.get(f"/api/v1/uploads/{first['id']}", headers=key).json()
     assert all(e["id"] not in {x["id"] for x in detail["events"]}
                or e["detected_at"] < times[400].isoformat() for e in first_detail["events"])
