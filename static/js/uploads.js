@@ -1,7 +1,7 @@
 // Uploads and jobs: upload a file with a progress bar, the upload history with row-level errors,
 // and jobs with their progress (refreshed while any is queued or running).
 import { api, uploadFile } from "./api.js";
-import { $, badge, detailText, errorBox, fmtTime, h, progressBar, showError, sortableTable, startPage } from "./ui.js";
+import { $, badge, detailText, errorBox, fmtTime, h, params, progressBar, showError, sortableTable, startPage } from "./ui.js";
 
 const REFRESH_MS = 2000;
 let principal = null;
@@ -145,6 +145,9 @@ async function main() {
   $("#upload-filter").addEventListener("change", loadUploads);
   $("#job-filter").addEventListener("change", loadJobs);
   await Promise.all([loadUploads(), loadJobs(), loadRecordings()]);
+  // ?upload=N (linked from an event's page): open that upload's detail.
+  const linked = Number(params().get("upload"));
+  if (Number.isInteger(linked) && linked > 0) await showUpload(linked);
   document.body.dataset.ready = "true";
 }
 

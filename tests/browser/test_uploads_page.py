@@ -108,3 +108,22 @@ def test_upload_with_progress_then_refused_file_with_row_errors(
     assert page.evaluate("document.activeElement.closest('#upload-errors') !== null")
     screenshot(page, "uploads-detail-in-view")
     assert console.unexpected("422") == []
+
+
+def test_an_event_links_the_upload_that_caused_it_and_the_link_opens_its_detail(
+    page: Any, server: Server, console: Console
+) -> None:
+    event_id = server.seeded.event_id
+    assert event_id is not None
+    causes = _get(server, f"/api/v1/events/{event_id}/uploads")
+    assert causes, "the seeded event's record came from the seeded upload"
+    sign_in(page, server.seeded.key, f"/events.html?id={event_id}")
+    link = page.wait_for_selector("#caused-by a")
+    assert link.inner_text() == f"upload #{causes[0]['id']}"
+    link.click()
+    page.wait_for_url(f"**/uploads.html?upload={causes[0]['id']}")
+    detail = page.wait_for_selector(f"#upload-errors:has-text('Upload #{causes[0]['id']}')")
+    linked = detail.eval_on_selector_all(
+        "#upload-events a", "els => els.map((e) => e.getAttribute('href'))")
+    assert f"/events.html?id={event_id}" in linked
+    assert console.unexpected() == []
