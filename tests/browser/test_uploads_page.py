@@ -5,13 +5,22 @@ brought into view when it is clicked."""
 
 from __future__ import annotations
 
+import time
+from datetime import timedelta
 from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
+from sqlalchemy import select
 
+from app.db import transaction
+from app.models import FilterState
 from app.services.demo.simulation_files import write_table
+from app.services.fleet import service as fleet_service
+from tests.app.services.snapshots import test_pipeline as pipeline_case
+from tests.app.services.trends.test_trends import add_aircraft, add_engine
+from tests.app.services.uploads.test_upload_origin import _csv
 from tests.browser.conftest import Console, Server, screenshot, sign_in
 
 pytestmark = pytest.mark.browser
@@ -126,4 +135,52 @@ def test_an_event_links_the_upload_that_caused_it_and_the_link_opens_its_detail(
     linked = detail.eval_on_selector_all(
         "#upload-events a", "els => els.map((e) => e.getAttribute('href'))")
     assert f"/events.html?id={event_id}" in linked
+    assert console.unexpected() == []
+
+
+def test_a_back_dated_upload_is_flagged_in_the_history_and_its_detail(
+    page: Any, server: Server, console: Console
+) -> None:
+    """An operator of its own (the demo fleet's estimates stay as they are): an engine
+    estimated to its last record, then sent records between the estimated ones."""
+    times, y = pipeline_case._records(seed=31)
+    with transaction(server.factory) as session:
+        fleet = pipeline_case._fleet_with_design(session)
+        aircraft = add_aircraft(session, fleet, "F-LATE")
+        engine = add_engine(session, fleet, "LATE-1")
+        fleet_service.install(session, operator_id=fleet.operator_id, engine_id=engine.id,
+                              aircraft_id=aircraft.id, position=1,
+                              installed_at=times[0] - timedelta(days=1))
+        engine_id, key = engine.id, fleet.key
+
+    def send(body: bytes, name: str) -> Any:
+        response = httpx.post(f"{server.base_url}/api/v1/snapshots/file",
+                              params={"filename": name}, content=body,
+                              headers={"X-API-Key": key, "Content-Type": "text/csv"})
+        assert response.status_code == 201, response.text
+        return response.json()
+
+    first = send(_csv(times, y, range(0, 120), "F-LATE"), "first.csv")
+    assert first["back_dated"] is False
+    deadline = time.monotonic() + 90
+    while True:  # the upload's estimation job runs in the server
+        with transaction(server.factory) as session:
+            until = session.scalar(select(FilterState.last_recorded_at)
+                                   .where(FilterState.engine_id == engine_id))
+        if until == times[119]:
+            break
+        assert time.monotonic() < deadline, "the estimation job did not finish"
+        time.sleep(0.2)
+    times_b = [t + timedelta(minutes=5) for t in times]
+    late = send(_csv(times_b, y, range(40, 60), "F-LATE"), "backfill.csv")
+    assert late["back_dated"] is True
+
+    sign_in(page, key, "/uploads.html")
+    row = page.wait_for_selector("#uploads tr.upload-back-dated")
+    assert "backfill.csv" in row.inner_text() and "back-dated" in row.inner_text()
+    assert page.locator("#uploads tr.upload-back-dated").count() == 1
+    row.query_selector("a").click()
+    warning = page.wait_for_selector("#upload-errors .back-dated-warning").inner_text()
+    assert warning.startswith("Back-dated: LATE-1 from") and "estimated to" in warning
+    screenshot(page, "uploads-back-dated")
     assert console.unexpected() == []
