@@ -15,6 +15,7 @@ from app.errors import InvalidInput, PayloadTooLarge
 from app.limits import BodyTooLarge
 from app.services.tenancy.service import Principal
 from app.services.uploads import store as uploads_store
+from app.services.uploads.origin import MAX_FILENAME, UploadOrigin, clean_filename
 
 T = TypeVar("T")
 
@@ -30,22 +31,47 @@ EXTENSION_FORMATS = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet", ".j
 
 
 class Payload:
-    """The request body (or the multipart ``file`` part) and its format."""
+    """The request body (or the multipart ``file`` part), its format, and where it came from
+    (the file's name and the declared source)."""
 
-    def __init__(self, body: bytes, content_format: str | None) -> None:
+    def __init__(self, body: bytes, content_format: str | None,
+                 origin: UploadOrigin | None = None) -> None:
         self.body = body
         self.content_format = content_format
+        self.origin = origin or UploadOrigin()
 
 
-async def read_payload(request: Request) -> Payload:
-    """Read the body in the event loop (the route itself runs in the threadpool)."""
+FileName = Annotated[
+    str | None,
+    Query(
+        alias="filename",
+        max_length=4 * MAX_FILENAME,
+        description="the file's name, for a raw body (a multipart part carries its own)",
+    ),
+]
+Source = Annotated[
+    str,
+    Query(
+        alias="source",
+        pattern="^(browser|cli|api)$",
+        description="who sends it: the uploads page (browser), the importer (cli) or api",
+    ),
+]
+
+
+async def read_payload(request: Request, filename: FileName = None,
+                       source: Source = "api") -> Payload:
+    """Read the body in the event loop (the route itself runs in the threadpool); a bad file
+    name is refused (422) before anything is stored."""
     try:
-        return await _read_payload(request)
+        payload = await _read_payload(request, clean_filename(filename))
     except BodyTooLarge:
         raise PayloadTooLarge("request body exceeds the limit") from None
+    payload.origin = UploadOrigin(payload.origin.filename, source)
+    return payload
 
 
-async def _read_payload(request: Request) -> Payload:
+async def _read_payload(request: Request, filename: str | None) -> Payload:
     media = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if media == "multipart/form-data":
         form = await request.form()
@@ -58,8 +84,8 @@ async def _read_payload(request: Request) -> Payload:
         if fmt is None and part.filename:
             suffix = "." + part.filename.rsplit(".", 1)[-1].lower() if "." in part.filename else ""
             fmt = EXTENSION_FORMATS.get(suffix)
-        return Payload(body, fmt)
-    return Payload(await request.body(), MEDIA_FORMATS.get(media))
+        return Payload(body, fmt, UploadOrigin(clean_filename(part.filename or None) or filename))
+    return Payload(await request.body(), MEDIA_FORMATS.get(media), UploadOrigin(filename))
 
 
 Body = Annotated[Payload, Depends(read_payload)]
@@ -113,4 +139,5 @@ def run_upload(
         body=payload.body,
         idempotency_key=idempotency_key,
         store=store,
+        origin=payload.origin,
     )

@@ -341,6 +341,7 @@ def import_cmapss(
         result = _check(
             client.post(
                 "/api/v1/snapshots/file",
+                params={"source": "cli", "filename": path.name},
                 content=sink.getvalue(),
                 headers={"Content-Type": "text/csv", "Idempotency-Key": key},
             ),

@@ -18,6 +18,7 @@ from typing import Any
 from sqlalchemy import (
     JSON,
     BigInteger,
+    Boolean,
     CheckConstraint,
     Double,
     ForeignKey,
@@ -26,6 +27,7 @@ from sqlalchemy import (
     SmallInteger,
     String,
     UniqueConstraint,
+    false,
     text,
 )
 from sqlalchemy.dialects.postgresql import JSONB
@@ -51,6 +53,8 @@ BigId = BigInteger().with_variant(Integer(), "sqlite")  # SQLite autoincrements 
 
 UPLOAD_KINDS = ("snapshots", "stream", "stream_chunk")
 UPLOAD_STATUSES = ("stored", "rejected")
+# Where an upload came from: the uploads page, the C-MAPSS importer, or any other API client.
+UPLOAD_SOURCES = ("browser", "cli", "api")
 RECORDING_STATUSES = ("open", "closed")
 
 
@@ -65,6 +69,7 @@ class Upload(Base):
     __table_args__ = (
         CheckConstraint(_in("kind", UPLOAD_KINDS), name="kind"),
         CheckConstraint(_in("status", UPLOAD_STATUSES), name="status"),
+        CheckConstraint(_in("source", UPLOAD_SOURCES), name="source"),
         Index("ix_uploads_operator_created", "operator_id", "created_at"),
         Index("ix_uploads_operator_checksum", "operator_id", "checksum"),
         # An Idempotency-Key names one stored upload; rejected attempts may reuse it.
@@ -101,6 +106,14 @@ class Upload(Base):
     recording_id: Mapped[int | None] = mapped_column(
         ForeignKey("stream_recordings.id", ondelete="SET NULL"), default=None
     )
+    # The file's name as sent (a multipart part's file name, or ``?filename=`` on a raw body).
+    filename: Mapped[str | None] = mapped_column(String(255), default=None)
+    source: Mapped[str] = mapped_column(String(16), default="api", server_default="api")
+    # The key's name when it uploaded (kept when the key is renamed or deleted).
+    api_key_name: Mapped[str | None] = mapped_column(String(200), default=None)
+    # Records older than an affected engine's last estimated record: the estimation re-ran
+    # the engine from the upload's earliest record (``affected[*].estimated_until``).
+    back_dated: Mapped[bool] = mapped_column(Boolean, default=False, server_default=false())
 
 
 class Snapshot(Base):

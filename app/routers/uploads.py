@@ -13,10 +13,17 @@ from fastapi import APIRouter, Query, Request, Response, status
 from app.errors import InvalidInput, UnsupportedMediaType
 from app.payloads import Body, ColumnMapping, IdempotencyKey, Payload, parse_mapping, run_upload
 from app.schemas.fleet import IsoDatetime, Page, PageParams
-from app.schemas.uploads import EngineSnapshots, SnapshotBatch, UploadDetail, UploadOut
+from app.schemas.uploads import (
+    EngineSnapshots,
+    SnapshotBatch,
+    UploadDetail,
+    UploadEventOut,
+    UploadOut,
+)
 from app.security import Analyst, CurrentPrincipal, DbSession
 from app.services.jobs.queue import get_job_queue
 from app.services.tenancy.service import Principal
+from app.services.uploads import back_dating
 from app.services.uploads import store as uploads_store
 from app.services.uploads.store import UploadResult
 
@@ -59,6 +66,7 @@ def _store_snapshots(
             content_format=fmt,
             mapping=mapping,
             idempotency_key=idempotency_key,
+            origin=payload.origin,
         ),
     )
 
@@ -164,9 +172,21 @@ def list_uploads(
 
 @router.get("/uploads/{upload_id}", response_model=UploadDetail)
 def get_upload(upload_id: int, session: DbSession, principal: CurrentPrincipal) -> UploadDetail:
-    """One upload with its row-level errors."""
+    """One upload with its row-level errors and the events it caused."""
     row = uploads_store.get_upload(session, operator_id=principal.operator_id, upload_id=upload_id)
-    return UploadDetail.model_validate(row)
+    detail = UploadDetail.model_validate(row)
+    events = [UploadEventOut.model_validate(e) for e in back_dating.caused_events(session, row)]
+    return detail.model_copy(update={"events": events})
+
+
+@router.get("/events/{event_id}/uploads", response_model=list[UploadOut])
+def event_uploads(
+    event_id: int, session: DbSession, principal: CurrentPrincipal
+) -> list[UploadOut]:
+    """The uploads that caused an event: the one its record came from, and back-dated ones
+    whose re-run reached it (docs/upload-format.md)."""
+    rows = back_dating.uploads_of_event(session, principal.operator_id, event_id)
+    return [UploadOut.model_validate(r) for r in rows]
 
 
 @router.get(

@@ -26,6 +26,9 @@ class AffectedEngineOut(BaseModel):
     rows: int
     earliest: AwareDatetime
     latest: AwareDatetime
+    estimated_until: AwareDatetime | None = Field(
+        None, description="the engine's last estimated record when the upload arrived"
+    )
 
 
 class UploadOut(BaseModel):
@@ -46,13 +49,38 @@ class UploadOut(BaseModel):
     message: str
     affected: list[AffectedEngineOut]
     recording_id: int | None = None
+    filename: str | None = Field(None, description="the uploaded file's name, when sent")
+    source: str = Field("api", description="browser (uploads page), cli (importer) or api")
+    api_key_name: str | None = Field(None, description="the key's name when it uploaded")
+    back_dated: bool = Field(
+        False, description="records older than an affected engine's last estimated record: "
+        "its estimates and events from the earliest of them were redone"
+    )
     replayed: bool = Field(
         False, description="true when this request repeated an earlier upload and stored nothing"
     )
 
 
+class UploadEventOut(BaseModel):
+    """An event the upload caused (``app.services.uploads.back_dating``)."""
+
+    model_config = ConfigDict(from_attributes=True)
+
+    id: int
+    engine_id: int
+    kind: str
+    fault: str | None
+    detected_at: AwareDatetime
+    status: str
+
+
 class UploadDetail(UploadOut):
     errors: list[RowErrorOut]
+    events: list[UploadEventOut] = Field(
+        default_factory=list,
+        description="the events it caused: detected at its own records, or (back-dated) "
+        "redone by the re-run from its earliest record",
+    )
 
     @field_validator("errors", mode="before")
     @classmethod

@@ -244,6 +244,18 @@ function actions(event, principal, refresh, people) {
       h("li", {}, h("div", { class: "muted" }, `${c.author} · ${fmtTime(c.created_at)}`), c.body))) : h("p", { class: "muted" }, "No comments yet."));
 }
 
+// The uploads that caused the event: its record's upload, and back-dated uploads whose re-run
+// reached it; each opens in the upload history.
+function causedBy(event) {
+  const dd = h("dd", { id: "caused-by" }, h("span", { class: "muted" }, "…"));
+  api(`/api/v1/events/${event.id}/uploads`).then((uploads) => dd.replaceChildren(...(uploads.length
+    ? uploads.flatMap((u, i) => [i ? "; " : "", h("a", { href: `/uploads.html?upload=${u.id}` }, `upload #${u.id}`),
+      ` ${u.filename ? `(${u.filename})` : ""}${u.back_dated ? " back-dated" : ""}`])
+    : [h("span", { class: "muted" }, "none found")])))
+    .catch((err) => showError(dd, err, "Uploads"));
+  return dd;
+}
+
 function statusLine(event) {
   return [badge(event.status), event.acknowledged_at ? ` acknowledged ${fmtTime(event.acknowledged_at)}` : "",
     event.closed_at ? ` · closed ${fmtTime(event.closed_at)}` : ""];
@@ -271,7 +283,8 @@ function showEvent(event, principal, people) {
       h("dt", {}, "Kind"), h("dd", {}, event.kind.replace("_", " ")),
       h("dt", {}, "Isolated fault"), h("dd", { id: "isolated" }, isolated),
       h("dt", {}, "Detector statistic"), h("dd", {}, fmtNum(event.statistic, 2)),
-      h("dt", {}, "Status"), h("dd", { id: "status" }, ...statusLine(event)))),
+      h("dt", {}, "Status"), h("dd", { id: "status" }, ...statusLine(event)),
+      h("dt", {}, "Caused by"), causedBy(event))),
     h("div", { class: "grid" },
       h("section", { class: "card" }, h("h2", {}, wear ? "Change accumulated since the wear baseline" : "Detected shift"), shift),
       h("section", { class: "card" }, h("h2", {}, "WSSR of every fault hypothesis"), wssr)),

@@ -1,7 +1,7 @@
 // Uploads and jobs: upload a file with a progress bar, the upload history with row-level errors,
 // and jobs with their progress (refreshed while any is queued or running).
 import { api, uploadFile } from "./api.js";
-import { $, badge, detailText, errorBox, fmtTime, h, progressBar, showError, sortableTable, startPage } from "./ui.js";
+import { $, badge, detailText, errorBox, fmtTime, h, params, progressBar, showError, sortableTable, startPage } from "./ui.js";
 
 const REFRESH_MS = 2000;
 let principal = null;
@@ -23,6 +23,7 @@ async function upload(e) {
   bar.replaceChildren(progressBar(0, `sending ${file.name} (${fileFormat(file.name)}, ${(file.size / 1024).toFixed(1)} KiB)`, `upload of ${file.name}`));
   try {
     const out = await uploadFile("/api/v1/snapshots/file", file, {
+      query: { source: "browser" },
       onProgress: (f) => bar.replaceChildren(progressBar(f, f < 1 ? `sending ${file.name}` : "sent; validating and storing…", `upload of ${file.name}`)),
     });
     bar.replaceChildren(progressBar(1, `${file.name} stored`, `upload of ${file.name}`));
@@ -30,7 +31,8 @@ async function upload(e) {
       out.replayed ? h("strong", {}, `Already uploaded as upload #${out.id}: nothing new stored.`) : [
         h("strong", {}, `Upload #${out.id} stored. `),
         `${out.rows_received} rows received, ${out.rows_stored} stored, ${out.rows_duplicate} already stored. `,
-        out.affected.length ? `Engines: ${out.affected.map((a) => `${a.esn} (${a.rows})`).join(", ")}; estimation queued.` : ""]));
+        out.affected.length ? `Engines: ${out.affected.map((a) => `${a.esn} (${a.rows})`).join(", ")}; estimation queued.` : "",
+        out.back_dated ? h("p", { class: "back-dated-warning" }, backDatedText(out)) : null]));
   } catch (err) {
     const refused = progressBar(1, `${file.name} refused`, `upload of ${file.name}`);
     refused.classList.add("refused");
@@ -42,14 +44,34 @@ async function upload(e) {
   }
 }
 
+const SOURCES = { browser: "uploads page", cli: "importer (CLI)", api: "API" };
+
+function sourceText(u) {
+  return `${SOURCES[u.source] || u.source}${u.api_key_name ? ` · key ${u.api_key_name}` : ""}`;
+}
+
+// Which engines' records reach before their last estimate: the estimation re-ran them from there.
+function backDatedText(u) {
+  const late = u.affected.filter((a) => a.estimated_until && new Date(a.earliest) < new Date(a.estimated_until));
+  return `Back-dated: ${late.map((a) => `${a.esn} from ${fmtTime(a.earliest)} (estimated to ${fmtTime(a.estimated_until)})`).join("; ")}. `
+    + "Its estimates and events from there are redone.";
+}
+
 async function showUpload(id) {
   const detail = $("#upload-detail");
   try {
     const u = await api(`/api/v1/uploads/${id}`);
     detail.replaceChildren(h("div", { class: "card", id: "upload-errors" }, h("h3", {}, `Upload #${u.id}: ${u.status}`),
+      h("p", {}, h("strong", {}, "File: "), u.filename || "(no file name)", " · ", h("strong", {}, "Source: "), sourceText(u)),
+      u.back_dated ? h("p", { class: "notice back-dated-warning" }, backDatedText(u)) : null,
       h("p", {}, u.message || ""),
       u.errors.length ? h("ul", {}, u.errors.map((e) => h("li", {}, detailText(e)))) : h("p", { class: "muted" }, "No errors."),
-      u.affected.length ? h("p", {}, `Engines: ${u.affected.map((a) => `${a.esn}: ${a.rows} rows, ${fmtTime(a.earliest)} – ${fmtTime(a.latest)}`).join("; ")}`) : null));
+      u.affected.length ? h("p", {}, `Engines: ${u.affected.map((a) => `${a.esn}: ${a.rows} rows, ${fmtTime(a.earliest)} – ${fmtTime(a.latest)}`).join("; ")}`) : null,
+      u.status === "stored" ? h("div", { id: "upload-events" }, h("h4", {}, "Events it caused"),
+        u.events.length ? h("ul", {}, u.events.map((e) => h("li", {},
+          h("a", { href: `/events.html?id=${e.id}` }, `#${e.id} ${e.kind === "wear" ? "wear" : (e.fault || e.kind.replace("_", " "))}`),
+          ` · engine ${e.engine_id} · detected ${fmtTime(e.detected_at)} · ${e.status}`)))
+          : h("p", { class: "muted" }, "None (yet: events appear once its estimation has run).")) : null));
     // The detail is drawn below a long history: bring it into view, its heading focused for
     // keyboard and screen-reader users.
     const heading = detail.querySelector("h3");
@@ -67,15 +89,18 @@ async function loadUploads() {
     $("#uploads").replaceChildren(page.items.length ? sortableTable([
       { key: "id", label: "#", numeric: true, cell: (u) => h("a", { href: "#", onclick: (ev) => { ev.preventDefault(); showUpload(u.id); } }, `#${u.id}`) },
       { key: "created_at", label: "When", cell: (u) => fmtTime(u.created_at) },
+      { key: "filename", label: "File", value: (u) => u.filename || "", cell: (u) => u.filename || h("span", { class: "muted" }, "—") },
+      { key: "source", label: "Source", value: (u) => sourceText(u), cell: (u) => sourceText(u) },
       { key: "kind", label: "Kind" },
       { key: "content_format", label: "Format" },
-      { key: "status", label: "Status", cell: (u) => badge(u.status) },
+      { key: "status", label: "Status", value: (u) => u.status, cell: (u) => h("span", {}, badge(u.status),
+        u.back_dated ? [" ", h("span", { class: "badge watch back-dated", title: "records older than an engine's last estimate" }, "back-dated")] : null) },
       { key: "rows_received", label: "Rows", numeric: true },
       { key: "rows_stored", label: "Stored", numeric: true },
       { key: "rows_duplicate", label: "Duplicates", numeric: true },
       { key: "bytes_received", label: "Bytes", numeric: true },
       { key: "message", label: "Message", cell: (u) => u.message || "" },
-    ], page.items, { sortKey: "id", descending: true, rowClass: (u) => `upload-${u.status}` }) : h("p", { class: "muted" }, "No uploads yet."));
+    ], page.items, { sortKey: "id", descending: true, rowClass: (u) => `upload-${u.status}${u.back_dated ? " upload-back-dated" : ""}` }) : h("p", { class: "muted" }, "No uploads yet."));
   } catch (err) {
     showError($("#uploads"), err, "Upload history");
   }
@@ -120,6 +145,9 @@ async function main() {
   $("#upload-filter").addEventListener("change", loadUploads);
   $("#job-filter").addEventListener("change", loadJobs);
   await Promise.all([loadUploads(), loadJobs(), loadRecordings()]);
+  // ?upload=N (linked from an event's page): open that upload's detail.
+  const linked = Number(params().get("upload"));
+  if (Number.isInteger(linked) && linked > 0) await showUpload(linked);
   document.body.dataset.ready = "true";
 }
 

@@ -1,16 +1,26 @@
 """Uploads and jobs in the browser: a file sent with upload progress is stored and its
 estimation job shows up with progress; a bad file is refused with row-level errors that the
-upload history keeps."""
+upload history keeps; the history names each file and its source, and an upload's detail is
+brought into view when it is clicked."""
 
 from __future__ import annotations
 
+import time
+from datetime import timedelta
 from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
+from sqlalchemy import select
 
+from app.db import transaction
+from app.models import FilterState
 from app.services.demo.simulation_files import write_table
+from app.services.fleet import service as fleet_service
+from tests.app.services.snapshots import test_pipeline as pipeline_case
+from tests.app.services.trends.test_trends import add_aircraft, add_engine
+from tests.app.services.uploads.test_upload_origin import _csv
 from tests.browser.conftest import Console, Server, screenshot, sign_in
 
 pytestmark = pytest.mark.browser
@@ -43,6 +53,12 @@ def test_upload_with_progress_then_refused_file_with_row_errors(
     assert page.evaluate("window.progressSeen")[-1] == 100
     uploads = _get(server, "/api/v1/uploads?limit=5")["items"]
     assert uploads[0]["status"] == "stored" and uploads[0]["rows_stored"] == table.num_rows
+    assert (uploads[0]["filename"], uploads[0]["source"]) == (good.name, "browser")
+    # The history names the file and where it came from (the page, with the key's name).
+    row = page.wait_for_selector(f"#uploads tr:has(a:text-is('#{uploads[0]['id']}'))")
+    cells = row.inner_text()
+    assert good.name in cells and "uploads page" in cells
+    assert f"key {uploads[0]['api_key_name']}" in cells
     # The estimation job the upload queued appears and runs to the end (list refreshes itself).
     page.wait_for_selector(
         "#jobs tr.job-estimate_engines :is(.badge.succeeded, .badge.failed)", timeout=90_000
@@ -68,8 +84,103 @@ def test_upload_with_progress_then_refused_file_with_row_errors(
     page.wait_for_selector("#uploads tr.upload-rejected")
     page.click("#uploads tr.upload-rejected a")
     errors = page.wait_for_selector("#upload-errors").inner_text()
-    assert "recorded_at" in errors
+    assert "recorded_at" in errors and bad.name in errors and "uploads page" in errors
     rejected = _get(server, "/api/v1/uploads?status=rejected")["items"]
     assert len(rejected) == 1 and rejected[0]["rows_stored"] == 0
     screenshot(page, "uploads-rejected")
+
+    # A long history (files from another client, refused: they change no engine's data) in a
+    # short window: the newest upload's detail is drawn far below its link, then scrolled to.
+    for k in range(15):
+        response = httpx.post(
+            f"{server.base_url}/api/v1/snapshots/file",
+            params={"filename": f"unknown-tail-{k}.csv"},
+            content=b"recorded_at,tail,position,phase\n2026-01-01T00:00:00Z,ZZ-NONE,1,cruise\n",
+            headers={"X-API-Key": server.seeded.key, "Content-Type": "text/csv"},
+        )
+        assert response.status_code == 422, response.text
+    page.set_viewport_size({"width": 1280, "height": 480})
+    page.select_option("#upload-filter", "rejected")
+    page.wait_for_selector("#uploads tr:has-text('unknown-tail-14.csv')")
+    page.evaluate("window.scrollTo(0, 0)")
+    link = page.locator("#uploads tbody tr").first.locator("a")
+    assert "unknown-tail-14.csv" in page.locator("#uploads tbody tr").first.inner_text()
+    link.scroll_into_view_if_needed()
+    gap = page.evaluate("document.querySelector('#upload-detail').getBoundingClientRect().top")
+    assert gap > 480  # out of view before the click
+    link.click()
+    detail = page.wait_for_selector("#upload-errors:has-text('unknown-tail-14.csv')")
+    assert "API" in detail.inner_text()
+    page.wait_for_function(
+        """() => { const r = document.querySelector('#upload-errors').getBoundingClientRect();
+          return r.top >= 0 && r.top < window.innerHeight; }""", timeout=5_000)
+    assert page.evaluate("document.activeElement.closest('#upload-errors') !== null")
+    screenshot(page, "uploads-detail-in-view")
     assert console.unexpected("422") == []
+
+
+def test_an_event_links_the_upload_that_caused_it_and_the_link_opens_its_detail(
+    page: Any, server: Server, console: Console
+) -> None:
+    event_id = server.seeded.event_id
+    assert event_id is not None
+    causes = _get(server, f"/api/v1/events/{event_id}/uploads")
+    assert causes, "the seeded event's record came from the seeded upload"
+    sign_in(page, server.seeded.key, f"/events.html?id={event_id}")
+    link = page.wait_for_selector("#caused-by a")
+    assert link.inner_text() == f"upload #{causes[0]['id']}"
+    link.click()
+    page.wait_for_url(f"**/uploads.html?upload={causes[0]['id']}")
+    detail = page.wait_for_selector(f"#upload-errors:has-text('Upload #{causes[0]['id']}')")
+    linked = detail.eval_on_selector_all(
+        "#upload-events a", "els => els.map((e) => e.getAttribute('href'))")
+    assert f"/events.html?id={event_id}" in linked
+    assert console.unexpected() == []
+
+
+def test_a_back_dated_upload_is_flagged_in_the_history_and_its_detail(
+    page: Any, server: Server, console: Console
+) -> None:
+    """An operator of its own (the demo fleet's estimates stay as they are): an engine
+    estimated to its last record, then sent records between the estimated ones."""
+    times, y = pipeline_case._records(seed=31)
+    with transaction(server.factory) as session:
+        fleet = pipeline_case._fleet_with_design(session)
+        aircraft = add_aircraft(session, fleet, "F-LATE")
+        engine = add_engine(session, fleet, "LATE-1")
+        fleet_service.install(session, operator_id=fleet.operator_id, engine_id=engine.id,
+                              aircraft_id=aircraft.id, position=1,
+                              installed_at=times[0] - timedelta(days=1))
+        engine_id, key = engine.id, fleet.key
+
+    def send(body: bytes, name: str) -> Any:
+        response = httpx.post(f"{server.base_url}/api/v1/snapshots/file",
+                              params={"filename": name}, content=body,
+                              headers={"X-API-Key": key, "Content-Type": "text/csv"})
+        assert response.status_code == 201, response.text
+        return response.json()
+
+    first = send(_csv(times, y, range(0, 120), "F-LATE"), "first.csv")
+    assert first["back_dated"] is False
+    deadline = time.monotonic() + 90
+    while True:  # the upload's estimation job runs in the server
+        with transaction(server.factory) as session:
+            until = session.scalar(select(FilterState.last_recorded_at)
+                                   .where(FilterState.engine_id == engine_id))
+        if until == times[119]:
+            break
+        assert time.monotonic() < deadline, "the estimation job did not finish"
+        time.sleep(0.2)
+    times_b = [t + timedelta(minutes=5) for t in times]
+    late = send(_csv(times_b, y, range(40, 60), "F-LATE"), "backfill.csv")
+    assert late["back_dated"] is True
+
+    sign_in(page, key, "/uploads.html")
+    row = page.wait_for_selector("#uploads tr.upload-back-dated")
+    assert "backfill.csv" in row.inner_text() and "back-dated" in row.inner_text()
+    assert page.locator("#uploads tr.upload-back-dated").count() == 1
+    row.query_selector("a").click()
+    warning = page.wait_for_selector("#upload-errors .back-dated-warning").inner_text()
+    assert warning.startswith("Back-dated: LATE-1 from") and "estimated to" in warning
+    screenshot(page, "uploads-back-dated")
+    assert console.unexpected() == []

@@ -40,7 +40,8 @@ from app.services import common, fresh_records
 from app.services.encoding.pgcopy import HEADER, TRAILER, binary_copy_rows
 from app.services.fleet import service as fleet
 from app.services.snapshots import backlog
-from app.services.uploads import parameters
+from app.services.uploads import back_dating, parameters
+from app.services.uploads.origin import UploadOrigin, stamp
 from app.services.uploads.parse import (
     MAX_ERRORS,
     ErrorLimitReached,
@@ -174,6 +175,7 @@ def record_rejection(
     idempotency_key: str | None,
     bytes_received: int,
     error: ServiceError,
+    origin: UploadOrigin | None = None,
 ) -> Upload:
     """Keep a refused upload in the history (its rows are not stored), with its errors."""
     details = [
@@ -192,6 +194,7 @@ def record_rejection(
         errors=details,
         affected=[],
     )
+    stamp(session, upload, origin, api_key_id)
     session.add(upload)
     session.flush()
     return upload
@@ -210,6 +213,7 @@ def store_or_reject(
     body: bytes,
     idempotency_key: str | None,
     store: Callable[[], T],
+    origin: UploadOrigin | None = None,
 ) -> T:
     """Run ``store``; a refused upload (a ``ServiceError`` other than ``NotFound``) is rolled
     back entirely by the request's unit of work, which then keeps it in the history
@@ -233,6 +237,7 @@ def store_or_reject(
                 idempotency_key=idempotency_key,
                 bytes_received=len(body),
                 error=error,
+                origin=origin,
             )
             error.message = f"{error.message} [upload {upload.id}]"
 
@@ -252,6 +257,7 @@ def ingest_snapshots(
     content_format: str,
     mapping: Mapping[str, str | None] | None = None,
     idempotency_key: str | None = None,
+    origin: UploadOrigin | None = None,
 ) -> UploadResult:
     """Parse, validate, resolve, deduplicate and store one snapshot upload.
 
@@ -294,7 +300,7 @@ def ingest_snapshots(
                 session, fresh, operator_id=operator_id, api_key_id=api_key_id,
                 content_format=content_format, checksum=checksum,
                 idempotency_key=idempotency_key, rows_received=parsed.num_rows,
-                duplicates=duplicates, bytes_received=len(body),
+                duplicates=duplicates, bytes_received=len(body), origin=origin,
             )
     except INTEGRITY_ERRORS as exc:
         # A concurrent upload stored some of these rows (or took the key) first: the same
@@ -322,8 +328,10 @@ def _store_snapshots(
     rows_received: int,
     duplicates: int,
     bytes_received: int,
+    origin: UploadOrigin | None = None,
 ) -> Upload:
-    """Insert the upload row and its new snapshots, mark the engines' backlog."""
+    """Insert the upload row and its new snapshots, mark the engines' backlog; flag it
+    back-dated when it reaches before an engine's last estimated record (``back_dating``)."""
     upload = Upload(
         operator_id=operator_id,
         api_key_id=api_key_id,
@@ -340,10 +348,19 @@ def _store_snapshots(
         + (f" ({duplicates} were stored already)" if duplicates else ""),
         errors=[],
     )
+    stamp(session, upload, origin, api_key_id)
     session.add(upload)
     session.flush()
     affected = summarise(session, fresh)
-    upload.affected = [a.as_json() for a in affected]
+    until = back_dating.estimated_until(session, (a.engine_id for a in affected))
+    upload.affected = [
+        {**a.as_json(), "estimated_until": until[a.engine_id].isoformat()}
+        if a.engine_id in until else a.as_json()
+        for a in affected
+    ]
+    upload.back_dated = any(
+        a.engine_id in until and a.earliest < until[a.engine_id] for a in affected
+    )
     if fresh.num_rows:
         insert_snapshots(session, fresh, operator_id=operator_id, upload_id=upload.id)
         backlog.mark(session, operator_id, {a.engine_id: (a.earliest, a.rows)

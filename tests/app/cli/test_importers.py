@@ -54,6 +54,10 @@ def test_import_creates_one_engine_per_unit_and_one_snapshot_per_cycle(
         0,
     )
     assert sum(seen) == n and len(summary.uploads) == -(-n // 250)
+    history = client.get("/api/v1/uploads", params={"limit": 100}).json()["items"]
+    assert {(u["filename"], u["source"]) for u in history if u["id"] in summary.uploads} == {
+        (FD001.name, "cli")
+    }
 
     for unit, lines in expected.items():
         engine = session.scalar(
