@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import os
 import sys
+import tempfile
 import time
-from collections.abc import Callable
+import uuid
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,3 +34,39 @@ def reference_design(extra_sensors: int = 0, m: int = 6):
     model = reference_model(extra_sensors=extra_sensors)
     noise = reference_noise(model)
     return model, noise, tuners.svd_tuners(model, m, noise["Q"], noise["Qh"], noise["Ph"])
+
+
+POSTGRES_ADMIN_URL = os.environ.get(
+    "FLEETHEALTH_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test"
+)
+
+
+@contextmanager
+def throwaway_database(backend: str) -> Iterator[tuple[str, str]]:
+    """(url, label) of an empty database of its own for one bench run, removed after: a SQLite
+    file in a temporary folder, or a database made on the machine's PostgreSQL server."""
+    from sqlalchemy import create_engine, text
+    from sqlalchemy.engine import make_url
+
+    if backend == "sqlite":
+        with tempfile.TemporaryDirectory(prefix="fh-bench-") as tmp:
+            yield f"sqlite:///{tmp}/fleethealth.db", "SQLite (embedded default)"
+        return
+    name = f"fh_bench_{uuid.uuid4().hex[:10]}"
+    admin = create_engine(POSTGRES_ADMIN_URL, isolation_level="AUTOCOMMIT")
+    with admin.connect() as connection:
+        connection.execute(text(f'CREATE DATABASE "{name}"'))
+    try:
+        yield make_url(POSTGRES_ADMIN_URL).set(database=name).render_as_string(
+            hide_password=False), "PostgreSQL"
+    finally:
+        with admin.connect() as connection:
+            connection.execute(text(f'DROP DATABASE "{name}" WITH (FORCE)'))
+        admin.dispose()
+
+
+def load_line() -> str:
+    """The load average and the thread settings, for the first line of a bench's output."""
+    a, b, c = os.getloadavg()
+    return (f"load average {a:.2f} {b:.2f} {c:.2f}; {os.cpu_count()} cores; OMP/BLAS threads "
+            f"{os.environ.get('OMP_NUM_THREADS', 'unset')}")

@@ -26,20 +26,17 @@ from __future__ import annotations
 import argparse
 import io
 import os
-import tempfile
 import threading
 import time
-import uuid
 from dataclasses import dataclass, field
 from datetime import timedelta
 
-import _common  # noqa: F401  (import path)
 import httpx
 import numpy as np
 import pyarrow.csv as pacsv
-from bench_ingest import POSTGRES_URL, T0, add_design, build_fleet, serving, snapshots
-from sqlalchemy import create_engine, text
-from sqlalchemy.engine import make_url
+from _common import load_line, throwaway_database
+from bench_ingest import T0, add_design, build_fleet, serving, snapshots
+from sqlalchemy import text
 
 from app.db import make_engine
 from app.migrate import upgrade
@@ -198,27 +195,11 @@ def main() -> None:
     ap.add_argument("--no-estimate", action="store_true",
                     help="no active design: the uploads queue no estimation job")
     args = ap.parse_args()
-    print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} "
-          f"{os.getloadavg()[2]:.2f}; {os.cpu_count()} cores; OMP/BLAS threads "
-          f"{os.environ.get('OMP_NUM_THREADS', 'unset')}")
+    print(load_line())
     ok = True
     for backend in args.backends.split(","):
-        if backend == "sqlite":
-            with tempfile.TemporaryDirectory(prefix="fh-bench-") as tmp:
-                ok &= run(f"sqlite:///{tmp}/fleethealth.db", "SQLite (embedded default)", args)
-        else:
-            name = f"fh_bench_{uuid.uuid4().hex[:10]}"
-            admin = create_engine(POSTGRES_URL, isolation_level="AUTOCOMMIT")
-            with admin.connect() as connection:
-                connection.execute(text(f'CREATE DATABASE "{name}"'))
-            try:
-                url = make_url(POSTGRES_URL).set(database=name).render_as_string(
-                    hide_password=False)
-                ok &= run(url, "PostgreSQL", args)
-            finally:
-                with admin.connect() as connection:
-                    connection.execute(text(f'DROP DATABASE "{name}" WITH (FORCE)'))
-                admin.dispose()
+        with throwaway_database(backend) as (url, label):
+            ok &= run(url, label, args)
     print(f"load average at the end {os.getloadavg()[0]:.2f}")
     print("PASS" if ok else "FAIL")
 

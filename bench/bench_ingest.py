@@ -29,9 +29,7 @@ from __future__ import annotations
 import argparse
 import io
 import os
-import socket
 import statistics
-import subprocess
 import sys
 import time
 import uuid
@@ -54,26 +52,20 @@ sys.path.insert(0, str(ROOT))
 
 from app.db import make_engine, make_sessionmaker, transaction  # noqa: E402
 from app.migrate import upgrade  # noqa: E402
-from app.models import EngineModel, EstimatorDesign  # noqa: E402
 from app.models.ingest import SNAPSHOT_COLUMNS  # noqa: E402
 from app.services.encoding.pgcopy import binary_copy_payload  # noqa: E402
 from app.services.fleet import service as fleet  # noqa: E402
 from app.services.snapshots import estimator  # noqa: E402
 from app.services.tenancy import service as tenancy  # noqa: E402
 from app.services.uploads.store import SNAPSHOT_PG_TYPES, snapshot_table  # noqa: E402
-from estimation.tuners import svd_vstar  # noqa: E402
 from tests.estimation.models import reference_model  # noqa: E402
+from tests.support import server  # noqa: E402
+from tests.support.fleet_fixture import add_reference_design  # noqa: E402
 
 POSTGRES_URL = os.environ.get(
     "FLEETHEALTH_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test"
 )
 T0 = datetime(2020, 1, 1, tzinfo=UTC)
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def build_fleet(
@@ -149,28 +141,8 @@ def snapshots(n: int, tails: int, start: datetime, seed: int) -> pa.Table:
 def add_design(url: str, operator_id: int) -> estimator.SnapshotEstimator:
     """The reference linear model and an active six-tuner design on the operator's engine type
     (the one ``build_fleet`` made); returns the estimator the pipeline will build from them."""
-    model = reference_model()
-    result = {"vstar": svd_vstar(model, 6).tolist()}
-    engine = make_engine(url)
-    with transaction(make_sessionmaker(engine)) as session:
-        kind = session.scalar(
-            text("SELECT id FROM engine_types WHERE operator_id = :o").bindparams(o=operator_id)
-        )
-        row = EngineModel(
-            operator_id=operator_id, engine_type_id=kind, name="reference", version=1,
-            source="imported", format="fleethealth.linear-model/1", content=model.to_dict(),
-            checksum="0" * 64, dt=model.dt, n_states=model.n_states,
-            sensor_names=list(model.sensor_names), health_names=list(model.health_names),
-            aux_names=list(model.aux_names),
-        )
-        session.add(row)
-        session.flush()
-        session.add(EstimatorDesign(
-            operator_id=operator_id, engine_type_id=kind, engine_model_id=row.id,
-            name="bench", spec={}, status="ready", active=True, result=result,
-        ))
-    engine.dispose()
-    return estimator.build_estimator(0, model, result)
+    result = add_reference_design(url, operator_id)
+    return estimator.build_estimator(0, reference_model(), result)
 
 
 def healthy_snapshots(
@@ -303,28 +275,8 @@ def wait_for_jobs(engine: Any, operator_id: int, started: float) -> None:
 def serving(url: str) -> Iterator[str]:
     """``fleethealth serve`` on ``url`` in its own process (no demo, migrated already, its job
     runner on); yields its base URL."""
-    port = free_port()
-    env = {**os.environ, "FLEETHEALTH_DATABASE_URL": url, "FLEETHEALTH_LOG_LEVEL": "WARNING",
-           "FLEETHEALTH_LOG_JSON": "false", "FLEETHEALTH_DATA_DIR": "/tmp/fh-bench"}
-    command = [sys.executable, "-c", "from app.cli import main; main()", "serve", "--no-demo",
-               "--skip-migrate", "--host", "127.0.0.1", "--port", str(port)]
-    server = subprocess.Popen(command, env=env, cwd=ROOT, stdout=subprocess.DEVNULL)
-    base = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.perf_counter() + 60
-        while True:
-            try:
-                if httpx.get(f"{base}/health", timeout=1).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            if server.poll() is not None or time.perf_counter() > deadline:
-                raise SystemExit("fleethealth serve did not start")
-            time.sleep(0.1)
+    with server.serving(url, Path("/tmp/fh-bench")) as (_process, base):
         yield base
-    finally:
-        server.terminate()
-        server.wait(timeout=30)
 
 
 def sustained(

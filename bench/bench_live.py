@@ -17,17 +17,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import tempfile
 import time
-import uuid
 
-import _common  # noqa: F401  (import path)
 import httpx
 import numpy as np
-from bench_ingest import POSTGRES_URL, serving
+from _common import load_line, throwaway_database
+from bench_ingest import serving
 from bench_stream_service import DT, START, csv_bytes, flight_table, setup
-from sqlalchemy import create_engine, text
-from sqlalchemy.engine import make_url
 
 from app.db import make_engine, make_sessionmaker
 from app.migrate import upgrade
@@ -88,26 +84,11 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=120.0)
     ap.add_argument("--chunk-s", type=float, default=1.0)
     args = ap.parse_args()
-    load = os.getloadavg()
-    print(f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; {os.cpu_count()} cores; "
-          f"OMP/BLAS threads {os.environ.get('OMP_NUM_THREADS', 'unset')}")
+    print(load_line())
     ok = True
     for backend in args.backends.split(","):
-        if backend == "sqlite":
-            with tempfile.TemporaryDirectory(prefix="fh-live-") as tmp:
-                ok &= run(f"sqlite:///{tmp}/fleethealth.db", "SQLite", args)
-        else:
-            name = f"fh_live_{uuid.uuid4().hex[:10]}"
-            admin = create_engine(POSTGRES_URL, isolation_level="AUTOCOMMIT")
-            with admin.connect() as connection:
-                connection.execute(text(f'CREATE DATABASE "{name}"'))
-            try:
-                ok &= run(make_url(POSTGRES_URL).set(database=name).render_as_string(
-                    hide_password=False), "PostgreSQL", args)
-            finally:
-                with admin.connect() as connection:
-                    connection.execute(text(f'DROP DATABASE "{name}" WITH (FORCE)'))
-                admin.dispose()
+        with throwaway_database(backend) as (url, label):
+            ok &= run(url, label, args)
     print(f"load average at the end {os.getloadavg()[0]:.2f}")
     print("PASS" if ok else "FAIL")
 

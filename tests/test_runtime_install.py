@@ -19,7 +19,6 @@ import json
 import os
 import re
 import shutil
-import socket
 import subprocess
 import sys
 import time
@@ -29,6 +28,8 @@ from importlib.metadata import packages_distributions
 from pathlib import Path
 
 import pytest
+
+from tests.support.server import free_port
 
 ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = ("app", "estimation", "migrations")
@@ -77,11 +78,6 @@ def test_runtime_dependencies_are_what_the_code_imports() -> None:
     assert not leaked, f"test-only libraries imported at run time: {leaked}"
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
 
 @pytest.fixture(scope="module")
 def runtime_venv(tmp_path_factory: pytest.TempPathFactory) -> Path:
@@ -128,7 +124,7 @@ def test_clean_install_runs_the_cli_and_serves(runtime_venv: Path, tmp_path: Pat
     assert trim.returncode == 0, trim.stderr
     assert json.loads(trim.stdout)
 
-    port = _free_port()
+    port = free_port()
     server = subprocess.Popen(
         [cli, "serve", "--host", "127.0.0.1", "--port", str(port), "--no-demo", "--no-jobs"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=work,

@@ -21,6 +21,7 @@ from app.schemas.notifications import (
 from app.security import Admin, DbSession
 from app.services.jobs.queue import Jobs
 from app.services.notifications import channels, deliveries, outbox
+from app.services.notifications.mail import SmtpSettings
 
 router = APIRouter(prefix="/api/v1/notifications", tags=["notifications"])
 
@@ -44,8 +45,9 @@ def create_channel(
         return ChannelCreated(**ChannelOut.model_validate(row).model_dump(), secret=secret)
     row = channels.create_mail(
         session, operator_id=principal.operator_id,
-        spec=channels.MailSpec(
-            name=body.name, host=body.smtp_host, port=body.smtp_port, mail_from=body.mail_from,
+        name=body.name,
+        spec=SmtpSettings(
+            host=body.smtp_host, port=body.smtp_port, mail_from=body.mail_from,
             mail_to=tuple(body.mail_to), starttls=body.starttls, username=body.username,
             password=body.password,
         ),

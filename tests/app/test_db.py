@@ -183,21 +183,23 @@ def test_the_write_gate_admits_in_arrival_order_up_to_its_capacity() -> None:
     order: list[int] = []
     waiters = []
     for k in range(4):
-        ready = threading.Event()
+        queued = threading.Event()
 
-        def wait(k: int = k, ready: threading.Event = ready) -> None:
-            ready.set()
+        def wait(k: int = k, queued: threading.Event = queued) -> None:
+            queued.set()
             assert gate.acquire(5.0)
             order.append(k)
+            gate.release()
 
         thread = threading.Thread(target=wait)
         thread.start()
-        ready.wait()
-        time.sleep(0.05)  # queued before the next one arrives
+        queued.wait()
+        time.sleep(0.05)  # in the queue before the next one arrives
         waiters.append(thread)
-    for _ in range(4):
-        gate.release()
-        time.sleep(0.05)
+    assert order == []  # both turns still held
+    gate.release()  # one turn, passed from waiter to waiter in the order they came
     for thread in waiters:
         thread.join(5.0)
     assert order == [0, 1, 2, 3]
+    gate.release()
+    assert gate.acquire(0.1) and gate.acquire(0.1) and not gate.acquire(0.05)

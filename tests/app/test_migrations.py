@@ -13,7 +13,7 @@ from sqlalchemy import inspect, select
 
 from app.db import make_engine, make_sessionmaker, transaction
 from app.migrate import downgrade, upgrade
-from app.models import Base, DeteriorationBucket, FleetPeriod
+from app.models import Base, DeteriorationBucket, FilterState, FleetPeriod
 from tests.app.services.trends.test_trends import (
     LAYOUT,
     add_aircraft,
@@ -22,6 +22,7 @@ from tests.app.services.trends.test_trends import (
     make_fleet,
 )
 from tests.conftest import BACKENDS, fresh_database_url
+from tests.support.periods import periods_from_estimates, stored_periods
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -119,6 +120,19 @@ def test_migration_0013_fills_the_deterioration_periods_from_stored_estimates(
         downgrade(url, "0012")
         upgrade(url)
         assert periods() == kept
+        # ... and they are the periods of the stored estimates, computed here on their own.
+        with factory() as session:
+            engine_ids = session.scalars(select(FilterState.engine_id)).all()
+            assert len(engine_ids) == 2
+            for engine_id in engine_ids:
+                stored = stored_periods(session, engine_id)
+                expected = periods_from_estimates(session, engine_id, LAYOUT)
+                assert stored.keys() == expected.keys()
+                for key, (n, sums) in expected.items():
+                    assert stored[key][0] == n
+                    assert np.allclose(np.frombuffer(stored[key][1], "<f8"), sums, atol=1e-9)
+            for row in session.scalars(select(FleetPeriod)):
+                assert row.n_engines == 2
         engine.dispose()
     finally:
         urls.close()

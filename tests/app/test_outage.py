@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import socket
 import subprocess
 import tempfile
 import time
@@ -31,6 +30,7 @@ from app.main import create_app
 from app.migrate import upgrade
 from app.models import Snapshot
 from tests.support.fleet_fixture import T0, json_body, make_fleet, snapshot_rows
+from tests.support.server import free_port
 
 BATCHES = 24
 ROWS = 8
@@ -56,16 +56,11 @@ def _as_postgres(args: list[str]) -> list[str]:
     return [runuser, "-u", "postgres", "--", *args]
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
 
 class PrivatePostgres:
     def __init__(self, root: Path) -> None:
         self.data = root / "pgdata"
-        self.port = _free_port()
+        self.port = free_port()
         self.pg_ctl = _binary("pg_ctl")
         self.url = f"postgresql+psycopg://postgres@127.0.0.1:{self.port}/postgres"
 

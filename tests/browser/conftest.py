@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import socket
 import threading
 import time
 from collections.abc import Iterator
@@ -18,7 +17,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import httpx
 import pytest
+
+from tests.support.server import free_port
 
 SCREENSHOTS = Path(__file__).resolve().parents[2] / "test-artifacts" / "screenshots"
 CHROMIUM_ARGS = [
@@ -45,11 +47,6 @@ def _unavailable(reason: str) -> None:
         pytest.fail(f"browser tests cannot run under CI: {reason}")
     pytest.skip(reason)
 
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @dataclass
@@ -87,7 +84,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     # estimation job its data directory): the server's own.
     patch.setattr("app.config.get_settings", lambda: settings)
     app = create_app(settings, engine, background_jobs=True)
-    port = _free_port()
+    port = free_port()
     config = uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", lifespan="on")
     uv = uvicorn.Server(config)
     thread = threading.Thread(target=uv.run, name="uvicorn", daemon=True)
@@ -184,5 +181,29 @@ def traces(page: Any, selector: str) -> list[dict[str, Any]]:
             name: t.name, type: t.type || 'scatter', role: t.meta && t.meta.role,
             n: (t.y || t.z || t.x || []).length }))""",
         selector,
+    )
+    return result
+
+
+def api_get(server: Server, path: str, **params: Any) -> Any:
+    """GET ``path`` (its own query string kept unless ``params`` are given) from the server's
+    API with the seeded key; the JSON of a 200."""
+    response = httpx.get(
+        f"{server.base_url}{path}", params=params or None,
+        headers={"X-API-Key": server.seeded.key},
+    )
+    assert response.status_code == 200, response.text
+    return response.json()
+
+
+def unnamed_controls(page: Any, section: str) -> list[str]:
+    """Form controls without a label and buttons without a name in ``section``."""
+    result: list[str] = page.evaluate(
+        """(sel) => [...document.querySelectorAll(`${sel} input, ${sel} select, ${sel} textarea`)]
+            .filter((el) => !el.labels || !el.labels.length).map((el) => el.id || el.name)
+            .concat([...document.querySelectorAll(`${sel} button`)]
+            .filter((b) => !b.textContent.trim() && !b.getAttribute('aria-label'))
+            .map((b) => b.id))""",
+        section,
     )
     return result

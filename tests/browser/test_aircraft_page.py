@@ -8,20 +8,20 @@ from collections import defaultdict
 from datetime import datetime
 from typing import Any
 
-import httpx
 import pytest
 
-from tests.browser.conftest import Console, Server, screenshot, sign_in, traces
+from tests.browser.conftest import (
+    Console,
+    Server,
+    api_get,
+    screenshot,
+    sign_in,
+    traces,
+)
 
 pytestmark = pytest.mark.browser
 DAY_S = 86400
 
-
-def _get(server: Server, path: str, **query: Any) -> Any:
-    response = httpx.get(f"{server.base_url}{path}", params=query,
-                         headers={"X-API-Key": server.seeded.key})
-    assert response.status_code == 200, response.text
-    return response.json()
 
 
 def _daily(segments: list[dict[str, Any]], position: int, name: str) -> dict[int, float]:
@@ -51,8 +51,8 @@ def test_aircraft_page_from_the_fleet_tail_link(
     page.wait_for_url("**/aircraft.html?tail=*")
     page.wait_for_selector("body[data-ready=true]")
     assert page.inner_text("#title") == f"Aircraft {tail}"
-    aircraft = _get(server, "/api/v1/aircraft", tail=tail)["items"][0]
-    trend = _get(server, f"/api/v1/aircraft/{aircraft['id']}/trend", max_points=1000)
+    aircraft = api_get(server, "/api/v1/aircraft", tail=tail)["items"][0]
+    trend = api_get(server, f"/api/v1/aircraft/{aircraft['id']}/trend", max_points=1000)
     positions = sorted({s["position"] for s in trend["segments"]})
     assert len(positions) == 2
 
@@ -88,7 +88,7 @@ def test_aircraft_page_from_the_fleet_tail_link(
     assert "parameter=hpc_flow" in page.url
 
     # Installation history and coverage as the API has them.
-    history = _get(server, f"/api/v1/aircraft/{aircraft['id']}/installations")
+    history = api_get(server, f"/api/v1/aircraft/{aircraft['id']}/installations")
     assert page.locator("#installations tbody tr").count() == history["total"]
     assert page.locator("#coverage tbody tr").count() == len(trend["segments"])
     screenshot(page, "aircraft")
@@ -97,7 +97,7 @@ def test_aircraft_page_from_the_fleet_tail_link(
 
 def test_coverage_names_the_recorder_gap(page: Any, server: Server, console: Console) -> None:
     # seed.py: fifteen days without data from position 1 of the first tail.
-    aircraft = _get(server, "/api/v1/aircraft")["items"]
+    aircraft = api_get(server, "/api/v1/aircraft")["items"]
     tails = {a["tail"]: a["id"] for a in aircraft}
     gapped = []
     for tail, aircraft_id in tails.items():
@@ -114,7 +114,7 @@ def test_coverage_names_the_recorder_gap(page: Any, server: Server, console: Con
 def test_another_operators_aircraft_is_not_found(
     page: Any, server: Server, console: Console
 ) -> None:
-    aircraft_id = _get(server, "/api/v1/aircraft")["items"][0]["id"]
+    aircraft_id = api_get(server, "/api/v1/aircraft")["items"][0]["id"]
     sign_in(page, server.seeded.other_key, f"/aircraft.html?id={aircraft_id}")
     assert "not found" in page.inner_text("#message .error")
     assert console.unexpected("404") == []

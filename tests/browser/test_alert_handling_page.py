@@ -5,43 +5,23 @@ from __future__ import annotations
 
 from typing import Any
 
-import httpx
 import pytest
 
-from tests.browser.conftest import Console, Server, screenshot, sign_in
+from tests.browser.conftest import Console, Server, api_get, screenshot, sign_in, unnamed_controls
 
 pytestmark = pytest.mark.browser
 
 
-def _unnamed(page: Any, section: str) -> list[str]:
-    """Form controls without a label and buttons without a name in ``section``."""
-    result: list[str] = page.evaluate(
-        """(sel) => [...document.querySelectorAll(`${sel} input, ${sel} select, ${sel} textarea`)]
-            .filter((el) => !el.labels || !el.labels.length).map((el) => el.id || el.name)
-            .concat([...document.querySelectorAll(`${sel} button`)]
-            .filter((b) => !b.textContent.trim() && !b.getAttribute('aria-label'))
-            .map((b) => b.id))""",
-        section,
-    )
-    return result
-
-
-def _get(server: Server, path: str, **params: Any) -> Any:
-    response = httpx.get(
-        f"{server.base_url}{path}", params=params, headers={"X-API-Key": server.seeded.key}
-    )
-    assert response.status_code == 200, response.text
-    return response.json()
 
 
 def test_assign_acknowledge_with_a_reason_and_see_the_history(
     page: Any, server: Server, console: Console
 ) -> None:
-    open_events = _get(server, "/api/v1/events", status="open", limit=1000)["items"]
+    open_events = api_get(server, "/api/v1/events", status="open", limit=1000)["items"]
     assert open_events, "the demo fleet has open events"
     # Another test acknowledges the seeded event: take a different one when there is one.
     event = next((e for e in open_events if e["id"] != server.seeded.event_id), open_events[0])
-    people = _get(server, "/api/v1/events/assignees")
+    people = api_get(server, "/api/v1/events/assignees")
     person = people[0]
     sign_in(page, server.seeded.key, f"/events.html?id={event['id']}")
     assert page.inner_text("#assigned-to") == "Assigned to: no one"
@@ -54,7 +34,7 @@ def test_assign_acknowledge_with_a_reason_and_see_the_history(
     # Acknowledging without a reason is refused in the page and stores nothing.
     page.get_by_role("button", name="Acknowledge").click()
     assert "reason" in page.inner_text("#review [role=status]").lower()
-    assert _get(server, f"/api/v1/events/{event['id']}")["status"] == "open"
+    assert api_get(server, f"/api/v1/events/{event['id']}")["status"] == "open"
 
     page.get_by_label("Reason (required to acknowledge or close)").fill(
         "HPC signature confirmed, wash planned"
@@ -66,11 +46,11 @@ def test_assign_acknowledge_with_a_reason_and_see_the_history(
     assert f"assigned it to {person['name']}" in steps[0]
     assert "acknowledged" in steps[1] and "Reason: HPC signature confirmed" in steps[1]
 
-    after = _get(server, f"/api/v1/events/{event['id']}")
+    after = api_get(server, f"/api/v1/events/{event['id']}")
     assert after["assignee"]["key_id"] == person["key_id"]
     assert after["acknowledged_reason"] == "HPC signature confirmed, wash planned"
     assert [s["action"] for s in after["history"]] == ["assigned", "acknowledged"]
     assert all(s["actor"] == "admin" for s in after["history"])
     screenshot(page, "event-alert-handling")
-    assert _unnamed(page, "#review") == []
+    assert unnamed_controls(page, "#review") == []
     assert console.unexpected() == []

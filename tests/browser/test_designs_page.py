@@ -6,19 +6,20 @@ from __future__ import annotations
 
 from typing import Any
 
-import httpx
 import numpy as np
 import pytest
 
-from tests.browser.conftest import Console, Server, screenshot, sign_in, traces
+from tests.browser.conftest import (
+    Console,
+    Server,
+    api_get,
+    screenshot,
+    sign_in,
+    traces,
+)
 
 pytestmark = pytest.mark.browser
 
-
-def _get(server: Server, path: str) -> Any:
-    response = httpx.get(f"{server.base_url}{path}", headers={"X-API-Key": server.seeded.key})
-    assert response.status_code == 200, response.text
-    return response.json()
 
 
 def _data(page: Any, selector: str) -> list[dict[str, Any]]:
@@ -29,8 +30,8 @@ def _data(page: Any, selector: str) -> list[dict[str, Any]]:
 def test_two_designs_side_by_side(page: Any, server: Server, console: Console) -> None:
     a, b = server.seeded.design_ids
     sign_in(page, server.seeded.key, f"/designs.html?a={a}&b={b}")
-    design = _get(server, f"/api/v1/designs/{a}")
-    evaluation = _get(server, f"/api/v1/designs/{a}/evaluation")
+    design = api_get(server, f"/api/v1/designs/{a}")
+    evaluation = api_get(server, f"/api/v1/designs/{a}/evaluation")
     health = _data(page, "#health-a")
     assert [t["name"] for t in health] == [
         "squared bias (theory)", "variance (theory)", "Monte Carlo squared error"
@@ -79,7 +80,7 @@ def test_two_designs_side_by_side(page: Any, server: Server, console: Console) -
     # The placeholder's button runs the evaluation of design B in place.
     page.click("#design-b .run-evaluation")
     page.wait_for_selector("#confusion-b .main-svg", timeout=60_000)
-    evaluated = _get(server, f"/api/v1/designs/{b}/evaluation")
+    evaluated = api_get(server, f"/api/v1/designs/{b}/evaluation")
     assert evaluated["result"]["monte_carlo"]["n_cases"] == 200  # the job's seed 002 defaults
     page.select_option("#variant", "max_h")
     page.wait_for_function(
@@ -108,7 +109,7 @@ def test_create_a_design_and_watch_its_evaluation(
     page.wait_for_selector("#job .progress", timeout=60_000)
     page.wait_for_selector("#job .badge.succeeded", timeout=90_000)
     page.wait_for_selector("#design-b #confusion-b .main-svg", timeout=30_000)
-    created = [d for d in _get(server, "/api/v1/designs?limit=200")["items"]
+    created = [d for d in api_get(server, "/api/v1/designs?limit=200")["items"]
                if d["name"] == "browser SVD m = 5"]
     assert len(created) == 1 and created[0]["spec"]["tuners"] == 5
     assert page.input_value("#b") == str(created[0]["id"])
@@ -116,10 +117,10 @@ def test_create_a_design_and_watch_its_evaluation(
     seen = " ".join(page.evaluate("window.jobText"))
     assert f"Design step of design {created[0]['id']}" in seen
     assert f"Monte Carlo evaluation of design {created[0]['id']}" in seen
-    design_jobs = _get(server, "/api/v1/jobs?kind=create_design")["items"]
+    design_jobs = api_get(server, "/api/v1/jobs?kind=create_design")["items"]
     mine = [j for j in design_jobs if j["parameters"]["design_id"] == created[0]["id"]]
     assert [j["status"] for j in mine] == ["succeeded"]
-    evaluation = _get(server, f"/api/v1/designs/{created[0]['id']}/evaluation")
+    evaluation = api_get(server, f"/api/v1/designs/{created[0]['id']}/evaluation")
     assert evaluation is not None
     assert [t["name"] for t in traces(page, "#health-b")][-1] == "Monte Carlo squared error"
     screenshot(page, "designs-created")

@@ -5,25 +5,24 @@ from __future__ import annotations
 
 from typing import Any
 
-import httpx
 import pytest
 
-from tests.browser.conftest import Console, Server, screenshot, sign_in, traces
+from tests.browser.conftest import (
+    Console,
+    Server,
+    api_get,
+    screenshot,
+    sign_in,
+    traces,
+)
 
 pytestmark = pytest.mark.browser
 
 
-def _get(server: Server, path: str, **params: Any) -> Any:
-    response = httpx.get(
-        f"{server.base_url}{path}", params=params, headers={"X-API-Key": server.seeded.key}
-    )
-    assert response.status_code == 200, response.text
-    return response.json()
-
 
 def test_event_list_shows_every_event(page: Any, server: Server, console: Console) -> None:
     sign_in(page, server.seeded.key, "/events.html?status=")
-    api = _get(server, "/api/v1/events")
+    api = api_get(server, "/api/v1/events")
     assert api["total"] >= 1
     ids = page.locator("table.data tbody tr td:first-child").all_inner_texts()
     assert sorted(ids) == sorted(f"#{e['id']}" for e in api["items"])
@@ -37,7 +36,7 @@ def test_event_review_plots_shift_and_wssr_and_acknowledges(
     event_id = server.seeded.event_id
     assert event_id is not None
     sign_in(page, server.seeded.key, f"/events.html?id={event_id}")
-    event = _get(server, f"/api/v1/events/{event_id}")
+    event = api_get(server, f"/api/v1/events/{event_id}")
     wssr = page.evaluate("document.querySelector('#wssr').data[0]")
     assert wssr["type"] == "bar" and wssr["x"] == list(event["wssr"])
     assert wssr["y"] == pytest.approx(list(event["wssr"].values()))
@@ -73,7 +72,7 @@ def test_event_review_plots_shift_and_wssr_and_acknowledges(
         page.click("#ack")
         page.wait_for_selector("#status .badge.acknowledged")
         assert "borescope booked" in page.inner_text("#history")
-        after = _get(server, f"/api/v1/events/{event_id}")
+        after = api_get(server, f"/api/v1/events/{event_id}")
         assert after["status"] == "acknowledged"
         assert after["acknowledged_reason"] == "borescope booked for the next night stop"
     page.fill("#comment", "second look: shift confirmed")

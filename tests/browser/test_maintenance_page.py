@@ -8,39 +8,19 @@ import time
 from datetime import datetime, timedelta
 from typing import Any
 
-import httpx
 import pytest
 
-from tests.browser.conftest import Console, Server, screenshot, sign_in
+from tests.browser.conftest import Console, Server, api_get, screenshot, sign_in, unnamed_controls
 
 pytestmark = pytest.mark.browser
 
 
-def _unnamed(page: Any, section: str) -> list[str]:
-    """Form controls without a label and buttons without a name in ``section``."""
-    result: list[str] = page.evaluate(
-        """(sel) => [...document.querySelectorAll(`${sel} input, ${sel} select, ${sel} textarea`)]
-            .filter((el) => !el.labels || !el.labels.length).map((el) => el.id || el.name)
-            .concat([...document.querySelectorAll(`${sel} button`)]
-            .filter((b) => !b.textContent.trim() && !b.getAttribute('aria-label'))
-            .map((b) => b.id))""",
-        section,
-    )
-    return result
-
-
-def _get(server: Server, path: str, **params: Any) -> Any:
-    response = httpx.get(
-        f"{server.base_url}{path}", params=params, headers={"X-API-Key": server.seeded.key}
-    )
-    assert response.status_code == 200, response.text
-    return response.json()
 
 
 def _wait_for_jobs(server: Server, timeout_s: float = 120.0) -> None:
     """Until the estimation the wash queued (its records from the wash on, redone) has run."""
     deadline = time.monotonic() + timeout_s
-    while _get(server, "/api/v1/jobs", status=["queued", "running"])["total"]:
+    while api_get(server, "/api/v1/jobs", status=["queued", "running"])["total"]:
         assert time.monotonic() < deadline, "the estimation job did not finish"
         time.sleep(0.5)
 
@@ -48,12 +28,12 @@ def _wait_for_jobs(server: Server, timeout_s: float = 120.0) -> None:
 def _quiet_engine(server: Server) -> tuple[int, list[str]]:
     """An engine without events (a wash restarts its detection baseline, so other tests' events
     stay as they are) and with the most records, and its record times."""
-    with_events = {e["engine_id"] for e in _get(server, "/api/v1/events", limit=1000)["items"]}
+    with_events = {e["engine_id"] for e in api_get(server, "/api/v1/events", limit=1000)["items"]}
     best: tuple[int, list[str]] | None = None
     for engine_id in server.seeded.engine_ids.values():
         if engine_id in with_events:
             continue
-        trend = _get(server, f"/api/v1/engines/{engine_id}/trend", max_points=0,
+        trend = api_get(server, f"/api/v1/engines/{engine_id}/trend", max_points=0,
                      health="level")
         if best is None or len(trend["time"]) > len(best[1]):
             best = (engine_id, trend["time"])
@@ -69,7 +49,7 @@ def test_record_a_wash_and_see_it_listed_with_its_recovery(
     middle = datetime.fromisoformat(times[len(times) // 2].replace("Z", "+00:00"))
     at = (middle - timedelta(minutes=1)).replace(second=0, microsecond=0)
     sign_in(page, server.seeded.key, f"/engine.html?id={engine_id}")
-    before = _get(server, "/api/v1/maintenance-actions", engine_id=engine_id)["total"]
+    before = api_get(server, "/api/v1/maintenance-actions", engine_id=engine_id)["total"]
 
     page.get_by_label("Action").select_option("water_wash")
     page.get_by_label("Performed at (UTC)").fill(at.strftime("%Y-%m-%dT%H:%M"))
@@ -77,7 +57,7 @@ def test_record_a_wash_and_see_it_listed_with_its_recovery(
     page.get_by_role("button", name="Record action").click()
     page.wait_for_selector("#maintenance [role=status] .notice")
 
-    listed = _get(server, "/api/v1/maintenance-actions", engine_id=engine_id)
+    listed = api_get(server, "/api/v1/maintenance-actions", engine_id=engine_id)
     assert listed["total"] == before + 1
     wash = next(m for m in listed["items"] if m["notes"] == "on-wing wash, browser test")
     assert wash["kind"] == "water_wash"
@@ -92,7 +72,7 @@ def test_record_a_wash_and_see_it_listed_with_its_recovery(
     page.wait_for_selector("body[data-ready=true]")
     row.locator("ul.recovery").wait_for()
 
-    recovery = _get(server, f"/api/v1/maintenance-actions/{wash['id']}/recovery")
+    recovery = api_get(server, f"/api/v1/maintenance-actions/{wash['id']}/recovery")
     assert recovery["note"] is None and recovery["n_before"] == recovery["n_after"] == 20
     egt = next(s for s in recovery["series"] if s["name"] == "egt_margin")
     assert egt["unit"] == "degC"
@@ -106,7 +86,7 @@ def test_record_a_wash_and_see_it_listed_with_its_recovery(
         assert f"{abs(s['change']):.2f} {s['unit']}" in text
     row.scroll_into_view_if_needed()
     screenshot(page, "engine-maintenance")
-    assert _unnamed(page, "#maintenance") == []
+    assert unnamed_controls(page, "#maintenance") == []
     assert console.unexpected() == []
 
 

@@ -19,18 +19,20 @@ import pytest
 
 from app.services.snapshots import estimator
 from app.services.streams import estimator as stream_estimator
-from tests.browser.conftest import Console, Server, screenshot, sign_in, traces
+from tests.browser.conftest import (
+    Console,
+    Server,
+    api_get,
+    screenshot,
+    sign_in,
+    traces,
+)
 
 pytestmark = pytest.mark.browser
 
 N = 1200  # one minute at 20 Hz
 DT = 0.05
 
-
-def _get(server: Server, path: str) -> Any:
-    response = httpx.get(f"{server.base_url}{path}", headers={"X-API-Key": server.seeded.key})
-    assert response.status_code == 200, response.text
-    return response.json()
 
 
 def _cruise_csv(seed: int) -> tuple[bytes, list[str]]:
@@ -56,7 +58,7 @@ def test_recording_page_samples_estimates_events_and_links(
 ) -> None:
     seeded = server.seeded
     assert seeded.event_id is not None
-    event = _get(server, f"/api/v1/events/{seeded.event_id}")
+    event = api_get(server, f"/api/v1/events/{seeded.event_id}")
     started = datetime.fromisoformat(event["detected_at"]) - timedelta(seconds=30)
     body, sensors = _cruise_csv(seed=21)
     response = httpx.post(
@@ -70,10 +72,10 @@ def test_recording_page_samples_estimates_events_and_links(
     assert response.json()["recording"]["engine_id"] == event["engine_id"]
     deadline = time.monotonic() + 120
     while True:  # the upload queued the estimation job; the server's runner runs it
-        est = _get(server, f"/api/v1/streams/{rid}/estimates")
+        est = api_get(server, f"/api/v1/streams/{rid}/estimates")
         if est["n_samples_estimated"] == N:
             break
-        failed = _get(server, "/api/v1/jobs?kind=estimate_recording&status=failed")["items"]
+        failed = api_get(server, "/api/v1/jobs?kind=estimate_recording&status=failed")["items"]
         assert failed == [], failed[0]["error"]
         assert time.monotonic() < deadline, "the recording was not estimated in time"
         time.sleep(0.5)

@@ -21,15 +21,10 @@ from app.services.fleet import service as fleet_service
 from tests.app.services.snapshots import test_pipeline as pipeline_case
 from tests.app.services.trends.test_trends import add_aircraft, add_engine
 from tests.app.services.uploads.test_upload_origin import _csv
-from tests.browser.conftest import Console, Server, screenshot, sign_in
+from tests.browser.conftest import Console, Server, api_get, screenshot, sign_in
 
 pytestmark = pytest.mark.browser
 
-
-def _get(server: Server, path: str) -> Any:
-    response = httpx.get(f"{server.base_url}{path}", headers={"X-API-Key": server.seeded.key})
-    assert response.status_code == 200, response.text
-    return response.json()
 
 
 def test_upload_with_progress_then_refused_file_with_row_errors(
@@ -51,7 +46,7 @@ def test_upload_with_progress_then_refused_file_with_row_errors(
     ok = page.wait_for_selector("#upload-ok")
     assert f"{table.num_rows} stored" in ok.inner_text()
     assert page.evaluate("window.progressSeen")[-1] == 100
-    uploads = _get(server, "/api/v1/uploads?limit=5")["items"]
+    uploads = api_get(server, "/api/v1/uploads?limit=5")["items"]
     assert uploads[0]["status"] == "stored" and uploads[0]["rows_stored"] == table.num_rows
     assert (uploads[0]["filename"], uploads[0]["source"]) == (good.name, "browser")
     # The history names the file and where it came from (the page, with the key's name).
@@ -63,7 +58,7 @@ def test_upload_with_progress_then_refused_file_with_row_errors(
     page.wait_for_selector(
         "#jobs tr.job-estimate_engines :is(.badge.succeeded, .badge.failed)", timeout=90_000
     )
-    jobs = _get(server, "/api/v1/jobs?kind=estimate_engines")["items"]
+    jobs = api_get(server, "/api/v1/jobs?kind=estimate_engines")["items"]
     assert jobs[0]["status"] == "succeeded", jobs[0]["error"]
     screenshot(page, "uploads-stored")
 
@@ -85,7 +80,7 @@ def test_upload_with_progress_then_refused_file_with_row_errors(
     page.click("#uploads tr.upload-rejected a")
     errors = page.wait_for_selector("#upload-errors").inner_text()
     assert "recorded_at" in errors and bad.name in errors and "uploads page" in errors
-    rejected = _get(server, "/api/v1/uploads?status=rejected")["items"]
+    rejected = api_get(server, "/api/v1/uploads?status=rejected")["items"]
     assert len(rejected) == 1 and rejected[0]["rows_stored"] == 0
     screenshot(page, "uploads-rejected")
 
@@ -124,7 +119,7 @@ def test_an_event_links_the_upload_that_caused_it_and_the_link_opens_its_detail(
 ) -> None:
     event_id = server.seeded.event_id
     assert event_id is not None
-    causes = _get(server, f"/api/v1/events/{event_id}/uploads")
+    causes = api_get(server, f"/api/v1/events/{event_id}/uploads")
     assert causes, "the seeded event's record came from the seeded upload"
     sign_in(page, server.seeded.key, f"/events.html?id={event_id}")
     link = page.wait_for_selector("#caused-by a")

@@ -12,12 +12,15 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
-from sqlalchemy import func, select
+from sqlalchemy import func, select, text
 from sqlalchemy.orm import Session
 
-from app.models import Snapshot, Upload
+from app.db import make_engine, make_sessionmaker, transaction
+from app.models import EngineModel, EstimatorDesign, Snapshot, Upload
 from app.services.fleet import service as fleet
 from app.services.tenancy import service as tenancy
+from estimation.tuners import svd_vstar
+from tests.estimation.models import reference_model
 
 T0 = datetime(2026, 3, 1, tzinfo=UTC)
 
@@ -161,3 +164,30 @@ def counts(session: Session, operator_id: int) -> tuple[int, int]:
         select(func.count()).where(Upload.status == "stored", Upload.operator_id == operator_id)
     )
     return int(snapshots or 0), int(stored or 0)
+
+
+def add_reference_design(url: str, operator_id: int, m: int = 6) -> dict[str, Any]:
+    """The reference linear model and an active ``m``-tuner SVD design on the operator's one
+    engine type, committed on ``url``; returns the design's result document."""
+    model = reference_model()
+    result = {"vstar": svd_vstar(model, m).tolist()}
+    engine = make_engine(url)
+    with transaction(make_sessionmaker(engine)) as session:
+        kind = session.scalar(
+            text("SELECT id FROM engine_types WHERE operator_id = :o").bindparams(o=operator_id)
+        )
+        row = EngineModel(
+            operator_id=operator_id, engine_type_id=kind, name="reference", version=1,
+            source="imported", format="fleethealth.linear-model/1", content=model.to_dict(),
+            checksum="0" * 64, dt=model.dt, n_states=model.n_states,
+            sensor_names=list(model.sensor_names), health_names=list(model.health_names),
+            aux_names=list(model.aux_names),
+        )
+        session.add(row)
+        session.flush()
+        session.add(EstimatorDesign(
+            operator_id=operator_id, engine_type_id=kind, engine_model_id=row.id,
+            name="reference", spec={}, status="ready", active=True, result=result,
+        ))
+    engine.dispose()
+    return result

@@ -130,37 +130,33 @@ def cancel(session: Session, *, operator_id: int, job_id: int) -> Job:
 
 def queue_estimation(session: Session, *, operator_id: int, job_registry: JobRegistry) -> Job:
     """Queue the estimation of the operator's new snapshots (the caller dispatches it once
-    committed).
-
-    One estimation runs at a time per operator (a serial kind). A running one may already have
-    looked for work for the last time when the caller's rows commit, so then a follow-up is
-    queued (once: later submissions find it) and starts when the running one ends; otherwise
-    the queued job, if any, covers these rows too.
-    """
-    job, _created = submit(
-        session, operator_id=operator_id, kind="estimate_engines", parameters={},
-        registry=job_registry,
-    )
-    if job.status == "running":
-        job, _created = submit(
-            session, operator_id=operator_id, kind="estimate_engines",
-            parameters={"follow_up": True}, registry=job_registry,
-        )
-    return job
+    committed); see ``queue_serial``."""
+    return queue_serial(session, operator_id=operator_id, kind="estimate_engines",
+                        job_registry=job_registry)
 
 
 def queue_sending(session: Session, *, operator_id: int, job_registry: JobRegistry) -> Job:
     """Queue the sending of the operator's pending notifications (the caller dispatches it once
-    committed); like ``queue_estimation``, a follow-up when one runs already."""
-    job, _created = submit(
-        session, operator_id=operator_id, kind="send_notifications", parameters={},
-        registry=job_registry,
-    )
+    committed); see ``queue_serial``."""
+    return queue_serial(session, operator_id=operator_id, kind="send_notifications",
+                        job_registry=job_registry)
+
+
+def queue_serial(
+    session: Session, *, operator_id: int, kind: str, job_registry: JobRegistry
+) -> Job:
+    """Queue a job of a serial kind that takes no parameters and works on whatever it finds.
+
+    One runs at a time per operator. A running one may already have looked for work for the
+    last time when the caller's rows commit, so then a follow-up is queued (once: later
+    submissions find it) and starts when the running one ends; otherwise the queued job, if
+    any, covers the caller's rows too.
+    """
+    job, _created = submit(session, operator_id=operator_id, kind=kind, parameters={},
+                           registry=job_registry)
     if job.status == "running":
-        job, _created = submit(
-            session, operator_id=operator_id, kind="send_notifications",
-            parameters={"follow_up": True}, registry=job_registry,
-        )
+        job, _created = submit(session, operator_id=operator_id, kind=kind,
+                               parameters={"follow_up": True}, registry=job_registry)
     return job
 
 

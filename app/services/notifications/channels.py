@@ -11,6 +11,7 @@ from sqlalchemy.orm import Session
 
 from app.errors import NotFound
 from app.models.notifications import NotificationChannel
+from app.services.notifications.mail import SmtpSettings
 
 
 @dataclass(frozen=True)
@@ -18,17 +19,6 @@ class WebhookSpec:
     name: str
     url: str
 
-
-@dataclass(frozen=True)
-class MailSpec:
-    name: str
-    host: str
-    port: int
-    mail_from: str
-    mail_to: tuple[str, ...]
-    starttls: bool = False
-    username: str | None = None
-    password: str | None = None
 
 
 def new_secret() -> str:
@@ -50,9 +40,11 @@ def create_webhook(session: Session, *, operator_id: int, spec: WebhookSpec) -> 
     return row, secret
 
 
-def create_mail(session: Session, *, operator_id: int, spec: MailSpec) -> NotificationChannel:
+def create_mail(
+    session: Session, *, operator_id: int, name: str, spec: SmtpSettings
+) -> NotificationChannel:
     row = NotificationChannel(
-        operator_id=operator_id, kind="email", name=spec.name, enabled=True,
+        operator_id=operator_id, kind="email", name=name, enabled=True,
         smtp_host=spec.host, smtp_port=spec.port, smtp_starttls=spec.starttls,
         smtp_username=spec.username, smtp_password=spec.password, mail_from=spec.mail_from,
         mail_to=", ".join(spec.mail_to),

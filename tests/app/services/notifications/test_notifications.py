@@ -22,6 +22,7 @@ from app.jobs.runner import run_pending
 from app.models import Job, NotificationChannel, NotificationDelivery
 from app.services.jobs import store as jobs_store
 from app.services.notifications import channels, outbox
+from app.services.notifications.mail import SmtpSettings
 from app.services.snapshots import backlog
 from tests.app.services.snapshots.test_pipeline import (
     N,
@@ -167,8 +168,8 @@ def test_wrong_smtp_password_is_logged_as_the_servers_refusal(
 ) -> None:
     operator_id, headers = _admin(session, "Bad Login Air")
     with smtp_receiver(credentials=("ops", "right")) as smtp:
-        row = channels.create_mail(session, operator_id=operator_id, spec=channels.MailSpec(
-            name="mx", host="127.0.0.1", port=smtp.port, mail_from="a@example.org",
+        row = channels.create_mail(session, operator_id=operator_id, name="mx", spec=SmtpSettings(
+            host="127.0.0.1", port=smtp.port, mail_from="a@example.org",
             mail_to=("b@example.org",), username="ops", password="wrong"))
         outbox.queue_test(session, channel=row)
         _send_with(session, operator_id, backoff_seconds=0.05, max_attempts=2)

@@ -14,19 +14,19 @@ from sqlalchemy.orm import Session
 
 from app.models import EngineModel, MaintenanceAction, Snapshot
 from app.models.estimates import (
-    DeteriorationBucket,
     Estimate,
     EstimateLayout,
     Event,
     FilterState,
     FleetPeriod,
 )
-from app.services.snapshots import backlog, buckets, estimator, run, store
+from app.services.snapshots import backlog, estimator, run, store
 from estimation import isolation
 from estimation.model import LinearModel
 from estimation.tuners import svd_vstar
 from tests.app.services.trends.test_trends import Fleet, add_aircraft, add_engine, make_fleet
 from tests.estimation.models import reference_model
+from tests.support.periods import periods_from_estimates, stored_periods
 
 T0 = datetime(2026, 1, 1, tzinfo=UTC)
 N = 900
@@ -106,32 +106,6 @@ def _rows(session: Session, engine_id: int) -> list[tuple[int, datetime, bytes]]
     ]
 
 
-def _periods(session: Session, engine_id: int) -> dict[tuple[str, datetime], tuple[int, bytes]]:
-    """The engine's deterioration periods: (period, start) -> (count, sums)."""
-    return {
-        (b.period, b.start): (b.n, bytes(b.sums))
-        for b in session.scalars(
-            select(DeteriorationBucket).where(DeteriorationBucket.engine_id == engine_id)
-        )
-    }
-
-
-def _periods_from_estimates(session: Session, engine_id: int, layout: EstimateLayout
-                            ) -> dict[tuple[str, datetime], tuple[int, np.ndarray]]:
-    """The same periods computed from every stored estimate of the engine."""
-    rows = _rows(session, engine_id)
-    epoch = np.array([t.timestamp() for _s, t, _b in rows])
-    values = layout.unpack([b for _s, _t, b in rows])[:, buckets.value_columns(layout)]
-    out = {}
-    for period in buckets.PERIODS:
-        starts = buckets.period_starts(epoch, period)
-        for start in np.unique(starts):
-            mine = starts == start
-            out[(period, datetime.fromtimestamp(start, UTC))] = (
-                int(mine.sum()), values[mine].sum(axis=0))
-    return out
-
-
 def _events(session: Session, engine_id: int) -> list[tuple]:
     return [
         (e.seq, e.detected_at, e.kind, e.fault, e.magnitude, e.statistic, e.wssr)
@@ -182,12 +156,12 @@ def test_split_and_late_uploads_equal_one_uninterrupted_run(session: Session) ->
 
     # The fleet deterioration's periods: the same whichever way the records came, and those
     # of a full scan of the estimates.
-    periods = _periods(session, whole.id)
-    assert _periods(session, split.id) == periods
-    assert _periods(session, late.id) == periods
+    periods = stored_periods(session, whole.id)
+    assert stored_periods(session, split.id) == periods
+    assert stored_periods(session, late.id) == periods
     layout = EstimateLayout.from_dict(next(
         fs.layout for fs in session.scalars(select(FilterState)) if fs.engine_id == whole.id))
-    expected = _periods_from_estimates(session, whole.id, layout)
+    expected = periods_from_estimates(session, whole.id, layout)
     assert periods.keys() == expected.keys()
     for key, (n, sums) in expected.items():
         assert periods[key][0] == n
