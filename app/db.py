@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import fcntl
+import os
 import threading
 from collections import deque
 from collections.abc import Callable, Iterator
@@ -75,15 +77,60 @@ def writing(session: Session) -> Session:
     return session
 
 
+READ_PHASE = "fleethealth.read_phase"
+
+
+@contextmanager
+def read_phase(session: Session, enabled: bool = True) -> Iterator[bool]:
+    """Run the statements inside as a read of one snapshot, without SQLite's write lock, and
+    end that read at the close, so that the writes after it take the lock in a transaction of
+    their own (for a job, BEGIN IMMEDIATE: see ``app.jobs.progress.SqliteTransactionWatch``).
+
+    A job that reads much, computes long and then writes (the estimation of a batch of
+    engines) would otherwise hold the one write lock of a SQLite file from its first read to
+    its commit, and every upload would wait for the computation. Whatever the job read stays
+    valid for its writes when the data it depends on only grows meanwhile, as the estimation
+    backlog does (``app.services.snapshots.backlog``). The statements inside must not write.
+
+    On SQLite, a transaction the session has open is committed first (callers pass
+    ``enabled`` only where they own the commits: a job). Elsewhere, or not ``enabled``, a
+    no-op: the reads join the session's transaction as usual. Yields whether the reads are
+    apart from the writes that follow.
+    """
+    if not enabled or session.get_bind().dialect.name != "sqlite":
+        yield False
+        return
+    if session.in_transaction():
+        session.commit()
+    session.info[READ_PHASE] = True
+    try:
+        yield True
+    finally:
+        del session.info[READ_PHASE]
+    if session.in_transaction():
+        session.commit()  # nothing was written: this only lets go of the snapshot
+
+
+def in_read_phase(session: Session) -> bool:
+    """Whether ``session`` is inside ``read_phase``."""
+    return bool(session.info.get(READ_PHASE))
+
+
 class WriteGate:
     """At most ``capacity`` writing transactions at a time on one database in this process,
-    first come first served.
+    first come first served; on a SQLite file, also one at a time across processes.
 
     SQLite lets one writer in at a time; the others wait in its busy handler, which polls with
     sleeps growing to 100 ms. Under many concurrent writers that is unfair (a writer can lose
     every race for many seconds while others pass) and it wastes the gaps between writers.
     Writers of this process therefore queue here, in arrival order, before they take SQLite's
-    write lock (capacity 1); the busy handler stays the guard against other processes.
+    write lock (capacity 1). The one whose turn it is then takes an exclusive ``flock`` on
+    ``lock_file`` (the database's ``-writer`` file), where the writer of another process (the
+    job process beside ``fleethealth serve``) waits in the kernel, woken the moment the lock
+    is let go, instead of polling in SQLite's busy handler while this process's writers pass
+    the lock from hand to hand. Each hold is one transaction, bounded by SQLite's own busy
+    timeout. The busy handler stays the guard against writers that use no gate (the command
+    line, migrations).
 
     PostgreSQL takes concurrent writers, but a write request is mostly Python work (parse,
     validate, resolve), and this process runs Python one thread at a time: sixteen uploads
@@ -92,28 +139,49 @@ class WriteGate:
     sooner on average and leave readers their turn.
     """
 
-    def __init__(self, capacity: int = 1) -> None:
+    def __init__(self, capacity: int = 1, lock_file: Path | None = None) -> None:
         self._lock = threading.Lock()
         self._free = capacity
         self._waiting: deque[threading.Event] = deque()
+        self._lock_file = lock_file
+        self._fd: int | None = None
 
     def acquire(self, timeout: float) -> bool:
-        """Wait for a turn, at most ``timeout`` seconds; False if none came."""
+        """Wait for a turn, at most ``timeout`` seconds in this process's queue; False if none
+        came."""
         with self._lock:
             if self._free > 0 and not self._waiting:
                 self._free -= 1
+                self._lock_across_processes()
                 return True
             turn = threading.Event()
             self._waiting.append(turn)
-        if turn.wait(timeout):
-            return True
-        with self._lock:
-            if turn.is_set():  # handed over just as the wait ran out
-                return True
-            self._waiting.remove(turn)
-            return False
+        if not turn.wait(timeout):
+            with self._lock:
+                if not turn.is_set():
+                    self._waiting.remove(turn)
+                    return False
+            # handed over just as the wait ran out
+        self._lock_across_processes()
+        return True
 
     def release(self) -> None:
+        if self._fd is not None:
+            fcntl.flock(self._fd, fcntl.LOCK_UN)
+        self._pass_turn()
+
+    def _lock_across_processes(self) -> None:
+        if self._lock_file is None:
+            return
+        try:
+            if self._fd is None:
+                self._fd = os.open(self._lock_file, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+            fcntl.flock(self._fd, fcntl.LOCK_EX)  # the GIL is let go while the kernel waits
+        except OSError:
+            self._pass_turn()
+            raise
+
+    def _pass_turn(self) -> None:
         with self._lock:
             if self._waiting:
                 self._waiting.popleft().set()  # the turn passes straight to the next in line
@@ -129,15 +197,21 @@ _gates_lock = threading.Lock()
 
 def write_gate(engine: Engine) -> WriteGate | None:
     """The write gate of ``engine``'s database in this process: one writer at a time on a
-    SQLite file, ``POSTGRES_WRITERS`` on PostgreSQL; None for an in-memory SQLite database."""
+    SQLite file (and across processes), ``POSTGRES_WRITERS`` on PostgreSQL; None for an
+    in-memory SQLite database."""
     if engine.dialect.name == "sqlite":
         if engine.url.database in (None, "", ":memory:"):
             return None
-        key, capacity = str(Path(engine.url.database).resolve()), 1
+        path = Path(engine.url.database).resolve()
+        key, capacity, lock_file = str(path), 1, path.with_name(path.name + "-writer")
     else:
         key, capacity = engine.url.render_as_string(hide_password=True), POSTGRES_WRITERS
+        lock_file = None
     with _gates_lock:
-        return _gates.setdefault(key, WriteGate(capacity))
+        gate = _gates.get(key)
+        if gate is None:
+            gate = _gates[key] = WriteGate(capacity, lock_file)
+        return gate
 
 
 def make_sessionmaker(engine: Engine) -> sessionmaker[Session]:

@@ -17,7 +17,8 @@ from sqlalchemy import event, update
 from sqlalchemy.exc import OperationalError
 from sqlalchemy.orm import Session
 
-from app.db import transaction
+from app.db import BUSY_TIMEOUT_S, WriteGate, in_read_phase, transaction, write_gate
+from app.errors import ServiceUnavailable
 from app.jobs.claim import Claim, SessionFactory, owned
 from app.models.base import utcnow
 from app.models.jobs import Job
@@ -59,27 +60,49 @@ class SqliteTransactionWatch:
     job's transaction begins IMMEDIATE: it holds the lock from its first statement to its
     commit, and other writers wait for it instead. Meanwhile ``busy()`` is true: the job's
     progress is held back and its heartbeat skipped, both written after its commit. Other
-    databases are never busy.
+    databases are never busy. A job's reads in ``app.db.read_phase`` stay deferred: they hold
+    no lock, and the writes after them begin a transaction of their own.
     """
 
     def __init__(self, session: Session) -> None:
         self._dbapi: Any = None
+        self._gate: WriteGate | None = None
         event.listen(session, "after_begin", self._begun)
+        # The turn is given back at the commit, before the runner's after-commit work (written
+        # progress takes a turn of its own), and at the latest when the transaction ends.
+        event.listen(session, "after_commit", self._let_go)
+        event.listen(session, "after_rollback", self._let_go)
         event.listen(session, "after_transaction_end", self._ended)
 
-    def _begun(self, _session: Session, _transaction: object, connection: Any) -> None:
+    def _begun(self, session: Session, _transaction: object, connection: Any) -> None:
         if connection.dialect.name != "sqlite" or connection.in_nested_transaction():
             return  # a savepoint inside a caller's transaction (tests) is not ours to change
+        if in_read_phase(session):
+            return  # a read (``app.db.read_phase``): deferred, it blocks no writer
         dbapi = connection.connection.dbapi_connection
         if dbapi.in_transaction:
             # A deferred BEGIN was sent (nothing ran yet): begin again, taking the lock.
             connection.exec_driver_sql("ROLLBACK")
+        # In line with the other writers of the file, in this process and the server's.
+        gate = write_gate(connection.engine)
+        if gate is not None:
+            if not gate.acquire(BUSY_TIMEOUT_S):
+                raise ServiceUnavailable(
+                    f"the database is busy: no write turn in {BUSY_TIMEOUT_S:.0f} s"
+                )
+            self._gate = gate
         connection.exec_driver_sql("BEGIN IMMEDIATE")
         self._dbapi = dbapi
+
+    def _let_go(self, _session: Session) -> None:
+        gate, self._gate = self._gate, None
+        if gate is not None:
+            gate.release()
 
     def _ended(self, session: Session, _transaction: object) -> None:
         if not session.in_transaction():
             self._dbapi = None
+            self._let_go(session)
 
     def busy(self) -> bool:
         # sqlite3's in_transaction is safe to read from the heartbeat thread.

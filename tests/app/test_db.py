@@ -16,8 +16,10 @@ from app.db import (
     WriteGate,
     make_engine,
     make_sessionmaker,
+    read_phase,
     record_after_rollback,
     transaction,
+    write_gate,
     writing,
 )
 from app.models import Operator
@@ -203,3 +205,68 @@ def test_the_write_gate_admits_in_arrival_order_up_to_its_capacity() -> None:
     assert order == [0, 1, 2, 3]
     gate.release()
     assert gate.acquire(0.1) and gate.acquire(0.1) and not gate.acquire(0.05)
+
+
+def test_sqlite_read_phase_holds_no_lock_and_its_writes_follow_a_concurrent_commit(
+    tmp_path: Path,
+) -> None:
+    """What a job reads in ``read_phase`` blocks no writer, and the writes after it do not
+    fail for the snapshot having gone stale meanwhile (compare the deferred test above)."""
+    engine = _file_engine(tmp_path)
+    with Session(engine) as session:
+        with read_phase(session) as apart:
+            assert apart
+            session.scalar(select(func.count()).select_from(Operator))
+            with engine.connect() as other:  # a writer that would not wait at all
+                other.exec_driver_sql("PRAGMA busy_timeout = 0")
+                other.execute(Operator.__table__.insert().values(name="Between Air"))
+                other.commit()
+        assert not session.in_transaction()  # the read let go of its snapshot
+        session.add(Operator(name="Late Air"))
+        session.commit()
+    assert _operators(engine) == 2
+    engine.dispose()
+
+
+def test_read_phase_is_a_no_op_where_not_enabled_or_not_sqlite(db_engine: Engine) -> None:
+    with Session(db_engine) as session:
+        session.scalar(select(func.count()).select_from(Operator))
+        with read_phase(session, enabled=db_engine.dialect.name == "sqlite") as apart:
+            # PostgreSQL, or disabled: the reads join the open transaction.
+            assert apart == (db_engine.dialect.name == "sqlite")
+            assert session.in_transaction() != apart
+        session.rollback()
+
+
+_HOLD_GATE = """
+import sys, time
+from app.db import make_engine, write_gate
+gate = write_gate(make_engine(sys.argv[1]))
+assert gate.acquire(5.0)
+print("held", flush=True)
+time.sleep(float(sys.argv[2]))
+gate.release()
+"""
+
+
+def test_the_sqlite_write_gate_lets_one_writer_in_across_processes(tmp_path: Path) -> None:
+    """A writer of another process (the job process beside the server) holds the file's
+    write turn: this process's writer waits for it, and gets it the moment it is let go."""
+    import subprocess
+    import sys
+
+    url = f"sqlite:///{tmp_path / 'gate.sqlite3'}"
+    holder = subprocess.Popen([sys.executable, "-c", _HOLD_GATE, url, "0.6"],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+        gate = write_gate(make_engine(url))
+        assert gate is not None
+        t0 = time.perf_counter()
+        assert gate.acquire(5.0)
+        waited = time.perf_counter() - t0
+        gate.release()
+    finally:
+        holder.wait(10)
+    assert holder.returncode == 0
+    assert 0.3 < waited < 5.0  # not before the other process let go

@@ -136,6 +136,13 @@ def snapshot_rows(n: int, seed: int = 0, start: datetime = T0) -> pa.Table:
     )
 
 
+def reference_rows(n: int, seed: int = 0) -> pa.Table:
+    """``snapshot_rows`` in the reference model's parameters (the type of
+    ``add_reference_design`` takes no other)."""
+    rows = snapshot_rows(n, seed)
+    return rows.select([c for c in rows.column_names if c not in ("P30", "T50")])
+
+
 def csv_bytes(table: pa.Table) -> bytes:
     sink = io.BytesIO()
     pacsv.write_csv(table, sink)

@@ -45,7 +45,9 @@ def estimate_engines(
     summary = snapshots_store.catch_up(
         session, operator_id, progress=progress, commit=session.commit
     )
-    summary["engines_turned_red"] = red_alerts.queue_turned_red(session, operator_id)
+    summary["engines_turned_red"] = red_alerts.queue_turned_red(
+        session, operator_id, reads_apart=True
+    )
     if outbox.has_pending(session, operator_id):
         summary["notifications_job_id"] = queue_sending(
             session, operator_id=operator_id, job_registry=registry

@@ -14,26 +14,30 @@ from __future__ import annotations
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from app.db import read_phase
 from app.models.base import utcnow
 from app.models.notifications import EngineAlertLevel
 from app.services.fleet.status import fleet_status
 from app.services.notifications import outbox
 
 
-def queue_turned_red(session: Session, operator_id: int) -> int:
+def queue_turned_red(session: Session, operator_id: int, *, reads_apart: bool = False) -> int:
     """Queue the notifications of engines turned red; store every engine's level. Returns
-    the number of engines turned red."""
-    if not outbox.has_channels(session, operator_id):
-        return 0
-    known = {
-        row.engine_id: row
-        for row in session.scalars(
-            select(EngineAlertLevel).where(EngineAlertLevel.operator_id == operator_id)
-        )
-    }
+    the number of engines turned red. ``reads_apart``: the caller (a job) owns the commits,
+    and the fleet status is read before the write lock is taken (``app.db.read_phase``)."""
+    with read_phase(session, reads_apart):
+        if not outbox.has_channels(session, operator_id):
+            return 0
+        known = {
+            row.engine_id: row
+            for row in session.scalars(
+                select(EngineAlertLevel).where(EngineAlertLevel.operator_id == operator_id)
+            )
+        }
+        engines = fleet_status(session, operator_id)["engines"]
     now = utcnow()
     turned: list[outbox.TurnedRed] = []
-    for engine in fleet_status(session, operator_id)["engines"]:
+    for engine in engines:
         level = engine["severity"] or "normal"
         row = known.get(engine["engine_id"])
         if row is not None and row.level == level:

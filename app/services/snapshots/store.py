@@ -37,6 +37,7 @@ import pyarrow as pa
 from sqlalchemy import and_, delete, func, insert, or_, select
 from sqlalchemy.orm import Session, defer
 
+from app.db import read_phase
 from app.models import Engine, EstimatorDesign, MaintenanceAction, Snapshot
 from app.models.base import utcnow
 from app.models.estimates import Estimate, Event, FilterCheckpoint, FilterState
@@ -69,7 +70,8 @@ def state_from_document(d: Mapping[str, Any]) -> PipelineState:
 def _restart_point(
     session: Session, est: SnapshotEstimator, fs: FilterState | None, earliest: datetime | None
 ) -> tuple[int, PipelineState, datetime | None]:
-    """(seq0, state, after): where the engine's run starts, deleting what it will redo."""
+    """(seq0, state, after): where the engine's run starts. A run that starts before the
+    filter state's end redoes what was stored from ``seq0`` on (``_delete_from``)."""
     if fs is None:
         return 0, PipelineState.initial(est), None
     if earliest is None or fs.last_recorded_at is None or earliest > fs.last_recorded_at:
@@ -89,13 +91,10 @@ def _restart_point(
     else:
         seq0, after = checkpoint.seq, checkpoint.last_recorded_at
         state = state_from_document(checkpoint.state)
-    _delete_from(session, fs.engine_id, fs.design_id, seq0, state)
     return seq0, state, after
 
 
-def _delete_from(
-    session: Session, engine_id: int, design_id: int, seq0: int, state: PipelineState
-) -> None:
+def _delete_from(session: Session, engine_id: int, design_id: int, seq0: int) -> None:
     """Remove what a re-run from ``seq0`` recomputes. Events are not deleted here: the re-run
     updates those it detects again (keeping their status and comments) and deletes the rest
     (``_store``). An alarm pending at the restart point is isolated again by the re-run, so its
@@ -206,34 +205,47 @@ def estimate_engines(
     marks (read once the batch's rows kept in memory are taken, so no kept row is newer than
     the marks), and those marks go with the batch. Returns counts per outcome.
     """
-    engines = session.scalars(
-        select(Engine)
-        .where(Engine.operator_id == operator_id, Engine.id.in_(list(affected)))
-        .order_by(Engine.id)
-    ).all()
-    designs, by_design, skipped = _active_designs(session, operator_id, engines, design_id)
+    phases = commit is not None  # a job's reads and computation hold no SQLite write lock
+    with read_phase(session, phases):
+        engines = session.scalars(
+            select(Engine)
+            .where(Engine.operator_id == operator_id, Engine.id.in_(list(affected)))
+            .order_by(Engine.id)
+        ).all()
+        designs, by_design, skipped = _active_designs(session, operator_id, engines, design_id)
     summary: dict[str, Any] = {"engines": 0, "records": 0, "events": 0, "reruns": 0,
                                "skipped_no_design": skipped}
     total = sum(len(v) for v in by_design.values()) or 1
     done = 0
     for d_id, group in by_design.items():
-        est = estimator_for_design(session, designs[d_id])
+        with read_phase(session, phases):
+            est = estimator_for_design(session, designs[d_id])
         for start in range(0, len(group), BATCH):
             batch = group[start : start + BATCH]
             with _no_gc_pauses():
-                ids = [e.id for e in batch]
-                kept = fresh_records.take(session, ids)
-                marks = backlog.pending(session, operator_id, ids) if from_backlog else None
-                runs, states = _prepare_runs(
-                    session, est, operator_id, batch, summary, kept,
-                    affected if marks is None else {e: m.earliest for e, m in marks.items()},
-                    marks or {},
-                )
                 periods = buckets.BucketCollector(est.layout)
+                computed: list[rows.Block] | None = None
+                with read_phase(session, phases) as apart:
+                    ids = [e.id for e in batch]
+                    kept = fresh_records.take(session, ids)
+                    marks = backlog.pending(session, operator_id, ids) if from_backlog else None
+                    runs, states, redone = _prepare_runs(
+                        session, est, operator_id, batch, summary, kept,
+                        affected if marks is None else {e: m.earliest for e, m in marks.items()},
+                        marks or {},
+                    )
+                    if apart:  # computed now, written once the lock is taken
+                        computed = []
+                        outputs = run_filters(est, runs, sink=periods.passing_to(computed.append))
+                for engine_id, seq0 in redone:
+                    _delete_from(session, engine_id, est.design_id, seq0)
                 with rows.EstimateWriter(
                     session, operator_id=operator_id, design_id=est.design_id
                 ) as writer:
-                    outputs = run_filters(est, runs, sink=periods.passing_to(writer.add))
+                    if computed is None:  # computed while the writer sends (PostgreSQL's COPY)
+                        outputs = run_filters(est, runs, sink=periods.passing_to(writer.add))
+                    for block in computed or ():
+                        writer.add(block)
                 buckets.refresh(session, operator_id=operator_id, design_id=est.design_id,
                                 layout=est.layout, collected=periods)
                 _store_batch(session, est, runs, states, outputs)
@@ -255,10 +267,11 @@ def _prepare_runs(
     session: Session, est: SnapshotEstimator, operator_id: int, batch: Sequence[Engine],
     summary: dict[str, Any], kept: pa.Table | None, affected: Mapping[int, datetime | None],
     marks: Mapping[int, backlog.Mark],
-) -> tuple[list[EngineRun], list[FilterState | None]]:
-    """The runs of a batch of engines under one design: restart points (deleting what a
-    re-run redoes), records, maintenance actions and the events a run redoes, each read once
-    for the batch.
+) -> tuple[list[EngineRun], list[FilterState | None], list[tuple[int, int]]]:
+    """The runs of a batch of engines under one design: restart points, records, maintenance
+    actions and the events a run redoes, each read once for the batch; and (engine id, seq0)
+    of the re-runs, whose stored estimates from seq0 on the caller deletes (``_delete_from``)
+    before it writes theirs. Reads only.
 
     ``kept``: the batch's rows uploads kept in memory. An engine that continues from its
     filter state has exactly as many new records as its backlog marks count, when they were
@@ -275,11 +288,13 @@ def _prepare_runs(
         )
     }
     starts = {}
+    redone: list[tuple[int, int]] = []
     for engine_id in ids:
         fs = states.get(engine_id)
         starts[engine_id] = _restart_point(session, est, fs, affected.get(engine_id))
         if fs is not None and starts[engine_id][0] < fs.n_records:
             summary["reruns"] += 1
+            redone.append((engine_id, starts[engine_id][0]))
     expected = {}
     for engine_id in ids:
         fs, mark = states.get(engine_id), marks.get(engine_id)
@@ -316,7 +331,7 @@ def _prepare_runs(
                               rec.phase, rec.conditions, rec.y, rec.u,
                               np.array(times, dtype=float), redo))
         kept.append(fs)
-    return runs, kept
+    return runs, kept, redone
 
 
 def _store_batch(
@@ -481,7 +496,8 @@ def catch_up(
     finds nothing."""
     totals: dict[str, Any] = {"engines": 0, "records": 0, "events": 0, "reruns": 0, "passes": 0}
     for _ in range(max_passes):
-        work = backlog.pending(session, operator_id)
+        with read_phase(session, commit is not None):
+            work = backlog.pending(session, operator_id)
         if not work:
             break
         result = estimate_engines(

@@ -15,7 +15,6 @@ import time
 from pathlib import Path
 
 import httpx
-import pyarrow as pa
 import pytest
 from sqlalchemy import select, text
 
@@ -27,19 +26,13 @@ from tests.support.fleet_fixture import (
     add_reference_design,
     csv_bytes,
     make_fleet,
-    snapshot_rows,
+    reference_rows,
 )
 from tests.support.server import serving
 
 ROOT = Path(__file__).resolve().parents[3]
 FINISH_WITHIN_S = 30.0
 ROWS = 20_000
-
-
-def _rows() -> pa.Table:
-    """The fixture's snapshots in the reference model's parameters (its type takes no other)."""
-    rows = snapshot_rows(ROWS)
-    return rows.select([c for c in rows.column_names if c not in ("P30", "T50")])
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -64,7 +57,7 @@ def test_a_job_killed_mid_run_is_finished_within_30_s_of_the_restart(
 
         with serving(url, tmp_path) as (server, base):
             response = httpx.post(
-                f"{base}/api/v1/snapshots/file", content=csv_bytes(_rows()),
+                f"{base}/api/v1/snapshots/file", content=csv_bytes(reference_rows(ROWS)),
                 headers={**fleet.analyst, "Content-Type": "text/csv"}, timeout=120,
             )
             assert response.status_code == 201, response.text
