@@ -461,8 +461,7 @@ def filter_one(
     nx, m = red.n_states, red.n_tuners
     nz = red.F.shape[0]
     eng = engine or engine_design()
-    h13 = np.zeros((1, N_HEALTH))
-    solver = ScalarGasPath(eng, [0.0] * N_HEALTH, h13, _CHORD_TOL, _CHORD_POLISH, _CHORD_MAX,
+    solver = ScalarGasPath(eng, [0.0] * N_HEALTH, _CHORD_TOL, _CHORD_POLISH, _CHORD_MAX,
                            _ONE_PASS_LIMIT, _REFRESH_EVERY, _FD_EPS)
     d = [0.0] * m if d0 is None else [float(v) for v in np.reshape(d0, m)]
     prev_op: Operating | None = None
@@ -518,7 +517,6 @@ def filter_one(
     for k in range(T):
         # seed 002 eq. 11: the ten component health parameters h = V*^+ d, percent.
         solver.hs = [v / 100.0 for v in h] + pad
-        solver.h = np.array([h + pad])  # numpy fallback only
         uk, ek = ul[k], el[k]
         if ek != last_e:  # the condition and the corrected scales (constant in level flight)
             fc = flight_condition(ek[0], ek[1], ek[2], SCALAR)

@@ -353,7 +353,7 @@ def simulate(
     if b == 1 and scalar_path:
         from estimation.engine.transient_one import ScalarGasPath, run_one, scalar_schedule
 
-        one = ScalarGasPath(d, (h[0] / 100.0).tolist(), h, _CHORD_TOL, _CHORD_POLISH,
+        one = ScalarGasPath(d, (h[0] / 100.0).tolist(), _CHORD_TOL, _CHORD_POLISH,
                             _CHORD_MAX, _ONE_PASS_LIMIT, _REFRESH_EVERY, _FD_EPS)
         scalar_state: tuple[Any, ...] = (float(ctrl.integrator[0]), ctrl.sensed[0].tolist())
         ctrl1 = ControllerState(*scalar_state)

@@ -93,12 +93,11 @@ def scalar_schedule(schedule: FlightProfile | Callable[[float], OperatingPoint]
 class ScalarGasPath:
     """``transient._GasPathSolver`` for one engine on floats (same steps and thresholds)."""
 
-    def __init__(self, design: EngineDesign, hs: Vector, h: np.ndarray,
+    def __init__(self, design: EngineDesign, hs: Vector,
                  chord_tol: float, chord_polish: float, chord_max: int,
                  one_pass_limit: float, refresh_every: int, fd_eps: float) -> None:
         self.d = design
         self.hs = hs  # health / 100, floats
-        self.h = h  # [1, 13] percent, for the numpy fallback
         self.jinv: list[Vector] | None = None
         self.dzdu: list[Vector] = [[0.0] * 7 for _ in range(5)]
         self.dkdv: list[Vector] = [[0.0] * 7 for _ in range(4)]
@@ -122,7 +121,8 @@ class ScalarGasPath:
         one: list[Any] = [np.array([v]) for v in op[:7]]
         fc = FlightCondition(*(np.array([v]) for v in op.fc))
         with np.errstate(all="ignore"):
-            res, st = gas_path(Operating(*one, fc, self.h), np.array([z]), self.d)  # type: ignore[call-arg,misc]
+            h = 100.0 * np.array([self.hs])  # [1, 13] percent
+            res, st = gas_path(Operating(*one, fc, h), np.array([z]), self.d)  # type: ignore[call-arg,misc]
         return res[0].tolist(), {k: float(np.asarray(v).reshape(-1)[0]) for k, v in st.items()}
 
     def _refresh(self, op: Operating, z: Vector) -> None:

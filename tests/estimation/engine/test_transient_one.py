@@ -78,7 +78,7 @@ def test_scalar_cycle_equals_the_numpy_cycle_and_falls_back_where_math_fails() -
     op1 = op._replace(nf=float(x[0, 0]), nc=float(x[0, 1]), tm_hpc=float(op.tm_hpc[0]),
                       tm_hpt=float(op.tm_hpt[0]), wf=float(op.wf[0]), vsv=float(u[0, 1]),
                       vbv=float(u[0, 2]), fc=fc, h=None)
-    solver = ScalarGasPath(d, (HEALTH / 100.0).tolist(), HEALTH[None], 2e-6, 1e-12, 6,
+    solver = ScalarGasPath(d, (HEALTH / 100.0).tolist(), 2e-6, 1e-12, 6,
                            3e-4, 200, 1e-7)
     z_in = np.reshape(z, (1, 5))
     res, st = gas_path(op, z_in, d)
