@@ -41,8 +41,9 @@ flow is small wherever the valve is open (ground idle, P24 / Pamb about 1.1), so
 of it moves nothing, and a VSV bias is largest (0.7 sigma, on Nc) with the stators open at
 high power. ``stroke_offset_sigmas`` measures the other reading of a VSV or VBV bias, an
 offset of full stroke: at take-off and cruise the VSV's -2 points are the library's -2 %
-(stators fully open), and the valve at its 1 % leak can close by one point only (0.42 sigma
-over a 20-record event); a valve held 10 points open would show 4.1 sigma.
+(stators fully open), and the valve at its 1 % leak can close by one point only (0.43 sigma
+over a 20-record event); a valve held 10 points open would show 4.2 sigma (50 engines a
+fault, bench/bench_isolation.py).
 
 What no design can do: over all eight faults of the library the expected ceiling is
 ``chance_ceiling`` = (7 x 100 + 12.5) / 8 = 89.1 %, because the VBV fault shows nothing and is
