@@ -20,7 +20,9 @@ Three ways of isolating are compared:
 - the full suite with secant signatures (the nonlinear engine's own change from the baseline
   health), which the product does not have.
 
-First each fault's signature per snapshot at a few conditions (``CONDITIONS``). Then per
+First each fault's signature per snapshot at a few conditions (``CONDITIONS``), and the VSV
+and VBV faults read as offsets of full stroke (``STROKE_OFFSETS``,
+``evaluate_engine.stroke_offset_sigmas``; docs/math.md section 4). Then per
 record mix and event length: each fault's event signature in noise sigmas (a fault is
 "visible" when its median reaches ``VISIBLE_SIGMAS``, as the design evaluation names it); the
 ceiling any design can expect over all eight (``evaluate_engine.chance_ceiling``: a fault
@@ -71,6 +73,9 @@ CONDITIONS = {  # alt ft, Mach, power %, dTamb K
 }
 M_REDUCED = (6, 8)  # fewer tuners than the 9 plant-visible directions: design 3 can differ
 LAMBDA = 100.0  # weight of the misclassification sum in the diagnostics-aware design
+# The library's VSV (-2) and VBV (-10) faults as offsets of full stroke, and a VBV held
+# 10 points open (the valve at its 1 % leak cannot close by 10 points).
+STROKE_OFFSETS = (("VSV", -2.0), ("VBV", -10.0), ("VBV", 10.0))
 WITH_SIGNATURE = 7  # Fan .. VSV: VBV moves no sensor by as much as 0.1 sigma
 
 
@@ -100,6 +105,13 @@ def condition_table() -> None:
           + "".join(n.rjust(7) for n in names))
     for label, row in zip(CONDITIONS, sig, strict=True):
         print(f"{label:30s}" + "".join(f"{v:7.2f}" for v in row))
+    cond = np.array(list(CONDITIONS.values()))
+    print("the VSV and VBV faults as offsets of full stroke (percentage points, inside the "
+          "stops) instead of a fraction of the command, noise sigmas per snapshot\n"
+          + f"{'':30s}" + "".join(f"{a} {o:+.0f}".rjust(10) for a, o in STROKE_OFFSETS))
+    off = np.stack([ee.stroke_offset_sigmas(cond, a, o) for a, o in STROKE_OFFSETS], axis=1)
+    for label, row in zip(CONDITIONS, off, strict=True):
+        print(f"{label:30s}" + "".join(f"{v:10.2f}" for v in row))
 
 
 PATHS = {  # label: (sensors, wf, signatures)
@@ -142,6 +154,16 @@ def signature_table(rec: ee.EngineRecords) -> tuple[np.ndarray, np.ndarray]:
         medians.append(ev)
         print(f"{f:6s} {per:14.3f} {ev:11.2f}  {'yes' if ev >= VISIBLE_SIGMAS else 'no'}")
     med = np.array(medians)
+    nb = rec.n_before
+    for actuator, offset in STROKE_OFFSETS:
+        own = np.flatnonzero(rec.fault == rec.fault_names.index(actuator))
+        cond = rec.conditions[own, nb:, :]
+        before = np.repeat(rec.health[own, :1, :], cond.shape[1], axis=1)
+        per = ee.stroke_offset_sigmas(cond.reshape(-1, 4), actuator, offset,
+                                      before.reshape(-1, before.shape[-1]))
+        ev = np.sqrt(np.sum(per.reshape(cond.shape[:2]) ** 2, axis=1))
+        print(f"{actuator} as {offset:+.0f} points of stroke: {np.sqrt(np.mean(per**2)):.3f} "
+              f"sigma per snapshot, event {np.median(ev):.2f}")
     return med, med >= VISIBLE_SIGMAS
 
 

@@ -39,7 +39,11 @@ given conditions in noise sigmas) and ``fault_sigmas`` (per simulated record). O
 engine the VBV bias stays below 0.1 sigma per snapshot over the whole envelope: the bleed
 flow is small wherever the valve is open (ground idle, P24 / Pamb about 1.1), so a -10 % bias
 of it moves nothing, and a VSV bias is largest (0.7 sigma, on Nc) with the stators open at
-high power.
+high power. ``stroke_offset_sigmas`` measures the other reading of a VSV or VBV bias, an
+offset of full stroke: at take-off and cruise the VSV's -2 points are the library's -2 %
+(stators fully open), and the valve at its 1 % leak can close by one point only (0.43 sigma
+over a 20-record event); a valve held 10 points open would show 4.2 sigma (50 engines a
+fault, bench/bench_isolation.py).
 
 What no design can do: over all eight faults of the library the expected ceiling is
 ``chance_ceiling`` = (7 x 100 + 12.5) / 8 = 89.1 %, because the VBV fault shows nothing and is
@@ -242,6 +246,46 @@ def fault_sigmas(rec: EngineRecords) -> np.ndarray:
     base = steady_state(env, power=power, health=before.reshape(-1, N_HEALTH))
     d = np.linalg.norm((hit.sensors - base.sensors) / engine_noise_std(), axis=1)
     return d.reshape(after.shape[:2])
+
+
+def stroke_offset_sigmas(
+    conditions: np.ndarray,
+    actuator: str,
+    offset: float,
+    health: np.ndarray | None = None,
+) -> np.ndarray:
+    """An actuator fault taken as an offset of the actuator's full stroke (``offset``
+    percentage points of its 0-100 % travel, held inside its stops) instead of the engine's
+    fraction of the command: the sensor change in noise sigmas per condition [N] (norm over
+    the sensors), closed loop as ``signature_sigmas``.
+
+    ``actuator`` is "VSV" or "VBV"; conditions [N, 4] (alt ft, Mach, power %, dTamb K);
+    health [N, 13] or [13] the engine before the fault (default nominal). The offset is put
+    on the engine as the fraction of the command the engine's health parameter means
+    (``estimation.engine.health``): position c + offset, clipped to 0-100, is c (1 + h / 100)
+    with c the command before the fault. What a rigging offset would show, measured on the
+    same engine: on the built-in engine the VBV sits at its 1 % leak at take-off and cruise,
+    so a closing offset of 10 points shuts the valve (a 1-point change), and only an opening
+    offset bleeds.
+    """
+    index = {"VSV": 1, "VBV": 2}
+    if actuator not in index:
+        raise EngineEvaluationError(f"actuator must be one of {list(index)}, not {actuator!r}")
+    cond = np.atleast_2d(np.asarray(conditions, float))
+    env = cond[:, [0, 1, 3]]
+    h = np.broadcast_to(np.zeros(N_HEALTH) if health is None else np.asarray(health, float),
+                        (cond.shape[0], N_HEALTH)).copy()
+    base = steady_state(env, power=cond[:, 2], health=h)
+    column = HEALTH_NAMES.index(f"{actuator.lower()}_bias")
+    # The position before the fault (the bias the engine already has included), moved by
+    # the offset within the stops, as a percent of the command.
+    command = base.u[:, index[actuator]]
+    before = command * (1.0 + h[:, column] / 100.0)
+    after = np.clip(before + offset, 0.0, 100.0)
+    hit_h = h.copy()
+    hit_h[:, column] = 100.0 * (after / command - 1.0)
+    hit = steady_state(env, power=cond[:, 2], health=hit_h)
+    return np.linalg.norm((hit.sensors - base.sensors) / engine_noise_std(), axis=1)
 
 
 def chance_ceiling(event_sigmas: np.ndarray, no_signature: float = NO_SIGNATURE_SIGMAS) -> float:

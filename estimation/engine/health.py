@@ -7,7 +7,10 @@ downwards, turbine flow capacity upwards (seed 002 Table 3: HPT fault is -2 %
 efficiency and +2 % flow). Component scalars multiply map efficiency and
 corrected flow by (1 + h/100); actuator biases multiply the commanded value by
 (1 + h/100), so a bias is a percent of the command, as the linear model's
-inputs are percent of trim.
+inputs are percent of trim. Read as offsets of full stroke instead, the
+library's VSV and VBV faults change no more at take-off and cruise (stators
+fully open, bleed valve at its 1 % leak); docs/math.md section 4 gives the
+figures.
 """
 
 from __future__ import annotations

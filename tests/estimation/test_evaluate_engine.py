@@ -134,3 +134,29 @@ def test_isolation_of_the_library_over_all_eight_faults() -> None:
     diag = np.diag(demo.confusion)
     assert np.mean(diag[:VISIBLE]) >= 90.0
     assert demo.percent_correct >= 70.0
+
+
+def test_actuator_faults_as_offsets_of_stroke() -> None:
+    """The other reading of an actuator bias (docs/math.md section 4): an offset of full
+    stroke. At take-off and cruise the stators are fully open, so -2 points is the library's
+    -2 % of the command; the bleed valve is at its 1 % leak, so a 10-point closing offset only
+    shuts it (the library's fault at -100 % of the command) and shows under one sigma over 20
+    records, while a valve held 10 points open is visible (3 sigma or more)."""
+    cond = np.array([[0.0, 0.0, 100.0, 0.0], [35000.0, 0.8, 80.0, 0.0]])
+
+    def event(per_snapshot: np.ndarray) -> float:  # ten records at each condition
+        return float(np.sqrt(10.0 * np.sum(per_snapshot**2)))
+
+    def library(name: str, shifts: dict[str, float]) -> np.ndarray:
+        fault = (isolation.Fault(name, shifts),)
+        return np.linalg.norm(ee.signature_sigmas(cond, fault)[:, :, 0], axis=1)
+
+    vsv = ee.stroke_offset_sigmas(cond, "VSV", -2.0)
+    np.testing.assert_allclose(vsv, library("VSV", {"vsv_bias": -2.0}), rtol=1e-6)
+    closing = ee.stroke_offset_sigmas(cond, "VBV", -10.0)
+    np.testing.assert_allclose(closing, library("shut", {"vbv_bias": -100.0}), rtol=1e-6)
+    assert event(closing) < ee.NO_SIGNATURE_SIGMAS
+    assert event(library("VBV", {"vbv_bias": -10.0})) < 0.2 * event(closing)  # 0.1 point
+    assert event(ee.stroke_offset_sigmas(cond, "VBV", 10.0)) >= 3.0
+    with pytest.raises(ee.EngineEvaluationError):
+        ee.stroke_offset_sigmas(cond, "Wf", -2.0)

@@ -66,7 +66,10 @@ DESIGN_POINT = {"alt": 35000.0, "mach": 0.8, "power": 80.0}
 # 76.2 % (86.0 % of the seven faults with a signature), SVD m = 8 75.2 % (85.4 %) at health RMS
 # 1.7 % against 4.0 %; the best of the bench, this design with fuel flow a closed-loop sensor
 # and secant signatures (which the pipeline does not have), 80.5 % (90.6 %); over 60 records
-# instead of 20, subset m = 11 (+wf_bias) 85.0 % (95.1 %).
+# instead of 20, subset m = 11 (+wf_bias) 85.0 % (95.1 %). Taking the VSV and VBV biases as
+# offsets of full stroke does not lift any design (docs/math.md section 4: this design 75.0 %;
+# a VBV held 10 points open would be visible, and still leaves it at 82.8 %, VSV 40 %), so
+# no design reaches 90 % and this one stays active.
 ACTIVE_DESIGN = ("subset", 10)
 ACTUATOR_BIASES = ("wf_bias", "vsv_bias", "vbv_bias")
 HEALTH = ("fan_eff", "fan_flow", "lpc_eff", "lpc_flow", "hpc_eff", "hpc_flow", "hpt_eff",
