@@ -39,6 +39,8 @@ USED_WITHOUT_IMPORT = {
     "plotly": "the dashboard's plotly.min.js is read from the package's files",
     "python-multipart": "FastAPI parses multipart upload forms with it",
     "uvicorn": "imported inside `fleethealth serve`",
+    "kaleido": "plotly renders the report plots to PNG with it (its wheel ships the browser)",
+    "pillow": "openpyxl reads the size of the report's plot images with it",
 }
 
 
