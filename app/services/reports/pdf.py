@@ -7,7 +7,7 @@ from collections.abc import Iterable, Sequence
 from html import escape
 
 from reportlab.lib import colors
-from reportlab.lib.pagesizes import A4
+from reportlab.lib.pagesizes import A4, landscape
 from reportlab.lib.styles import ParagraphStyle, getSampleStyleSheet
 from reportlab.lib.units import cm
 from reportlab.platypus import (
@@ -36,7 +36,9 @@ STYLES = getSampleStyleSheet()
 SMALL = ParagraphStyle("small", parent=STYLES["BodyText"], fontSize=8, leading=10)
 STATE_COLOURS = {"alert": "#D55E00", "watch": "#E69F00", "normal": "#009E73",
                  "no_data": "#999999"}
-PAGE_WIDTH = A4[0] - 3 * cm
+MARGIN = 1.5 * cm
+# The fleet's tables are wide: its report is landscape.
+FLEET_PAGE = landscape(A4)
 
 
 def _table(header: Sequence[str], rows: Iterable[Sequence[str]],
@@ -56,16 +58,18 @@ def _none(text: str) -> Flowable:
     return Paragraph(f"<i>{text}</i>", STYLES["BodyText"])
 
 
-def _images(images: list[Image]) -> list[Flowable]:
+def _images(images: list[Image], page: tuple[float, float] = A4) -> list[Flowable]:
     out: list[Flowable] = []
+    width = min(page[0] - 2 * MARGIN, 24 * cm)
     for image in images:
-        picture = PdfImage(io.BytesIO(image.png), width=PAGE_WIDTH,
-                           height=PAGE_WIDTH * HEIGHT / WIDTH)
+        picture = PdfImage(io.BytesIO(image.png), width=width, height=width * HEIGHT / WIDTH)
         out.append(KeepTogether([picture, Spacer(1, 0.3 * cm)]))
     return out
 
 
 def _events(events: tuple[EventLine, ...], with_engine: bool) -> Flowable:
+    widths = ([1.2, 2.4, 1.8] if with_engine else [1.2]) + [2.4, 2.2, 2.0, 1.5, 1.8, 2.8, 3.2,
+                                                            2.5]
     if not events:
         return _none("No active events.")
     header = ["Event", *(["ESN", "Tail"] if with_engine else []), "Detected", "Kind", "Status",
@@ -76,7 +80,7 @@ def _events(events: tuple[EventLine, ...], with_engine: bool) -> Flowable:
         "–" if e.isolated is None else f"{e.isolated} ({number(e.probability)})",
         ", ".join(e.ambiguity_group) or "–", e.assignee or "–",
     ] for e in events]
-    return _table(header, rows)
+    return _table(header, rows, [w * cm for w in widths] if with_engine else None)
 
 
 def _state(state: str, severity: str | None) -> str:
@@ -84,11 +88,11 @@ def _state(state: str, severity: str | None) -> str:
     return f'<font color="{colour}"><b>{escape(state)}</b></font> (severity {severity or "–"})'
 
 
-def _build(story: list[Flowable], title: str) -> bytes:
+def _build(story: list[Flowable], title: str, page: tuple[float, float] = A4) -> bytes:
     sink = io.BytesIO()
-    document = SimpleDocTemplate(sink, pagesize=A4, title=title, author="fleethealth",
-                                 leftMargin=1.5 * cm, rightMargin=1.5 * cm,
-                                 topMargin=1.5 * cm, bottomMargin=1.5 * cm)
+    document = SimpleDocTemplate(sink, pagesize=page, title=title, author="fleethealth",
+                                 leftMargin=MARGIN, rightMargin=MARGIN,
+                                 topMargin=MARGIN, bottomMargin=MARGIN)
     document.build(story)
     return sink.getvalue()
 
@@ -157,10 +161,11 @@ def fleet_pdf(report: FleetReport, images: list[Image]) -> bytes:
                f"{number(e.worst_health_sigma)}",
           number(e.thrust_deficit), stamp(e.last_data), str(e.open_events)]
          for e in report.engines],
+        [w * cm for w in (0.8, 2.6, 2.0, 3.2, 1.5, 6.0, 3.4, 1.7, 2.6, 1.6)],
     ) if report.engines else _none("No engines."))
     story += [Paragraph("Active alerts", h2), _events(report.alerts, with_engine=True),
               Paragraph(f"Fleet-average deterioration per {report.bucket}", h2),
               Paragraph("Mean over the engines with data in each bucket; error bars: spread "
                         "over engines (± 1 standard deviation).", body)]
-    story += _images(images) or [_none("No estimates yet.")]
-    return _build(story, f"Fleet report {report.operator}")
+    story += _images(images, FLEET_PAGE) or [_none("No estimates yet.")]
+    return _build(story, f"Fleet report {report.operator}", FLEET_PAGE)
