@@ -9,6 +9,7 @@ that renderer cannot start, the report is refused with a 503 naming what is miss
 
 from __future__ import annotations
 
+import threading
 import warnings
 from dataclasses import dataclass
 
@@ -25,6 +26,9 @@ LIMIT_COLOURS = {"amber": "#E69F00", "red": "#D55E00"}
 FONT = {"family": "DejaVu Sans, Arial, sans-serif", "size": 12, "color": "#1d2733"}
 # Pixels of an image; the PDF draws it 17 cm wide (about 150 dpi at scale 1.5).
 WIDTH, HEIGHT, SCALE = 1000, 420, 1.5
+# One render at a time: kaleido's browser takes one figure at a time anyway, its first use
+# starts it, and the warning filters below are process-wide.
+_RENDER = threading.Lock()
 
 
 @dataclass(frozen=True)
@@ -115,7 +119,7 @@ def deterioration_figure(groups: tuple[DeteriorationGroup, ...], which: str) -> 
 def png(figure: go.Figure) -> bytes:
     """The figure as PNG, or a 503 naming what is missing."""
     try:
-        with warnings.catch_warnings():
+        with _RENDER, warnings.catch_warnings():
             # plotly announces the end of kaleido 0.x, the one whose wheel ships its browser.
             warnings.simplefilter("ignore", DeprecationWarning)
             return pio.to_image(figure, format="png", width=WIDTH, height=HEIGHT, scale=SCALE)
