@@ -326,9 +326,14 @@ def test_bad_requests_get_a_4xx_and_store_nothing(site: Site) -> None:
         assert response.status_code == code, (path, params, response.text)
         assert response.headers["content-type"] == "application/json"
         assert field in response.json()["error"]["message"], response.text
-    # The other operator sees its own engine, and the seeded one not.
-    assert site.get(f"/api/v1/engines/{seeded.other_engine_id}/report", seeded.other_key,
-                    format="pdf").status_code == 200
+    # The other operator sees its own engine (never estimated: a report without plots), and
+    # the seeded one not.
+    for fmt in ("pdf", "xlsx"):
+        response = site.get(f"/api/v1/engines/{seeded.other_engine_id}/report",
+                            seeded.other_key, format=fmt)
+        assert response.status_code == 200, response.text
+    assert _media(response.content) == []
+    assert _pairs(load_workbook(io.BytesIO(response.content))["Engine"])["ESN"] == "OTHER-1"
     assert site.get(f"/api/v1/engines/{engine_id}/report", seeded.other_key,
                     format="xlsx").status_code == 404
     assert site.get("/api/v1/fleet/report", "fh_wrong", format="pdf").status_code == 401
