@@ -23,7 +23,8 @@ PALETTE = ("#0072B2", "#E69F00", "#009E73", "#D55E00", "#56B4E9", "#CC79A7", "#0
            "#999999")
 MODULES = ("fan", "lpc", "hpc", "hpt", "lpt")
 LIMIT_COLOURS = {"amber": "#E69F00", "red": "#D55E00"}
-FONT = {"family": "DejaVu Sans, Arial, sans-serif", "size": 12, "color": "#1d2733"}
+# Lato comes with kaleido: the plots look the same on every machine, with or without fonts.
+FONT = {"family": "Lato, DejaVu Sans, Arial, sans-serif", "size": 12, "color": "#1d2733"}
 # Pixels of an image; the PDF draws it 17 cm wide (about 150 dpi at scale 1.5).
 WIDTH, HEIGHT, SCALE = 1000, 420, 1.5
 # One render at a time: kaleido's browser takes one figure at a time anyway, its first use
@@ -63,7 +64,8 @@ def _layout(title: str, ytitle: str, xtitle: str = "Date (UTC)") -> go.Layout:
         title={"text": title, "x": 0.01, "font": {"size": 15}},
         font=FONT, paper_bgcolor="#ffffff", plot_bgcolor="#ffffff",
         margin={"l": 75, "r": 20, "t": 60, "b": 55},
-        legend={"orientation": "v", "x": 1.01, "y": 1, "font": {"size": 11}},
+        legend={"orientation": "v", "x": 1.01, "y": 1, "font": {"size": 11},
+                "traceorder": "normal"},
         xaxis={"title": {"text": xtitle}, "type": "date", "gridcolor": "#e3e8ee",
                "zerolinecolor": "#c5ced8"},
         yaxis={"title": {"text": ytitle}, "gridcolor": "#e3e8ee", "zerolinecolor": "#c5ced8"},
