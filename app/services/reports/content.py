@@ -281,8 +281,8 @@ def engine_report(session: Session, operator_id: int, engine_id: int) -> EngineR
         panels=tuple(panels),
         figures=tuple(figures),
         events=active_events(session, operator_id, engine_id),
-        maintenance=tuple(MaintenanceLine(_time(m["performed_at"]) or datetime.min, m["kind"],
-                                          m["notes"]) for m in trend["maintenance"]),
+        maintenance=tuple(MaintenanceLine(m["performed_at"], m["kind"], m["notes"])
+                          for m in trend["maintenance"]),
     )
 
 
