@@ -40,6 +40,7 @@ from app.routers import (
     maintenance,
     me,
     notifications,
+    reports,
     stream_estimates,
     streams,
     trends,
@@ -139,6 +140,7 @@ def create_app(
     app.include_router(me.router)
     app.include_router(trends.router)
     app.include_router(fleet_status.router)
+    app.include_router(reports.router)
     app.include_router(events.router)
     app.include_router(aircraft.router)
     app.include_router(designs.router)

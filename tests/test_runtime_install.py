@@ -39,6 +39,8 @@ USED_WITHOUT_IMPORT = {
     "plotly": "the dashboard's plotly.min.js is read from the package's files",
     "python-multipart": "FastAPI parses multipart upload forms with it",
     "uvicorn": "imported inside `fleethealth serve`",
+    "kaleido": "plotly renders the report plots to PNG with it (its wheel ships the browser)",
+    "pillow": "openpyxl reads the size of the report's plot images with it",
 }
 
 
@@ -154,6 +156,22 @@ def test_clean_install_runs_the_cli_and_serves(runtime_venv: Path, tmp_path: Pat
             server.kill()
             out, _ = server.communicate()
     assert "Traceback" not in out, out[-3000:]
+
+
+def test_clean_install_renders_report_plots(runtime_venv: Path, tmp_path: Path) -> None:
+    """The report's plots render from the wheels alone: kaleido's own browser, no system one."""
+    code = (
+        "import plotly.graph_objects as go\n"
+        "from app.services.reports import plots\n"
+        "image = plots.png(go.Figure(go.Scatter(x=[1, 2, 3], y=[3, 1, 2])))\n"
+        "print(image[:8] == b'\\x89PNG\\r\\n\\x1a\\n', len(image))\n"
+    )
+    env = _clean_env(tmp_path / "data")
+    env.pop("BROWSER_PATH", None)
+    result = subprocess.run([str(runtime_venv / "bin" / "python"), "-c", code],
+                            capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert result.stdout.startswith("True "), result.stdout
 
 
 def _docker_daemon() -> bool:

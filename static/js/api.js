@@ -118,10 +118,22 @@ export function uploadFile(path, file, { query, onProgress } = {}) {
   });
 }
 
+// A file the API makes (a report) saved in the browser's downloads: requested with the key as
+// every request is, named as the API's Content-Disposition names it (else ``filename``).
+export async function apiDownload(path, { query, accept, filename } = {}) {
+  const response = await request(path, { query, accept });
+  const named = /filename="([^"]+)"/.exec(response.headers.get("Content-Disposition") || "");
+  saveBlob(await response.blob(), named ? named[1] : filename);
+}
+
 // Save text as a file in the browser's downloads.
 export function download(text, filename, type = "text/csv") {
+  saveBlob(new Blob([text], { type }), filename);
+}
+
+export function saveBlob(blob, filename) {
   const link = document.createElement("a");
-  link.href = URL.createObjectURL(new Blob([text], { type }));
+  link.href = URL.createObjectURL(blob);
   link.download = filename;
   document.body.append(link);
   link.click();

@@ -4,6 +4,7 @@ import { api, apiText, download } from "./api.js";
 import { $, fmtTime, h, params, showError, startPage, tailLink } from "./ui.js";
 import { MARKER_COLOURS, axisTitle, layout, limitShapes, lineWithBand, markerAnnotations, markerShapes, plot, syncZoom, unitOf } from "./plots.js";
 import { maintenancePanel } from "./maintenance.js";
+import { reportButtons } from "./reports.js";
 
 const ORDER = ["health", "aux", "tuners", "residuals", "wssr"];
 const TITLES = {
@@ -317,6 +318,8 @@ async function main() {
   $("#form").addEventListener("submit", (e) => { e.preventDefault(); saveView(); load(id); });
   $("#axis").addEventListener("change", () => { saveView(); if (trend?.n_records) draw(); });
   $("#export").addEventListener("click", () => exportCsv(id));
+  // The engine's report (active design, every record), as PDF or Excel with the plots as images.
+  $("#export").after(...reportButtons(`/api/v1/engines/${id}/report`, $("#message"), `engine-report-${id}`));
   await load(id);
   await listRecordings(id);
   await maintenancePanel(id, () => load(id));

@@ -2,6 +2,7 @@
 import { api } from "./api.js";
 import { $, badge, fmtNum, fmtTime, h, showError, sortableTable, startPage, tailLink } from "./ui.js";
 import { axisTitle, layout, plot, styleFor, unitOf } from "./plots.js";
+import { reportButtons } from "./reports.js";
 
 let engines = [];
 // Engines per page: the API ranks the whole fleet, worst first, and sends a page of it.
@@ -103,6 +104,7 @@ async function loadDeterioration() {
 
 async function main() {
   await startPage("fleet");
+  $("#reports").append(...reportButtons("/api/v1/fleet/report", $("#message"), "fleet-report"));
   for (const id of ["filter", "open"]) $(`#${id}`).addEventListener("input", drawTable);
   $("#state").addEventListener("change", () => { offset = 0; loadStatus().catch((err) => showError($("#message"), err, "Fleet status")); });
   for (const id of ["bucket", "which"]) $(`#${id}`).addEventListener("change", loadDeterioration);

@@ -1,0 +1,1 @@
+"""Fleet and engine reports: PDF and Excel files with the plots as images."""
