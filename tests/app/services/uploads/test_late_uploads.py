@@ -56,8 +56,8 @@ def test_the_lateness_is_a_setting(
 ) -> None:
     now = datetime.now(UTC).replace(microsecond=0)
     app.state.settings = app.state.settings.model_copy(update={"upload_lateness_days": 30.0})
-    ten_days = post_csv(client, fleet_data, snapshot_rows(8, seed=4, start=now - timedelta(days=10)),
-                        "ten days.csv")
+    ten_days = post_csv(client, fleet_data,
+                        snapshot_rows(8, seed=4, start=now - timedelta(days=10)), "ten days.csv")
     assert (ten_days["rows_late"], ten_days["late"]) == (0, False)
     app.state.settings = app.state.settings.model_copy(update={"upload_lateness_days": 2.0})
     three_days = post_csv(client, fleet_data,
