@@ -16,11 +16,13 @@ async function drawTransitions(changes) {
     counts.set(key, { n: (counts.get(key)?.n || 0) + 1, to: c.to_state });
   }
   const rows = [...counts.entries()].sort((a, b) => STATES.indexOf(a[1].to) - STATES.indexOf(b[1].to));
+  const height = Math.max(200, 80 + 30 * rows.length);
+  $("#changes-plot").style.minHeight = `${height}px`;
   await plot($("#changes-plot"), [{
     type: "bar", orientation: "h", name: "engines", y: rows.map(([k]) => k), x: rows.map(([, v]) => v.n),
     marker: { color: rows.map(([, v]) => STATE_COLOURS[v.to]) }, hovertemplate: "%{x} engines<extra>%{y}</extra>",
   }], layout({
-    height: Math.max(200, 80 + 30 * rows.length), showlegend: false, hovermode: "closest",
+    height, showlegend: false, hovermode: "closest",
     xaxis: { title: { text: "Engines" }, dtick: 1, rangemode: "tozero" }, yaxis: { type: "category", automargin: true },
   }));
 }
@@ -49,7 +51,7 @@ async function main() {
       ? h("span", {}, `Since the previous run (`, h("a", { href: `/diagnostic.html?job=${r.baseline_job_id}` }, `job #${r.baseline_job_id}`), `, ${fmtTime(r.since)}) up to ${fmtTime(r.as_of)}.`)
       : h("span", {}, `First report: every engine's state at ${fmtTime(r.as_of)}, and every alert stored so far.`));
     $("#summary").replaceChildren(
-      h("div", { class: "card" }, h("div", { class: "muted" }, "Engines"), h("div", { class: "big" }, r.n_engines)),
+      h("div", { class: "card" }, h("div", { class: "muted" }, "Engines estimated"), h("div", { class: "big" }, r.n_engines)),
       h("div", { class: "card" }, h("div", { class: "muted" }, "Changed state"), h("div", { class: "big", id: "n-changes" }, r.state_changes.length)),
       h("div", { class: "card" }, h("div", { class: "muted" }, "Alerts raised"), h("div", { class: "big", id: "n-events" }, r.n_events_raised)),
       h("div", { class: "card" }, h("div", { class: "muted" }, "Active events now"), h("a", { class: "big", href: "/events.html?status=active" }, r.n_open_events)));
@@ -64,7 +66,7 @@ async function main() {
       { key: "reason", label: "Why now", value: (c) => c.reason || "", cell: (c) => c.reason || h("span", { class: "muted" }, "within limits") },
     ], r.state_changes, { sortKey: "to_state", descending: true, rowClass: (c) => `change state-${c.to_state}` })
       : h("p", { class: "muted" }, "No engine changed state."));
-    $("#events").replaceChildren(r.events_raised.length ? [sortableTable([
+    $("#events").replaceChildren(...(r.events_raised.length ? [sortableTable([
       { key: "event_id", label: "Event", numeric: true, cell: (e) => h("a", { href: `/events.html?id=${e.event_id}` }, `#${e.event_id}`) },
       { key: "esn", label: "ESN", cell: (e) => h("a", { href: `/engine.html?id=${e.engine_id}` }, e.esn) },
       { key: "kind", label: "What", value: (e) => e.fault || e.kind, cell: (e) => (e.kind === "wear" ? "wear" : (e.fault || e.kind.replace("_", " "))) },
@@ -72,8 +74,8 @@ async function main() {
       { key: "detected_at", label: "Detected (record time)", cell: (e) => fmtTime(e.detected_at) },
       { key: "status", label: "Status at the report", cell: (e) => badge(e.status) },
     ], r.events_raised, { sortKey: "detected_at", descending: true, rowClass: () => "raised" }),
-    r.n_events_raised > r.events_raised.length ? h("p", { class: "muted" }, `The newest ${r.events_raised.length} of ${r.n_events_raised}.`) : null]
-      : h("p", { class: "muted" }, "No alert was raised."));
+    r.n_events_raised > r.events_raised.length ? h("p", { class: "muted" }, `The newest ${r.events_raised.length} of ${r.n_events_raised}.`) : ""]
+      : [h("p", { class: "muted" }, "No alert was raised.")]));
   } catch (err) {
     showError($("#message"), err, `Job ${id}`);
   }

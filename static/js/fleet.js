@@ -60,12 +60,14 @@ async function loadCoverage() {
     const age = (e) => (Date.parse(data.now) - Date.parse(e.last_data)) / DAY_MS;
     const label = (e) => `${e.esn}${e.tail ? ` (${e.tail} #${e.position})` : ""}`;
     const colour = (e) => (e.overdue ? "#D55E00" : e.tail ? "#009E73" : "#999999");
+    const height = Math.max(260, 90 + 22 * withData.length);
+    $("#coverage-plot").style.minHeight = `${height}px`;
     await plot($("#coverage-plot"), [{
       type: "bar", orientation: "h", name: "days since last data",
       y: withData.map(label), x: withData.map(age), marker: { color: withData.map(colour) },
       customdata: withData.map((e) => fmtTime(e.last_data)), hovertemplate: "%{x:.1f} d (last record %{customdata})<extra></extra>",
     }], layout({
-      height: Math.max(260, 60 + 18 * withData.length), hovermode: "closest", showlegend: false,
+      height, hovermode: "closest", showlegend: false,
       xaxis: { title: { text: "Days since the newest record [d]" }, rangemode: "tozero" },
       yaxis: { type: "category", automargin: true },
       shapes: [{ type: "line", xref: "x", yref: "paper", x0: data.overdue_days, x1: data.overdue_days, y0: 0, y1: 1, line: { color: "#D55E00", dash: "dash", width: 1.5 } }],
