@@ -142,6 +142,27 @@ def test_an_interval_schedule_and_the_page_is_for_administrators(
     page.locator(f"#schedules tr.schedule-{schedule['id']} button.delete").click()
     page.wait_for_selector(f"#schedules tr.schedule-{schedule['id']}", state="detached")
 
+    # A kind that takes a design: the design is chosen from the operator's ready designs.
+    assert page.is_hidden("#design-field")
+    page.select_option("#kind", "evaluate_design")
+    assert page.is_visible("#design-field")
+    design_id = server.seeded.design_ids[1]
+    page.select_option("#design", str(design_id))
+    page.fill("#parameters", "{}")
+    page.check("#timing-cron")
+    page.fill("#cron", "0 3 * * 0")
+    page.click("#schedule-add")
+    page.wait_for_selector("#created:has-text('evaluate design')")
+    [evaluation] = [s for s in api_get(server, "/api/v1/schedules")
+                    if s["kind"] == "evaluate_design"]
+    assert evaluation["parameters"]["design_id"] == design_id
+    name = api_get(server, f"/api/v1/designs/{design_id}")["name"]
+    row = page.locator(f"#schedules tr.schedule-{evaluation['id']}")
+    assert name in row.inner_text() and "0 3 * * 0" in row.inner_text()
+    page.once("dialog", lambda dialog: dialog.accept())
+    row.locator("button.delete").click()
+    page.wait_for_selector(f"#schedules tr.schedule-{evaluation['id']}", state="detached")
+
     page.evaluate("localStorage.clear()")
     sign_in(page, server.seeded.viewer_key, "/schedules.html")
     assert "Only administrators" in page.inner_text("main")
