@@ -36,6 +36,14 @@ class Settings(BaseSettings):
         description="The heartbeat timeout: a running job whose last heartbeat is older is "
         "taken as abandoned by a stopped worker and requeued.",
     )
+    upload_lateness_days: float = Field(
+        default=7.0, gt=0,
+        description="An upload's records recorded longer than this before it arrived are late.",
+    )
+    data_overdue_days: float = Field(
+        default=7.0, gt=0,
+        description="An installed engine without data for longer than this is overdue.",
+    )
     host: str = "127.0.0.1"
     port: int = 8000
     log_level: str = "INFO"
@@ -51,6 +59,10 @@ class Settings(BaseSettings):
     @property
     def job_stale_after(self) -> timedelta:
         return timedelta(seconds=self.job_stale_after_seconds)
+
+    @property
+    def upload_lateness(self) -> timedelta:
+        return timedelta(days=self.upload_lateness_days)
 
     @property
     def resolved_database_url(self) -> str:

@@ -19,6 +19,7 @@ from app.errors import ServiceError
 from app.jobs.claim import SessionFactory
 from app.models.base import utcnow
 from app.models.jobs import JobSchedule
+from app.services.jobs.cron import next_cron_time
 from app.services.jobs.dispatch import Dispatcher
 from app.services.jobs.registry import JobRegistry
 from app.services.jobs.store import submit
@@ -38,6 +39,15 @@ def next_run_after(previous: datetime, interval_seconds: int, now: datetime) -> 
     behind = max(0.0, (now - previous) / interval)
     steps = math.floor(behind) + 1
     return previous + steps * interval
+
+
+def next_run(schedule: JobSchedule, now: datetime) -> datetime:
+    """The schedule's run after the one due at ``now``: the cron expression's first time after
+    ``now``, or the interval's next step (both skip runs missed while nothing ran)."""
+    if schedule.cron is not None:
+        return next_cron_time(schedule.cron, now)
+    assert schedule.interval_seconds is not None  # the table's check: cron or interval
+    return next_run_after(schedule.next_run_at, schedule.interval_seconds, now)
 
 
 def submit_due(
@@ -69,12 +79,7 @@ def submit_due(
                     JobSchedule.next_run_at == schedule.next_run_at,
                     JobSchedule.enabled.is_(True),
                 )
-                .values(
-                    next_run_at=next_run_after(
-                        schedule.next_run_at, schedule.interval_seconds, now
-                    ),
-                    last_run_at=now,
-                ),
+                .values(next_run_at=next_run(schedule, now), last_run_at=now),
                 execution_options={"synchronize_session": False},
             ).rowcount  # type: ignore[attr-defined]
             if not advanced:

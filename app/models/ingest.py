@@ -114,6 +114,8 @@ class Upload(Base):
     # Records older than an affected engine's last estimated record: the estimation re-ran
     # the engine from the upload's earliest record (``affected[*].estimated_until``).
     back_dated: Mapped[bool] = mapped_column(Boolean, default=False, server_default=false())
+    # Records recorded longer before the upload than the lateness (``upload_lateness_days``).
+    rows_late: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
 
 
 class Snapshot(Base):

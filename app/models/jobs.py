@@ -35,13 +35,21 @@ _ACTIVE = text("status IN ('queued', 'running')")
 
 
 class JobSchedule(Base):
-    """Submit a job of ``kind`` with ``parameters`` every ``interval_seconds``.
+    """Submit a job of ``kind`` with ``parameters`` every ``interval_seconds``, or at the
+    times of the five-field ``cron`` expression (UTC); a schedule has exactly one of the two.
 
     Named for jobs so it is not mistaken for an operating-condition schedule of the estimator.
     """
 
     __tablename__ = "job_schedules"
-    __table_args__ = (CheckConstraint("interval_seconds > 0", name="interval_positive"),)
+    __table_args__ = (
+        CheckConstraint("interval_seconds > 0", name="interval_positive"),
+        CheckConstraint(
+            "(cron IS NULL AND interval_seconds IS NOT NULL) "
+            "OR (cron IS NOT NULL AND interval_seconds IS NULL)",
+            name="cron_or_interval",
+        ),
+    )
 
     id: Mapped[int] = mapped_column(primary_key=True)
     operator_id: Mapped[int] = mapped_column(
@@ -49,7 +57,8 @@ class JobSchedule(Base):
     )
     kind: Mapped[str] = mapped_column(String(100))
     parameters: Mapped[dict[str, Any]] = mapped_column(JSON)
-    interval_seconds: Mapped[int] = mapped_column(Integer)
+    interval_seconds: Mapped[int | None] = mapped_column(Integer, default=None)
+    cron: Mapped[str | None] = mapped_column(String(100), default=None)
     enabled: Mapped[bool] = mapped_column(Boolean, default=True)
     next_run_at: Mapped[datetime] = mapped_column(UTCDateTime(), index=True)
     last_run_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)

@@ -2,14 +2,22 @@
 
 from __future__ import annotations
 
+from datetime import timedelta
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Query, Response
+from fastapi import APIRouter, Query, Request, Response
 
-from app.schemas.estimates import EngineState, FleetDeterioration, FleetStatus
+from app.schemas.estimates import (
+    DataCoverage,
+    EngineCoverageOut,
+    EngineState,
+    FleetDeterioration,
+    FleetStatus,
+    TailCoverageOut,
+)
 from app.schemas.fleet import MAX_PAGE
 from app.security import CurrentPrincipal, DbSession
-from app.services.fleet import status
+from app.services.fleet import coverage, status
 from app.services.trends.service import to_json
 
 router = APIRouter(prefix="/api/v1/fleet", tags=["fleet status"])
@@ -39,3 +47,29 @@ def fleet_deterioration(
 ) -> object:
     """Fleet-average health-parameter and auxiliary estimates per week or month."""
     return status.fleet_deterioration(session, principal.operator_id, bucket)
+
+
+@router.get("/data-coverage", response_model=DataCoverage)
+def data_coverage(
+    request: Request,
+    session: DbSession,
+    principal: CurrentPrincipal,
+    overdue_days: Annotated[
+        float | None,
+        Query(gt=0, le=3650, description="overdue age in days; default "
+              "FLEETHEALTH_DATA_OVERDUE_DAYS (7)"),
+    ] = None,
+) -> DataCoverage:
+    """Each tail's and each engine's last data, and the installed engines whose data is
+    overdue (no record for longer than ``overdue_days``)."""
+    days = overdue_days if overdue_days is not None else (
+        request.app.state.settings.data_overdue_days
+    )
+    found = coverage.data_coverage(
+        session, principal.operator_id, overdue_after=timedelta(days=days)
+    )
+    return DataCoverage(
+        now=found.now, overdue_days=days, n_overdue=sum(e.overdue for e in found.engines),
+        tails=[TailCoverageOut.model_validate(t) for t in found.tails],
+        engines=[EngineCoverageOut.model_validate(e) for e in found.engines],
+    )

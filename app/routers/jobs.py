@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Response, status
 
@@ -14,6 +14,7 @@ from app.schemas.jobs import (
     JobStatus,
     JobSubmit,
     ScheduleCreate,
+    ScheduleJobOut,
     ScheduleOut,
     ScheduleUpdate,
 )
@@ -108,23 +109,40 @@ def cancel_job(job_id: int, session: DbSession, principal: Analyst) -> JobOut:
     )
 
 
+def _schedules_out(session: DbSession, operator_id: int, rows: list[Any]) -> list[ScheduleOut]:
+    """Schedules with the newest job each submitted."""
+    last = schedule_service.last_jobs(
+        session, operator_id=operator_id, schedule_ids=[row.id for row in rows]
+    )
+    out = []
+    for row in rows:
+        item = ScheduleOut.model_validate(row)
+        job = last.get(row.id)
+        item.last_job = None if job is None else ScheduleJobOut.model_validate(job)
+        out.append(item)
+    return out
+
+
 @router.get("/schedules", response_model=list[ScheduleOut])
 def list_schedules(session: DbSession, principal: Admin) -> list[ScheduleOut]:
+    """Your operator's schedules with their next run and the newest job each submitted."""
     rows = schedule_service.list_schedules(session, operator_id=principal.operator_id)
-    return [ScheduleOut.model_validate(row) for row in rows]
+    return _schedules_out(session, principal.operator_id, rows)
 
 
 @router.post("/schedules", response_model=ScheduleOut, status_code=status.HTTP_201_CREATED)
 def create_schedule(
     body: ScheduleCreate, session: DbSession, principal: Admin, jobs: Jobs
 ) -> ScheduleOut:
-    """Submit a job of ``kind`` every ``interval_seconds``, the first at ``first_run_at``."""
+    """Submit a job of ``kind`` every ``interval_seconds`` or at the times of ``cron`` (UTC),
+    the first at ``first_run_at``. A bad cron expression is a 422 naming ``cron``."""
     schedule = schedule_service.create_schedule(
         session,
         operator_id=principal.operator_id,
         kind=body.kind,
         parameters=body.parameters,
         interval_seconds=body.interval_seconds,
+        cron=body.cron,
         first_run_at=body.first_run_at,
         enabled=body.enabled,
         registry=jobs.registry,
@@ -134,11 +152,10 @@ def create_schedule(
 
 @router.get("/schedules/{schedule_id}", response_model=ScheduleOut)
 def get_schedule(schedule_id: int, session: DbSession, principal: Admin) -> ScheduleOut:
-    return ScheduleOut.model_validate(
-        schedule_service.get_schedule(
-            session, operator_id=principal.operator_id, schedule_id=schedule_id
-        )
+    row = schedule_service.get_schedule(
+        session, operator_id=principal.operator_id, schedule_id=schedule_id
     )
+    return _schedules_out(session, principal.operator_id, [row])[0]
 
 
 @router.patch("/schedules/{schedule_id}", response_model=ScheduleOut)
@@ -149,7 +166,7 @@ def update_schedule(
     principal: Admin,
     jobs: Jobs,
 ) -> ScheduleOut:
-    """Change parameters, interval, next run or enabled; fields left out stay as they are."""
+    """Change parameters, interval or cron, next run or enabled; fields left out stay."""
     schedule = schedule_service.update_schedule(
         session,
         operator_id=principal.operator_id,
@@ -157,10 +174,36 @@ def update_schedule(
         registry=jobs.registry,
         parameters=body.parameters,
         interval_seconds=body.interval_seconds,
+        cron=body.cron,
         enabled=body.enabled,
         next_run_at=body.next_run_at,
     )
-    return ScheduleOut.model_validate(schedule)
+    return _schedules_out(session, principal.operator_id, [schedule])[0]
+
+
+@router.post(
+    "/schedules/{schedule_id}/run",
+    response_model=JobOut,
+    status_code=status.HTTP_202_ACCEPTED,
+    responses={200: {"description": "The schedule's job is queued or running already",
+                     "model": JobOut}},
+)
+def run_schedule_now(
+    schedule_id: int, session: DbSession, principal: Admin, jobs: Jobs, response: Response
+) -> JobOut:
+    """Submit the schedule's job now (202), or get its queued or running job (200); the
+    schedule's next run stays as it was."""
+    schedule = schedule_service.get_schedule(
+        session, operator_id=principal.operator_id, schedule_id=schedule_id
+    )
+    job, created = jobs.submit(
+        session, operator_id=principal.operator_id, kind=schedule.kind,
+        parameters=schedule.parameters, schedule_id=schedule.id,
+    )
+    schedule_service.mark_run(schedule)
+    if not created:
+        response.status_code = status.HTTP_200_OK
+    return JobOut.model_validate(job)
 
 
 @router.delete("/schedules/{schedule_id}", response_model=ScheduleOut)

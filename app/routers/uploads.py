@@ -44,6 +44,7 @@ def upload_out(result: UploadResult, response: Response) -> UploadOut:
 
 
 def _store_snapshots(
+    request: Request,
     session: DbSession,
     principal: Principal,
     payload: Payload,
@@ -67,6 +68,7 @@ def _store_snapshots(
             mapping=mapping,
             idempotency_key=idempotency_key,
             origin=payload.origin,
+            lateness=request.app.state.settings.upload_lateness,
         ),
     )
 
@@ -100,7 +102,7 @@ def upload_snapshots(
             "POST /api/v1/snapshots takes Content-Type application/json; "
             "CSV and Parquet files go to /api/v1/snapshots/file"
         )
-    result = _store_snapshots(session, principal, payload, idempotency_key, None)
+    result = _store_snapshots(request, session, principal, payload, idempotency_key, None)
     queue_estimation(request, session, principal, result)
     return upload_out(result, response)
 
@@ -143,7 +145,9 @@ def upload_snapshot_file(
         raise UnsupportedMediaType(
             "send text/csv or application/vnd.apache.parquet (raw body or a multipart file)"
         )
-    result = _store_snapshots(session, principal, payload, idempotency_key, parse_mapping(columns))
+    result = _store_snapshots(
+        request, session, principal, payload, idempotency_key, parse_mapping(columns)
+    )
     queue_estimation(request, session, principal, result)
     return upload_out(result, response)
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AwareDatetime, BaseModel, ConfigDict, Field
 
 EventKind = Literal["shift", "isolated_fault", "wear"]
 EventStatus = Literal["open", "acknowledged", "closed"]
@@ -352,3 +352,37 @@ class AssignIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     assignee_key_id: int | None
+
+
+class EngineCoverageOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+    engine_id: int
+    esn: str
+    aircraft_id: int | None
+    tail: str | None = Field(description="the tail it is installed on now; null if none")
+    position: int | None
+    installed_at: AwareDatetime | None
+    last_data: AwareDatetime | None = Field(description="its newest record (recorded_at)")
+    overdue: bool = Field(
+        description="installed, and its last record (or installation) older than overdue_days"
+    )
+
+
+class TailCoverageOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+    aircraft_id: int
+    tail: str
+    last_data: AwareDatetime | None = Field(description="its newest record, any position")
+    engines_installed: int
+    engines_overdue: int
+
+
+class DataCoverage(BaseModel):
+    now: AwareDatetime = Field(description="the service's time the ages are counted to")
+    overdue_days: float = Field(description="an installed engine without data longer is overdue")
+    n_overdue: int
+    tails: list[TailCoverageOut] = Field(description="by tail number")
+    engines: list[EngineCoverageOut] = Field(
+        description="overdue first, then by last data, oldest first")

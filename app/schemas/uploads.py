@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator
+from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from app.signals import ACTUATORS, PHASES, SENSORS, SIGNALS, STREAM_DT_MAX_S, STREAM_DT_MIN_S
 from app.signals import MAX_CHUNK_INDEX as MAX_CHUNK_INDEX  # for the streams router
@@ -56,9 +56,19 @@ class UploadOut(BaseModel):
         False, description="records older than an affected engine's last estimated record: "
         "its estimates and events from the earliest of them were redone"
     )
+    rows_late: int = Field(
+        0, description="records recorded longer before the upload arrived than the lateness "
+        "(FLEETHEALTH_UPLOAD_LATENESS_DAYS, default 7 days) at that time"
+    )
+    late: bool = Field(False, description="rows_late > 0: records that arrived late")
     replayed: bool = Field(
         False, description="true when this request repeated an earlier upload and stored nothing"
     )
+
+    @model_validator(mode="after")
+    def _late(self) -> UploadOut:
+        self.late = self.rows_late > 0
+        return self
 
 
 class UploadEventOut(BaseModel):

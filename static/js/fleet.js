@@ -1,10 +1,14 @@
 // Fleet status: every engine with its state, sortable and filterable; fleet-average deterioration.
 import { api } from "./api.js";
-import { $, badge, fmtNum, fmtTime, h, showError, sortableTable, startPage, tailLink } from "./ui.js";
+import { $, badge, fmtAgo, fmtNum, fmtTime, h, showError, sortableTable, startPage, tailLink } from "./ui.js";
 import { axisTitle, layout, plot, styleFor, unitOf } from "./plots.js";
 import { reportButtons } from "./reports.js";
 
 let engines = [];
+// engine id -> its data coverage (newest record, overdue), from /api/v1/fleet/data-coverage.
+let coverage = new Map();
+let coverageNow = null;
+const DAY_MS = 86400e3;  // one day [ms]
 // Engines per page: the API ranks the whole fleet, worst first, and sends a page of it.
 const PAGE = 200;
 let offset = 0;
@@ -16,7 +20,7 @@ function columns() {
     { key: "tail", label: "Tail", value: (e) => e.tail, cell: (e) => (e.tail ? tailLink(e.tail) : null) || h("span", { class: "muted" }, "not installed") },
     { key: "position", label: "Pos.", numeric: true },
     { key: "engine_type", label: "Engine type" },
-    { key: "last_data", label: "Last data", cell: (e) => fmtTime(e.last_data) },
+    { key: "last_data", label: "Last data", value: (e) => coverage.get(e.engine_id)?.last_data ?? e.last_data, cell: lastDataCell },
     // Severity rank from the API: red, amber, normal, then by how far past the type's limits.
     { key: "rank", label: "State", value: (e) => -(e.rank ?? 1e9), cell: (e) => badge(e.state) },
     { key: "reason", label: "Reason", value: (e) => e.reason || "", cell: (e) => e.reason || h("span", { class: "muted" }, "within limits") },
@@ -28,6 +32,61 @@ function columns() {
       cell: (e) => (e.latest_event ? h("span", {}, `${e.open_events} `, h("a", { href: `/events.html?id=${e.latest_event.id}` },
         `${e.latest_event.fault || e.latest_event.kind} ${fmtTime(e.latest_event.detected_at).slice(0, 10)}`)) : String(e.open_events)) },
   ];
+}
+
+function overdueBadge() {
+  return h("span", { class: "badge alert overdue", title: `no data for longer than ${$("#overdue-days").value} days` }, "overdue");
+}
+
+// The newest record (from the coverage, which counts records not yet estimated too), how long
+// ago, and the overdue flag.
+function lastDataCell(e) {
+  const c = coverage.get(e.engine_id);
+  const last = c ? c.last_data : e.last_data;
+  return h("span", { class: "last-data" }, fmtTime(last), c && last ? h("span", { class: "muted" }, ` · ${fmtAgo(last, coverageNow)}`) : null,
+    c && c.overdue ? [" ", overdueBadge()] : null);
+}
+
+async function loadCoverage() {
+  const message = $("#coverage-message");
+  message.replaceChildren();
+  try {
+    const days = $("#overdue-days").value;
+    const data = await api("/api/v1/fleet/data-coverage", { query: { overdue_days: days || undefined } });
+    if (!days) $("#overdue-days").value = data.overdue_days;
+    coverage = new Map(data.engines.map((e) => [e.engine_id, e]));
+    coverageNow = data.now;
+    $("#overdue-count").textContent = `${data.n_overdue} of ${data.engines.filter((e) => e.tail).length} installed engines overdue`;
+    const withData = data.engines.filter((e) => e.last_data).reverse();  // oldest at the top
+    const age = (e) => (Date.parse(data.now) - Date.parse(e.last_data)) / DAY_MS;
+    const label = (e) => `${e.esn}${e.tail ? ` (${e.tail} #${e.position})` : ""}`;
+    const colour = (e) => (e.overdue ? "#D55E00" : e.tail ? "#009E73" : "#999999");
+    const height = Math.max(260, 90 + 22 * withData.length);
+    $("#coverage-plot").style.minHeight = `${height}px`;
+    await plot($("#coverage-plot"), [{
+      type: "bar", orientation: "h", name: "days since last data",
+      y: withData.map(label), x: withData.map(age), marker: { color: withData.map(colour) },
+      customdata: withData.map((e) => fmtTime(e.last_data)), hovertemplate: "%{x:.1f} d (last record %{customdata})<extra></extra>",
+    }], layout({
+      height, hovermode: "closest", showlegend: false,
+      xaxis: { title: { text: "Days since the newest record [d]" }, rangemode: "tozero" },
+      yaxis: { type: "category", automargin: true },
+      shapes: [{ type: "line", xref: "x", yref: "paper", x0: data.overdue_days, x1: data.overdue_days, y0: 0, y1: 1, line: { color: "#D55E00", dash: "dash", width: 1.5 } }],
+      annotations: [{ xref: "x", yref: "paper", x: data.overdue_days, y: 1, yanchor: "bottom", text: `overdue after ${fmtNum(data.overdue_days, 1)} d`, showarrow: false, font: { color: "#B84A00" } }],
+    }));
+    const onTail = (t) => data.engines.filter((e) => e.aircraft_id === t.aircraft_id).sort((a, b) => a.position - b.position);
+    $("#coverage-tails").replaceChildren(data.tails.length ? sortableTable([
+      { key: "tail", label: "Tail", cell: (t) => tailLink(t.tail) },
+      { key: "last_data", label: "Last data (any position)", cell: (t) => h("span", {}, fmtTime(t.last_data), t.last_data ? h("span", { class: "muted" }, ` · ${fmtAgo(t.last_data, data.now)}`) : null) },
+      { key: "engines", label: "Engines installed: last data", value: (t) => t.engines_installed, cell: (t) => h("ul", { class: "plain" }, onTail(t).map((e) =>
+        h("li", { class: `coverage-engine${e.overdue ? " overdue" : ""}`, dataset: { engine: e.engine_id } }, `#${e.position} `, h("a", { href: `/engine.html?id=${e.engine_id}` }, e.esn),
+          ` ${e.last_data ? fmtAgo(e.last_data, data.now) : "no data yet"}`, e.overdue ? [" ", overdueBadge()] : null))) },
+      { key: "engines_overdue", label: "Overdue", numeric: true },
+    ], data.tails, { sortKey: "engines_overdue", descending: true, rowClass: (t) => `coverage-tail${t.engines_overdue ? " overdue" : ""}` })
+      : h("p", { class: "muted" }, "No aircraft yet."));
+  } catch (err) {
+    showError(message, err, "Last data");
+  }
 }
 
 function pager() {
@@ -108,6 +167,8 @@ async function main() {
   for (const id of ["filter", "open"]) $(`#${id}`).addEventListener("input", drawTable);
   $("#state").addEventListener("change", () => { offset = 0; loadStatus().catch((err) => showError($("#message"), err, "Fleet status")); });
   for (const id of ["bucket", "which"]) $(`#${id}`).addEventListener("change", loadDeterioration);
+  $("#overdue-days").addEventListener("change", async () => { await loadCoverage(); drawTable(); });
+  await loadCoverage();
   try { await loadStatus(); } catch (err) { showError($("#message"), err, "Fleet status"); }
   await loadDeterioration();
   document.body.dataset.ready = "true";

@@ -8,6 +8,7 @@ const PAGES = [
   ["events", "/events.html", "Events"],
   ["designs", "/designs.html", "Estimator designs"],
   ["uploads", "/uploads.html", "Uploads and jobs"],
+  ["schedules", "/schedules.html", "Schedules"],
   ["settings", "/settings.html", "Notifications"],
 ];
 
@@ -95,6 +96,16 @@ export function fmtTime(iso) {
   if (!iso) return "–";
   const d = new Date(iso);
   return d.toISOString().slice(0, 16).replace("T", " ") + " UTC";
+}
+
+// How far ``iso`` is from ``now`` (ISO times; ``now`` from the service), in the largest unit
+// that reads well: "40 min ago", "5 h ago", "12 d ago", or "in 3 h" for a time ahead.
+export function fmtAgo(iso, now) {
+  if (!iso) return "never";
+  const ms = Date.parse(now || new Date().toISOString()) - Date.parse(iso);
+  const span = Math.abs(ms);
+  const text = span < 3600e3 ? `${Math.round(span / 60e3)} min` : span < 2 * 86400e3 ? `${Math.round(span / 3600e3)} h` : `${Math.round(span / 86400e3)} d`;
+  return ms >= 0 ? `${text} ago` : `in ${text}`;
 }
 
 export function fmtNum(x, digits = 2) {

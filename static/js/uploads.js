@@ -32,7 +32,8 @@ async function upload(e) {
         h("strong", {}, `Upload #${out.id} stored. `),
         `${out.rows_received} rows received, ${out.rows_stored} stored, ${out.rows_duplicate} already stored. `,
         out.affected.length ? `Engines: ${out.affected.map((a) => `${a.esn} (${a.rows})`).join(", ")}; estimation queued.` : "",
-        out.back_dated ? h("p", { class: "back-dated-warning" }, backDatedText(out)) : null]));
+        out.back_dated ? h("p", { class: "back-dated-warning" }, backDatedText(out)) : null,
+        out.late ? h("p", { class: "late-warning" }, lateText(out)) : null]));
   } catch (err) {
     const refused = progressBar(1, `${file.name} refused`, `upload of ${file.name}`);
     refused.classList.add("refused");
@@ -51,6 +52,13 @@ function sourceText(u) {
 }
 
 // Which engines' records reach before their last estimate: the estimation re-ran them from there.
+// Late: records that arrived long after they were recorded (the service's upload lateness).
+const LATE_TITLE = "records recorded longer before the upload than the upload lateness (7 days unless configured)";
+
+function lateText(u) {
+  return `Late: ${u.rows_late} of its ${u.rows_stored} new records were recorded longer before this upload arrived than the upload lateness (7 days unless configured).`;
+}
+
 function backDatedText(u) {
   const late = u.affected.filter((a) => a.estimated_until && new Date(a.earliest) < new Date(a.estimated_until));
   return `Back-dated: ${late.map((a) => `${a.esn} from ${fmtTime(a.earliest)} (estimated to ${fmtTime(a.estimated_until)})`).join("; ")}. `
@@ -64,6 +72,7 @@ async function showUpload(id) {
     detail.replaceChildren(h("div", { class: "card", id: "upload-errors" }, h("h3", {}, `Upload #${u.id}: ${u.status}`),
       h("p", {}, h("strong", {}, "File: "), u.filename || "(no file name)", " · ", h("strong", {}, "Source: "), sourceText(u)),
       u.back_dated ? h("p", { class: "notice back-dated-warning" }, backDatedText(u)) : null,
+      u.late ? h("p", { class: "notice late-warning" }, lateText(u)) : null,
       h("p", {}, u.message || ""),
       u.errors.length ? h("ul", {}, u.errors.map((e) => h("li", {}, detailText(e)))) : h("p", { class: "muted" }, "No errors."),
       u.affected.length ? h("p", {}, `Engines: ${u.affected.map((a) => `${a.esn}: ${a.rows} rows, ${fmtTime(a.earliest)} – ${fmtTime(a.latest)}`).join("; ")}`) : null,
@@ -94,13 +103,14 @@ async function loadUploads() {
       { key: "kind", label: "Kind" },
       { key: "content_format", label: "Format" },
       { key: "status", label: "Status", value: (u) => u.status, cell: (u) => h("span", {}, badge(u.status),
-        u.back_dated ? [" ", h("span", { class: "badge watch back-dated", title: "records older than an engine's last estimate" }, "back-dated")] : null) },
+        u.back_dated ? [" ", h("span", { class: "badge watch back-dated", title: "records older than an engine's last estimate" }, "back-dated")] : null,
+        u.late ? [" ", h("span", { class: "badge watch late", title: `${u.rows_late} ${LATE_TITLE}` }, "late")] : null) },
       { key: "rows_received", label: "Rows", numeric: true },
       { key: "rows_stored", label: "Stored", numeric: true },
       { key: "rows_duplicate", label: "Duplicates", numeric: true },
       { key: "bytes_received", label: "Bytes", numeric: true },
       { key: "message", label: "Message", cell: (u) => u.message || "" },
-    ], page.items, { sortKey: "id", descending: true, rowClass: (u) => `upload-${u.status}${u.back_dated ? " upload-back-dated" : ""}` }) : h("p", { class: "muted" }, "No uploads yet."));
+    ], page.items, { sortKey: "id", descending: true, rowClass: (u) => `upload-${u.status}${u.back_dated ? " upload-back-dated" : ""}${u.late ? " upload-late" : ""}` }) : h("p", { class: "muted" }, "No uploads yet."));
   } catch (err) {
     showError($("#uploads"), err, "Upload history");
   }
@@ -123,7 +133,8 @@ async function loadJobs() {
       { key: "status", label: "Status", cell: (j) => badge(j.status) },
       { key: "progress", label: "Progress", cell: (j) => progressBar(j.progress, j.error || j.message, `job ${j.id} ${j.kind.replaceAll("_", " ")}`) },
       { key: "created_at", label: "Queued", cell: (j) => fmtTime(j.created_at) },
-      { key: "finished_at", label: "Finished", cell: (j) => fmtTime(j.finished_at) },
+      { key: "finished_at", label: "Finished", cell: (j) => (j.kind === "fleet_diagnostics" && j.status === "succeeded"
+        ? h("span", {}, fmtTime(j.finished_at), " · ", h("a", { href: `/diagnostic.html?job=${j.id}` }, "report")) : fmtTime(j.finished_at)) },
       { key: "cancel", label: "", value: () => 0, cell: (j) => (canCancel && ["queued", "running"].includes(j.status)
         ? h("button", { type: "button", class: "secondary", onclick: () => cancel(j.id) }, "Cancel") : "") },
     ], list.items, { sortKey: "id", descending: true, rowClass: (j) => `job-${j.kind}` })

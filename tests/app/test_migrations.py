@@ -136,3 +136,49 @@ def test_migration_0013_fills_the_deterioration_periods_from_stored_estimates(
         engine.dispose()
     finally:
         urls.close()
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_migration_0018_keeps_interval_schedules_and_uploads_and_checks_cron_or_interval(
+    backend: str, tmp_path: Path
+) -> None:
+    from sqlalchemy import text
+    from sqlalchemy.exc import IntegrityError
+
+    urls = fresh_database_url(backend, tmp_path)
+    url = next(urls)
+    try:
+        upgrade(url, "0017")
+        engine = make_engine(url)
+        with engine.begin() as connection:
+            connection.execute(text("INSERT INTO operators (name, created_at) "
+                                    "VALUES ('Before Air', CURRENT_TIMESTAMP)"))
+            connection.execute(text(
+                "INSERT INTO job_schedules (operator_id, kind, parameters, interval_seconds, "
+                "enabled, next_run_at, created_at) SELECT id, 'fleet_diagnostics', '{}', 86400, "
+                "true, CURRENT_TIMESTAMP, CURRENT_TIMESTAMP FROM operators"))
+        upgrade(url)
+        with engine.connect() as connection:
+            assert connection.execute(text(
+                "SELECT kind, interval_seconds, cron FROM job_schedules")).all() == [
+                ("fleet_diagnostics", 86400, None)]
+        for interval, cron in ((None, None), (3600, "0 6 * * *")):  # neither, both
+            with pytest.raises(IntegrityError), engine.begin() as connection:
+                connection.execute(text(
+                    "INSERT INTO job_schedules (operator_id, kind, parameters, interval_seconds, "
+                    "cron, enabled, next_run_at, created_at) SELECT id, 'x', '{}', :i, :c, "
+                    "true, CURRENT_TIMESTAMP, CURRENT_TIMESTAMP FROM operators"
+                ).bindparams(i=interval, c=cron))
+        with engine.begin() as connection:
+            connection.execute(text(
+                "INSERT INTO job_schedules (operator_id, kind, parameters, cron, enabled, "
+                "next_run_at, created_at) SELECT id, 'x', '{}', '0 6 * * *', true, "
+                "CURRENT_TIMESTAMP, CURRENT_TIMESTAMP FROM operators"))
+        downgrade(url, "0017")  # the cron schedule has no interval: it goes, the other stays
+        with engine.connect() as connection:
+            assert connection.execute(text(
+                "SELECT kind, interval_seconds FROM job_schedules")).all() == [
+                ("fleet_diagnostics", 86400)]
+        engine.dispose()
+    finally:
+        urls.close()

@@ -126,6 +126,7 @@ def test_the_api_reads_growing_tables_through_indexes(
         f"/api/v1/engines/{engine_id}/trend?health=change", f"/api/v1/engines/{engine_id}",
         "/api/v1/events", "/api/v1/events?status=active", f"/api/v1/events?engine_id={engine_id}",
         "/api/v1/uploads", f"/api/v1/aircraft/{aircraft.id}/engines",
+        "/api/v1/fleet/data-coverage",
     ):
         response = client.get(path, headers=headers)
         assert response.status_code == 200, (path, response.text)

@@ -6,7 +6,7 @@ brought into view when it is clicked."""
 from __future__ import annotations
 
 import time
-from datetime import timedelta
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -178,4 +178,48 @@ def test_a_back_dated_upload_is_flagged_in_the_history_and_its_detail(
     warning = page.wait_for_selector("#upload-errors .back-dated-warning").inner_text()
     assert warning.startswith("Back-dated: LATE-1 from") and "estimated to" in warning
     screenshot(page, "uploads-back-dated")
+    assert console.unexpected() == []
+
+
+def test_a_late_upload_carries_the_late_badge_beside_back_dated_and_a_fresh_one_not(
+    page: Any, server: Server, console: Console
+) -> None:
+    """An operator of its own: one upload of records recorded months ago (late), one of
+    records from the last hours (not late)."""
+    times, y = pipeline_case._records(seed=33)
+    now = datetime.now(UTC).replace(microsecond=0)
+    fresh_times = [now - timedelta(hours=3) + timedelta(minutes=i) for i in range(len(times))]
+    with transaction(server.factory) as session:
+        fleet = pipeline_case._fleet_with_design(session)
+        aircraft = add_aircraft(session, fleet, "F-TARDY")
+        engine = add_engine(session, fleet, "TARDY-1")
+        fleet_service.install(session, operator_id=fleet.operator_id, engine_id=engine.id,
+                              aircraft_id=aircraft.id, position=1,
+                              installed_at=times[0] - timedelta(days=1))
+        key = fleet.key
+
+    def send(body: bytes, name: str) -> Any:
+        response = httpx.post(f"{server.base_url}/api/v1/snapshots/file",
+                              params={"filename": name}, content=body,
+                              headers={"X-API-Key": key, "Content-Type": "text/csv"})
+        assert response.status_code == 201, response.text
+        return response.json()
+
+    old = send(_csv(times, y, range(0, 30), "F-TARDY"), "march.csv")
+    fresh = send(_csv(fresh_times, y, range(30, 40), "F-TARDY"), "today.csv")
+    assert (old["late"], old["rows_late"], fresh["late"]) == (True, 30, False)
+
+    sign_in(page, key, "/uploads.html")
+    late_row = page.wait_for_selector("#uploads tr.upload-late")
+    assert page.locator("#uploads tr.upload-late").count() == 1
+    assert "march.csv" in late_row.inner_text()
+    badge = late_row.query_selector(".badge.late")
+    assert badge is not None and badge.inner_text() == "late"
+    assert (badge.get_attribute("title") or "").startswith("30 records recorded longer before")
+    fresh_row = page.wait_for_selector(f"#uploads tr:has(a:text-is('#{fresh['id']}'))")
+    assert "today.csv" in fresh_row.inner_text() and fresh_row.query_selector(".badge.late") is None
+    late_row.query_selector("a").click()
+    warning = page.wait_for_selector("#upload-errors .late-warning").inner_text()
+    assert warning.startswith("Late: 30 of its 30 new records")
+    screenshot(page, "uploads-late")
     assert console.unexpected() == []

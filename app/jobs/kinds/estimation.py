@@ -8,7 +8,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.orm import Session
 
-from app.services.fleet import diagnostics, red_alerts
+from app.services.fleet import diagnostic_report, diagnostics, red_alerts
 from app.services.jobs.registry import Progress, registry
 from app.services.jobs.store import queue_estimation, queue_sending
 from app.services.notifications import outbox
@@ -68,10 +68,14 @@ class FleetDiagnostics(BaseModel):
 def fleet_diagnostics(
     session: Session, parameters: FleetDiagnostics, progress: Progress, *, operator_id: int
 ) -> dict[str, Any]:
-    """The summary; snapshots left unestimated are marked and get an estimation job queued,
-    and notifications left pending (an estimation job that failed after committing some
-    batches queued no sending) get their sending queued."""
+    """The summary and the report (engines whose state changed and events raised since the
+    previous run, ``diagnostic_report``); snapshots left unestimated are marked and get an
+    estimation job queued, and notifications left pending (an estimation job that failed after
+    committing some batches queued no sending) get their sending queued."""
     summary = diagnostics.fleet_diagnostics(session, operator_id, progress=progress)
+    progress(0.9, "comparing engine states with the previous run")
+    report = diagnostic_report.diagnostic_report(session, operator_id)
+    summary.update(report.model_dump(mode="json"))
     if summary["n_engines_waiting"]:
         job = queue_estimation(session, operator_id=operator_id, job_registry=registry)
         summary["estimation_job_id"] = job.id

@@ -12,18 +12,35 @@ earliest record for the engine, and detected either at one of the upload's own r
 when back-dated, at a record already estimated when it arrived (up to ``estimated_until``).
 Events on later uploads' records are theirs; an event a later back-dated upload redid over
 the same records is linked to both, as both re-runs produced it.
+
+An upload is late when records arrive long after they were recorded: ``late_rows`` counts its
+new records recorded more than the lateness (``upload_lateness_days``, default ``LATENESS``)
+before it arrived, stored as ``Upload.rows_late``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable
-from datetime import datetime
+from datetime import datetime, timedelta
 
+import pyarrow as pa
+import pyarrow.compute as pc
 from sqlalchemy import ColumnElement, and_, func, or_, select
 from sqlalchemy.orm import Session
 
 from app.models import Engine, EstimatorDesign, Event, FilterState, Snapshot, Upload
 from app.services import common
+
+LATENESS = timedelta(days=7)
+
+
+def late_rows(fresh: pa.Table, arrived_at: datetime, lateness: timedelta) -> int:
+    """How many of the records were recorded more than ``lateness`` before ``arrived_at``."""
+    if fresh.num_rows == 0:
+        return 0
+    recorded = fresh["recorded_at"]
+    cutoff = pa.scalar(arrived_at - lateness, recorded.type)
+    return int(pc.sum(pc.less(recorded, cutoff)).as_py() or 0)
 
 
 def estimated_until(session: Session, engine_ids: Iterable[int]) -> dict[int, datetime]:

@@ -258,8 +258,10 @@ def ingest_snapshots(
     mapping: Mapping[str, str | None] | None = None,
     idempotency_key: str | None = None,
     origin: UploadOrigin | None = None,
+    lateness: timedelta = back_dating.LATENESS,
 ) -> UploadResult:
-    """Parse, validate, resolve, deduplicate and store one snapshot upload.
+    """Parse, validate, resolve, deduplicate and store one snapshot upload; records
+    recorded more than ``lateness`` before it arrived count as late (``rows_late``).
 
     Raises UploadRejected (422) naming rows, columns and reasons, or Conflict (409); in
     both cases nothing is stored (the caller rolls back and may ``record_rejection``).
@@ -301,6 +303,7 @@ def ingest_snapshots(
                 content_format=content_format, checksum=checksum,
                 idempotency_key=idempotency_key, rows_received=parsed.num_rows,
                 duplicates=duplicates, bytes_received=len(body), origin=origin,
+                lateness=lateness,
             )
     except INTEGRITY_ERRORS as exc:
         # A concurrent upload stored some of these rows (or took the key) first: the same
@@ -329,9 +332,11 @@ def _store_snapshots(
     duplicates: int,
     bytes_received: int,
     origin: UploadOrigin | None = None,
+    lateness: timedelta = back_dating.LATENESS,
 ) -> Upload:
     """Insert the upload row and its new snapshots, mark the engines' backlog; flag it
-    back-dated when it reaches before an engine's last estimated record (``back_dating``)."""
+    back-dated when it reaches before an engine's last estimated record, and count its late
+    records (``back_dating``)."""
     upload = Upload(
         operator_id=operator_id,
         api_key_id=api_key_id,
@@ -361,6 +366,7 @@ def _store_snapshots(
     upload.back_dated = any(
         a.engine_id in until and a.earliest < until[a.engine_id] for a in affected
     )
+    upload.rows_late = back_dating.late_rows(fresh, upload.created_at, lateness)
     if fresh.num_rows:
         insert_snapshots(session, fresh, operator_id=operator_id, upload_id=upload.id)
         backlog.mark(session, operator_id, {a.engine_id: (a.earliest, a.rows)
