@@ -10,6 +10,7 @@ const PAGES = [
   ["uploads", "/uploads.html", "Uploads and jobs"],
   ["schedules", "/schedules.html", "Schedules"],
   ["settings", "/settings.html", "Notifications"],
+  ["keys", "/keys.html", "API keys"],
 ];
 
 export function h(tag, attrs = {}, ...children) {
