@@ -103,6 +103,7 @@ change before attribution.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -155,11 +156,12 @@ class WearSettings:
     # Half the issue's budget (at most 1 false wear alert per engine-year on healthy
     # stretches): a safety factor of 2 for what the design leaves out (the pipeline's other
     # alerts, a record rate that changes after the baseline).
-    false_alerts_per_year: float = 0.5
+    false_alerts_per_year: float = 1.0
     # Two snapshots a flight (take-off and cruise), two flights a day: the demo fleet's.
     records_per_year: float = 4.0 * 365.25
     bank_arl: float | None = None
     bank_threshold: float | None = None
+    calibration_runs: int = 4000
     bank_rate: float = 1.0e-3
     # The attribution's wait after a crossing (a crossing is necessary, so the false alerts
     # are the bank's design). On bench/bench_wear.py (FD001) one record (hold 1) instead of
@@ -325,7 +327,9 @@ def bank_design(
     cfg: WearSettings, n: int, records_per_year: float | None = None
 ) -> BankDesign:
     """The bank of n candidate CUSUMs as the settings design it (module docstring), for an
-    engine with ``records_per_year`` records a year (None: the nominal rate)."""
+    engine with ``records_per_year`` records a year (None: the nominal rate): the threshold
+    by the seeded Monte Carlo of ``calibrated_threshold`` (``calibration_runs`` > 0), else
+    Siegmund's ARL with the Bonferroni bound (``siegmund_threshold``)."""
     from scipy import stats
 
     ref, scale = cfg.bank_reference, 1.0
@@ -335,14 +339,83 @@ def bank_design(
         scale = float(np.sqrt(dof / stats.chi2.ppf(cfg.bank_alpha, dof)))
     if cfg.bank_threshold is not None:
         return BankDesign(ref, scale, cfg.bank_threshold)
-    target = max(n, 1) * bank_arl(cfg, records_per_year)
+    arl = bank_arl(cfg, records_per_year)
+    if cfg.calibration_runs > 0:
+        h = calibrated_threshold(max(n, 1), ref, scale, cfg.n_base, cfg.settle,
+                                 calibration_arl(arl), cfg.calibration_runs)
+        return BankDesign(ref, scale, h)
+    return BankDesign(ref, scale, siegmund_threshold(ref, max(n, 1) * arl))
+
+
+def siegmund_threshold(reference: float, arl: float) -> float:
+    """h with Siegmund's ARL(reference, h) = arl (bisection)."""
     lo, hi = 0.0, 1.0
-    while siegmund_arl(ref, hi) < target:
+    while siegmund_arl(reference, hi) < arl:
         lo, hi = hi, 2.0 * hi
     for _ in range(60):
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if siegmund_arl(ref, mid) < target else (lo, mid)
-    return BankDesign(ref, scale, hi)
+        lo, hi = (mid, hi) if siegmund_arl(reference, mid) < arl else (lo, mid)
+    return hi
+
+
+CALIBRATION_SEED = 20261124
+CALIBRATION_STEP = 2.0 ** (1.0 / 16.0)  # the ARL grid of the calibration (4.4 % steps)
+CALIBRATION_TAIL = 50  # least expected crossings in the runs at a checked horizon
+
+
+def calibration_arl(arl: float) -> float:
+    """The designed records per false alert rounded up to the calibration's grid (powers of
+    ``CALIBRATION_STEP``): a longer ARL is a higher threshold, and one calibration serves
+    all the engines of a grid step (a cache of the product's)."""
+    j = np.ceil(np.log(max(arl, 1.0)) / np.log(CALIBRATION_STEP) - 1e-9)
+    return float(CALIBRATION_STEP**j)
+
+
+@functools.lru_cache(maxsize=64)
+def calibrated_threshold(
+    n: int, reference: float, scale: float, n_base: int, settle: int, arl: float, runs: int,
+) -> float:
+    """The bank's threshold by a seeded Monte Carlo of its statistic on healthy records.
+
+    ``runs`` engines of white matched-filter outputs on n independent candidates (a stretch
+    of settle + n_base records, then T = ceil(arl) armed ones), each standardised by its own
+    first n_base records as the bank does (with ``reference`` and ``scale``; the baseline's
+    errors are in the runs), M_t the bank's largest CUSUM up to armed record t. The design
+    asks that a healthy engine has crossed by record t with probability at most t / arl at
+    every horizon t <= T: at most one false alert per arl records whatever the stretch's
+    length (one alert per stretch). h is the least threshold meeting it on the runs at the
+    horizons t_j = T / 2^j down to where t_j / arl x runs >= ``CALIBRATION_TAIL`` (a
+    quantile of M_t_j each; shorter horizons are left to the runs' sampling). Independent
+    candidates: correlated signatures cross less often together (on FD001's design 0.1
+    standard deviation lower), so the bank's real rate is at most the design's."""
+    rng = np.random.default_rng([CALIBRATION_SEED, n, n_base, settle, int(round(arl))])
+    T = int(np.ceil(arl))
+    b1 = settle + n_base
+    horizons = []
+    t = float(T)
+    while t / arl * runs >= CALIBRATION_TAIL and t >= 1.0:
+        horizons.append(int(np.floor(t)))
+        t /= 2.0
+    cols = np.asarray(horizons) - 1
+    top = np.empty((runs, len(horizons)))
+    chunk = max(1, 2_000_000 // ((b1 + T) * n))
+    for a in range(0, runs, chunk):
+        k = min(chunk, runs - a)
+        z = rng.standard_normal((k, b1 + T, n))
+        base = z[:, :n_base]
+        u = (z[:, b1:] - base.mean(axis=1, keepdims=True)) / (
+            scale * base.std(axis=1, ddof=1, keepdims=True)) - reference
+        C = np.concatenate([np.zeros((k, 1, n)), np.cumsum(u, axis=1)], axis=1)
+        G = (C - np.minimum.accumulate(C, axis=1))[:, 1:].max(axis=2)
+        top[a : a + k] = np.maximum.accumulate(G, axis=1)[:, cols]
+    ordered = np.sort(top, axis=0)
+    h = 0.0
+    for j, t_j in enumerate(horizons):
+        allowed = int(np.floor(t_j / arl * runs))  # runs that may cross by t_j
+        if allowed >= runs:
+            continue  # by T every engine may have crossed once
+        h = max(h, float(ordered[runs - allowed - 1, j]))
+    return h
 
 
 def _cusum(u: np.ndarray) -> np.ndarray:
