@@ -147,8 +147,8 @@ class WearSettings:
     Siegmund's analytic bound);
     records_per_year: the nominal record rate, used where the records carry no time (or
     too few to measure it over the baseline);
-    bank_arl: the bank's family-wise mean run length to a false crossing (records) instead
-    of records per year / false alerts per year; bank_threshold: h itself (standard
+    bank_arl: the bank's records per false crossing (ARL) instead of records per year /
+    false alerts per year; bank_threshold: h itself (standard
     deviations) instead;
     bank_rate: the bank's allowed drift rho_z (standard deviations per cycle);
     confidence, hold: the WSSR ratio the directional alert's attribution needs, and on how
@@ -328,9 +328,10 @@ def record_rate(epoch: np.ndarray) -> float | None:
 
 
 def bank_arl(cfg: WearSettings, records_per_year: float | None = None) -> float:
-    """The bank's family-wise mean run length to a false crossing (records): ``bank_arl`` if
-    set, else the record rate (measured, or the nominal ``records_per_year``) over the
-    designed false alerts per engine-year."""
+    """The bank's records per false crossing, ARL (the family-wise mean run length of the
+    analytic design; the calibration's horizon): ``bank_arl`` if set, else the record rate
+    (measured, or the nominal ``records_per_year``) over the designed false alerts per
+    engine-year."""
     if cfg.bank_arl is not None:
         return cfg.bank_arl
     rate = cfg.records_per_year if records_per_year is None else records_per_year
