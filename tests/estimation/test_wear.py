@@ -197,7 +197,7 @@ def test_signature_cusum_is_the_recursion_on_the_matched_filter() -> None:
 @pytest.fixture(scope="module")
 def fd001_figures() -> dict[str, object]:
     """All 100 FD001 train engines (the targets are on the whole set; about 10 s). On the
-    first 20 alone the median lead is 121.0 against the naive CUSUM's 126.5."""
+    first 20 alone the median lead is 110 against the naive CUSUM's 126.5."""
     from tests.support import fd001_replay
 
     est = fd001_replay.fd001_estimator(fd001_replay.fd001_schedule())
@@ -234,12 +234,13 @@ def test_fd001_every_engine_alerted_before_failure_and_attributed_to_hpc(
 
 @pytest.mark.skipif(not FD001.exists(), reason=f"no C-MAPSS file at {FD001}")
 @pytest.mark.xfail(strict=True, reason=(
-    "target missed at the issue's budget: the bank's threshold calibrated by a seeded Monte "
-    "Carlo to at most 1 false alert per engine-year at every horizon (h = 4.47 at FD001's one "
-    "record a day; Siegmund's bound 5.21): median lead 108.5 against the naive CUSUM's "
-    "121.5, 92 % HPC. The crossing itself, the fault named at once, leads by 118.5 at 73 % "
-    "HPC, and the WSSR attribution names HPC on every later record only from a median 118.0 "
-    "cycles before failure (bench/bench_wear.py, the product's design)"))
+    "target missed with the bank designed for 0.5 false alerts per engine-year (half the "
+    "issue's budget) at FD001's one record a day: median lead 105.5 against the naive "
+    "CUSUM's 121.5. Siegmund's threshold with the Bonferroni bound and the baseline "
+    "allowance is conservative (a false crossing in 350 armed records on 8.6 % of white "
+    "engines where 38 % are designed); with its threshold calibrated by Monte Carlo to "
+    "exactly the designed rate the bank crosses 121.5 cycles ahead, and the attribution's "
+    "wait then leaves 112.0 (bench/bench_wear.py, frontier)"))
 def test_fd001_median_lead_at_least_the_naive_signature_cusum(
     fd001_figures: dict[str, object],
 ) -> None:
@@ -308,15 +309,12 @@ def test_record_by_record_steps_give_the_scans_alerts_however_split(
 
 
 def test_bank_threshold_is_set_by_the_false_alerts_per_engine_year() -> None:
-    """records per false alert = records per engine-year / false alerts per engine-year (the
-    nominal rate, or the one given; bank_arl set overrides); without the Monte Carlo
-    (calibration_runs 0) h solves Siegmund's ARL(kappa', h) = n x that, kappa' the reference
-    with the baseline allowance; bank_alpha = 0 leaves the reference and scale as given. The
-    calibrated threshold is lower than Siegmund's bound (which it replaces), higher for a
-    longer ARL, and the same for every rate of one calibration grid step."""
+    """h solves Siegmund's ARL(kappa', h) = n * bank_arl, kappa' the reference with the
+    baseline allowance and bank_arl = records per engine-year / false alerts per engine-year
+    (the nominal rate, or the one given); bank_arl set overrides; bank_alpha = 0 leaves the
+    reference and scale as given."""
     cfg = wear.WearSettings()
-    analytic = replace(cfg, calibration_runs=0)
-    d = wear.bank_design(analytic, 5)
+    d = wear.bank_design(cfg, 5)
     assert d.reference == pytest.approx(cfg.bank_reference + 1.6449 / np.sqrt(cfg.n_base),
                                         rel=1e-4)
     assert d.scale > 1.0
@@ -324,60 +322,23 @@ def test_bank_threshold_is_set_by_the_false_alerts_per_engine_year() -> None:
     assert wear.bank_arl(cfg) == nominal
     assert wear.siegmund_arl(d.reference, d.threshold) == pytest.approx(5 * nominal,
                                                                          rel=1e-9)
-    # One record a day, one false alert an engine-year: 365.25 records.
-    daily = wear.bank_design(analytic, 5, 365.25)
+    # One record a day: a false crossing every 2 engine-years is 730.5 records.
+    daily = wear.bank_design(cfg, 5, 365.25)
     assert wear.siegmund_arl(daily.reference, daily.threshold) == pytest.approx(
-        5 * 365.25, rel=1e-9)
+        5 * 730.5, rel=1e-9)
     assert daily.threshold < d.threshold
-    fixed = replace(cfg, bank_arl=400.0)
+    fixed = replace(cfg, bank_arl=1000.0)
     assert wear.bank_design(fixed, 5, 365.25) == wear.bank_design(fixed, 5)
     plain = wear.bank_design(wear.WearSettings(bank_alpha=0.0, bank_threshold=2.0), 5)
     assert (plain.reference, plain.scale, plain.threshold) == (cfg.bank_reference, 1.0, 2.0)
-    mc = wear.bank_design(cfg, 5, 365.25)
-    assert (mc.reference, mc.scale) == (daily.reference, daily.scale)
-    assert 0.5 * daily.threshold < mc.threshold < daily.threshold
-    assert mc.threshold < wear.bank_design(cfg, 5, 4 * 365.25).threshold
-    assert wear.bank_design(cfg, 5, 366.0) == mc  # one grid step (rounded up)
-    assert wear.calibration_arl(365.25) >= 365.25
-
-
-def test_calibrated_threshold_meets_the_budget_on_fresh_healthy_engines() -> None:
-    """White matched-filter outputs on 4 orthogonal signatures through ``wear_scan`` (the
-    30-record baseline's errors included, no drift allowance, no confidence condition), seeded
-    apart from the calibration: the share of engines crossed by armed record t stays within
-    the design's t / ARL (ARL 200 records) plus three binomial standard deviations at every
-    horizon, and is not far below it at all of them (the Monte Carlo's threshold is the
-    least that meets the budget, not a bound far above it; Siegmund's with Bonferroni is)."""
-    rng = np.random.default_rng(23)
-    n, engines, arl = 4, 600, 200.0
-    cfg = wear.WearSettings(confidence=0.0, limit=1e9, bank_rate=0.0, bank_arl=arl)
-    b1 = cfg.settle + cfg.n_base
-    T = int(arl)
-    S = b1 + T
-    h = wear.bank_design(cfg, n).threshold
-    assert h < wear.bank_design(replace(cfg, calibration_runs=0), n).threshold
-    first = []
-    for _ in range(engines):
-        alerts = wear.wear_scan(np.zeros((S, n)), np.eye(n), np.eye(n),
-                                np.arange(S, dtype=float), settings=cfg,
-                                dy=rng.normal(size=(S, n)), var=np.ones(n),
-                                signatures=np.eye(n)).alerts
-        first.append(alerts[0].index - b1 + 1 if alerts else np.inf)
-    shares = []
-    for t in (12, 25, 50, 100, 200):
-        p = t / wear.calibration_arl(arl)
-        share = float(np.mean(np.asarray(first) <= t))
-        shares.append(share / p)
-        assert share <= p + 3.0 * np.sqrt(p * (1.0 - p) / engines), (t, share, p)
-    assert max(shares) > 0.5, shares
 
 
 def test_short_baseline_bank_false_alarms_within_its_design() -> None:
     """White matched-filter outputs on 4 orthogonal signatures, the bank's baseline 30
     records (its mean and standard deviation then err by about 0.18 and 13 %, errors every
     later record shares), no confidence condition: the share of engines with a crossing in
-    T armed records stays within the design's T / bank_arl (the calibration's budget at that
-    horizon) plus sampling error. Without the
+    T armed records stays within the design's 1 - exp(-T / bank_arl) (run lengths nearly
+    exponential; Bonferroni over the bank: an upper bound) plus sampling error. Without the
     allowance for the baseline's error (bank_alpha = 0) the same threshold is crossed far
     more often than designed."""
     rng = np.random.default_rng(21)
@@ -385,7 +346,7 @@ def test_short_baseline_bank_false_alarms_within_its_design() -> None:
     base = wear.WearSettings(confidence=0.0, limit=1e9, bank_rate=0.0, bank_arl=1000.0)
     b1 = base.settle + base.n_base
     S = b1 + T
-    design = T / base.bank_arl
+    design = 1.0 - np.exp(-T / base.bank_arl)
     h = wear.bank_design(base, n).threshold
     counts = {}
     for alpha in (base.bank_alpha, 0.0):
@@ -406,17 +367,16 @@ def test_short_baseline_bank_false_alarms_within_its_design() -> None:
 def test_naive_signature_cusum_false_alarms_far_beyond_the_banks_design() -> None:
     """The peer of the FD001 lead on white matched-filter outputs over the records of the
     healthy steady fleet test (50 records, then 350 armed): the naive CUSUM (its 30-record
-    baseline taken as exact, reference 0.5, threshold 5, one direction) alarms on more
-    engines than the bank's design allows for all its directions together, 350 / bank_arl
-    (the nominal record rate, that of those records), by far more than sampling error. Its
-    lead is bought with that rate."""
+    baseline taken as exact, reference 0.5, threshold 5, one direction) alarms on more than
+    twice as many engines as the bank's design allows for all its directions together,
+    1 - exp(-350 / bank_arl) (the nominal record rate, that of those records). Its lead is
+    bought with that rate."""
     rng = np.random.default_rng(31)
     engines, records = 600, 400
-    design = (records - 50) / wear.bank_arl(wear.WearSettings())
+    design = 1.0 - np.exp(-(records - 50) / wear.bank_arl(wear.WearSettings()))
     hits = sum(wear.signature_cusum(rng.normal(size=(records, 1)), np.ones(1), np.ones(1))
                is not None for _ in range(engines))
-    sd = np.sqrt(engines * design * (1.0 - design))
-    assert hits > design * engines + 5.0 * sd, (hits, design * engines)
+    assert hits > 2.0 * design * engines, (hits, design * engines)
 
 
 def test_record_rate_counts_the_records_of_the_time_flown() -> None:
