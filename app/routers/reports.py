@@ -19,7 +19,10 @@ FILE_RESPONSES: dict[int | str, dict[str, Any]] = {
         "content": {media_type: BINARY for media_type in MEDIA_TYPES.values()},
     },
     503: {"description": "the plots cannot be rendered (the message names what is missing), "
-                         "or the database is unavailable"},
+                         "or the database is unavailable (retry after Retry-After's seconds)",
+          "headers": {"Retry-After": {"schema": {"type": "integer"},
+                                      "description": "seconds to wait before retrying, sent "
+                                                     "when the database is unavailable"}}},
 }
 Format = Annotated[ReportFormat, Query(description="pdf, or xlsx (an Excel workbook)")]
 

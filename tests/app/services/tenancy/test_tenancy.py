@@ -217,6 +217,10 @@ def _in_values(table: Table, column: Column[Any]) -> list[str]:
     return []
 
 
+# Nullable columns that a table's CHECK requires one of (a schedule runs by cron or interval).
+CHECKED_ONE_OF: dict[str, dict[str, Any]] = {"job_schedules": {"interval_seconds": 3600}}
+
+
 def synthesise_row(session: Session, table: Table, operator_id: int, marker: str) -> int:
     """Insert a row of ``table`` for the operator from its metadata; returns its id.
 
@@ -261,6 +265,7 @@ def synthesise_row(session: Session, table: Table, operator_id: int, marker: str
             values[column.name] = f"{marker}-{table.name}-{column.name}"[:length]
         else:
             pytest.fail(f"cannot synthesise {table.name}.{column.name} of type {kind!r}")
+    values.update(CHECKED_ONE_OF.get(table.name, {}))
     result = session.execute(table.insert().values(**values).returning(table.c.id))
     return int(result.scalar_one())
 
