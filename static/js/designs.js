@@ -4,6 +4,10 @@
 import { api } from "./api.js";
 import { $, badge, fmtNum, fmtTime, h, params, progressBar, showError, sortableTable, startPage } from "./ui.js";
 import { PALETTE, axisTitle, layout, plot } from "./plots.js";
+import { label } from "./glossary.js";
+
+// The API's names on the data, the engineers' names on the axis and in the hover.
+const named = (names) => ({ tickmode: "array", tickvals: names, ticktext: names.map(label) });
 
 const VARIANTS = { wssr_q: "WSSR on tuner estimates", wssr_y: "WSSR on sensor estimates", max_h: "largest health change", wssr_q_diagnostic: "WSSR, diagnostics-aware design" };
 // The job kind's defaults are the seed 002 settings (200 cases of 30 s, 300 s per fault).
@@ -34,21 +38,22 @@ function errorBars(div, theory, unitOf, mc) {
   const names = theory.names;
   const traces = [
     { x: names, y: theory.bias2, type: "bar", name: "squared bias (theory)", offsetgroup: "theory", marker: { color: PALETTE[0] },
-      hovertemplate: "%{x}: bias² %{y:.4f}<extra></extra>" },
+      customdata: names.map(label), hovertemplate: "%{customdata}: bias² %{y:.4f}<extra></extra>" },
     { x: names, y: theory.variance, base: theory.bias2, type: "bar", name: "variance (theory)", offsetgroup: "theory", marker: { color: PALETTE[4] },
-      hovertemplate: "%{x}: variance %{y:.4f}<extra></extra>" },
+      customdata: names.map(label), hovertemplate: "%{customdata}: variance %{y:.4f}<extra></extra>" },
   ];
   if (mc) {
     traces.push({ x: mc.names, y: mc.squared_error, type: "bar", name: "Monte Carlo squared error", offsetgroup: "mc", marker: { color: PALETTE[1] },
       error_y: { type: "data", array: mc.standard_error, visible: true, color: "#000000", thickness: 1 },
-      hovertemplate: "%{x}: %{y:.4f} ± %{error_y.array:.4f}<extra>Monte Carlo</extra>" });
+      customdata: mc.names.map((n, i) => [label(n), mc.standard_error[i]]),
+      hovertemplate: "%{customdata[0]}: %{y:.4f} ± %{customdata[1]:.4f} (standard error)<extra>Monte Carlo</extra>" });
   }
   const units = [...new Set(names.map((n) => squared(unitOf(n))))].join(", ");
   return plot(div, traces, layout({
     barmode: "group", hovermode: "closest",
-    xaxis: { title: { text: "Estimated parameter" } },
+    xaxis: { title: { text: "Estimated parameter" }, ...named(names) },
     yaxis: { title: { text: axisTitle("Squared error", units) } },
-    legend: { orientation: "h", y: -0.35 }, margin: { l: 70, r: 20, t: 20, b: 110 },
+    margin: { l: 70, r: 20, t: 20, b: 40 },
   }));
 }
 
@@ -76,17 +81,17 @@ function matrixPlot(div, z, rows, cols, { title, unit, digits = 1, xTitle, yTitl
 function healthBars(div, health) {
   return plot(div, [
     { x: health.names, y: health.rms, type: "bar", name: "RMS error", marker: { color: PALETTE[0] },
-      hovertemplate: "%{x}: RMS %{y:.2f} %<extra></extra>" },
+      customdata: health.names.map(label), hovertemplate: "%{customdata}: RMS %{y:.2f} %<extra></extra>" },
     { x: health.names, y: health.coverage_95.map((c) => 100 * c), type: "scatter", mode: "markers", yaxis: "y2",
       name: "95 % interval coverage", marker: { color: PALETTE[1], size: 9, symbol: "diamond" },
-      hovertemplate: "%{x}: coverage %{y:.0f} %<extra></extra>" },
+      customdata: health.names.map(label), hovertemplate: "%{customdata}: coverage %{y:.0f} %<extra></extra>" },
   ], layout({
     hovermode: "closest",
-    xaxis: { title: { text: "Health parameter" } },
+    xaxis: { title: { text: "Health parameter" }, ...named(health.names) },
     yaxis: { title: { text: axisTitle("RMS error", "%") } },
     yaxis2: { title: { text: axisTitle("Coverage", "%") }, overlaying: "y", side: "right", range: [0, 105], showgrid: false },
     shapes: [{ type: "line", xref: "paper", x0: 0, x1: 1, yref: "y2", y0: 95, y1: 95, line: { dash: "dot", color: PALETTE[1], width: 1 } }],
-    legend: { orientation: "h", y: -0.35 }, margin: { l: 70, r: 60, t: 20, b: 110 },
+    margin: { l: 70, r: 60, t: 20, b: 40 },
   }));
 }
 

@@ -9,6 +9,7 @@ const PAGES = [
   ["designs", "/designs.html", "Estimator designs"],
   ["uploads", "/uploads.html", "Uploads and jobs"],
   ["settings", "/settings.html", "Notifications"],
+  ["glossary", "/glossary.html", "Glossary"],
 ];
 
 export function h(tag, attrs = {}, ...children) {
