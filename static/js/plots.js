@@ -223,7 +223,7 @@ export function markerShapes(markers) {
 // becomes a small "+" whose hover names it. ``toPixel`` maps an x value to pixels across the
 // plot (markerScale gives it for an axis range and width).
 const ROWS = 3;
-const ROW_HEIGHT = 13;
+const ROW_HEIGHT = 15;
 const CHAR_PX = 6.2;
 export function markerAnnotations(markers, toPixel) {
   const byX = new Map();

@@ -196,8 +196,10 @@ def test_marker_labels_do_not_overlap(page: Any, server: Server, console: Consol
     page.route(f"**/api/v1/engines/{engine_id}/trend*", lambda route: _crowded_trend(route, at))
     sign_in(page, server.seeded.key, f"/engine.html?id={engine_id}")
     boxes = _annotation_boxes(page, "#plot-health")
+    page.locator("#plot-health").scroll_into_view_if_needed()
+    page.locator("#plot-health").screenshot(path=str(screenshot(page, "marker-labels")))
     assert len(boxes) >= 4, boxes  # several labels placed, the rest as "+" where there is room
-    assert _overlaps(boxes) == []
+    assert _overlaps(boxes) == [], boxes
     # Each label stays above the plot, inside the figure.
     plot_top = page.locator("#plot-health .nsewdrag").first.bounding_box()["y"]
     figure = page.locator("#plot-health").bounding_box()
@@ -208,7 +210,6 @@ def test_marker_labels_do_not_overlap(page: Any, server: Server, console: Consol
         ".map((a) => a.hovertext).join('<br>')")
     placed = sum("added for the layout check" in h for h in hovers.split("<br>"))
     assert placed == len(boxes)
-    screenshot(page, "marker-labels")
     page.unroute(f"**/api/v1/engines/{engine_id}/trend*")
     assert console.unexpected() == []
 
