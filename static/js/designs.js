@@ -3,7 +3,7 @@
 // probabilities, two designs side by side; create a design and watch its evaluation job.
 import { api } from "./api.js";
 import { $, badge, fmtNum, fmtTime, h, params, progressBar, showError, sortableTable, startPage } from "./ui.js";
-import { PALETTE, axisTitle, layout, plot } from "./plots.js";
+import { CIVIDIS, PALETTE, axisTitle, colourAt, layout, plot, textOn } from "./plots.js";
 import { label } from "./glossary.js";
 
 // The API's names on the data, the engineers' names on the axis and in the hover.
@@ -61,7 +61,7 @@ function errorBars(div, theory, unitOf, mc) {
 function matrixPlot(div, z, rows, cols, { title, unit, digits = 1, xTitle, yTitle }) {
   const max = Math.max(...z.flat());
   return plot(div, [{
-    z, x: cols, y: rows, type: "heatmap", colorscale: "Cividis", zmin: 0, zmax: max || 1,
+    z, x: cols, y: rows, type: "heatmap", colorscale: CIVIDIS, zmin: 0, zmax: max || 1,
     colorbar: { title: { text: unit, side: "right" }, thickness: 12 },
     hovertemplate: `true %{y}, isolated %{x}: %{z:.${digits}f} ${unit}<extra></extra>`, name: title,
   }], layout({
@@ -70,7 +70,8 @@ function matrixPlot(div, z, rows, cols, { title, unit, digits = 1, xTitle, yTitl
     yaxis: { title: { text: yTitle }, autorange: "reversed", gridcolor: "rgba(0,0,0,0)" },
     annotations: z.flatMap((row, i) => row.map((v, j) => ({
       x: cols[j], y: rows[i], text: v >= 10 ** -digits / 2 ? v.toFixed(digits) : "", showarrow: false,
-      font: { size: 10, color: v > 0.6 * max ? "#000000" : "#ffffff" },
+      // Black or white by the cell's own colour: 4.5:1 or better in every cell.
+      font: { size: 10, color: textOn(colourAt(CIVIDIS, v / (max || 1))) },
     }))),
     margin: { l: 70, r: 20, t: 20, b: 60 },
   }));

@@ -25,6 +25,32 @@ export function styleFor(name, index) {
   return { color: PALETTE[index % PALETTE.length], dash: DASHES[Math.floor(index / PALETTE.length) % DASHES.length] };
 }
 
+// plotly's Cividis scale (colour-blind safe, perceptually even), given explicitly so that the
+// text written in a heatmap's cells can be chosen against each cell's colour.
+export const CIVIDIS = [[0, "rgb(0,32,76)"], [0.058824, "rgb(0,42,102)"], [0.117647, "rgb(0,52,110)"],
+  [0.176471, "rgb(39,63,108)"], [0.235294, "rgb(60,74,107)"], [0.294118, "rgb(76,85,107)"], [0.352941, "rgb(91,95,109)"],
+  [0.411765, "rgb(104,106,112)"], [0.470588, "rgb(117,117,117)"], [0.529412, "rgb(131,129,120)"], [0.588235, "rgb(146,140,120)"],
+  [0.647059, "rgb(161,152,118)"], [0.705882, "rgb(176,165,114)"], [0.764706, "rgb(192,177,109)"], [0.823529, "rgb(209,191,102)"],
+  [0.882353, "rgb(225,204,92)"], [0.941176, "rgb(243,219,79)"], [1, "rgb(255,233,69)"]];
+
+// The colour of a colour scale at ``f`` in [0, 1], as [r, g, b] (linear between stops).
+export function colourAt(scale, f) {
+  const rgb = (c) => c.match(/\d+/g).map(Number);
+  const x = Math.max(0, Math.min(1, f));
+  const k = Math.max(1, scale.findIndex(([stop]) => stop >= x));
+  const [a, ca] = scale[k - 1];
+  const [b, cb] = scale[k];
+  const t = b > a ? (x - a) / (b - a) : 0;
+  return rgb(ca).map((v, i) => v + t * (rgb(cb)[i] - v));
+}
+
+// Black or white, whichever reads better on ``rgb``: at least 4.58:1 on any background.
+export function textOn(rgb) {
+  const lin = rgb.map((v) => { const c = v / 255; return c <= 0.03928 ? c / 12.92 : ((c + 0.055) / 1.055) ** 2.4; });
+  const luminance = 0.2126 * lin[0] + 0.7152 * lin[1] + 0.0722 * lin[2];
+  return luminance >= 0.179 ? "#000000" : "#ffffff";
+}
+
 export function rgba(hex, alpha) {
   const n = parseInt(hex.slice(1), 16);
   return `rgba(${(n >> 16) & 255},${(n >> 8) & 255},${n & 255},${alpha})`;

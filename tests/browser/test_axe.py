@@ -41,9 +41,10 @@ def _hover_plot(page: Any, selector: str) -> None:
 
 
 def _recording(server: Server) -> int:
-    """A minute's stream recording on the seeded event's engine, estimated."""
+    """A minute's stream recording on the seeded event's engine two days before the event (clear
+    of the recording page's own test at the event), estimated."""
     event = api_get(server, f"/api/v1/events/{server.seeded.event_id}")
-    started = datetime.fromisoformat(event["detected_at"]) - timedelta(seconds=30)
+    started = datetime.fromisoformat(event["detected_at"]) - timedelta(days=2)
     body, _ = cruise_stream_csv(seed=33, n=1200, dt=0.05)
     response = httpx.post(
         f"{server.base_url}/api/v1/streams", content=body,

@@ -114,7 +114,7 @@ def test_trend_plots_every_group_with_bands_markers_and_units(
     seqs = set(api["seq"])
     assert [v for v in x if v in seqs] == api["seq"]
     event_x = page.evaluate(
-        "document.querySelector('#plot-health').data.find((t) => t.name === 'events').x"
+        "document.querySelector('#plot-health').data.find((t) => t.meta.code === 'events').x"
     )
     assert event_x == [e["seq"] for e in api["events"]]
     page.select_option("#axis", "date")

@@ -355,3 +355,44 @@ def test_a_design_not_in_service_says_why_it_has_no_estimates(
     assert page.locator("#activate-design").is_disabled()
     assert "analyst key" in page.inner_text("#no-estimates")
     assert console.unexpected() == []
+
+
+def _scale_colour(scale: list[list[Any]], f: float) -> str:
+    """A plotly colour scale's colour at ``f`` in [0, 1] as CSS rgb(), linear between stops."""
+    stops = [(float(s), [float(v) for v in re.findall(r"[\d.]+", c)[:3]]) for s, c in scale]
+    f = min(1.0, max(0.0, f))
+    k = next(i for i, (s, _) in enumerate(stops) if s >= f) or 1
+    (a, ca), (b, cb) = stops[k - 1], stops[k]
+    t = (f - a) / (b - a) if b > a else 0.0
+    r, g, bl = (round(x + t * (y - x)) for x, y in zip(ca, cb, strict=True))
+    return f"rgb({r}, {g}, {bl})"
+
+
+def test_numbers_in_heatmap_cells_have_aa_contrast(
+    page: Any, server: Server, console: Console
+) -> None:
+    """The confusion and misclassification matrices write their values in the cells: each in
+    black or white against that cell's colour of plotly's own colour scale, 4.5:1 or better."""
+    a, b = server.seeded.design_ids
+    sign_in(page, server.seeded.key, f"/designs.html?a={a}&b={b}")
+    heatmaps = page.eval_on_selector_all(
+        ".js-plotly-plot", "ds => ds.filter((d) => d.data[0].type === 'heatmap').map((d) => d.id)")
+    assert len(heatmaps) >= 3
+    ratios = []
+    for plot_id in heatmaps:
+        cells = page.evaluate(
+            """(id) => { const d = document.getElementById(id); const t = d._fullData[0];
+                return { scale: t.colorscale, zmin: t.zmin, zmax: t.zmax, z: t.z, x: t.x, y: t.y,
+                    notes: d.layout.annotations.filter((n) => n.text)
+                        .map((n) => [n.x, n.y, n.font.color]) }; }""",
+            plot_id,
+        )
+        span = (cells["zmax"] - cells["zmin"]) or 1
+        for x, y, colour in cells["notes"]:
+            v = cells["z"][cells["y"].index(y)][cells["x"].index(x)]
+            cell = _scale_colour(cells["scale"], (v - cells["zmin"]) / span)
+            ratios.append((plot_id, x, y, v, contrast(_rgb(colour), cell)))
+    assert ratios
+    low = [r for r in ratios if r[-1] < 4.5]
+    assert low == []
+    assert console.unexpected() == []
