@@ -90,7 +90,7 @@ function drawPositions() {
         for (const t of lineWithBand(...broken(seg.trend.time, s), i)) {
           // One legend entry per parameter, however many engines the position had.
           // The hover names the engine, and the 1-sigma where the API gives one.
-          const sigma = t.meta.sigma ? t.customdata : null;
+          const sigma = Array.isArray(t.meta.sigma) ? t.meta.sigma : null;
           traces.push({ ...t, showlegend: k === 0 && t.meta.role === "line", legendgroup: s.name,
             customdata: t.x.map((_, j) => [seg.trend.esn, sigma ? sigma[j] : null]),
             hovertemplate: t.meta.role === "line" ? `%{customdata[0]} ${nameOf(s.name)} %{y:.3f}${sigma ? " ± %{customdata[1]:.3f}" : ""} ${s.unit}${sigma ? " (1σ)" : ""}<extra></extra>` : undefined });

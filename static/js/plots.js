@@ -98,7 +98,7 @@ export function plotCsv(gd) {
       t.z.forEach((r, i) => r.forEach((v, j) => rows.push([codeOf(t), t.y[i], t.x[j], v])));
     } else {
       if (!rows.length) rows.push(["trace", "x", "y", "error"]);
-      const err = t.error_y && t.error_y.array ? t.error_y.array : t.meta && t.meta.sigma ? t.customdata : null;
+      const err = t.error_y && t.error_y.array ? t.error_y.array : t.meta && Array.isArray(t.meta.sigma) ? t.meta.sigma : null;
       (t.x || []).forEach((x, i) => rows.push([codeOf(t), x, t.y[i], err ? err[i] : ""]));
     }
   }
@@ -215,7 +215,7 @@ export function lineWithBand(x, series, index, { band = true } = {}) {
   };
   if (sigma) {
     Object.assign(line, { customdata: sigma, hovertemplate: `%{y:.3f} ± %{customdata:.3f} ${unit} (1σ)` });
-    line.meta.sigma = true;
+    line.meta.sigma = sigma;  // the CSV export's error column
   } else if (series.min && series.max) {
     Object.assign(line, { customdata: series.min.map((v, i) => [v, series.max[i]]),
       hovertemplate: `%{y:.3f} ${unit} (bucket %{customdata[0]:.3f} to %{customdata[1]:.3f})` });

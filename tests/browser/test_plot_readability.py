@@ -5,6 +5,8 @@ why it has no estimates."""
 
 from __future__ import annotations
 
+import csv
+import io
 import itertools
 import re
 from datetime import datetime, timedelta
@@ -125,7 +127,8 @@ def test_legends_fit_inside_the_figure_with_no_entry_hidden(
 def test_hovers_carry_the_estimates_sigma(page: Any, server: Server, console: Console) -> None:
     engine_id = server.seeded.engine_with_event
     sign_in(page, server.seeded.key, f"/engine.html?id={engine_id}")
-    trend = api_get(server, f"/api/v1/engines/{engine_id}/trend", max_points=1000)
+    trend = api_get(server, f"/api/v1/engines/{engine_id}/trend", max_points=1000,
+                    health="change")  # the page's defaults
     with_sigma = {g["key"]: {s["name"] for s in g["series"] if s["sigma"]} for g in trend["groups"]}
     assert with_sigma["health"] and with_sigma["tuners"]
     for key in ("health", "tuners"):
@@ -149,6 +152,15 @@ def test_hovers_carry_the_estimates_sigma(page: Any, server: Server, console: Co
         ".map((t) => t.textContent).join('\\n')")
     assert len(re.findall(r"-?\d+\.\d{3} ± \d+\.\d{3} % \(1σ\)", text)) >= 5, text
     screenshot(page, "engine-hover-sigma")
+    # The plot's CSV (mode bar) names the series as the API does and gives each value its sigma.
+    exported = page.evaluate(
+        "import('/js/plots.js').then((m) => m.plotCsv(document.querySelector('#plot-health')))")
+    rows = list(csv.DictReader(io.StringIO(exported)))
+    health = next(g for g in trend["groups"] if g["key"] == "health")
+    fan = [r for r in rows if r["trace"] == "fan_eff" and r["y"]]
+    sigma = [v for v in next(s for s in health["series"] if s["name"] == "fan_eff")["sigma"]
+             if v is not None]
+    assert [float(r["error"]) for r in fan] == pytest.approx(sigma)
     assert console.unexpected() == []
 
 
