@@ -90,7 +90,7 @@ function healthBars(div, health) {
     hovermode: "closest",
     xaxis: { title: { text: "Health parameter" }, ...named(health.names) },
     yaxis: { title: { text: axisTitle("RMS error", "%") } },
-    yaxis2: { title: { text: axisTitle("Coverage", "%") }, overlaying: "y", side: "right", range: [0, 105], showgrid: false },
+    yaxis2: { title: { text: axisTitle("Coverage", "%") }, overlaying: "y", side: "right", range: [0, 105], showgrid: false, automargin: true },
     shapes: [{ type: "line", xref: "paper", x0: 0, x1: 1, yref: "y2", y0: 95, y1: 95, line: { dash: "dot", color: PALETTE[1], width: 1 } }],
     margin: { l: 70, r: 60, t: 20, b: 40 },
   }));

@@ -42,13 +42,14 @@ const SENSORS = [
 ].map(([code, name, unit, meaning]) => ({ code, name, unit, group: "Sensors and actuators", meaning }));
 
 const AUX = [
-  ["Fn", "Net thrust", "lbf", "Net thrust estimated from the health parameters at the record's flight condition."],
+  ["Fn", "Net thrust", "lbf", "Net thrust estimated from the health parameters at the record's flight condition; in lbf per flight phase on the performance panels."],
   ["T40", "Turbine inlet temperature (T40)", "degR", "Burner outlet, HPT inlet total temperature (not measured: estimated)."],
-  ["SM_fan", "Fan stall margin", "margin points", "Distance of the fan operating point from its stall line."],
-  ["SM_LPC", "LPC stall margin", "margin points", "Distance of the low-pressure compressor operating point from its stall line."],
-  ["SM_HPC", "HPC stall margin", "margin points", "Distance of the high-pressure compressor operating point from its stall line."],
+  ["SM_fan", "Fan stall margin", "margin points", "Distance of the fan operating point from its stall line, in margin points on the performance panels."],
+  ["SM_LPC", "LPC stall margin", "margin points", "Distance of the low-pressure compressor operating point from its stall line, in margin points on the performance panels."],
+  ["SM_HPC", "HPC stall margin", "margin points", "Distance of the high-pressure compressor operating point from its stall line, in margin points on the performance panels."],
   ["BPR", "Bypass ratio", "1", "Bypass flow over core flow."],
-].map(([code, name, unit, meaning]) => ({ code, name, unit, group: "Thrust, temperatures and stall margins", meaning }));
+].map(([code, name, unit, meaning]) => ({ code, name, unit, group: "Thrust, temperatures and stall margins",
+  meaning: `${meaning} The engine page's "Thrust deficit and stall-margin estimates" plot gives its change from the nominal engine in percent.` }));
 
 const PERFORMANCE = [
   ["egt_margin", "EGT margin", "degC", "Red-line EGT minus the take-off EGT corrected to ISA+15 K: what is left before the limit."],

@@ -62,7 +62,7 @@ function drawSamples(recording, text, shapes) {
     title: { text: "Flight condition" }, shapes,
     xaxis: { title: { text: axisTitle("Recording time", "s") } },
     yaxis: { title: { text: axisTitle("Altitude", "ft") } },
-    yaxis2: { title: { text: axisTitle("Power", "%") }, overlaying: "y", side: "right" },
+    yaxis2: { title: { text: axisTitle("Power", "%") }, overlaying: "y", side: "right", automargin: true },
   }));
 }
 
