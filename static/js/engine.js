@@ -3,7 +3,7 @@
 import { api, apiText, download } from "./api.js";
 import { $, fmtTime, h, params, showError, startPage, tailLink } from "./ui.js";
 import { MARKER_COLOURS, axisTitle, layout, limitShapes, lineWithBand, markerAnnotations, markerScale, markerShapes, plot, syncZoom, trendMarkers, unitOf } from "./plots.js";
-import { label } from "./glossary.js";
+import { faultLabel, label } from "./glossary.js";
 import { maintenancePanel } from "./maintenance.js";
 
 const ORDER = ["health", "aux", "tuners", "residuals", "wssr"];
@@ -146,7 +146,9 @@ function draw() {
     container.append(h("section", { class: "card" }, h("h2", {}, title),
       ...notes.map((n) => h("p", { class: "muted" }, n)), div));
     const raw = axis === "date" ? trend.time : trend.seq;
-    const traces = group.series.filter((s) => !hidden.has(s.name)).flatMap((s, i) => (s.idx
+    // WSSR series are fault hypotheses: named as faults, not as the sensor or actuator.
+    const named = group.key === "wssr" ? group.series.map((s) => ({ ...s, label: faultLabel(s.name) })) : group.series;
+    const traces = named.filter((s) => !hidden.has(s.name)).flatMap((s, i) => (s.idx
       ? lineWithBand(s.idx.map((k) => raw[k]), s, i) : lineWithBand(x, broken(s), i)));
     // Event markers as points too: hovering one names the event.
     const events = marks.filter((m) => m.kind === "event" || m.kind === "wear");

@@ -108,4 +108,9 @@ export function label(code) {
   return BY_CODE.has(text) ? BY_CODE.get(text).name : text;
 }
 
-export const GLOSSARY_LINK = "/glossary.html";
+// The engineers' name of a fault hypothesis (the WSSR group names the actuator-bias hypotheses
+// by their actuator: ``Wf`` is the fuel-flow bias fault).
+export function faultLabel(code) {
+  const e = BY_CODE.get(`${code} bias`) || BY_CODE.get(String(code));
+  return e && e.group === "Fault hypotheses" ? e.name : label(code);
+}

@@ -169,12 +169,12 @@ function describe(div, traces, lay) {
   div.setAttribute("aria-describedby", id);
 }
 
-// A line with its band: value ± 1 sigma where the series has a sigma, else (a decimated
+// A line with its band (named ``series.label``, else the glossary's name of ``series.name``): value ± 1 sigma where the series has a sigma, else (a decimated
 // trend) the min-max envelope of each bucket, so a spike survives decimation. The band is a
 // filled trace (legend-grouped, no hover) drawn under the line.
 export function lineWithBand(x, series, index, { band = true } = {}) {
   const style = styleFor(series.name, index);
-  const name = label(series.name);
+  const name = series.label || label(series.name);
   const unit = series.unit === "1" ? "" : series.unit;
   const traces = [];
   const sigma = series.sigma;

@@ -290,6 +290,10 @@ def test_every_name_shown_is_an_engineers_name_from_the_glossary(
     shown: dict[str, list[str]] = {}
     _ready(page, f"/engine.html?id={seeded.engine_with_event}")
     shown["engine"] = _shown_names(page, "#plots")
+    # WSSR lines are fault hypotheses, named as faults (not as the actuator Wf, VSV, VBV).
+    wssr = page.eval_on_selector_all(
+        "#plot-wssr .legend .legendtext", "ts => ts.map((t) => t.textContent)")
+    assert "Fuel-flow bias fault" in wssr and "HPT fault" in wssr, wssr
     _ready(page, f"/events.html?id={seeded.event_id}")
     page.wait_for_selector("#around .legend")
     shown["event"] = _shown_names(page, "#content") + _shown_names(page, "#content", TICKS)
