@@ -5,6 +5,7 @@
 import { api } from "./api.js";
 import { $, fmtNum, fmtTime, h, params, showError, sortableTable, startPage } from "./ui.js";
 import { PALETTE, axisTitle, layout, lineWithBand, plot, rgba, syncZoom } from "./plots.js";
+import { label as nameOf } from "./glossary.js";
 
 const DAY_MS = 86400e3;
 // A stretch without data longer than this (or 20 typical record spacings) is a gap.
@@ -79,7 +80,7 @@ function drawPositions() {
   const pending = [];
   for (const p of positions()) {
     const segs = tail.segments.filter((s) => s.position === p && group(s, "health"));
-    const div = h("div", { id: `plot-position-${p}`, class: "plot" });
+    const div = h("div", { id: `plot-position-${p}`, class: "plot tall" });
     const esns = segs.map((s) => s.trend.esn);
     container.append(h("div", {}, h("h3", {}, `Position ${p}: ${esns.length ? [...new Set(esns)].join(", ") : "no data"}`), div));
     const traces = [];
@@ -88,9 +89,11 @@ function drawPositions() {
       g.series.forEach((s, i) => {
         for (const t of lineWithBand(...broken(seg.trend.time, s), i)) {
           // One legend entry per parameter, however many engines the position had.
+          // The hover names the engine, and the 1-sigma where the API gives one.
+          const sigma = Array.isArray(t.meta.sigma) ? t.meta.sigma : null;
           traces.push({ ...t, showlegend: k === 0 && t.meta.role === "line", legendgroup: s.name,
-            name: t.meta.role === "line" ? s.name : t.name, customdata: t.x.map(() => seg.trend.esn),
-            hovertemplate: t.meta.role === "line" ? `%{customdata} ${s.name} %{y:.3f} ${s.unit}<extra></extra>` : undefined });
+            customdata: t.x.map((_, j) => [seg.trend.esn, sigma ? sigma[j] : null]),
+            hovertemplate: t.meta.role === "line" ? `%{customdata[0]} ${nameOf(s.name)} %{y:.3f}${sigma ? " ± %{customdata[1]:.3f}" : ""} ${s.unit}${sigma ? " (1σ)" : ""}<extra></extra>` : undefined });
         }
       });
     });
@@ -98,8 +101,7 @@ function drawPositions() {
     pending.push([div, traces, layout({
       xaxis: { title: { text: "Date (UTC)" }, type: "date", range: x, autorange: !x },
       yaxis: { title: { text: axisTitle("Health level", unit) }, range: y, autorange: !y },
-      legend: { orientation: "v", x: 1.02, y: 1, font: { size: 11 } },
-      margin: { l: 70, r: 20, t: 20, b: 50 },
+      margin: { l: 70, r: 20, t: 20, b: 40 },
     })]);
     divs.push(div);
   }
@@ -163,9 +165,9 @@ function drawComparison() {
     overlay.push({ ...band, fillcolor: rgba(colour, 0.15), name: `${label} ±1σ`, legendgroup: label },
       { ...line, name: label, legendgroup: label, line: { color: colour, width: 1.6 } });
   }
-  const title = axisTitle(name, unit);
+  const title = axisTitle(nameOf(name), unit);
   plot($("#plot-overlay"), overlay, layout({
-    title: { text: `${name} of every position`, font: { size: 13 } },
+    title: { text: `${nameOf(name)} of every position`, font: { size: 13 } },
     xaxis: { title: { text: "Date (UTC)" }, type: "date", range: x, autorange: !x },
     yaxis: { title: { text: title } },
     margin: { l: 70, r: 20, t: 60, b: 50 },
@@ -174,12 +176,12 @@ function drawComparison() {
     ...broken(d.time, { name: d.label, unit, value: d.value, sigma: d.sigma }, 1), d.position - 1).map((t) =>
     (t.meta.role === "line" ? { ...t, mode: "lines+markers", marker: { size: 4 } } : t)));
   plot($("#plot-delta"), delta, layout({
-    title: { text: `Difference of ${name} between positions (daily means)`, font: { size: 13 } },
+    title: { text: `Difference of ${nameOf(name)} between positions (daily means)`, font: { size: 13 } },
     xaxis: { title: { text: "Date (UTC)" }, type: "date", range: x, autorange: !x },
-    yaxis: { title: { text: axisTitle(`${name} difference`, unit) }, zeroline: true, zerolinecolor: "#5b6b7c" },
+    yaxis: { title: { text: axisTitle(`${nameOf(name)} difference`, unit) }, zeroline: true, zerolinecolor: "#5b6b7c" },
     margin: { l: 70, r: 20, t: 60, b: 50 },
   }));
-  $("#delta-title").textContent = `Engine-to-engine difference: ${name}`;
+  $("#delta-title").textContent = `Engine-to-engine difference: ${nameOf(name)}`;
   $("#delta-note").textContent = positions().length < 2
     ? "Only one position has data: no difference to show."
     : "Left: the parameter of every position. Right: position 1 minus each other position, from the days both have data (daily means; band: the two estimates' ±1σ combined). A step in the difference that only one engine shows points at that engine; a step common to all points at the aircraft or its data.";
@@ -242,7 +244,7 @@ function drawParameterChoices() {
     }
   }
   const wanted = params().get("parameter");
-  $("#parameter").replaceChildren(...names.map((n) => h("option", { value: n, selected: n === wanted }, n)));
+  $("#parameter").replaceChildren(...names.map((n) => h("option", { value: n, selected: n === wanted }, nameOf(n))));
 }
 
 async function resolveId() {

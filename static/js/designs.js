@@ -3,7 +3,11 @@
 // probabilities, two designs side by side; create a design and watch its evaluation job.
 import { api } from "./api.js";
 import { $, badge, fmtNum, fmtTime, h, params, progressBar, showError, sortableTable, startPage } from "./ui.js";
-import { PALETTE, axisTitle, layout, plot } from "./plots.js";
+import { CIVIDIS, PALETTE, axisTitle, colourAt, layout, plot, textOn } from "./plots.js";
+import { label } from "./glossary.js";
+
+// The API's names on the data, the engineers' names on the axis and in the hover.
+const named = (names) => ({ tickmode: "array", tickvals: names, ticktext: names.map(label) });
 
 const VARIANTS = { wssr_q: "WSSR on tuner estimates", wssr_y: "WSSR on sensor estimates", max_h: "largest health change", wssr_q_diagnostic: "WSSR, diagnostics-aware design" };
 // The job kind's defaults are the seed 002 settings (200 cases of 30 s, 300 s per fault).
@@ -34,21 +38,22 @@ function errorBars(div, theory, unitOf, mc) {
   const names = theory.names;
   const traces = [
     { x: names, y: theory.bias2, type: "bar", name: "squared bias (theory)", offsetgroup: "theory", marker: { color: PALETTE[0] },
-      hovertemplate: "%{x}: bias² %{y:.4f}<extra></extra>" },
+      customdata: names.map(label), hovertemplate: "%{customdata}: bias² %{y:.4f}<extra></extra>" },
     { x: names, y: theory.variance, base: theory.bias2, type: "bar", name: "variance (theory)", offsetgroup: "theory", marker: { color: PALETTE[4] },
-      hovertemplate: "%{x}: variance %{y:.4f}<extra></extra>" },
+      customdata: names.map(label), hovertemplate: "%{customdata}: variance %{y:.4f}<extra></extra>" },
   ];
   if (mc) {
     traces.push({ x: mc.names, y: mc.squared_error, type: "bar", name: "Monte Carlo squared error", offsetgroup: "mc", marker: { color: PALETTE[1] },
       error_y: { type: "data", array: mc.standard_error, visible: true, color: "#000000", thickness: 1 },
-      hovertemplate: "%{x}: %{y:.4f} ± %{error_y.array:.4f}<extra>Monte Carlo</extra>" });
+      customdata: mc.names.map((n, i) => [label(n), mc.standard_error[i]]),
+      hovertemplate: "%{customdata[0]}: %{y:.4f} ± %{customdata[1]:.4f} (standard error)<extra>Monte Carlo</extra>" });
   }
   const units = [...new Set(names.map((n) => squared(unitOf(n))))].join(", ");
   return plot(div, traces, layout({
     barmode: "group", hovermode: "closest",
-    xaxis: { title: { text: "Estimated parameter" } },
+    xaxis: { title: { text: "Estimated parameter" }, ...named(names) },
     yaxis: { title: { text: axisTitle("Squared error", units) } },
-    legend: { orientation: "h", y: -0.35 }, margin: { l: 70, r: 20, t: 20, b: 110 },
+    margin: { l: 70, r: 20, t: 20, b: 40 },
   }));
 }
 
@@ -56,7 +61,7 @@ function errorBars(div, theory, unitOf, mc) {
 function matrixPlot(div, z, rows, cols, { title, unit, digits = 1, xTitle, yTitle }) {
   const max = Math.max(...z.flat());
   return plot(div, [{
-    z, x: cols, y: rows, type: "heatmap", colorscale: "Cividis", zmin: 0, zmax: max || 1,
+    z, x: cols, y: rows, type: "heatmap", colorscale: CIVIDIS, zmin: 0, zmax: max || 1,
     colorbar: { title: { text: unit, side: "right" }, thickness: 12 },
     hovertemplate: `true %{y}, isolated %{x}: %{z:.${digits}f} ${unit}<extra></extra>`, name: title,
   }], layout({
@@ -65,7 +70,8 @@ function matrixPlot(div, z, rows, cols, { title, unit, digits = 1, xTitle, yTitl
     yaxis: { title: { text: yTitle }, autorange: "reversed", gridcolor: "rgba(0,0,0,0)" },
     annotations: z.flatMap((row, i) => row.map((v, j) => ({
       x: cols[j], y: rows[i], text: v >= 10 ** -digits / 2 ? v.toFixed(digits) : "", showarrow: false,
-      font: { size: 10, color: v > 0.6 * max ? "#000000" : "#ffffff" },
+      // Black or white by the cell's own colour: 4.5:1 or better in every cell.
+      font: { size: 10, color: textOn(colourAt(CIVIDIS, v / (max || 1))) },
     }))),
     margin: { l: 70, r: 20, t: 20, b: 60 },
   }));
@@ -76,17 +82,17 @@ function matrixPlot(div, z, rows, cols, { title, unit, digits = 1, xTitle, yTitl
 function healthBars(div, health) {
   return plot(div, [
     { x: health.names, y: health.rms, type: "bar", name: "RMS error", marker: { color: PALETTE[0] },
-      hovertemplate: "%{x}: RMS %{y:.2f} %<extra></extra>" },
+      customdata: health.names.map(label), hovertemplate: "%{customdata}: RMS %{y:.2f} %<extra></extra>" },
     { x: health.names, y: health.coverage_95.map((c) => 100 * c), type: "scatter", mode: "markers", yaxis: "y2",
       name: "95 % interval coverage", marker: { color: PALETTE[1], size: 9, symbol: "diamond" },
-      hovertemplate: "%{x}: coverage %{y:.0f} %<extra></extra>" },
+      customdata: health.names.map(label), hovertemplate: "%{customdata}: coverage %{y:.0f} %<extra></extra>" },
   ], layout({
     hovermode: "closest",
-    xaxis: { title: { text: "Health parameter" } },
+    xaxis: { title: { text: "Health parameter" }, ...named(health.names) },
     yaxis: { title: { text: axisTitle("RMS error", "%") } },
-    yaxis2: { title: { text: axisTitle("Coverage", "%") }, overlaying: "y", side: "right", range: [0, 105], showgrid: false },
+    yaxis2: { title: { text: axisTitle("Coverage", "%") }, overlaying: "y", side: "right", range: [0, 105], showgrid: false, automargin: true },
     shapes: [{ type: "line", xref: "paper", x0: 0, x1: 1, yref: "y2", y0: 95, y1: 95, line: { dash: "dot", color: PALETTE[1], width: 1 } }],
-    legend: { orientation: "h", y: -0.35 }, margin: { l: 70, r: 60, t: 20, b: 110 },
+    margin: { l: 70, r: 60, t: 20, b: 40 },
   }));
 }
 

@@ -2,7 +2,8 @@
 // WSSR, against date or cycles, with installation, maintenance and event markers.
 import { api, apiText, download } from "./api.js";
 import { $, fmtTime, h, params, showError, startPage, tailLink } from "./ui.js";
-import { MARKER_COLOURS, axisTitle, layout, limitShapes, lineWithBand, markerAnnotations, markerShapes, plot, syncZoom, unitOf } from "./plots.js";
+import { MARKER_COLOURS, axisTitle, layout, limitShapes, lineWithBand, markerAnnotations, markerScale, markerShapes, plot, syncZoom, trendMarkers, unitOf } from "./plots.js";
+import { faultLabel, label } from "./glossary.js";
 import { maintenancePanel } from "./maintenance.js";
 import { reportButtons } from "./reports.js";
 
@@ -17,6 +18,8 @@ const TITLES = {
 // Short y-axis titles, so the unit stays visible on a narrow plot.
 const YLABELS = { health: "Health change", aux: "Thrust / margin change", tuners: "Tuner", residuals: "Residual", wssr: "WSSR" };
 let trend = null;
+let designs = [];
+let principal = null;
 
 // The performance group (engineering units) drawn as one panel per quantity, each with the
 // engine type's limit lines on its series.
@@ -72,23 +75,7 @@ function seqAt(ms) {
 }
 
 function markers(axis) {
-  const first = Date.parse(trend.time[0]);
-  const last = Date.parse(trend.time[trend.time.length - 1]);
-  const inside = (iso) => { const t = Date.parse(iso); return t >= first && t <= last; };
-  const at = (iso, seq) => (axis === "date" ? iso : seq ?? seqAt(Date.parse(iso)));
-  const out = [];
-  for (const inst of trend.installations) {
-    if (inside(inst.installed_at)) out.push({ kind: "installation", x: at(inst.installed_at), short: `on ${inst.tail}`, label: `installed on ${inst.tail} position ${inst.position}, ${fmtTime(inst.installed_at)}` });
-    if (inst.removed_at && inside(inst.removed_at)) out.push({ kind: "installation", x: at(inst.removed_at), short: `off ${inst.tail}`, label: `removed from ${inst.tail} position ${inst.position}, ${fmtTime(inst.removed_at)}` });
-  }
-  for (const m of trend.maintenance) {
-    if (inside(m.performed_at)) out.push({ kind: "maintenance", x: at(m.performed_at), short: m.kind.replace("_", " "), label: `${m.kind}: ${m.notes}` });
-  }
-  for (const e of trend.events) {
-    const wear = e.kind === "wear";
-    out.push({ kind: wear ? "wear" : "event", x: axis === "date" ? e.detected_at : e.seq, short: wear ? `wear ${e.fault || ""}`.trim() : e.fault || e.kind, label: `event ${e.id}: ${wear ? "wear, " : ""}${e.fault || e.kind} (${e.status})` });
-  }
-  return out.filter((m) => m.x !== null && m.x !== undefined);
+  return trendMarkers(trend, (iso, seq) => (axis === "date" ? iso : seq ?? seqAt(Date.parse(iso))), fmtTime);
 }
 
 // Where the engine had no data for long (off wing, in the shop), break the lines instead of
@@ -145,13 +132,14 @@ function draw() {
   const groups = [...ordered.slice(0, 1), ...performancePanels(), ...ordered.slice(1)];
   for (const group of groups) {
     const id = `plot-${group.key}`;
-    const div = h("div", { id, class: "plot" });
+    // Many traces: a taller plot, so the legend's rows below it leave the data its height.
+    const div = h("div", { id, class: group.series.length > 6 ? "plot tall" : "plot" });
     // Health: the change since the engine's baseline (or the level) with the honest 1-sigma
     // band; a parameter the design cannot estimate comes back as nulls and is named, not drawn.
     const hidden = new Set(group.unobservable || []);
     const notes = [];
     if (group.key === "health") {
-      if (hidden.size) notes.push(`Not observable with this design: ${[...hidden].join(", ")}.`);
+      if (hidden.size) notes.push(`Not observable with this design: ${[...hidden].map(label).join(", ")}.`);
       if (group.uncertainty === "uncalibrated") notes.push("Band: the filter's own 1-sigma (the design has no calibrated model error).");
       if (group.view === "change") notes.push("Change since the engine's baseline (first settled records after installation or shop visit).");
     }
@@ -159,14 +147,16 @@ function draw() {
     container.append(h("section", { class: "card" }, h("h2", {}, title),
       ...notes.map((n) => h("p", { class: "muted" }, n)), div));
     const raw = axis === "date" ? trend.time : trend.seq;
-    const traces = group.series.filter((s) => !hidden.has(s.name)).flatMap((s, i) => (s.idx
+    // WSSR series are fault hypotheses: named as faults, not as the sensor or actuator.
+    const named = group.key === "wssr" ? group.series.map((s) => ({ ...s, label: faultLabel(s.name) })) : group.series;
+    const traces = named.filter((s) => !hidden.has(s.name)).flatMap((s, i) => (s.idx
       ? lineWithBand(s.idx.map((k) => raw[k]), s, i) : lineWithBand(x, broken(s), i)));
     // Event markers as points too: hovering one names the event.
     const events = marks.filter((m) => m.kind === "event" || m.kind === "wear");
     if (events.length) {
       traces.push({
         x: events.map((m) => m.x), y: events.map(() => 1), yaxis: "y2", type: "scatter", mode: "markers",
-        name: "events", marker: { symbol: "triangle-down", size: 12, color: events.map((m) => MARKER_COLOURS[m.kind]) },
+        name: label("events"), meta: { code: "events" }, marker: { symbol: "triangle-down", size: 12, color: events.map((m) => MARKER_COLOURS[m.kind]) },
         text: events.map((m) => m.label), hovertemplate: "%{text}<extra></extra>",
       });
     }
@@ -175,17 +165,21 @@ function draw() {
       xaxis: { title: { text: axis === "date" ? "Date (UTC)" : "Cycles (record number)" }, type: axis === "date" ? "date" : "linear",
         range: xRange(axis), autorange: false },
       yaxis: { title: { text: axisTitle(group.key === "health" && group.view === "level" ? "Health level" : YLABELS[group.key] || group.label, unitOf(group.series)) } },
-      legend: { orientation: "v", x: 1.02, y: 1, font: { size: 11 } },
       yaxis2: { overlaying: "y", range: [0, 1.05], visible: false, fixedrange: true },
       shapes: [...markerShapes(marks), ...limitShapes(group.limits || [])],
-      annotations: markerAnnotations(marks.filter((m) => m.kind !== "event" && m.kind !== "wear")),
-      margin: { l: 70, r: 20, t: 50, b: 50 },
+      margin: { l: 70, r: 20, t: 50, b: 40 },
     });
     divs.push(div);
     pending.push([div, traces, lay]);
   }
-  // Plot once every card is in the grid, so each plot takes its card's final width.
-  for (const [div, traces, lay] of pending) plot(div, traces, lay);
+  // Plot once every card is in the grid, so each plot takes its card's final width (which the
+  // marker labels are packed for).
+  const labelled = marks.filter((m) => m.kind !== "event" && m.kind !== "wear");
+  for (const [div, traces, lay] of pending) {
+    const width = div.clientWidth - lay.margin.l - lay.margin.r;
+    lay.annotations = markerAnnotations(labelled, markerScale(lay.xaxis.range, width));
+    plot(div, traces, lay);
+  }
   syncZoom(divs);
 }
 
@@ -220,10 +214,44 @@ async function load(engineId) {
   }
   info();
   if (!trend.n_records) {
-    $("#plots").replaceChildren(h("p", { class: "notice" }, "No estimates for this engine in the chosen range."));
+    $("#plots").replaceChildren(await noEstimates(engineId));
     return;
   }
   draw();
+}
+
+// No estimates: for a design that is not in service, say why (estimates are made by the active
+// design, from its activation on) and offer to make it the active one, which re-estimates every
+// engine of the type under it; else the range is empty.
+async function noEstimates(engineId) {
+  const chosen = $("#design").value;
+  const option = $("#design").selectedOptions[0];
+  const design = chosen ? designs.find((d) => String(d.id) === chosen) : null;
+  if (!design || design.active) {
+    return h("p", { class: "notice", id: "no-estimates" }, "No estimates for this engine in the chosen range.");
+  }
+  const message = h("div", { role: "status" });
+  const button = h("button", { type: "button", id: "activate-design", disabled: principal.role === "viewer",
+    onclick: async () => {
+      button.disabled = true;
+      try {
+        await api(`/api/v1/designs/${design.id}/activate`, { method: "POST" });
+        message.replaceChildren(h("p", {}, `Design ${design.name} is now the active design: the engines of this type are being estimated under it (see `,
+          h("a", { href: "/uploads.html" }, "jobs"), "). Show the trend again when the job has finished."));
+        option.textContent = `${design.name} (active)`;
+      } catch (err) {
+        button.disabled = false;
+        showError(message, err, "Not activated");
+      }
+    } }, `Make ${design.name} the active design`);
+  return h("section", { class: "notice", id: "no-estimates" },
+    h("p", {}, `Design ${design.name} has no estimates for ${trend.esn}${$("#start").value || $("#end").value ? " in the chosen range" : ""}: `
+      + "fleethealth estimates every engine with the active design of its type, from the time that design was made active. "
+      + "To see this design's estimates, make it the active design: every engine of the type is then estimated again under it "
+      + "(the previous design keeps the estimates it made)."),
+    h("p", {}, button, " ", h("a", { href: `/designs.html?a=${design.id}` }, "compare the designs first")),
+    principal.role === "viewer" ? h("p", { class: "muted" }, "Activating a design needs an analyst key.") : null,
+    message);
 }
 
 // The shown data: the x range of the health plot (after zooming) as start/end of the CSV export.
@@ -285,7 +313,7 @@ function engineUrl(id) {
 }
 
 async function main() {
-  await startPage("engine");
+  principal = await startPage("engine");
   const id = params().get("id");
   let status;
   try {
@@ -306,8 +334,8 @@ async function main() {
   }
   try {
     const engine = await api(`/api/v1/engines/${id}`);
-    const designs = await api("/api/v1/designs", { query: { engine_type_id: engine.engine_type_id, limit: 100 } });
-    $("#design").replaceChildren(h("option", { value: "" }, "active design"), ...designs.items.filter((d) => d.status === "ready")
+    designs = (await api("/api/v1/designs", { query: { engine_type_id: engine.engine_type_id, limit: 100 } })).items;
+    $("#design").replaceChildren(h("option", { value: "" }, "active design"), ...designs.filter((d) => d.status === "ready")
       .map((d) => h("option", { value: d.id }, `${d.name}${d.active ? " (active)" : ""}`)));
   } catch (err) {
     showError($("#message"), err, `Engine ${id}`);

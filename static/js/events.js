@@ -5,7 +5,8 @@
 // who did what. Without ?id= the list of events.
 import { api } from "./api.js";
 import { $, badge, fmtNum, fmtTime, h, params, showError, sortableTable, startPage, tailLink } from "./ui.js";
-import { MARKER_COLOURS, PALETTE, axisTitle, layout, lineWithBand, markerShapes, plot, unitOf } from "./plots.js";
+import { MARKER_COLOURS, PALETTE, axisTitle, layout, lineWithBand, markerAnnotations, markerScale, markerShapes, plot, trendMarkers, unitOf } from "./plots.js";
+import { label } from "./glossary.js";
 
 const WINDOW_DAYS = 20;
 const BASELINE_RECORDS = 20;
@@ -46,20 +47,22 @@ async function showList() {
 
 function shiftPlot(div, event) {
   const names = Object.keys(event.health_shift);
+  const x = names.map(label);
   const traces = [{
-    x: names, y: names.map((n) => event.health_shift[n]), type: "bar", name: "detected h_hat shift",
-    marker: { color: PALETTE[0] }, hovertemplate: "%{x}: %{y:.3f} %<extra>detected</extra>",
+    x: names, y: names.map((n) => event.health_shift[n]), type: "bar", name: "detected health shift",
+    customdata: x, marker: { color: PALETTE[0] }, hovertemplate: "%{customdata}: %{y:.3f} %<extra>detected</extra>",
   }];
   if (event.fault && Object.keys(event.fault_shift).length) {
     traces.push({
-      x: names, y: names.map((n) => event.fault_shift[n] ?? 0), type: "bar",
+      x: names, y: names.map((n) => event.fault_shift[n] ?? 0), type: "bar", customdata: x,
       name: `${event.fault} signature × ${fmtNum(event.magnitude)}`, marker: { color: PALETTE[1] },
-      hovertemplate: "%{x}: %{y:.3f} %<extra>isolated fault</extra>",
+      hovertemplate: "%{customdata}: %{y:.3f} %<extra>isolated fault</extra>",
     });
   }
   return plot(div, traces, layout({
     barmode: "group", hovermode: "closest",
-    xaxis: { title: { text: "Health parameter" } },
+    // The API's names on the data, the engineers' names on the axis.
+    xaxis: { title: { text: "Health parameter" }, tickmode: "array", tickvals: names, ticktext: x },
     yaxis: { title: { text: axisTitle("Shift against baseline", "%") } },
   }));
 }
@@ -109,7 +112,7 @@ function posteriorPlot(div, c) {
       marker: { color: "#000000", symbol: "line-ew-open", size: 14, line: { width: 2 } },
       hovertemplate: "%{x}: %{y:.1f} %<extra>WSSR alone</extra>" },
   ], layout({
-    hovermode: "closest", legend: { orientation: "h", y: -0.3 },
+    hovermode: "closest",
     xaxis: { title: { text: "Fault hypothesis" } },
     yaxis: { title: { text: axisTitle("Probability", "%") }, range: [0, 110] },
   }));
@@ -172,12 +175,20 @@ async function windowPlot(div, event) {
     return { ...s, value: s.value.map((v) => (v === null ? null : v - base)) };
   });
   const traces = series.flatMap((s, i) => lineWithBand(trend.time, s, i));
-  return plot(div, traces, layout({
-    xaxis: { title: { text: "Date (UTC)" }, type: "date" },
+  // The engine's installation changes, maintenance actions and other events in the window,
+  // marked and labelled as on the engine page; this event's line is the thick one.
+  const marks = trendMarkers(trend, (iso) => iso, fmtTime).filter((m) => m.event !== event.id);
+  const range = [new Date(t - WINDOW_DAYS * day).toISOString(), new Date(t + WINDOW_DAYS * day).toISOString()];
+  const lay = layout({
+    xaxis: { title: { text: "Date (UTC)" }, type: "date", range },
     yaxis: { title: { text: axisTitle("Change since before detection", unitOf(group.series)) } },
-    legend: { orientation: "v", x: 1.02, y: 1, font: { size: 11 } },
-    shapes: markerShapes([{ kind: "event", x: event.detected_at }]),
-  }));
+    shapes: [...markerShapes(marks), { ...markerShapes([{ kind: "event", x: event.detected_at }])[0], line: { color: MARKER_COLOURS.event, width: 3 } }],
+    margin: { l: 70, r: 20, t: 50, b: 40 },
+  });
+  const labelled = [...marks.filter((m) => m.kind !== "event" && m.kind !== "wear"),
+    { kind: "event", x: event.detected_at, short: `event #${event.id}`, label: `this event, detected ${fmtTime(event.detected_at)}` }];
+  lay.annotations = markerAnnotations(labelled, markerScale(range, div.clientWidth - lay.margin.l - lay.margin.r));
+  return plot(div, traces, lay);
 }
 
 const ACTION_TEXT = {
@@ -274,7 +285,7 @@ function showEvent(event, principal, people) {
     : wear ? "no module deterioration fits the accumulated change" : "no fault hypothesis accepted (WSSR above the threshold for all)";
   const shift = h("div", { id: "shift", class: "plot" });
   const wssr = h("div", { id: "wssr", class: "plot" });
-  const around = h("div", { id: "around", class: "plot" });
+  const around = h("div", { id: "around", class: "plot tall" });
   const [confidence] = confidenceCard(event);
   $("#content").replaceChildren(
     h("section", { class: "card" }, h("dl", { class: "kv" },

@@ -3,6 +3,7 @@ import { api } from "./api.js";
 import { $, badge, fmtAgo, fmtNum, fmtTime, h, showError, sortableTable, startPage, tailLink } from "./ui.js";
 import { axisTitle, layout, plot, styleFor, unitOf } from "./plots.js";
 import { reportButtons } from "./reports.js";
+import { label as nameOf } from "./glossary.js";
 
 let engines = [];
 // engine id -> its data coverage (newest record, overdue), from /api/v1/fleet/data-coverage.
@@ -143,10 +144,11 @@ async function loadDeterioration() {
         const style = styleFor(s.name, i);
         traces.push({
           x: g.time, y: s.mean, type: "scatter", mode: "lines+markers",
-          name: multi ? `${s.name} (${g.engine_type})` : s.name,
+          name: multi ? `${nameOf(s.name)} (${g.engine_type})` : nameOf(s.name), meta: { role: "line", code: s.name },
           line: { color: style.color, dash: gi ? "dot" : style.dash, width: 1.8 },
           error_y: { type: "data", array: s.sigma, visible: true, thickness: 1, width: 3, color: style.color },
-          customdata: g.n_engines, hovertemplate: `%{y:.3f} ${s.unit} (%{customdata} engines)`,
+          customdata: g.n_engines.map((n, k) => [n, s.sigma[k]]),
+          hovertemplate: `%{y:.3f} ± %{customdata[1]:.3f} ${s.unit} (1σ over %{customdata[0]} engines)`,
         });
       });
     });

@@ -3,7 +3,8 @@
 // estimates carry them, and the engine's events during the recording.
 import { api, apiText } from "./api.js";
 import { $, badge, fmtNum, fmtTime, h, params, showError, sortableTable, startPage } from "./ui.js";
-import { axisTitle, layout, lineWithBand, plot, styleFor, syncZoom } from "./plots.js";
+import { MARKER_COLOURS, axisTitle, layout, lineWithBand, plot, styleFor, syncZoom } from "./plots.js";
+import { label } from "./glossary.js";
 
 const MAX_SAMPLE_POINTS = 4000;
 const CONDITIONS = ["alt_ft", "mach", "dtamb_k", "power_pct"];
@@ -31,7 +32,7 @@ function eventShapes(events, recording) {
   return events.map((e) => ({
     type: "line", xref: "x", yref: "paper", y0: 0, y1: 1,
     x0: (Date.parse(e.detected_at) - t0) / 1000, x1: (Date.parse(e.detected_at) - t0) / 1000,
-    line: { color: "#D55E00", width: 2 },
+    line: { color: MARKER_COLOURS.event, width: 2 },
   }));
 }
 
@@ -46,7 +47,7 @@ function drawSamples(recording, text, shapes) {
     const style = styleFor(s, i);
     return {
       x: t, y: columns[s].map((v) => (v === null || !m ? null : 100 * (v - m) / m)), type: "scatter", mode: "lines",
-      name: s, line: { color: style.color, dash: style.dash, width: 1.2 }, meta: { role: "sample" },
+      name: label(s), line: { color: style.color, dash: style.dash, width: 1.2 }, meta: { role: "sample", code: s },
     };
   });
   plot($("#samples-plot"), traces, layout({
@@ -55,13 +56,13 @@ function drawSamples(recording, text, shapes) {
     yaxis: { title: { text: axisTitle("Change from the recording's median", "%") } },
   }));
   const cond = [];
-  if (columns.alt_ft) cond.push({ x: t, y: columns.alt_ft, name: "altitude", type: "scatter", mode: "lines", line: { color: "#0072B2" }, meta: { role: "sample" } });
-  if (columns.power_pct) cond.push({ x: t, y: columns.power_pct, name: "power", yaxis: "y2", type: "scatter", mode: "lines", line: { color: "#E69F00" }, meta: { role: "sample" } });
+  if (columns.alt_ft) cond.push({ x: t, y: columns.alt_ft, name: label("alt_ft"), type: "scatter", mode: "lines", line: { color: "#0072B2" }, meta: { role: "sample", code: "alt_ft" } });
+  if (columns.power_pct) cond.push({ x: t, y: columns.power_pct, name: label("power_pct"), yaxis: "y2", type: "scatter", mode: "lines", line: { color: "#D55E00" }, meta: { role: "sample", code: "power_pct" } });
   plot($("#condition-plot"), cond, layout({
     title: { text: "Flight condition" }, shapes,
     xaxis: { title: { text: axisTitle("Recording time", "s") } },
     yaxis: { title: { text: axisTitle("Altitude", "ft") } },
-    yaxis2: { title: { text: axisTitle("Power", "%") }, overlaying: "y", side: "right" },
+    yaxis2: { title: { text: axisTitle("Power", "%") }, overlaying: "y", side: "right", automargin: true },
   }));
 }
 
@@ -82,7 +83,7 @@ function drawOptional(est, shapes) {
   const ti = est.transient_index;
   if (Array.isArray(ti) && ti.length) {
     $("#transient-body").replaceChildren(h("div", { id: "transient-plot" }));
-    plot($("#transient-plot"), [{ x: est.t_s, y: ti, type: "scatter", mode: "lines", name: "transient index", line: { color: "#CC79A7" }, meta: { role: "line" } }],
+    plot($("#transient-plot"), [{ x: est.t_s, y: ti, type: "scatter", mode: "lines", name: "transient index", line: { color: "#882255" }, meta: { role: "line" } }],
       layout({ shapes, xaxis: { title: { text: axisTitle("Recording time", "s") } }, yaxis: { title: { text: "Transient index" } } }));
   } else {
     $("#transient-body").replaceChildren(h("p", { class: "muted", id: "transient-absent" },
@@ -93,7 +94,7 @@ function drawOptional(est, shapes) {
     $("#bias-body").replaceChildren(h("div", { id: "bias-plot" }));
     const traces = Object.entries(bias).map(([name, y], i) => {
       const style = styleFor(name, i);
-      return { x: est.t_s, y, name, type: "scatter", mode: "lines", line: { color: style.color, dash: style.dash }, meta: { role: "line" } };
+      return { x: est.t_s, y, name: label(name), type: "scatter", mode: "lines", line: { color: style.color, dash: style.dash }, meta: { role: "line", code: name } };
     });
     plot($("#bias-plot"), traces, layout({ shapes, xaxis: { title: { text: axisTitle("Recording time", "s") } },
       yaxis: { title: { text: axisTitle("Bias correction", "%") } } }));

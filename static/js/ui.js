@@ -11,6 +11,7 @@ const PAGES = [
   ["schedules", "/schedules.html", "Schedules"],
   ["settings", "/settings.html", "Notifications"],
   ["keys", "/keys.html", "API keys"],
+  ["glossary", "/glossary.html", "Glossary"],
 ];
 
 export function h(tag, attrs = {}, ...children) {

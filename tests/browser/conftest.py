@@ -175,10 +175,13 @@ def screenshot(page: Any, name: str) -> Path:
 
 
 def traces(page: Any, selector: str) -> list[dict[str, Any]]:
-    """Name, type and point count of every trace of the plotly plot at ``selector``."""
+    """Name (the API's code of the series, ``meta.code``, where the trace is named by the
+    glossary), shown label, type and point count of every trace of the plotly plot at
+    ``selector``."""
     result: list[dict[str, Any]] = page.evaluate(
         """(sel) => (document.querySelector(sel).data || []).map((t) => ({
-            name: t.name, type: t.type || 'scatter', role: t.meta && t.meta.role,
+            name: (t.meta && t.meta.code) || t.name, label: t.name,
+            type: t.type || 'scatter', role: t.meta && t.meta.role,
             n: (t.y || t.z || t.x || []).length }))""",
         selector,
     )
@@ -207,3 +210,64 @@ def unnamed_controls(page: Any, section: str) -> list[str]:
         section,
     )
     return result
+
+
+# WCAG 2.0 and 2.1, levels A and AA: the rules axe-core runs on every page.
+WCAG_AA = ["wcag2a", "wcag2aa", "wcag21a", "wcag21aa"]
+
+
+def axe_violations(page: Any, context: Any = None) -> list[dict[str, Any]]:
+    """axe-core's WCAG 2.1 AA violations on the page as it is now (``context``: a selector or
+    axe context object to check only part of it). axe-core comes from the ``axe-playwright-python``
+    test extra, which ships a pinned ``axe.min.js``; it is injected into the page on each call."""
+    from axe_playwright_python.base import AXE_SCRIPT
+
+    if not page.evaluate("typeof window.axe !== 'undefined'"):
+        page.add_script_tag(content=AXE_SCRIPT)
+    result: list[dict[str, Any]] = page.evaluate(
+        """async ([context, tags]) => {
+            const r = await axe.run(context || document,
+                { runOnly: { type: 'tag', values: tags }, resultTypes: ['violations'] });
+            return r.violations.map((v) => ({ id: v.id, impact: v.impact, help: v.help,
+                nodes: v.nodes.map((n) => ({ target: n.target.join(' '),
+                    html: n.html.slice(0, 200), summary: n.failureSummary })) }));
+        }""",
+        [context, WCAG_AA],
+    )
+    return result
+
+
+def axe_report(violations: list[dict[str, Any]]) -> str:
+    """The violations as lines a person reads in a failed assertion."""
+    return "\n".join(
+        f"{v['id']} ({v['impact']}): {v['help']}: {n['target']} {n['html']} -- {n['summary']}"
+        for v in violations for n in v["nodes"]
+    )
+
+
+def cruise_stream_csv(seed: int, n: int, dt: float) -> tuple[bytes, list[str]]:
+    """A stream recording of ``n`` samples every ``dt`` s at cruise on the built-in schedule's
+    trims with 0.2 % sensor noise, as CSV; and its sensor names."""
+    import io
+
+    import numpy as np
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    from app.services.snapshots import estimator
+    from app.services.streams import estimator as stream_estimator
+
+    sched = estimator.builtin_schedule()
+    t = np.arange(n) * dt
+    cond = np.column_stack([np.full(n, 35000.0), np.full(n, 0.8), np.zeros(n), np.full(n, 80.0)])
+    trims = sched.trims_at(cond[:, [0, 1, 3, 2]])
+    rng = np.random.default_rng(seed)
+    columns: dict[str, Any] = {"time_s": t, "alt_ft": cond[:, 0], "mach": cond[:, 1],
+                               "dtamb_k": cond[:, 2], "power_pct": cond[:, 3]}
+    sensors = [s for s in sched.template.sensors if s.name != "Wf"]
+    for s in sensors:
+        a, b = stream_estimator._stored_affine(s.name, s.unit)
+        columns[s.name] = (a * trims[s.name] + b) * (1 + rng.normal(size=n) * 0.002)
+    sink = io.BytesIO()
+    pacsv.write_csv(pa.table(columns), sink)
+    return sink.getvalue(), [s.name for s in sensors]

@@ -87,6 +87,6 @@ def test_plots_have_a_text_alternative(page: Any, server: Server, console: Conso
         for t in lines:
             values = page.evaluate(
                 "([sel, name]) => document.querySelector(sel).data.find((t) => t.name === name)"
-                ".y.filter((v) => v !== null).length", [selector, t["name"]])
-            assert f"{t['name']}: {values} points" in summary, (t["name"], summary)
+                ".y.filter((v) => v !== null).length", [selector, t["label"]])
+            assert f"{t['label']}: {values} points" in summary, (t["label"], summary)
     assert console.unexpected() == []

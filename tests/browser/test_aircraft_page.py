@@ -84,7 +84,8 @@ def test_aircraft_page_from_the_fleet_tail_link(
     # Another parameter: the overlay and the difference follow, and the URL keeps it.
     page.select_option("#parameter", "hpc_flow")
     page.wait_for_function(
-        "document.querySelector('#plot-overlay').layout.yaxis.title.text.startsWith('hpc_flow')")
+        "document.querySelector('#plot-overlay').layout.yaxis.title.text"
+        ".startsWith('HPC flow capacity')")  # the glossary's name of hpc_flow
     assert "parameter=hpc_flow" in page.url
 
     # Installation history and coverage as the API has them.

@@ -96,7 +96,9 @@ def test_trend_plots_every_group_with_bands_markers_and_units(
     assert decimated["decimated"] and decimated["n_points"] <= 200
     residuals = next(g for g in decimated["groups"] if g["key"] == "residuals")
     envelope = [t for t in traces(page, "#plot-residuals") if t["role"] == "band"]
-    assert [t["name"] for t in envelope] == [f"{s['name']} min–max" for s in residuals["series"]]
+    # Each band names its series (meta.code) and says what it is (the shown name).
+    assert [t["name"] for t in envelope] == [s["name"] for s in residuals["series"]]
+    assert all(t["label"].endswith(" min–max") for t in envelope)
     page.select_option("#max_points", "1000")
     page.click("#form button[type=submit]")
     page.wait_for_function(
@@ -112,7 +114,7 @@ def test_trend_plots_every_group_with_bands_markers_and_units(
     seqs = set(api["seq"])
     assert [v for v in x if v in seqs] == api["seq"]
     event_x = page.evaluate(
-        "document.querySelector('#plot-health').data.find((t) => t.name === 'events').x"
+        "document.querySelector('#plot-health').data.find((t) => t.meta.code === 'events').x"
     )
     assert event_x == [e["seq"] for e in api["events"]]
     page.select_option("#axis", "date")

@@ -50,7 +50,7 @@ def test_event_review_plots_shift_and_wssr_and_acknowledges(
         row = page.evaluate("document.querySelector('#confusion-row').data[0]")
         assert row["y"] == pytest.approx(confidence["confusion_row"]["percent"])
     shift = traces(page, "#shift")
-    assert shift[0]["name"] == "detected h_hat shift"
+    assert shift[0]["name"] == "detected health shift"
     assert shift[0]["n"] == len(event["health_shift"])
     assert len(shift) == (2 if event["fault"] and event["fault_shift"] else 1)
     around = [t["name"] for t in traces(page, "#around") if t["role"] == "line"]

@@ -63,7 +63,7 @@ def test_fleet_status_lists_every_engine_and_plots_deterioration(
     assert len(traces(page, "#deterioration")) == len(plotted)
     page.select_option("#which", "aux")
     page.wait_for_function(
-        "document.querySelector('#deterioration').data.some((t) => t.name === 'Fn')"
+        "document.querySelector('#deterioration').data.some((t) => t.meta.code === 'Fn')"
     )
     assert console.unexpected() == []
 

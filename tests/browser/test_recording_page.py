@@ -5,24 +5,19 @@ engine page and the uploads page link to it."""
 
 from __future__ import annotations
 
-import io
 import json
 import time
 from datetime import datetime, timedelta
 from typing import Any
 
 import httpx
-import numpy as np
-import pyarrow as pa
-import pyarrow.csv as pacsv
 import pytest
 
-from app.services.snapshots import estimator
-from app.services.streams import estimator as stream_estimator
 from tests.browser.conftest import (
     Console,
     Server,
     api_get,
+    cruise_stream_csv,
     screenshot,
     sign_in,
     traces,
@@ -36,21 +31,7 @@ DT = 0.05
 
 
 def _cruise_csv(seed: int) -> tuple[bytes, list[str]]:
-    """A minute at cruise on the built-in schedule's trims with 0.2 % sensor noise."""
-    sched = estimator.builtin_schedule()
-    t = np.arange(N) * DT
-    cond = np.column_stack([np.full(N, 35000.0), np.full(N, 0.8), np.zeros(N), np.full(N, 80.0)])
-    trims = sched.trims_at(cond[:, [0, 1, 3, 2]])
-    rng = np.random.default_rng(seed)
-    columns: dict[str, Any] = {"time_s": t, "alt_ft": cond[:, 0], "mach": cond[:, 1],
-                               "dtamb_k": cond[:, 2], "power_pct": cond[:, 3]}
-    sensors = [s for s in sched.template.sensors if s.name != "Wf"]
-    for s in sensors:
-        a, b = stream_estimator._stored_affine(s.name, s.unit)
-        columns[s.name] = (a * trims[s.name] + b) * (1 + rng.normal(size=N) * 0.002)
-    sink = io.BytesIO()
-    pacsv.write_csv(pa.table(columns), sink)
-    return sink.getvalue(), [s.name for s in sensors]
+    return cruise_stream_csv(seed, N, DT)
 
 
 def test_recording_page_samples_estimates_events_and_links(
