@@ -109,13 +109,17 @@ def test_every_page_has_no_wcag_aa_violation(
     check("recording", lambda: _ready(page, f"/recording.html?id={rid}"))
     check("recording, none chosen", lambda: _ready(page, "/recording.html"))
     check("glossary", lambda: _ready(page, "/glossary.html"))
+    check("schedules", lambda: _ready(page, "/schedules.html"))
+    check("diagnostic report, none chosen", lambda: _ready(page, "/diagnostic.html"))
+    check("keys", lambda: _ready(page, "/keys.html"))
     sign_in(page, seeded.viewer_key, "/")
     check("event, viewer", lambda: _ready(page, f"/events.html?id={seeded.event_id}"))
     check("settings, viewer", lambda: _ready(page, "/settings.html"))
+    check("keys, viewer", lambda: _ready(page, "/keys.html"))
     screenshot(page, "axe-last-page")
     failed = {name: axe_report(v) for name, v in found.items() if v}
     assert failed == {}, "\n".join(f"{k}:\n{v}" for k, v in failed.items())
-    assert len(found) == 25
+    assert len(found) == 29
     assert console.unexpected("401", "422", "Failed to load resource") == []
 
 
