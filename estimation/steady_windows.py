@@ -15,8 +15,10 @@ same whatever chunks the samples arrived in. A window is *steady* when, over it,
 
 A steady window is given the phase of its segment from its mean condition: below
 ``min_power_pct`` or descending faster than ``climb_rate_fpm`` it is not summarised (idle,
-descent); within ``takeoff_height_ft`` of the recording's first altitude (the departure
-field) it is take-off; climbing at ``climb_rate_fpm`` or more it is climb; otherwise cruise.
+descent); within ``takeoff_height_ft`` of the departure field (the recording's first
+altitude when it starts on the ground, below ``ground_mach``; a recording that starts in the
+air has no take-off) it is take-off; climbing at ``climb_rate_fpm`` or more it is climb;
+otherwise cruise.
 ``window_means`` then summarises each window into one record: the mean of every signal over
 the window's finite values (NaN where a signal has none).
 """
@@ -42,6 +44,7 @@ class SteadyCriteria:
     climb_rate_fpm: float = 300.0
     takeoff_height_ft: float = 3000.0
     min_power_pct: float = 50.0
+    ground_mach: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -71,14 +74,15 @@ def steady_windows(
     power_pct: np.ndarray,
     spools: np.ndarray | None,
     dt_s: float,
-    field_alt_ft: float,
+    field_alt_ft: float | None,
     first_window: int = 0,
     criteria: SteadyCriteria | None = None,
 ) -> list[SteadyWindow]:
     """The steady windows among the complete windows of samples that start at window
     ``first_window`` of the grid; ``start``/``stop`` count from the recording's first sample.
 
-    alt_ft, mach, power_pct [S]; spools [S, k] measured spool speeds (NaN: missing) or None.
+    alt_ft, mach, power_pct [S]; spools [S, k] measured spool speeds (NaN: missing) or None;
+    field_alt_ft: the departure field's altitude (``field_of``), None: no take-off here.
     """
     c = criteria or SteadyCriteria()
     W = window_length(dt_s, c.window_s)
@@ -111,7 +115,7 @@ def steady_windows(
             ti[k] = abs(float(transient_index(xdot[None, :], block[:, cols].mean(axis=0))[0]))
         steady &= ti <= c.ti_max
     mean_p = p.mean(axis=1)
-    height = alt.mean(axis=1) - field_alt_ft
+    height = alt.mean(axis=1) - (np.inf if field_alt_ft is None else field_alt_ft)
     out = []
     for k in np.flatnonzero(steady):
         if mean_p[k] < c.min_power_pct or rate[k] <= -c.climb_rate_fpm:
@@ -125,6 +129,16 @@ def steady_windows(
         i = first_window + int(k)
         out.append(SteadyWindow(i, i * W, (i + 1) * W, phase))
     return out
+
+
+def field_of(first_alt_ft: float, first_mach: float,
+             criteria: SteadyCriteria | None = None) -> float | None:
+    """The departure field's altitude: the first sample's when the recording starts on the
+    ground (Mach below ``ground_mach``), else None (no take-off in the recording)."""
+    c = criteria or SteadyCriteria()
+    if not (np.isfinite(first_alt_ft) and np.isfinite(first_mach)):
+        return None
+    return float(first_alt_ft) if first_mach < c.ground_mach else None
 
 
 def window_means(values: np.ndarray, starts: np.ndarray, length: int) -> np.ndarray:

@@ -35,7 +35,13 @@ from app.services.snapshots import backlog
 from app.services.uploads import back_dating
 from app.services.uploads import store as uploads_store
 from app.signals import SIGNALS
-from estimation.steady_windows import SteadyCriteria, steady_windows, window_length, window_means
+from estimation.steady_windows import (
+    SteadyCriteria,
+    field_of,
+    steady_windows,
+    window_length,
+    window_means,
+)
 
 CRITERIA = SteadyCriteria()
 SPOOLS = ("Nf", "Nc")  # the spool speeds whose transient index marks a window unsettled
@@ -79,7 +85,8 @@ def summarise_windows(
     ).all()
     table = _read_from(data_dir, recording, chunks, first_window * W)
     field = _read_from(data_dir, recording, chunks[:1], 0).slice(0, 1)
-    field_alt = float(_column(field, "alt_ft")[0]) if field.num_rows else 0.0
+    field_alt = (field_of(float(_column(field, "alt_ft")[0]), float(_column(field, "mach")[0]),
+                          CRITERIA) if field.num_rows else None)
     spool_names = [s for s in SPOOLS if s in table.column_names]
     spools = np.column_stack([_column(table, s) for s in spool_names]) if spool_names else None
     windows = steady_windows(
