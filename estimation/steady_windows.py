@@ -115,7 +115,8 @@ def steady_windows(
             ti[k] = abs(float(transient_index(xdot[None, :], block[:, cols].mean(axis=0))[0]))
         steady &= ti <= c.ti_max
     mean_p = p.mean(axis=1)
-    height = alt.mean(axis=1) - (np.inf if field_alt_ft is None else field_alt_ft)
+    height = (np.full(n, np.inf) if field_alt_ft is None
+              else alt.mean(axis=1) - float(field_alt_ft))
     out = []
     for k in np.flatnonzero(steady):
         if mean_p[k] < c.min_power_pct or rate[k] <= -c.climb_rate_fpm:

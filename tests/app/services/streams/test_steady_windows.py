@@ -184,6 +184,10 @@ def test_streams_join_the_engines_history_with_its_snapshots(
     stored = np.array([[getattr(r, n.lower()) for n in SENSOR_NAMES] for r in records])
     in_noise = np.abs(stored - solved.sensors) / engine_noise_std()
     steady_rows = np.array([r.phase != "takeoff" for r in records])
+    print(f"windows {len(records)}: " + ", ".join(
+        f"{p} {sum(r.phase == p for r in records)}" for p in ("takeoff", "climb", "cruise"))
+        + f"; |mean - solved| / noise: climb and cruise {np.max(in_noise[steady_rows]):.2f}, "
+        f"take-off {np.max(in_noise[~steady_rows]):.2f}")
     assert np.max(in_noise[steady_rows]) < 0.5
     assert np.max(in_noise) < 1.0  # take-off: the spools' heat soak after the throttle step
 
