@@ -118,16 +118,16 @@ def steady_windows(
     height = (np.full(n, np.inf) if field_alt_ft is None
               else alt.mean(axis=1) - float(field_alt_ft))
     out = []
-    for k in np.flatnonzero(steady):
-        if mean_p[k] < c.min_power_pct or rate[k] <= -c.climb_rate_fpm:
+    for j in np.flatnonzero(steady).tolist():
+        if mean_p[j] < c.min_power_pct or rate[j] <= -c.climb_rate_fpm:
             continue
-        if height[k] < c.takeoff_height_ft:
+        if height[j] < c.takeoff_height_ft:
             phase = "takeoff"
-        elif rate[k] >= c.climb_rate_fpm:
+        elif rate[j] >= c.climb_rate_fpm:
             phase = "climb"
         else:
             phase = "cruise"
-        i = first_window + int(k)
+        i = first_window + j
         out.append(SteadyWindow(i, i * W, (i + 1) * W, phase))
     return out
 
