@@ -84,7 +84,10 @@ def summarise_windows(
         .order_by(StreamChunk.chunk_index)
     ).all()
     table = _read_from(data_dir, recording, chunks, first_window * W)
-    field = _read_from(data_dir, recording, chunks[:1], 0).slice(0, 1)
+    # The first sample (the departure field when on the ground): read again only when the
+    # samples read start later.
+    field = (table if first_window == 0 else _read_from(data_dir, recording, chunks[:1], 0)
+             ).slice(0, 1)
     field_alt = (field_of(float(_column(field, "alt_ft")[0]), float(_column(field, "mach")[0]),
                           CRITERIA) if field.num_rows else None)
     spool_names = [s for s in SPOOLS if s in table.column_names]
