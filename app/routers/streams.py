@@ -98,6 +98,8 @@ def upload_stream(
             session, operator_id=principal.operator_id, recording_id=recording.id,
             through_sample=recording.n_samples,
         )
+        if outcome["upload"].affected:  # steady windows stored as the engine's records
+            get_job_queue(request).estimate(session, operator_id=principal.operator_id)
     response.status_code = status.HTTP_200_OK if outcome["replayed"] else status.HTTP_201_CREATED
     upload = UploadOut.model_validate(outcome["upload"]).model_copy(
         update={"replayed": outcome["replayed"]}
@@ -159,6 +161,9 @@ def append_chunk(
             session, operator_id=principal.operator_id, recording_id=result.recording.id,
             through_sample=result.recording.n_samples,
         )
+        chunk_upload = recordings.chunk_upload(session, result.chunk)
+        if chunk_upload is not None and chunk_upload.affected:
+            get_job_queue(request).estimate(session, operator_id=principal.operator_id)
     response.status_code = status.HTTP_200_OK if result.replayed else status.HTTP_201_CREATED
     return ChunkOut(
         recording=RecordingOut.model_validate(result.recording),

@@ -101,6 +101,11 @@ class EngineTrend(BaseModel):
     time: list[str] = Field(description="ISO 8601 UTC; bucket mean time when decimated")
     seq: list[float] = Field(description="record number (cycles axis); bucket mean")
     phase: list[str | None]
+    recording: list[int | None] = Field(
+        default_factory=list,
+        description="the stream recording whose steady window the record summarises "
+        "(null: a snapshot, or a bucket of records of several sources)",
+    )
     groups: list[TrendGroup]
     installations: list[InstallationMarker]
     maintenance: list[MaintenanceMarker]

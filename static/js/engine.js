@@ -126,6 +126,7 @@ function draw() {
   container.replaceChildren();
   const divs = [];
   const pending = [];
+  const pendingClicks = [];
   // Health first (the change since the baseline, the view engineers read), then the
   // performance panels in engineering units, then the rest.
   const ordered = ORDER.map((k) => trend.groups.find((g) => g.key === k)).filter(Boolean);
@@ -151,6 +152,9 @@ function draw() {
     const named = group.key === "wssr" ? group.series.map((s) => ({ ...s, label: faultLabel(s.name) })) : group.series;
     const traces = named.filter((s) => !hidden.has(s.name)).flatMap((s, i) => (s.idx
       ? lineWithBand(s.idx.map((k) => raw[k]), s, i) : lineWithBand(x, broken(s), i)));
+    // Records summarised from stream recordings (one per steady window): open diamonds on the
+    // health plot, each naming its recording; a click opens the recording page.
+    if (group.key === "health") traces.push(...streamPoints(group, raw));
     // Event markers as points too: hovering one names the event.
     const events = marks.filter((m) => m.kind === "event" || m.kind === "wear");
     if (events.length) {
@@ -171,6 +175,7 @@ function draw() {
     });
     divs.push(div);
     pending.push([div, traces, lay]);
+    if (group.key === "health") pendingClicks.push(div);
   }
   // Plot once every card is in the grid, so each plot takes its card's final width (which the
   // marker labels are packed for).
@@ -180,7 +185,33 @@ function draw() {
     lay.annotations = markerAnnotations(labelled, markerScale(lay.xaxis.range, width));
     plot(div, traces, lay);
   }
+  for (const div of pendingClicks) {
+    div.on?.("plotly_click", (ev) => {
+      const point = ev.points.find((p) => p.data.meta && p.data.meta.role === "stream");
+      if (point) location.assign(`/recording.html?id=${point.customdata}`);
+    });
+  }
   syncZoom(divs);
+}
+
+// The trend's points that summarise a stream recording's steady window (``trend.recording``).
+function streamIndices() {
+  return (trend.recording || []).map((r, i) => (r === null || r === undefined ? -1 : i)).filter((i) => i >= 0);
+}
+
+// One marker trace per shown health series at the stream points, so that the steady windows
+// stand apart from the snapshots on the line they share.
+function streamPoints(group, raw) {
+  const idx = streamIndices();
+  if (!idx.length) return [];
+  const hidden = new Set(group.unobservable || []);
+  return group.series.filter((s) => !hidden.has(s.name)).map((s, i) => ({
+    x: idx.map((k) => raw[k]), y: idx.map((k) => s.value[k]), customdata: idx.map((k) => trend.recording[k]),
+    type: "scatter", mode: "markers", name: i === 0 ? "stream windows" : `${s.name} (stream)`,
+    legendgroup: "stream", showlegend: i === 0, meta: { role: "stream" },
+    marker: { symbol: "diamond-open", size: 9, color: "#444" },
+    hovertemplate: `${s.name} %{y}<br>steady window of recording #%{customdata}<extra></extra>`,
+  }));
 }
 
 function info() {
@@ -360,8 +391,12 @@ async function listRecordings(id) {
   $("main").append(section);
   try {
     const page = await api("/api/v1/streams", { query: { engine_id: id, limit: 50 } });
-    section.append(page.items.length ? h("ul", {}, page.items.map((r) => h("li", {},
-      h("a", { href: `/recording.html?id=${r.id}` }, `#${r.id}`), ` started ${fmtTime(r.started_at)}, ${r.n_samples} samples`)))
+    // How many of the trend's points each recording's steady windows gave.
+    const windows = {};
+    for (const r of trend?.recording || []) if (r !== null && r !== undefined) windows[r] = (windows[r] || 0) + 1;
+    section.append(page.items.length ? h("ul", {}, page.items.map((r) => h("li", { "data-recording": r.id },
+      h("a", { href: `/recording.html?id=${r.id}` }, `#${r.id}`), ` started ${fmtTime(r.started_at)}, ${r.n_samples} samples`,
+      windows[r.id] ? h("span", { class: "stream-windows" }, ` · ${windows[r.id]} steady windows in the trend (open diamonds)`) : "")))
       : h("p", { class: "muted" }, "No stream recordings of this engine."));
   } catch (err) {
     showError(section, err, "Stream recordings");

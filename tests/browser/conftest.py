@@ -247,7 +247,10 @@ def axe_report(violations: list[dict[str, Any]]) -> str:
 
 def cruise_stream_csv(seed: int, n: int, dt: float) -> tuple[bytes, list[str]]:
     """A stream recording of ``n`` samples every ``dt`` s at cruise on the built-in schedule's
-    trims with 0.2 % sensor noise, as CSV; and its sensor names."""
+    trims with 0.2 % sensor noise, as CSV; and its sensor names. The power setting creeps from
+    80 to 83 %: no 30 s window is steady, so the recording (a nominal engine, not the one it is
+    filed under) stays out of the engine's history, where it would move the seeded events the
+    tests look for (steady windows: test_engine_stream_points)."""
     import io
 
     import numpy as np
@@ -259,7 +262,8 @@ def cruise_stream_csv(seed: int, n: int, dt: float) -> tuple[bytes, list[str]]:
 
     sched = estimator.builtin_schedule()
     t = np.arange(n) * dt
-    cond = np.column_stack([np.full(n, 35000.0), np.full(n, 0.8), np.zeros(n), np.full(n, 80.0)])
+    cond = np.column_stack([np.full(n, 35000.0), np.full(n, 0.8), np.zeros(n),
+                            80.0 + 3.0 * t / (n * dt)])
     trims = sched.trims_at(cond[:, [0, 1, 3, 2]])
     rng = np.random.default_rng(seed)
     columns: dict[str, Any] = {"time_s": t, "alt_ft": cond[:, 0], "mach": cond[:, 1],

@@ -34,6 +34,7 @@ from app.models import StreamChunk, StreamRecording, Upload
 from app.models.base import utcnow
 from app.services import common
 from app.services.fleet import service as fleet
+from app.services.streams import steady
 from app.services.uploads.parse import ParsedTable, RowError, UploadRejected, parse_body
 from app.services.uploads.store import content_checksum, find_replay
 
@@ -294,6 +295,7 @@ def upload_recording(
     _append(session, data_dir, recording, parsed, checksum=checksum, upload=upload)
     recording.status = "closed"
     recording.closed_at = utcnow()
+    steady.summarise_windows(session, data_dir, recording, upload, 0)
     return upload, recording, False
 
 
@@ -379,6 +381,7 @@ def append_chunk(
     session.add(upload)
     session.flush()
     chunk = _append(session, data_dir, recording, parsed, checksum=checksum, upload=upload)
+    steady.summarise_windows(session, data_dir, recording, upload, chunk.first_sample)
     return ChunkResult(recording, chunk, replayed=False)
 
 
@@ -408,3 +411,8 @@ def list_recordings(
         stmt = stmt.where(StreamRecording.engine_id == engine_id)
     stmt = stmt.order_by(StreamRecording.started_at.desc(), StreamRecording.id.desc())
     return common.paginate(session, stmt, limit=limit, offset=offset)
+
+
+def chunk_upload(session: Session, chunk: StreamChunk) -> Upload | None:
+    """The upload that carried a chunk (its ``affected``: the steady windows it stored)."""
+    return None if chunk.upload_id is None else session.get(Upload, chunk.upload_id)

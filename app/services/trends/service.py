@@ -40,6 +40,8 @@ from app.models import (
     EstimatorDesign,
     Installation,
     MaintenanceAction,
+    Snapshot,
+    Upload,
 )
 from app.models.estimates import (
     BLOCKS,
@@ -300,6 +302,40 @@ def _load_aggregated(
     )
 
 
+def stream_records(session: Session, engine_id: int, epoch: np.ndarray) -> list[int | None]:
+    """Per record (times ``epoch``, seconds since 1970 UTC): the recording whose steady
+    window it summarises (``streams.steady``: its upload belongs to a recording), else None.
+    One query over the engine's records in the time range, joined to their uploads."""
+    out: list[int | None] = [None] * len(epoch)
+    if not len(epoch):
+        return out
+    lo = datetime.fromtimestamp(float(np.min(epoch)) - 1.0, UTC)
+    hi = datetime.fromtimestamp(float(np.max(epoch)) + 1.0, UTC)
+    rows = session.execute(
+        select(Snapshot.recorded_at, Upload.recording_id)
+        .join(Upload, Upload.id == Snapshot.upload_id)
+        .where(Snapshot.engine_id == engine_id, Snapshot.recorded_at >= lo,
+               Snapshot.recorded_at <= hi, Upload.recording_id.is_not(None))
+    ).all()
+    if not rows:
+        return out
+    by_ms = {round(t.timestamp() * 1000.0): int(r) for t, r in rows}
+    keys = np.round(np.asarray(epoch, float) * 1000.0).astype(np.int64).tolist()
+    return [by_ms.get(k) for k in keys]
+
+
+def bucket_recordings(recording: list[int | None], starts: np.ndarray | None) -> list[int | None]:
+    """The recording of each point: a bucket keeps it when all its records share it."""
+    if starts is None:
+        return recording
+    ends = np.append(starts[1:], len(recording)).tolist()
+    out = []
+    for a, b in zip(starts.tolist(), ends, strict=True):
+        first = recording[a]
+        out.append(first if all(r == first for r in recording[a:b]) else None)
+    return out
+
+
 def decimate(n: int, max_points: int) -> np.ndarray | None:
     """Start indices of at most ``max_points`` equal-count buckets of n records (None: keep
     every record)."""
@@ -544,11 +580,14 @@ def engine_trend(
         "time": [],
         "seq": [],
         "phase": [],
+        "recording": [],
         "groups": [],
     }
     if data is not None and len(data.epoch):
         starts = decimate(len(data.epoch), max_points)
         columns, groups = trend_groups(data, starts, columns_of)
+        columns["recording"] = bucket_recordings(
+            stream_records(session, target.engine_id, data.epoch), starts)
         if meta is not None:
             for group in groups:
                 if group["key"] == "health":
@@ -647,7 +686,8 @@ def _csv_header(trend: dict[str, Any]) -> list[str]:
 
 
 def _csv_rows(trend: dict[str, Any], prefix: list[Any]) -> list[list[Any]]:
-    columns: list[list[Any]] = [trend["time"], trend["seq"], trend["phase"]]
+    columns: list[list[Any]] = [trend["time"], trend["seq"], trend["phase"],
+                                trend["recording"]]
     for group in trend["groups"]:
         for series in group["series"]:
             columns.append(series["value"])
@@ -662,7 +702,7 @@ def engine_trend_csv(trend: dict[str, Any]) -> str:
     """The trend as CSV: one row per point, one column per signal, sigma and envelope."""
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
-    writer.writerow(["esn", "recorded_at", "seq", "phase", *_csv_header(trend)])
+    writer.writerow(["esn", "recorded_at", "seq", "phase", "recording_id", *_csv_header(trend)])
     writer.writerows(_csv_rows(trend, [trend["esn"]]))
     return out.getvalue()
 
@@ -678,12 +718,13 @@ def aircraft_trend_csv(trend: dict[str, Any]) -> str:
             continue
         if not header_written:
             writer.writerow(
-                ["tail", "position", "esn", "recorded_at", "seq", "phase", *_csv_header(engine)]
+                ["tail", "position", "esn", "recorded_at", "seq", "phase", "recording_id",
+                 *_csv_header(engine)]
             )
             header_written = True
         writer.writerows(_csv_rows(engine, [trend["tail"], segment["position"], engine["esn"]]))
     if not header_written:
-        writer.writerow(["tail", "position", "esn", "recorded_at", "seq", "phase"])
+        writer.writerow(["tail", "position", "esn", "recorded_at", "seq", "phase", "recording_id"])
     return out.getvalue()
 
 
