@@ -18,6 +18,7 @@ import os
 import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -130,9 +131,9 @@ def save_trim_table(table: TrimTable, path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
     try:
+        arrays: dict[str, Any] = {f"axis_{k}": a for k, a in enumerate(table.axes)}
         with os.fdopen(fd, "wb") as f:
-            np.savez(f, names=np.array(table.names), corrected=table.corrected,
-                     **{f"axis_{k}": a for k, a in enumerate(table.axes)})
+            np.savez(f, names=np.array(table.names), corrected=table.corrected, **arrays)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -55,6 +55,8 @@ MODEL_ERROR = 0.2
 # The built-in engine's power setting: the controller holds this sensor (the fan speed) at its
 # demand by moving this input (the fuel flow).
 HELD_LOOP = ("Nf", "Wf")
+# Records per block of the scheduled gains' interpolation (its arrays stay in the cache).
+GAIN_ROWS = 1024
 
 SNAPSHOT_SIGNALS: dict[str, SignalSpec] = {s.name: s for s in SENSORS + ACTUATORS}
 
@@ -293,24 +295,6 @@ def _cached_trim_table(cache_dir: str) -> TrimTable | None:
         return None
 
 
-def table_nominal_trims(
-    conditions: np.ndarray, interpolated: Mapping[str, np.ndarray], table: TrimTable
-) -> dict[str, np.ndarray]:
-    """Sensor and actuator trims of the nominal built-in engine at each record's condition
-    (alt, mach, dtamb, power) [S, 4] from the dense trim table, in the engine's units.
-    Records outside the engine's envelope keep the ``interpolated`` trims (as the exact
-    solve's do)."""
-    out = {k: np.array(v, dtype=float, copy=True) for k, v in interpolated.items()}
-    inside = table.inside(conditions)
-    if not inside.any():
-        return out
-    values = table.trims_at(conditions[inside])
-    for i, name in enumerate(table.names):
-        if name in out:
-            out[name][inside] = values[:, i]
-    return out
-
-
 def exact_nominal_trims(
     conditions: np.ndarray, interpolated: Mapping[str, np.ndarray]
 ) -> dict[str, np.ndarray]:
@@ -357,7 +341,8 @@ def engine_schedule_for(
 ) -> Schedule:
     """Gains and trims of ``model``'s signals at each record's operating condition, from the
     built-in engine's schedule (corrected-parameter trims, docs/math.md section 8). The trims
-    come from the dense nominal trim table ``trims`` (``table_nominal_trims``); without one,
+    come from the dense nominal trim table ``trims`` (records outside the envelope keep the
+    schedule's own, as the exact solve's do); without one,
     with ``exact_trims`` they are solved per record (``exact_nominal_trims``), else the
     schedule's own. The gains are interpolated (they vary slowly)."""
     tmpl = sched.template
@@ -399,26 +384,66 @@ def engine_schedule_for(
     noise_abs = noise_abs * np.abs(ya)
     table = trims
 
+    # The gains this model needs, every one of them a column of one array over the
+    # schedule's nodes [n_nodes, F], interpolated in one pass (``EngineSchedule.corners``).
+    values = sched.values
+    blocks = {
+        "Gy": values["Gy"][..., yi, :][..., hi],
+        "Guy": values["Guy"][..., yi, :][..., ui],
+        "Gz": values["Gz"][..., zi, :][..., hi],
+        "Guz": values["Guz"][..., zi, :][..., ui],
+        "Gy_held": values["Gy"][..., held, :][..., hi],
+        "Guy_held": values["Guy"][..., held, :][..., ui],
+    }
+    n_nodes = int(np.prod([len(a) for a in sched.axes]))
+    shapes = {k: v.shape[len(sched.axes):] for k, v in blocks.items()}
+    flat = np.ascontiguousarray(
+        np.concatenate([v.reshape(n_nodes, -1) for v in blocks.values()], axis=1))
+    offsets = np.cumsum([0, *(int(np.prod(v)) for v in shapes.values())])
+
+    def gains_at(c: np.ndarray) -> dict[str, np.ndarray]:
+        idx, w = sched.corners(c)
+        acc = np.zeros((c.shape[0], flat.shape[1]))
+        step = GAIN_ROWS
+        for r0 in range(0, c.shape[0], step):  # in blocks that stay in the cache
+            part = acc[r0: r0 + step]
+            for k in range(idx.shape[0]):
+                part += w[k, r0: r0 + step, None] * flat[idx[k, r0: r0 + step]]
+        return {name: acc[:, offsets[i]: offsets[i + 1]].reshape(-1, *shapes[name])
+                for i, name in enumerate(shapes)}
+
+    trimmed = {*model.sensor_names, *model.input_names}
+
+    def nominal_trims(conditions: np.ndarray, c: np.ndarray) -> dict[str, np.ndarray]:
+        """The nominal engine's trims at the records' conditions (snapshot columns, and the
+        schedule's axes ``c``): from the dense table, else solved or interpolated."""
+        if table is None:
+            trims = sched.trims_at(c)
+            return exact_nominal_trims(conditions, trims) if exact_trims else trims
+        inside = table.inside(conditions)
+        solved = table.trims_at(conditions)
+        out = {n: solved[:, i] for i, n in enumerate(table.names)}
+        if not trimmed.issubset(table.names):  # signals the table does not hold
+            own = sched.trims_at(c)
+            out.update({n: own[n] for n in trimmed if n not in out})
+        if not inside.all():  # outside the envelope: the schedule's own trims
+            own = sched.trims_at(c[~inside])
+            for n in trimmed:
+                out[n][~inside] = own[n]
+        return out
+
     def schedule(conditions: np.ndarray) -> ScheduledGains:
         # Snapshot columns are (alt, mach, dtamb, power); the schedule's axes (alt, mach,
         # power, dtamb).
-        c = np.asarray(conditions, float)[:, [0, 1, 3, 2]]
-        trims = sched.trims_at(c)
-        if table is not None:
-            trims = table_nominal_trims(np.asarray(conditions, float), trims, table)
-        elif exact_trims:
-            trims = exact_nominal_trims(np.asarray(conditions, float), trims)
+        conditions = np.asarray(conditions, float)
+        c = conditions[:, [0, 1, 3, 2]]
+        trims = nominal_trims(conditions, c)
         y_trim = np.stack([trims[n] for n in model.sensor_names], axis=1) * ya + yb
         u_trim = np.stack([trims[n] for n in model.input_names], axis=1) * ua + ub
-        Gy_all = sched.interpolate("Gy", c)
-        Guy_all = sched.interpolate("Guy", c)
-        Gy = Gy_all[:, yi][:, :, hi]
-        Guy = Guy_all[:, yi][:, :, ui]
-        Gz = sched.interpolate("Gz", c)[:, zi][:, :, hi]
-        Guz = sched.interpolate("Guz", c)[:, zi][:, :, ui]
+        g = gains_at(c)
+        Gy, Guy, Gz, Guz = g["Gy"], g["Guy"], g["Gz"], g["Guz"]
         if loop is not None:
-            Gz, Guz = held_speed_aux_gains(Gz, Guz, Gy_all[:, held][:, hi],
-                                           Guy_all[:, held][:, ui], loop)
+            Gz, Guz = held_speed_aux_gains(Gz, Guz, g["Gy_held"], g["Guy_held"], loop)
         noise = 100.0 * noise_abs / np.abs(y_trim)
         return ScheduledGains(y_trim, u_trim, Gy, Guy, Gz, noise, G_zu=Guz)
 
