@@ -345,13 +345,7 @@ def bank_design(
     engine with ``records_per_year`` records a year (None: the nominal rate): the threshold
     by the seeded Monte Carlo of ``calibrated_threshold`` (``calibration_runs`` > 0), else
     Siegmund's ARL with the Bonferroni bound (``siegmund_threshold``)."""
-    from scipy import stats
-
-    ref, scale = cfg.bank_reference, 1.0
-    if cfg.bank_alpha > 0:
-        ref += float(stats.norm.isf(cfg.bank_alpha) / np.sqrt(cfg.n_base))
-        dof = cfg.n_base - 1
-        scale = float(np.sqrt(dof / stats.chi2.ppf(cfg.bank_alpha, dof)))
+    ref, scale = _reference_scale(cfg.bank_reference, cfg.bank_alpha, cfg.n_base)
     if cfg.bank_threshold is not None:
         return BankDesign(ref, scale, cfg.bank_threshold)
     arl = bank_arl(cfg, records_per_year)
@@ -360,6 +354,20 @@ def bank_design(
                                  calibration_arl(arl), cfg.calibration_runs)
         return BankDesign(ref, scale, h)
     return BankDesign(ref, scale, siegmund_threshold(ref, max(n, 1) * arl))
+
+
+@functools.lru_cache(maxsize=64)
+def _reference_scale(reference: float, alpha: float, n_base: int) -> tuple[float, float]:
+    """The bank's reference and statistic scale of ``bank_design`` (the baseline's errors at
+    level ``alpha``; a design asked for on every stretch, so kept)."""
+    from scipy import stats
+
+    ref, scale = reference, 1.0
+    if alpha > 0:
+        ref += float(stats.norm.isf(alpha) / np.sqrt(n_base))
+        dof = n_base - 1
+        scale = float(np.sqrt(dof / stats.chi2.ppf(alpha, dof)))
+    return ref, scale
 
 
 def siegmund_threshold(reference: float, arl: float) -> float:
