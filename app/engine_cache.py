@@ -1,10 +1,12 @@
-"""Disk cache of the built-in engine's linear-model schedule.
+"""Disk cache of the built-in engine's linear-model schedule and its nominal trim table.
 
 The schedule (``estimation.engine.schedule``) takes a few seconds to build; it
 is written once as JSON under the data directory, named by the engine design
 fingerprint and the grid, and read back afterwards. A file for another design
-or grid is never used; a damaged file is rebuilt. Writes go to a temporary file
-and are renamed into place, so a crash never leaves half a cache.
+or grid is never used; a damaged file is rebuilt. The nominal trim table
+(``estimation.engine.trim_table``) is kept the same way, as an ``.npz`` file.
+Writes go to a temporary file and are renamed into place, so a crash never
+leaves half a cache.
 """
 
 from __future__ import annotations
@@ -16,6 +18,9 @@ import os
 import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 from estimation.engine.linearize import DEFAULT_DT
 from estimation.engine.schedule import (
@@ -25,6 +30,7 @@ from estimation.engine.schedule import (
     build_schedule,
     design_fingerprint,
 )
+from estimation.engine.trim_table import TRIM_NAMES, TrimTable, build_trim_table, trim_axes
 from estimation.errors import ModelFormatError
 
 log = logging.getLogger(__name__)
@@ -86,3 +92,62 @@ def engine_schedule(
         sched = build_schedule(_full_axes(axes), dt=dt)
         save_schedule(sched, path)
     return sched
+
+
+def trim_table_path(cache_dir: Path, axes: Mapping[str, Sequence[float]] | None = None) -> Path:
+    """File that holds the nominal trim table for this design and grid."""
+    grid = trim_axes(axes)
+    key = json.dumps([a.tolist() for a in grid])
+    digest = hashlib.sha256(key.encode()).hexdigest()[:12]
+    return Path(cache_dir) / f"engine-trims-{design_fingerprint()}-{digest}.npz"
+
+
+def load_trim_table(
+    path: Path, axes: Mapping[str, Sequence[float]] | None = None
+) -> TrimTable | None:
+    """The cached table at ``path``, or None if absent, damaged or of another grid."""
+    if not path.exists():
+        return None
+    grid = trim_axes(axes)
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            names = tuple(str(n) for n in f["names"])
+            corrected = np.array(f["corrected"], dtype=float)
+            stored = [np.array(f[f"axis_{k}"], dtype=float) for k in range(len(grid))]
+    except (OSError, ValueError, KeyError, EOFError) as exc:
+        log.warning("engine trim table cache %s unreadable (%s); rebuilding", path, exc)
+        return None
+    shape = tuple(len(a) for a in grid) + (len(TRIM_NAMES),)
+    if (names != TRIM_NAMES or corrected.shape != shape
+            or any(not np.array_equal(a, b) for a, b in zip(stored, grid, strict=True))
+            or not np.all(np.isfinite(corrected))):
+        log.warning("engine trim table cache %s does not match its grid; rebuilding", path)
+        return None
+    return TrimTable(grid, corrected)
+
+
+def save_trim_table(table: TrimTable, path: Path) -> None:
+    """Write atomically: temporary file in the same directory, then rename."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
+    try:
+        arrays: dict[str, Any] = {f"axis_{k}": a for k, a in enumerate(table.axes)}
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, names=np.array(table.names), corrected=table.corrected, **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def engine_trim_table(
+    cache_dir: Path, axes: Mapping[str, Sequence[float]] | None = None
+) -> TrimTable:
+    """The nominal engine's trim table on ``axes`` (default ``DEFAULT_TRIM_AXES``): cached,
+    or solved (a few seconds) and cached."""
+    path = trim_table_path(cache_dir, axes)
+    table = load_trim_table(path, axes)
+    if table is None:
+        table = build_trim_table(axes)
+        save_trim_table(table, path)
+    return table

@@ -103,6 +103,7 @@ change before attribution.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -326,13 +327,7 @@ def bank_design(
 ) -> BankDesign:
     """The bank of n candidate CUSUMs as the settings design it (module docstring), for an
     engine with ``records_per_year`` records a year (None: the nominal rate)."""
-    from scipy import stats
-
-    ref, scale = cfg.bank_reference, 1.0
-    if cfg.bank_alpha > 0:
-        ref += float(stats.norm.isf(cfg.bank_alpha) / np.sqrt(cfg.n_base))
-        dof = cfg.n_base - 1
-        scale = float(np.sqrt(dof / stats.chi2.ppf(cfg.bank_alpha, dof)))
+    ref, scale = _reference_scale(cfg.bank_reference, cfg.bank_alpha, cfg.n_base)
     if cfg.bank_threshold is not None:
         return BankDesign(ref, scale, cfg.bank_threshold)
     target = max(n, 1) * bank_arl(cfg, records_per_year)
@@ -343,6 +338,20 @@ def bank_design(
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if siegmund_arl(ref, mid) < target else (lo, mid)
     return BankDesign(ref, scale, hi)
+
+
+@functools.lru_cache(maxsize=64)
+def _reference_scale(reference: float, alpha: float, n_base: int) -> tuple[float, float]:
+    """The bank's reference and statistic scale of ``bank_design`` (the baseline's errors at
+    level ``alpha``; a design asked for on every stretch, so kept)."""
+    from scipy import stats
+
+    ref, scale = reference, 1.0
+    if alpha > 0:
+        ref += float(stats.norm.isf(alpha) / np.sqrt(n_base))
+        dof = n_base - 1
+        scale = float(np.sqrt(dof / stats.chi2.ppf(alpha, dof)))
+    return ref, scale
 
 
 def _cusum(u: np.ndarray) -> np.ndarray:

@@ -114,6 +114,22 @@ class EngineSchedule:
             acc += w.reshape((-1,) + (1,) * (acc.ndim - 1)) * v[idx]
         return acc
 
+    def corners(self, cond: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Flat node indices and weights [C, K] of multilinear interpolation at conditions
+        cond [K, 4] (alt, mach, power, dtamb), the corners of a one-node axis left out: with
+        ``flat`` the values over the grid's nodes [n_nodes, F] (C-order), the interpolated
+        values are sum_c weights[c, :, None] * flat[indices[c]]."""
+        cond = np.atleast_2d(np.asarray(cond, dtype=float))
+        shape = tuple(len(a) for a in self.axes)
+        idx, wts = [], []
+        for corner, (i, w) in zip(itertools.product((0, 1), repeat=len(self.axes)),
+                                  self._weights(cond), strict=True):
+            if any(bit and len(a) == 1 for bit, a in zip(corner, self.axes, strict=True)):
+                continue
+            idx.append(np.ravel_multi_index(i, shape))
+            wts.append(w)
+        return np.stack(idx), np.stack(wts)
+
     def model_at(
         self, alt: float, mach: float, power: float, dtamb: float = 0.0
     ) -> LinearModel:

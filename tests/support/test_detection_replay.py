@@ -25,6 +25,7 @@ from app.services.snapshots import run as snapshots_run
 from app.services.snapshots.estimator import (
     SnapshotEstimator,
     build_estimator,
+    builtin_trim_table,
     exact_nominal_trims,
 )
 from app.services.snapshots.store import state_document
@@ -77,6 +78,18 @@ def _check_targets(result: detection_replay.Score, min_faults: int) -> None:
     # unless another fault struck the same engine in the same window.
     wrong = [f for f in wanted if f.isolated not in (f.fault, detection_replay.NONE)]
     assert len(wrong) <= 0.1 * len(wanted), result.report()
+
+
+def test_the_trim_table_detects_and_isolates_as_the_exact_trims(
+    schedule: EngineSchedule,
+) -> None:
+    """The pipeline's trims (the nominal trim table, not a solve per record) on the fleet of
+    the test below: the same targets."""
+    table = builtin_trim_table()
+    assert table is not None
+    est = fleet.design_estimator(schedule, *fleet.ACTIVE_DESIGN, trims=table)
+    size = fleet.DemoSize(aircraft=8, flights=400, fault_rate=1.0 / 150.0)
+    _check_targets(_score(est, size, seed=11), min_faults=10)
 
 
 def test_faults_are_detected_and_isolated_on_a_simulated_fleet(

@@ -242,11 +242,12 @@ def design_spec(
 
 
 def design_estimator(
-    sched: Any, method: str, tuners: int, biases: bool = False
+    sched: Any, method: str, tuners: int, biases: bool = False, trims: Any = None,
 ) -> estimator.SnapshotEstimator:
     """A demo design on the built-in engine's schedule ``sched``, as the pipeline builds it
-    (``biases``: the tuners also span the three actuator biases); for the benchmarks that score
-    designs against the simulator's truth."""
+    (``biases``: the tuners also span the three actuator biases; ``trims``: the nominal trim
+    table the pipeline takes its trims from, None: solved per record); for the benchmarks
+    that score designs against the simulator's truth."""
     p = DESIGN_POINT
     model = sched.model_at(p["alt"], p["mach"], p["power"])
     sensors = [n for n in model.sensor_names if n != "Wf"]
@@ -254,7 +255,7 @@ def design_estimator(
     result = designs.design_step(model, design_spec(method, tuners, sensors, health))
     embedded = LinearModel.from_dict(result["model"])
     return estimator.build_estimator(
-        0, embedded, result, estimator.engine_schedule_for(embedded, sched)
+        0, embedded, result, estimator.engine_schedule_for(embedded, sched, trims)
     )
 
 

@@ -2,8 +2,10 @@
 fault library in tuner and sensor space, the gains and trims at each record's operating
 condition (``Schedule``) and the CUSUM, ready to run on an engine's snapshots.
 
-On the built-in engine the trims are solved per record by the steady-state solver (the
-interpolated ones are off by up to ~0.5 % of a pressure, as much as a fault's signature) and
+On the built-in engine the trims come from the nominal engine's dense trim table
+(``estimation.engine.trim_table``, solved once and cached next to the schedule; within 0.1
+sigma of every sensor's noise of the exact steady-state solve, where the schedule's own
+interpolated trims are off by up to ~0.5 % of a pressure, as much as a fault's signature) and
 the sensor noise is constant in sensor units (so in percent of trim it grows with altitude).
 On the demo fleet this finds 5 of its 6 detectable faults and names each correctly, with no
 stored false alarm (bench/bench_detection.py).
@@ -30,6 +32,7 @@ from app.signals import ACTUATORS, SENSORS, SignalSpec
 from estimation.detection import CusumDesign, design_cusum
 from estimation.engine.power_setting import held_speed_aux_gains
 from estimation.engine.schedule import EngineSchedule
+from estimation.engine.trim_table import TrimTable
 from estimation.model import LinearModel
 from estimation.shift_detector import SHIFT_LEVEL
 from estimation.snapshot_design import DesignResult, snapshot_design
@@ -52,6 +55,8 @@ MODEL_ERROR = 0.2
 # The built-in engine's power setting: the controller holds this sensor (the fan speed) at its
 # demand by moving this input (the fuel flow).
 HELD_LOOP = ("Nf", "Wf")
+# Records per block of the scheduled gains' interpolation (its arrays stay in the cache).
+GAIN_ROWS = 1024
 
 SNAPSHOT_SIGNALS: dict[str, SignalSpec] = {s.name: s for s in SENSORS + ACTUATORS}
 
@@ -252,7 +257,7 @@ def estimator_for_design(session: Session, design: EstimatorDesign) -> SnapshotE
     model = LinearModel.from_dict(embedded if isinstance(embedded, Mapping) else row.content)
     schedule = None
     if row.source == "builtin":
-        schedule = engine_schedule_for(model, builtin_schedule())
+        schedule = engine_schedule_for(model, builtin_schedule(), builtin_trim_table())
     return build_estimator(design.id, model, design.result, schedule)
 
 
@@ -268,6 +273,26 @@ def _cached_schedule(cache_dir: str) -> EngineSchedule:
     from app.engine_cache import engine_schedule
 
     return engine_schedule(Path(cache_dir))
+
+
+def builtin_trim_table() -> TrimTable | None:
+    """The built-in engine's nominal trim table from the data directory's cache (solved on
+    first use); None if it cannot be solved (the trims are then solved per record)."""
+    from app.config import get_settings
+
+    return _cached_trim_table(str(get_settings().data_dir.resolve() / "cache"))
+
+
+@functools.lru_cache(maxsize=2)
+def _cached_trim_table(cache_dir: str) -> TrimTable | None:
+    from app.engine_cache import engine_trim_table
+    from estimation.engine.errors import EngineConvergenceError
+
+    try:
+        return engine_trim_table(Path(cache_dir))
+    except EngineConvergenceError as exc:
+        log.warning("the nominal trim table could not be solved (%s); solving per record", exc)
+        return None
 
 
 def exact_nominal_trims(
@@ -311,12 +336,15 @@ def exact_nominal_trims(
 
 
 def engine_schedule_for(
-    model: LinearModel, sched: EngineSchedule, exact_trims: bool = True
+    model: LinearModel, sched: EngineSchedule, trims: TrimTable | None = None,
+    exact_trims: bool = True,
 ) -> Schedule:
     """Gains and trims of ``model``'s signals at each record's operating condition, from the
-    built-in engine's schedule (corrected-parameter trims, docs/math.md section 8). With
-    ``exact_trims`` the trims are solved per record (``exact_nominal_trims``); the gains are
-    interpolated (they vary slowly)."""
+    built-in engine's schedule (corrected-parameter trims, docs/math.md section 8). The trims
+    come from the dense nominal trim table ``trims`` (records outside the envelope keep the
+    schedule's own, as the exact solve's do); without one,
+    with ``exact_trims`` they are solved per record (``exact_nominal_trims``), else the
+    schedule's own. The gains are interpolated (they vary slowly)."""
     tmpl = sched.template
     yi = [tmpl.sensor_names.index(n) for n in model.sensor_names]
     ui = [tmpl.input_names.index(n) for n in model.input_names]
@@ -354,25 +382,68 @@ def engine_schedule_for(
     noise_engine = engine_noise_std()
     noise_abs = np.array([noise_engine[SENSOR_NAMES.index(n)] for n in model.sensor_names])
     noise_abs = noise_abs * np.abs(ya)
+    table = trims
+
+    # The gains this model needs, every one of them a column of one array over the
+    # schedule's nodes [n_nodes, F], interpolated in one pass (``EngineSchedule.corners``).
+    values = sched.values
+    blocks = {
+        "Gy": values["Gy"][..., yi, :][..., hi],
+        "Guy": values["Guy"][..., yi, :][..., ui],
+        "Gz": values["Gz"][..., zi, :][..., hi],
+        "Guz": values["Guz"][..., zi, :][..., ui],
+        "Gy_held": values["Gy"][..., held, :][..., hi],
+        "Guy_held": values["Guy"][..., held, :][..., ui],
+    }
+    n_nodes = int(np.prod([len(a) for a in sched.axes]))
+    shapes = {k: v.shape[len(sched.axes):] for k, v in blocks.items()}
+    flat = np.ascontiguousarray(
+        np.concatenate([v.reshape(n_nodes, -1) for v in blocks.values()], axis=1))
+    offsets = np.cumsum([0, *(int(np.prod(v)) for v in shapes.values())])
+
+    def gains_at(c: np.ndarray) -> dict[str, np.ndarray]:
+        idx, w = sched.corners(c)
+        acc = np.zeros((c.shape[0], flat.shape[1]))
+        step = GAIN_ROWS
+        for r0 in range(0, c.shape[0], step):  # in blocks that stay in the cache
+            part = acc[r0: r0 + step]
+            for k in range(idx.shape[0]):
+                part += w[k, r0: r0 + step, None] * flat[idx[k, r0: r0 + step]]
+        return {name: acc[:, offsets[i]: offsets[i + 1]].reshape(-1, *shapes[name])
+                for i, name in enumerate(shapes)}
+
+    trimmed = {*model.sensor_names, *model.input_names}
+
+    def nominal_trims(conditions: np.ndarray, c: np.ndarray) -> dict[str, np.ndarray]:
+        """The nominal engine's trims at the records' conditions (snapshot columns, and the
+        schedule's axes ``c``): from the dense table, else solved or interpolated."""
+        if table is None:
+            trims = sched.trims_at(c)
+            return exact_nominal_trims(conditions, trims) if exact_trims else trims
+        inside = table.inside(conditions)
+        solved = table.trims_at(conditions)
+        out = {n: solved[:, i] for i, n in enumerate(table.names)}
+        if not trimmed.issubset(table.names):  # signals the table does not hold
+            own = sched.trims_at(c)
+            out.update({n: own[n] for n in trimmed if n not in out})
+        if not inside.all():  # outside the envelope: the schedule's own trims
+            own = sched.trims_at(c[~inside])
+            for n in trimmed:
+                out[n][~inside] = own[n]
+        return out
 
     def schedule(conditions: np.ndarray) -> ScheduledGains:
         # Snapshot columns are (alt, mach, dtamb, power); the schedule's axes (alt, mach,
         # power, dtamb).
-        c = np.asarray(conditions, float)[:, [0, 1, 3, 2]]
-        trims = sched.trims_at(c)
-        if exact_trims:
-            trims = exact_nominal_trims(np.asarray(conditions, float), trims)
+        conditions = np.asarray(conditions, float)
+        c = conditions[:, [0, 1, 3, 2]]
+        trims = nominal_trims(conditions, c)
         y_trim = np.stack([trims[n] for n in model.sensor_names], axis=1) * ya + yb
         u_trim = np.stack([trims[n] for n in model.input_names], axis=1) * ua + ub
-        Gy_all = sched.interpolate("Gy", c)
-        Guy_all = sched.interpolate("Guy", c)
-        Gy = Gy_all[:, yi][:, :, hi]
-        Guy = Guy_all[:, yi][:, :, ui]
-        Gz = sched.interpolate("Gz", c)[:, zi][:, :, hi]
-        Guz = sched.interpolate("Guz", c)[:, zi][:, :, ui]
+        g = gains_at(c)
+        Gy, Guy, Gz, Guz = g["Gy"], g["Guy"], g["Gz"], g["Guz"]
         if loop is not None:
-            Gz, Guz = held_speed_aux_gains(Gz, Guz, Gy_all[:, held][:, hi],
-                                           Guy_all[:, held][:, ui], loop)
+            Gz, Guz = held_speed_aux_gains(Gz, Guz, g["Gy_held"], g["Guy_held"], loop)
         noise = 100.0 * noise_abs / np.abs(y_trim)
         return ScheduledGains(y_trim, u_trim, Gy, Guy, Gz, noise, G_zu=Guz)
 

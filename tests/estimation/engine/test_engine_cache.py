@@ -44,3 +44,35 @@ def test_damaged_or_foreign_cache_is_rebuilt(tmp_path):
 def test_unknown_axis_refused(tmp_path):
     with pytest.raises(ValueError):
         cache.cache_path(tmp_path, {"altitude": (0.0,)})
+
+
+TRIM_AXES = {"alt": (0.0, 5000.0), "mach": (0.0, 0.1), "dtamb": (-10.0, 10.0),
+             "power": (90.0, 100.0)}
+
+
+def test_trim_table_builds_once_then_reads(tmp_path, monkeypatch):
+    first = cache.engine_trim_table(tmp_path, TRIM_AXES)
+    path = cache.trim_table_path(tmp_path, TRIM_AXES)
+    assert path.exists()
+    assert path != cache.trim_table_path(tmp_path, {**TRIM_AXES, "power": (80.0, 100.0)})
+
+    def no_build(*a, **k):
+        raise AssertionError("trim table rebuilt although cached")
+
+    monkeypatch.setattr(cache, "build_trim_table", no_build)
+    second = cache.engine_trim_table(tmp_path, TRIM_AXES)
+    assert np.array_equal(second.corrected, first.corrected)
+    assert all(np.array_equal(a, b) for a, b in zip(second.axes, first.axes, strict=True))
+
+
+def test_damaged_trim_table_is_rebuilt(tmp_path):
+    path = cache.trim_table_path(tmp_path, TRIM_AXES)
+    path.write_bytes(b"not an npz file")
+    assert cache.load_trim_table(path, TRIM_AXES) is None
+    table = cache.engine_trim_table(tmp_path, TRIM_AXES)
+    assert cache.load_trim_table(path, TRIM_AXES) is not None
+    # A file holding another grid under this name is not used.
+    other = cache.trim_table_path(tmp_path, {**TRIM_AXES, "power": (80.0, 100.0)})
+    path.rename(other)
+    assert cache.load_trim_table(other, {**TRIM_AXES, "power": (80.0, 100.0)}) is None
+    assert table.corrected.shape == (2, 2, 2, 2, len(table.names))
