@@ -231,6 +231,12 @@ def estimation_backlog(url: str, operator_id: int, wait_s: float = 0.0) -> Backl
                               "AND status = 'failed'")]
             backlog = Backlog(*counts)
             if not backlog.pending or time.perf_counter() >= deadline:
+                if backlog.failed_jobs:
+                    with engine.connect() as connection:
+                        for kind, error in connection.execute(text(
+                                "SELECT kind, error FROM jobs WHERE operator_id = :o AND "
+                                "status = 'failed'"), {"o": operator_id}):
+                            print(f"  failed job {kind}: {(error or '')[:300]}")
                 return backlog
             time.sleep(0.1)
     finally:
