@@ -44,6 +44,12 @@ flight start (--speed-start 0) and 29.4 s in the climb (--speed-start 300, the c
 changing every sample) against 290 s before: still above the 10 s target (FAIL). About 70 %
 of what is left is the gas path on floats itself (``turbofan.gas_path_columns``, one
 evaluation a sample). 64 engines batched: 5.9 s and 4.9 s per engine.
+
+Speed on 2026-11-24 late, with nothing else running (load 1.5-2.1, the CI services idle),
+pinned as above, 30 flights simulated for the slices: one engine 8.4 s CPU per 2-hour 20 Hz
+flight from the flight start and 8.1 s from 300 s in the climb (target 10 s: PASS); 64
+engines batched 2.0 s and 1.3 s per engine. Between the two measurements the scalar gas
+path's fallback stopped building a numpy array every sample.
 """
 
 from __future__ import annotations
