@@ -23,7 +23,7 @@ from app.schemas.uploads import (
 )
 from app.security import Analyst, CurrentPrincipal, DbSession
 from app.services.jobs.queue import get_job_queue
-from app.services.streams import recordings
+from app.services.streams import recordings, samples
 
 router = APIRouter(prefix="/api/v1/streams", tags=["streams"])
 
@@ -225,7 +225,7 @@ def recording_samples(
     recording = recordings.get_recording(
         session, operator_id=principal.operator_id, recording_id=recording_id
     )
-    table = recordings.read_samples(data_dir(request), recording)
+    table = samples.read_all(data_dir(request), recording)
     sink = io.BytesIO()
     if fmt == "csv":
         pacsv.write_csv(table, sink)

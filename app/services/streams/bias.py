@@ -16,7 +16,7 @@ from app.errors import Conflict, InvalidInput, NotFound
 from app.models import EstimatorDesign, StreamRecording
 from app.services import common
 from app.services.designs import service as designs
-from app.services.streams import recordings
+from app.services.streams import samples
 from app.services.streams.estimator import BIAS_KEY, StreamEstimationError, estimator_for
 from app.services.streams.run import deviations, learning_residuals
 from estimation.bias import TI_STAR, BiasFitWarning, BiasModel, fit_bias
@@ -71,7 +71,7 @@ def fit_design_bias(
             x_ref = est.x_ref()
             R = est.model.R
             all_names = names
-        table = recordings.read_samples(data_dir, rec)
+        table = samples.read_all(data_dir, rec)
         cond, dy, du = deviations(est, table)
         ti, innov = learning_residuals(est, float(rec.dt_s), cond, dy, du, x_ref, ti_tau_s)
         ti_all.append(ti)

@@ -34,7 +34,7 @@ from app.models import StreamChunk, StreamRecording, Upload
 from app.models.base import utcnow
 from app.services import common
 from app.services.fleet import service as fleet
-from app.services.streams import steady
+from app.services.streams import samples, steady
 from app.services.uploads.parse import ParsedTable, RowError, UploadRejected, parse_body
 from app.services.uploads.store import content_checksum, find_replay
 
@@ -58,18 +58,6 @@ class ChunkResult:
     recording: StreamRecording
     chunk: StreamChunk
     replayed: bool
-
-
-def chunk_path(data_dir: Path, recording: StreamRecording, index: int) -> Path:
-    return data_dir / recording.path / f"chunk-{index:06d}.parquet"
-
-
-def read_samples(data_dir: Path, recording: StreamRecording) -> pa.Table:
-    """All samples of a recording in order (time_s and signals, stored units)."""
-    tables = [pq.read_table(chunk_path(data_dir, recording, i)) for i in range(recording.n_chunks)]
-    if not tables:
-        return pa.table({"time_s": pa.array([], pa.float64())})
-    return pa.concat_tables(tables, promote_options="default")
 
 
 def manifest_of(body: bytes) -> dict[str, Any]:
@@ -195,7 +183,7 @@ def _append(
             ]
         )
     index = recording.n_chunks
-    _write_chunk(chunk_path(data_dir, recording, index), parsed.table)
+    _write_chunk(samples.chunk_path(data_dir, recording, index), parsed.table)
     chunk = StreamChunk(
         recording_id=recording.id,
         chunk_index=index,

@@ -20,19 +20,17 @@ window it completes, so a window split by a chunk boundary is summarised whole.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from datetime import timedelta
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.parquet as pq
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.models import Snapshot, StreamChunk, StreamRecording, Upload
 from app.services.snapshots import backlog
-from app.services.uploads import back_dating
+from app.services.streams import samples
 from app.services.uploads import store as uploads_store
 from app.signals import SIGNALS
 from estimation.steady_windows import (
@@ -45,22 +43,6 @@ from estimation.steady_windows import (
 
 CRITERIA = SteadyCriteria()
 SPOOLS = ("Nf", "Nc")  # the spool speeds whose transient index marks a window unsettled
-
-
-def _read_from(data_dir: Path, recording: StreamRecording, chunks: Sequence[StreamChunk],
-               start: int) -> pa.Table:
-    """Samples ``start`` .. end of the recording, from the chunks that hold them."""
-    tables, first = [], None
-    for chunk in chunks:
-        if chunk.first_sample + chunk.n_samples <= start:
-            continue
-        if first is None:
-            first = chunk.first_sample
-        tables.append(pq.read_table(
-            data_dir / recording.path / f"chunk-{chunk.chunk_index:06d}.parquet"))
-    if not tables or first is None:
-        return pa.table({"time_s": pa.array([], pa.float64())})
-    return pa.concat_tables(tables, promote_options="default").slice(start - first)
 
 
 def _column(table: pa.Table, name: str) -> np.ndarray:
@@ -83,10 +65,10 @@ def summarise_windows(
         select(StreamChunk).where(StreamChunk.recording_id == recording.id)
         .order_by(StreamChunk.chunk_index)
     ).all()
-    table = _read_from(data_dir, recording, chunks, first_window * W)
+    table = samples.read_from(data_dir, recording, chunks, first_window * W)
     # The first sample (the departure field when on the ground): read again only when the
     # samples read start later.
-    field = (table if first_window == 0 else _read_from(data_dir, recording, chunks[:1], 0)
+    field = (table if first_window == 0 else samples.read_from(data_dir, recording, chunks[:1], 0)
              ).slice(0, 1)
     field_alt = (field_of(float(_column(field, "alt_ft")[0]), float(_column(field, "mach")[0]),
                           CRITERIA) if field.num_rows else None)
@@ -127,16 +109,7 @@ def summarise_windows(
         values = means[:, k]
         columns[s.name] = pa.array(values, pa.float64(), mask=~np.isfinite(values))
     rows = pa.table(columns)
-    affected = uploads_store.summarise(session, rows)
-    until = back_dating.estimated_until(session, (a.engine_id for a in affected))
-    upload.affected = [
-        {**a.as_json(), "estimated_until": until[a.engine_id].isoformat()}
-        if a.engine_id in until else a.as_json()
-        for a in affected
-    ]
-    upload.back_dated = any(
-        a.engine_id in until and a.earliest < until[a.engine_id] for a in affected
-    )
+    affected = uploads_store.record_affected(session, upload, rows)
     upload.message = f"{upload.message}; {n} steady windows summarised"
     uploads_store.insert_snapshots(session, rows, operator_id=recording.operator_id,
                                    upload_id=upload.id)

@@ -35,14 +35,12 @@ later recording whose starting tuners change is estimated again from its start.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pyarrow as pa
-import pyarrow.parquet as pq
 from sqlalchemy import delete, insert, select
 from sqlalchemy.orm import Session
 
@@ -53,7 +51,7 @@ from app.models.estimates import EstimateLayout
 from app.models.stream_estimates import StreamEstimate, StreamFilterState
 from app.services import common
 from app.services.designs import service as designs
-from app.services.streams import recordings
+from app.services.streams import recordings, samples
 from app.services.streams.estimator import StreamEstimationError, estimator_for
 from app.services.streams.run import Carry, filter_inputs, filter_piece
 
@@ -68,23 +66,6 @@ def _carry_of(state: Mapping[str, Any]) -> Carry:
     return Carry(np.asarray(state["x"], float), np.asarray(state["u_prev"], float),
                  None if anchor is None else np.asarray(anchor, float),
                  int(state.get("switches", 0)), float(state.get("ti", 0.0)), state.get("plant"))
-
-
-def _read_from(data_dir: Path, recording: StreamRecording, chunks: Sequence[StreamChunk],
-               start: int) -> pa.Table:
-    """Samples ``start`` .. end of the recording."""
-    tables, first = [], None
-    for chunk in chunks:
-        if chunk.first_sample + chunk.n_samples <= start:
-            continue
-        if first is None:
-            first = chunk.first_sample
-        tables.append(pq.read_table(recordings.chunk_path(data_dir, recording, chunk.chunk_index)))
-    if not tables:
-        return pa.table({"time_s": pa.array([], pa.float64())})
-    table = pa.concat_tables(tables, promote_options="default")
-    assert first is not None
-    return table.slice(start - first)
 
 
 def _initial_x(session: Session, recording: StreamRecording, design_id: int, n: int,
@@ -143,7 +124,7 @@ def estimate_one(
         select(StreamChunk).where(StreamChunk.recording_id == recording.id)
         .order_by(StreamChunk.chunk_index)
     ).all()
-    table = _read_from(data_dir, recording, chunks, start)
+    table = samples.read_from(data_dir, recording, chunks, start)
     if table.num_rows != N - start:
         raise StreamEstimationError(
             f"recording {recording.id}: {table.num_rows} samples on disk after sample {start}, "

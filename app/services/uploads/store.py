@@ -356,16 +356,7 @@ def _store_snapshots(
     stamp(session, upload, origin, api_key_id)
     session.add(upload)
     session.flush()
-    affected = summarise(session, fresh)
-    until = back_dating.estimated_until(session, (a.engine_id for a in affected))
-    upload.affected = [
-        {**a.as_json(), "estimated_until": until[a.engine_id].isoformat()}
-        if a.engine_id in until else a.as_json()
-        for a in affected
-    ]
-    upload.back_dated = any(
-        a.engine_id in until and a.earliest < until[a.engine_id] for a in affected
-    )
+    affected = record_affected(session, upload, fresh)
     upload.rows_late = back_dating.late_rows(fresh, upload.created_at, lateness)
     if fresh.num_rows:
         insert_snapshots(session, fresh, operator_id=operator_id, upload_id=upload.id)
@@ -499,6 +490,23 @@ def drop_stored(session: Session, rows: pa.Table) -> tuple[pa.Table, int]:
     keep = np.ones(rows.num_rows, dtype=bool)
     keep[matched] = False
     return rows.filter(pa.array(keep)), len(matched)
+
+
+def record_affected(session: Session, upload: Upload, rows: pa.Table) -> list[AffectedEngine]:
+    """The engines that ``rows`` (stored by ``upload``) touch, written on the upload with how
+    far each one's estimates went, and whether the upload is back-dated (holds records older
+    than an engine's last estimated one)."""
+    affected = summarise(session, rows)
+    until = back_dating.estimated_until(session, (a.engine_id for a in affected))
+    upload.affected = [
+        {**a.as_json(), "estimated_until": until[a.engine_id].isoformat()}
+        if a.engine_id in until else a.as_json()
+        for a in affected
+    ]
+    upload.back_dated = any(
+        a.engine_id in until and a.earliest < until[a.engine_id] for a in affected
+    )
+    return affected
 
 
 def summarise(session: Session, rows: pa.Table) -> list[AffectedEngine]:
