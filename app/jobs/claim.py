@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
 
-from sqlalchemy import or_, select, true, update
+from sqlalchemy import func, or_, select, true, update
 from sqlalchemy.orm import Session, aliased, sessionmaker
 
 from app.db import transaction
@@ -91,8 +91,8 @@ def claim_job(
 
 def _may_start(serial_kinds: Sequence[str]) -> Any:
     """A queued job may start unless its kind is serial and one of its kind runs for its
-    operator. (At most one job of a serial kind is queued per operator, see
-    ``app.services.jobs.store.queue_estimation``, so two claims cannot both pass.)"""
+    operator. Two of a serial kind can be queued at once (a follow-up queued while one ran,
+    then a new one after it ended); ``_claim`` makes their claims take turns."""
     if not serial_kinds:
         return true()
     running = aliased(Job)
@@ -105,10 +105,20 @@ def _may_start(serial_kinds: Sequence[str]) -> Any:
     return or_(Job.kind.not_in(list(serial_kinds)), ~sibling)
 
 
+# The PostgreSQL advisory lock under which claims that check for a running sibling take turns
+# (any number that no other lock of the database's clients uses).
+SERIAL_CLAIM_LOCK = 0x666C6565  # "flee"
+
+
 def _claim(
     factory: SessionFactory, which: Any, worker: str, serial_kinds: Sequence[str] = ()
 ) -> Claim | None:
     with transaction(factory) as session:
+        if serial_kinds and session.get_bind().dialect.name == "postgresql":
+            # Under READ COMMITTED two claims in flight at once would each miss the other's
+            # uncommitted running sibling, and both start. Taking turns, each claim's UPDATE
+            # reads after the one before committed. (On SQLite the write lock does this.)
+            session.execute(select(func.pg_advisory_xact_lock(SERIAL_CLAIM_LOCK)))
         row = session.execute(
             update(Job)
             .where(which, Job.status == "queued", _may_start(serial_kinds))

@@ -3,14 +3,23 @@ upload committed while one runs always has a job that starts after it."""
 
 from __future__ import annotations
 
-from sqlalchemy import update
+import threading
+
+from sqlalchemy import delete, insert, update
 from sqlalchemy.orm import Session, sessionmaker
 
+from app.db import transaction
 from app.jobs.claim import claim_job, claim_next
 from app.jobs.kinds import load_kinds
+from app.jobs.kinds.estimation import EstimateEngines
 from app.models import Job
+from app.services.jobs.registry import parameters_checksum
 from app.services.jobs.store import queue_estimation
 from app.services.tenancy import service as tenancy
+from tests.support.jobs import Live, connection, live, live_module
+
+# Fixtures from jobs_support: the isolating connection replaces the shared one here.
+__all__ = ["connection", "live", "live_module"]
 
 
 def test_an_estimation_queued_while_one_runs_starts_after_it(
@@ -47,3 +56,42 @@ def test_an_estimation_queued_while_one_runs_starts_after_it(
     session.commit()
     claim = claim_next(session_factory, worker="w2", serial_kinds=serial)
     assert claim is not None and claim.job_id == follow.id
+
+
+def test_two_queued_estimations_claimed_at_once_never_both_run(live: Live) -> None:
+    """An estimation and its follow-up can both be queued (the follow-up was queued while one
+    ran; that one ended; an upload then queued a new one). Two workers claiming them at the
+    same instant must not both start: on PostgreSQL each claim's check for a running sibling
+    would not see the other's uncommitted claim, and two estimations of one operator would
+    write the same estimates."""
+    _url, factory = live
+    kinds = load_kinds()
+    serial = kinds.serial_kinds()
+    with transaction(factory) as session:
+        operator_id = tenancy.create_operator(session, name="Racing Serial Air").id
+    for _ in range(20):
+        with transaction(factory) as session:
+            ids = [
+                session.execute(insert(Job).values(
+                    operator_id=operator_id, kind="estimate_engines", parameters=p,
+                    checksum=parameters_checksum("estimate_engines", EstimateEngines(**p)),
+                    status="queued", progress=0.0, message="queued", attempts=0,
+                ).returning(Job.id)).scalar_one()
+                for p in ({}, {"follow_up": True})
+            ]
+        start = threading.Barrier(2)
+        claims: list[object] = []
+
+        def claim(job_id: int, start: threading.Barrier = start,
+                  claims: list[object] = claims) -> None:
+            start.wait()
+            claims.append(claim_job(factory, job_id, worker="racer", serial_kinds=serial))
+
+        threads = [threading.Thread(target=claim, args=(i,)) for i in ids]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert sum(c is not None for c in claims) == 1
+        with transaction(factory) as session:
+            session.execute(delete(Job).where(Job.id.in_(ids)))
