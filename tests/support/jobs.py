@@ -10,6 +10,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from fastapi import FastAPI
+from fastapi.testclient import TestClient
 from pydantic import BaseModel, ConfigDict
 from sqlalchemy import Connection, Engine, delete, func, select
 from sqlalchemy.orm import Session, sessionmaker
@@ -123,6 +125,20 @@ def make_registry(gates: Gates | None = None) -> JobRegistry:
         return {"chunks": 3}
 
     return registry
+
+
+@pytest.fixture
+def registry() -> JobRegistry:
+    """The test kinds (``make_registry``)."""
+    return make_registry()
+
+
+@pytest.fixture
+def jobs_client(app: FastAPI, registry: JobRegistry) -> Iterator[TestClient]:
+    """A client of the app running the test kinds."""
+    app.state.job_registry = registry
+    with TestClient(app) as test_client:
+        yield test_client
 
 
 def make_operator(session: Session, name: str, role: str = "admin") -> tuple[Operator, str]:

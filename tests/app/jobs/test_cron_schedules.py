@@ -4,11 +4,9 @@ schedule's last job; interval schedules as before (SQLite and PostgreSQL)."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
 
 import pytest
-from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
@@ -18,23 +16,18 @@ from app.jobs.scheduler import submit_due
 from app.models import Job, JobSchedule
 from app.services.jobs import schedules
 from app.services.jobs.registry import JobRegistry
-from tests.support.jobs import add_key, connection, job_row, make_operator, make_registry
+from tests.support.jobs import (
+    add_key,
+    connection,
+    job_row,
+    jobs_client,
+    make_operator,
+    registry,
+)
 
-__all__ = ["connection"]
+__all__ = ["connection", "jobs_client", "registry"]
 
 API = "/api/v1/schedules"
-
-
-@pytest.fixture
-def registry() -> JobRegistry:
-    return make_registry()
-
-
-@pytest.fixture
-def jobs_client(app: FastAPI, registry: JobRegistry) -> Iterator[TestClient]:
-    app.state.job_registry = registry
-    with TestClient(app) as test_client:
-        yield test_client
 
 
 def next_six_utc(after: datetime) -> datetime:

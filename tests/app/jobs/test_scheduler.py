@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import threading
-from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
 
 import pytest
-from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
@@ -22,28 +20,18 @@ from tests.support.jobs import (
     add_key,
     connection,
     job_row,
+    jobs_client,
     live,
     live_module,
     make_operator,
     make_registry,
+    registry,
 )
 
 # Fixtures from jobs_support: the isolating connection replaces the shared one here.
-__all__ = ["connection", "live", "live_module"]
+__all__ = ["connection", "jobs_client", "live", "live_module", "registry"]
 
 T0 = datetime(2026, 3, 1, 6, 0, tzinfo=UTC)
-
-
-@pytest.fixture
-def registry() -> JobRegistry:
-    return make_registry()
-
-
-@pytest.fixture
-def jobs_client(app: FastAPI, registry: JobRegistry) -> Iterator[TestClient]:
-    app.state.job_registry = registry
-    with TestClient(app) as test_client:
-        yield test_client
 
 
 @pytest.mark.parametrize(
