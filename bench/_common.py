@@ -70,3 +70,15 @@ def load_line() -> str:
     a, b, c = os.getloadavg()
     return (f"load average {a:.2f} {b:.2f} {c:.2f}; {os.cpu_count()} cores; OMP/BLAS threads "
             f"{os.environ.get('OMP_NUM_THREADS', 'unset')}")
+
+
+def run_on_backends(backends: str, run: Callable[[str, str], bool]) -> None:
+    """``run(url, label)`` on a throw-away database of each of the comma-separated
+    ``backends``, between the load line and the load at the end; PASS if every run passed."""
+    print(load_line())
+    ok = True
+    for backend in backends.split(","):
+        with throwaway_database(backend) as (url, label):
+            ok &= run(url, label)
+    print(f"load average at the end {os.getloadavg()[0]:.2f}")
+    print("PASS" if ok else "FAIL")

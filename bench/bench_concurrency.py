@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import io
-import os
 import threading
 import time
 from dataclasses import dataclass, field
@@ -37,7 +36,7 @@ from datetime import timedelta
 import httpx
 import numpy as np
 import pyarrow.csv as pacsv
-from _common import load_line, throwaway_database
+from _common import run_on_backends
 from bench_ingest import T0, add_design, build_fleet, serving, snapshots
 from sqlalchemy import text
 
@@ -255,13 +254,7 @@ def main() -> None:
     ap.add_argument("--no-estimate", action="store_true",
                     help="no active design: the uploads queue no estimation job")
     args = ap.parse_args()
-    print(load_line())
-    ok = True
-    for backend in args.backends.split(","):
-        with throwaway_database(backend) as (url, label):
-            ok &= run(url, label, args)
-    print(f"load average at the end {os.getloadavg()[0]:.2f}")
-    print("PASS" if ok else "FAIL")
+    run_on_backends(args.backends, lambda url, label: run(url, label, args))
 
 
 if __name__ == "__main__":

@@ -16,12 +16,11 @@ Target (issue 13): p95 latency <= 1 s at 20 Hz.
 from __future__ import annotations
 
 import argparse
-import os
 import time
 
 import httpx
 import numpy as np
-from _common import load_line, throwaway_database
+from _common import run_on_backends
 from bench_ingest import serving
 from bench_stream_service import DT, START, csv_bytes, flight_table, setup
 
@@ -84,13 +83,7 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=120.0)
     ap.add_argument("--chunk-s", type=float, default=1.0)
     args = ap.parse_args()
-    print(load_line())
-    ok = True
-    for backend in args.backends.split(","):
-        with throwaway_database(backend) as (url, label):
-            ok &= run(url, label, args)
-    print(f"load average at the end {os.getloadavg()[0]:.2f}")
-    print("PASS" if ok else "FAIL")
+    run_on_backends(args.backends, lambda url, label: run(url, label, args))
 
 
 if __name__ == "__main__":

@@ -27,6 +27,30 @@ pytestmark = pytest.mark.browser
 
 
 
+def _operator_with_one_engine(
+    server: Server, tail: str, esn: str, first: datetime
+) -> tuple[int, str]:
+    """An operator of its own with the pipeline tests' design and one engine on ``tail``,
+    installed the day before ``first``: (engine id, its key)."""
+    with transaction(server.factory) as session:
+        fleet = pipeline_case._fleet_with_design(session)
+        aircraft = add_aircraft(session, fleet, tail)
+        engine = add_engine(session, fleet, esn)
+        fleet_service.install(session, operator_id=fleet.operator_id, engine_id=engine.id,
+                              aircraft_id=aircraft.id, position=1,
+                              installed_at=first - timedelta(days=1))
+        return engine.id, fleet.key
+
+
+def _send(server: Server, key: str, body: bytes, name: str) -> Any:
+    """A CSV upload under file name ``name``; its answer (201)."""
+    response = httpx.post(f"{server.base_url}/api/v1/snapshots/file",
+                          params={"filename": name}, content=body,
+                          headers={"X-API-Key": key, "Content-Type": "text/csv"})
+    assert response.status_code == 201, response.text
+    return response.json()
+
+
 def test_upload_with_progress_then_refused_file_with_row_errors(
     page: Any, server: Server, console: Console, tmp_path: Path
 ) -> None:
@@ -139,23 +163,9 @@ def test_a_back_dated_upload_is_flagged_in_the_history_and_its_detail(
     """An operator of its own (the demo fleet's estimates stay as they are): an engine
     estimated to its last record, then sent records between the estimated ones."""
     times, y = pipeline_case._records(seed=31)
-    with transaction(server.factory) as session:
-        fleet = pipeline_case._fleet_with_design(session)
-        aircraft = add_aircraft(session, fleet, "F-LATE")
-        engine = add_engine(session, fleet, "LATE-1")
-        fleet_service.install(session, operator_id=fleet.operator_id, engine_id=engine.id,
-                              aircraft_id=aircraft.id, position=1,
-                              installed_at=times[0] - timedelta(days=1))
-        engine_id, key = engine.id, fleet.key
+    engine_id, key = _operator_with_one_engine(server, "F-LATE", "LATE-1", times[0])
 
-    def send(body: bytes, name: str) -> Any:
-        response = httpx.post(f"{server.base_url}/api/v1/snapshots/file",
-                              params={"filename": name}, content=body,
-                              headers={"X-API-Key": key, "Content-Type": "text/csv"})
-        assert response.status_code == 201, response.text
-        return response.json()
-
-    first = send(_csv(times, y, range(0, 120), "F-LATE"), "first.csv")
+    first = _send(server, key, _csv(times, y, range(0, 120), "F-LATE"), "first.csv")
     assert first["back_dated"] is False
     deadline = time.monotonic() + 90
     while True:  # the upload's estimation job runs in the server
@@ -167,7 +177,7 @@ def test_a_back_dated_upload_is_flagged_in_the_history_and_its_detail(
         assert time.monotonic() < deadline, "the estimation job did not finish"
         time.sleep(0.2)
     times_b = [t + timedelta(minutes=5) for t in times]
-    late = send(_csv(times_b, y, range(40, 60), "F-LATE"), "backfill.csv")
+    late = _send(server, key, _csv(times_b, y, range(40, 60), "F-LATE"), "backfill.csv")
     assert late["back_dated"] is True
 
     sign_in(page, key, "/uploads.html")
@@ -189,24 +199,10 @@ def test_a_late_upload_carries_the_late_badge_beside_back_dated_and_a_fresh_one_
     times, y = pipeline_case._records(seed=33)
     now = datetime.now(UTC).replace(microsecond=0)
     fresh_times = [now - timedelta(hours=3) + timedelta(minutes=i) for i in range(len(times))]
-    with transaction(server.factory) as session:
-        fleet = pipeline_case._fleet_with_design(session)
-        aircraft = add_aircraft(session, fleet, "F-TARDY")
-        engine = add_engine(session, fleet, "TARDY-1")
-        fleet_service.install(session, operator_id=fleet.operator_id, engine_id=engine.id,
-                              aircraft_id=aircraft.id, position=1,
-                              installed_at=times[0] - timedelta(days=1))
-        key = fleet.key
+    _engine_id, key = _operator_with_one_engine(server, "F-TARDY", "TARDY-1", times[0])
 
-    def send(body: bytes, name: str) -> Any:
-        response = httpx.post(f"{server.base_url}/api/v1/snapshots/file",
-                              params={"filename": name}, content=body,
-                              headers={"X-API-Key": key, "Content-Type": "text/csv"})
-        assert response.status_code == 201, response.text
-        return response.json()
-
-    old = send(_csv(times, y, range(0, 30), "F-TARDY"), "march.csv")
-    fresh = send(_csv(fresh_times, y, range(30, 40), "F-TARDY"), "today.csv")
+    old = _send(server, key, _csv(times, y, range(0, 30), "F-TARDY"), "march.csv")
+    fresh = _send(server, key, _csv(fresh_times, y, range(30, 40), "F-TARDY"), "today.csv")
     assert (old["late"], old["rows_late"], fresh["late"]) == (True, 30, False)
 
     sign_in(page, key, "/uploads.html")

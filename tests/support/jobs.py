@@ -5,6 +5,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -173,6 +174,7 @@ def wait_until(condition: Callable[[], bool], what: str, timeout: float = 20.0) 
         time.sleep(0.02)
 
 
+@contextmanager
 def live_database(backend: str, tmp_path: Path) -> Iterator[tuple[str, sessionmaker[Session]]]:
     """A fresh migrated database that really commits (for threads and worker processes)."""
     urls = fresh_database_url(backend, tmp_path)
@@ -194,7 +196,8 @@ def live_module(
     request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
 ) -> Iterator[Live]:
     """One really-committing database per backend for a test module (made once: it is slow)."""
-    yield from live_database(request.param, tmp_path_factory.mktemp(f"live-{request.param}"))
+    with live_database(request.param, tmp_path_factory.mktemp(f"live-{request.param}")) as live:
+        yield live
 
 
 @pytest.fixture

@@ -18,16 +18,16 @@ import httpx
 import pytest
 from sqlalchemy import select, text
 
-from app.db import make_engine, make_sessionmaker, transaction
-from app.migrate import upgrade
+from app.db import transaction
 from app.models import Job
-from tests.conftest import BACKENDS, fresh_database_url
+from tests.conftest import BACKENDS
 from tests.support.fleet_fixture import (
     add_reference_design,
     csv_bytes,
     make_fleet,
     reference_rows,
 )
+from tests.support.jobs import live_database
 from tests.support.server import serving
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -39,12 +39,7 @@ ROWS = 20_000
 def test_a_job_killed_mid_run_is_finished_within_30_s_of_the_restart(
     backend: str, tmp_path: Path
 ) -> None:
-    urls = fresh_database_url(backend, tmp_path)
-    url = next(urls)
-    try:
-        upgrade(url)
-        engine = make_engine(url)
-        factory = make_sessionmaker(engine)
+    with live_database(backend, tmp_path) as (url, factory):
         with transaction(factory) as session:
             fleet = make_fleet(session)
         add_reference_design(url, fleet.operator_id)
@@ -93,11 +88,8 @@ def test_a_job_killed_mid_run_is_finished_within_30_s_of_the_restart(
         print(f"killed after {ran:.1f} s of work; after the restart: answering at "
               f"{answering:.1f} s, job taken over at {taken_over} s, finished at {took:.1f} s")
         assert took <= FINISH_WITHIN_S, f"finished {took:.1f} s after the restart"
-        with engine.connect() as connection:
+        with factory.kw["bind"].connect() as connection:
             stored = connection.execute(text(
                 "SELECT count(*) FROM estimates WHERE operator_id = :o"
             ), {"o": fleet.operator_id}).scalar_one()
         assert stored > 0
-        engine.dispose()
-    finally:
-        urls.close()
