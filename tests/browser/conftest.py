@@ -16,6 +16,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
 import httpx
 import pytest
@@ -160,7 +161,7 @@ def page(context: Any, console: Console) -> Iterator[Any]:
 
 def sign_in(page: Any, key: str, then: str = "/") -> None:
     """Sign in through the sign-in form and wait for the page ``then`` to be ready."""
-    page.goto(f"/signin.html?next={then}")
+    page.goto(f"/signin.html?next={quote(then, safe='/')}")  # as the pages send it
     page.fill("#key", key)
     page.click("button[type=submit]")
     page.wait_for_url(f"**{then}")
