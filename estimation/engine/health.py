@@ -29,18 +29,6 @@ N_HEALTH = len(HEALTH_NAMES)
 TURBOMACHINERY = HEALTH_NAMES[:10]
 ACTUATOR_BIASES = HEALTH_NAMES[10:]
 
-# seed 002 Table 3: abrupt fault types as health-parameter shifts [%].
-FAULT_LIBRARY: dict[str, dict[str, float]] = {
-    "Fan": {"fan_eff": -2.0, "fan_flow": -2.0},
-    "LPC": {"lpc_eff": -4.0, "lpc_flow": -4.0},
-    "HPC": {"hpc_eff": -2.0, "hpc_flow": -2.0},
-    "HPT": {"hpt_eff": -2.0, "hpt_flow": 2.0},
-    "LPT": {"lpt_eff": -2.0, "lpt_flow": 2.0},
-    "Wf bias": {"wf_bias": -2.0},
-    "VSV bias": {"vsv_bias": -2.0},
-    "VBV bias": {"vbv_bias": -10.0},
-}
-
 
 def health_vector(values: Mapping[str, float] | None = None) -> np.ndarray:
     """A (13,) health vector from a name -> percent mapping (missing names are 0).

@@ -10,15 +10,17 @@ import pytest
 from estimation.engine.atmosphere import flight_condition
 from estimation.engine.design import engine_design
 from estimation.engine.flight import OperatingPoint, flight_profile
-from estimation.engine.health import FAULT_LIBRARY, health_vector
+from estimation.engine.health import health_vector
 from estimation.engine.sensors import noise_std
 from estimation.engine.steady import steady_state
 from estimation.engine.transient import simulate
 from estimation.engine.transient_one import ScalarGasPath
 from estimation.engine.turbofan import gas_path, gas_path_columns, operating
 from estimation.engine.xp import SCALAR, SCALAR_ERRORS
+from estimation.isolation import SEED_002_FAULTS
 
-HEALTH = health_vector(FAULT_LIBRARY["HPC"] | {"wf_bias": 1.0, "vsv_bias": -2.0, "vbv_bias": -5.0})
+HPC = next(f for f in SEED_002_FAULTS if f.name == "HPC")
+HEALTH = health_vector(dict(HPC.shifts) | {"wf_bias": 1.0, "vsv_bias": -2.0, "vbv_bias": -5.0})
 STD = noise_std(steady_state(np.zeros(3), power=100.0).sensors)
 FIELDS = ("x", "u", "sensors", "measured", "aux")
 
