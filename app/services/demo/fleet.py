@@ -42,7 +42,8 @@ from estimation.model import LinearModel
 
 ENGINE_TYPE = "Generic two-spool turbofan (built-in)"
 SEED = 20260101
-DIAGNOSTICS_INTERVAL_S = 24 * 3600
+# The fleet-wide diagnostic: every morning at 06:00 UTC, the first one at once.
+DIAGNOSTICS_CRON = "0 6 * * *"
 # Cruise is where the design model is linearised; the schedule covers the rest.
 DESIGN_POINT = {"alt": 35000.0, "mach": 0.8, "power": 80.0}
 # The active design: every turbomachinery health parameter a tuner (m = 10, fewer if
@@ -327,7 +328,7 @@ def _fleet(session: Session, operator_id: int, type_id: int, plan: Any) -> None:
 
 
 def _schedule(session: Session, operator_id: int) -> None:
-    """The daily fleet-wide diagnostic job."""
+    """The daily fleet-wide diagnostic job, at a fixed time of day (cron)."""
     exists = session.scalar(
         select(JobSchedule.id).where(
             JobSchedule.operator_id == operator_id, JobSchedule.kind == "fleet_diagnostics"
@@ -337,7 +338,7 @@ def _schedule(session: Session, operator_id: int) -> None:
         session.add(
             JobSchedule(
                 operator_id=operator_id, kind="fleet_diagnostics", parameters={},
-                interval_seconds=DIAGNOSTICS_INTERVAL_S, enabled=True,
+                cron=DIAGNOSTICS_CRON, enabled=True,
                 next_run_at=datetime.now(UTC),
             )
         )

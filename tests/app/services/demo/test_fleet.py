@@ -75,9 +75,11 @@ def test_demo_fleet_is_seeded_once_and_estimated(
     )
     assert sum(e["tail"] is not None for e in status["engines"]) == installed
     assert all(e["health"] is not None for e in status["engines"] if e["n_records"])
-    assert session.scalar(
-        select(JobSchedule.kind).where(JobSchedule.operator_id == operator_id)
-    ) == "fleet_diagnostics"
+    schedule = session.scalars(
+        select(JobSchedule).where(JobSchedule.operator_id == operator_id)
+    ).one()
+    assert (schedule.kind, schedule.cron, schedule.interval_seconds) == (
+        "fleet_diagnostics", fleet.DIAGNOSTICS_CRON, None)
     assert any("demo fleet ready" in m for m in messages)
 
     again = fleet.ensure_demo_fleet(session_factory, SMALL, echo=messages.append)
