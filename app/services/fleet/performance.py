@@ -26,9 +26,7 @@ few degrees.
 
 from __future__ import annotations
 
-import collections
 import functools
-import hashlib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -241,36 +239,30 @@ def builtin_schedule_for_design(session: Session, design_id: int) -> EngineSched
     return builtin_schedule()
 
 
-# Baseline trims of recent reads, by the schedule and the records' conditions: the steady-state
-# solve is most of an engine trend's read (~0.1 ms a record), and the same records are read
-# again when the page reloads or switches views. At most BASELINE_CACHE_SIZE reads are kept
-# (about 50 kB each for a year of an engine's records).
-BASELINE_CACHE_SIZE = 256
-_BASELINE_CACHE: collections.OrderedDict[tuple[str, int, bytes], dict[str, np.ndarray]] = (
-    collections.OrderedDict())
-
-
 def baseline_trims(
     conditions: np.ndarray, schedule: EngineSchedule,
     trims: Mapping[str, np.ndarray] | None = None,
 ) -> dict[str, np.ndarray]:
-    """Sensor trims of the nominal built-in engine solved at each record's condition [n, 4]
-    (snapshot order), the schedule's interpolation (``trims``, computed when not given) where
-    the solver cannot."""
-    from app.services.snapshots.estimator import exact_nominal_trims
+    """Sensor trims of the nominal built-in engine at each record's condition [n, 4]
+    (snapshot order), as the estimation takes them: from the dense trim table (within 0.1
+    sigma of every sensor's noise of the steady-state solve, ``bench_trim_table.py``), solved
+    per record when the table cannot be had, and the schedule's interpolation (``trims``,
+    computed when not given) outside the engine's envelope."""
+    from app.services.snapshots.estimator import builtin_trim_table, exact_nominal_trims
 
     cond = np.ascontiguousarray(conditions, dtype=float)
-    key = (schedule.fingerprint, len(cond), hashlib.blake2b(cond.tobytes()).digest())
-    cached = _BASELINE_CACHE.get(key)
-    if cached is not None:
-        _BASELINE_CACHE.move_to_end(key)
-        return {k: v.copy() for k, v in cached.items()}
     interpolated = trims if trims is not None else schedule_trims(schedule, cond)
-    wanted = {k: v for k, v in interpolated.items() if k in MEASURED_COLUMNS}
-    out = exact_nominal_trims(cond, wanted)
-    _BASELINE_CACHE[key] = {k: v.copy() for k, v in out.items()}
-    while len(_BASELINE_CACHE) > BASELINE_CACHE_SIZE:
-        _BASELINE_CACHE.popitem(last=False)
+    out = {k: np.array(v, dtype=float, copy=True) for k, v in interpolated.items()
+           if k in MEASURED_COLUMNS}
+    table = builtin_trim_table()
+    if table is None:
+        return exact_nominal_trims(cond, out)
+    inside = table.inside(cond)
+    if inside.any():
+        solved = table.trims_at(cond[inside])
+        for i, name in enumerate(table.names):
+            if name in out:
+                out[name][inside] = solved[:, i]
     return out
 
 
