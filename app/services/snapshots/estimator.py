@@ -33,7 +33,7 @@ from sqlalchemy.orm import Session
 from app.models import EngineModel, EstimatorDesign
 from app.models.estimates import EstimateLayout
 from app.services import units
-from app.signals import ACTUATORS, SENSORS, SignalSpec
+from app.signals import ACTUATORS, SENSORS, SignalSpec, stored_at
 from estimation.detection import CusumDesign, design_cusum
 from estimation.engine.power_setting import held_speed_aux_gains
 from estimation.engine.schedule import EngineSchedule
@@ -98,11 +98,12 @@ Schedule = Callable[[np.ndarray], ScheduledGains]  # conditions [S, 4] -> gains
 
 
 def _stored_unit(name: str, unit: str, value: float) -> float:
-    """A trim value from the model's unit into the unit snapshots are stored in (NaN when the
-    signal is not stored or its unit does not convert)."""
+    """A trim value from the model's unit into the unit snapshots are stored in: the
+    catalogue's for a catalogue signal (NaN when the unit does not convert), the model file's
+    for any other (an engine type's own signal, ``fleet.parameter_sets.stored_spec``)."""
     spec = SNAPSHOT_SIGNALS.get(name)
     if spec is None:
-        return math.nan
+        return value
     if unit == spec.unit or not unit:
         return value
     try:
@@ -234,8 +235,8 @@ class SnapshotEstimator:
 
     design_id: int
     layout: EstimateLayout
-    sensor_columns: tuple[str, ...]  # snapshot column per design sensor ("" = not stored)
-    input_columns: tuple[str, ...]
+    sensor_columns: tuple[str, ...]  # where each design sensor is stored (``stored_at``)
+    input_columns: tuple[str, ...]  # the same per input ("" = not used)
     vstar: np.ndarray  # [m, p]
     Vp: np.ndarray  # V*^+ [p, m]
     Qq: np.ndarray  # [m, m] tuner random walk per flight
@@ -306,15 +307,11 @@ def build_estimator(
             "faults": ["1"] * len(library),
         },
     )
-    sensor_columns = tuple(
-        SNAPSHOT_SIGNALS[s.name].column if s.name in SNAPSHOT_SIGNALS else ""
-        for s in model.sensors
-    )
+    sensor_columns = tuple(stored_at(s.name) for s in model.sensors)
     # An actuator is used only where its trim converts to the stored unit.
     input_columns = tuple(
-        SNAPSHOT_SIGNALS[s.name].column
-        if s.name in SNAPSHOT_SIGNALS
-        and np.isfinite(_stored_unit(s.name, s.unit, model.trim.get(s.name, math.nan)))
+        stored_at(s.name)
+        if np.isfinite(_stored_unit(s.name, s.unit, model.trim.get(s.name, math.nan)))
         else ""
         for s in model.inputs
     )
