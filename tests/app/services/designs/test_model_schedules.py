@@ -22,6 +22,7 @@ from app.services.designs import service as designs
 from app.services.fleet import service as fleet
 from app.services.fleet.parameter_sets import parameter_sets
 from app.services.snapshots import estimator
+from estimation.model import LinearModel
 from estimation.schedule import SCHEDULE_FORMAT
 from tests.estimation.models import scheduled_models
 from tests.support.fleetkit import Tenant, error_of, make_tenant, post
@@ -40,9 +41,32 @@ SPEC: dict[str, Any] = {
 }
 
 
+# The engine type's own signals: names that appear nowhere in fleethealth, units of its own
+# (the reference model's signals renamed: name, unit, value in that unit of a reference trim).
+OWN = {"Nf": ("N1", "rpm", 1.0, 0.0), "Nc": ("N2", "rpm", 1.0, 0.0), "T24": ("T25", "K", 1.0, 0.0),
+       "Ps30": ("PS3", "kPa", 1.0, 0.0), "T30": ("T3", "K", 1.0, 0.0),
+       "T48": ("EGT", "degC", 1.0, -273.15), "Wf": ("FF", "kg/h", 3600.0, 0.0),
+       "VSV": ("IGV", "deg", 1.0, 0.0), "VBV": ("BLEED", "%", 1.0, 0.0)}
+
+
+def own_models() -> list[LinearModel]:
+    """The scheduled test models with the type's own signal names and units."""
+    out = []
+    for model in scheduled_models(POINTS):
+        doc = model.to_dict()
+        for group in ("sensors", "inputs"):
+            doc["signals"][group] = [{"name": OWN[s["name"]][0], "unit": OWN[s["name"]][1]}
+                                     for s in doc["signals"][group]]
+        doc["trim"] = {(OWN[k][0] if k in OWN else k): (v * OWN[k][2] + OWN[k][3] if k in OWN
+                                                          else v)
+                       for k, v in doc["trim"].items()}
+        out.append(LinearModel.from_dict(doc))
+    return out
+
+
 def schedule_document() -> dict[str, Any]:
     return {"format": SCHEDULE_FORMAT, "variables": ["alt_ft", "power_pct"],
-            "design_point": 7, "models": [m.to_dict() for m in scheduled_models(POINTS)]}
+            "design_point": 7, "models": [m.to_dict() for m in own_models()]}
 
 
 @pytest.fixture
@@ -66,10 +90,10 @@ def test_a_schedule_is_imported_as_one_file_or_as_several_model_files(
     assert one.status_code == 201, one.text
     row = one.json()
     assert row["format"] == SCHEDULE_FORMAT and row["version"] == 1
-    assert row["sensor_names"] == ["Nf", "Nc", "T24", "Ps30", "T30", "T48"]
+    assert row["sensor_names"] == ["N1", "N2", "T25", "PS3", "T3", "EGT"]
     # The same models as nine files, in another order: the same schedule, the same version.
     files = {"engine_type_id": tenant.ids["type"], "name": "envelope",
-             "models": [m.to_dict() for m in scheduled_models(POINTS)][::-1],
+             "models": [m.to_dict() for m in own_models()][::-1],
              "variables": ["alt_ft", "power_pct"], "design_point": 1}
     again = client.post(f"{API}/engine-models", json=files, headers=tenant.headers())
     assert again.status_code == 200, again.text
@@ -86,7 +110,7 @@ def test_a_schedule_is_imported_as_one_file_or_as_several_model_files(
     assert params.scheduled_on == ("alt_ft", "mach", "dtamb_k", "power_pct")
     assert not params.phase_required
     plain = {**schedule_document(), "corrections": {
-        n: "none" for n in scheduled_models(POINTS)[0].trim}}
+        n: "none" for n in own_models()[0].trim}}
     post(client, tenant, f"{API}/engine-types", {"name": "TF-P"})
     other = post(client, tenant, f"{API}/engine-types", {"name": "TF-Q"})["id"]
     post(client, tenant, f"{API}/engine-models",
@@ -143,13 +167,13 @@ def test_an_engine_of_a_scheduled_type_is_estimated_to_its_known_health(
                   aircraft_id=aircraft.id, position=1, installed_at=T0 - timedelta(days=1))
     session.commit()
 
-    # Records at the nine operating points in turn, each from that point's own model (in its
-    # units: the upload converts them), with the sensors' noise.
+    # Records at the nine operating points in turn, each from that point's own model, with the
+    # sensors' noise; EGT in degF and fuel flow in kg/s (the upload converts them).
     rng = np.random.default_rng(12)
-    models = scheduled_models(POINTS)
-    header = ["recorded_at", "tail", "position", "phase", "alt_ft", "mach", "dtamb_k", "power_pct",
-              "Nf[rpm]", "Nc[rpm]", "T24[K]", "Ps30[kPa]", "T30[K]", "T48[K]", "Wf[kg/s]",
-              "VBV[%]"]
+    models = own_models()
+    header = ["recorded_at", "tail", "position", "alt_ft", "mach", "dtamb_k", "power_pct",
+              "N1[rpm]", "N2[rpm]", "T25[K]", "PS3[kPa]", "T3[K]", "EGT[degF]", "FF[kg/s]",
+              "BLEED[%]"]
     lines = [",".join(header)]
     n = 270
     for k in range(n):
@@ -158,10 +182,11 @@ def test_an_engine_of_a_scheduled_type_is_estimated_to_its_known_health(
         g_y = model.select_health(HEALTH).steady_state_gains()[0]
         dy = g_y @ TRUTH + rng.normal(size=model.n_sensors) * model.sensor_noise_std
         y = np.array([model.trim[s] for s in model.sensor_names]) * (1.0 + dy / 100.0)
+        y[5] = y[5] * 1.8 + 32.0  # degC -> degF
         at = (T0 + timedelta(hours=6 * k)).strftime("%Y-%m-%dT%H:%M:%SZ")
         lines.append(",".join(str(v) for v in [
-            at, "N500", 1, "cruise", point["alt_ft"], point["mach"], 0.0, point["power_pct"], *y,
-            model.trim["Wf"], model.trim["VBV"]]))
+            at, "N500", 1, point["alt_ft"], point["mach"], 0.0, point["power_pct"], *y,
+            model.trim["FF"] / 3600.0, model.trim["BLEED"]]))
     path = tmp_path / "scheduled.csv"
     path.write_text("\n".join(lines) + "\n")
     response = client.post(f"{API}/snapshots/file", content=path.read_bytes(),
@@ -184,6 +209,6 @@ def test_an_engine_of_a_scheduled_type_is_estimated_to_its_known_health(
         session, operator_id=tenant.operator_id, design_id=design["id"]))
     conditions = np.array([[p["alt_ft"], p["mach"], 0.0, p["power_pct"]] for p in POINTS])
     gains = stored.schedule(conditions)
-    rpm = [m.trim["Nf"] for m in models]
-    assert np.allclose(gains.y_trim[:, 0], rpm, rtol=1e-9) and not gains.constant
-    assert np.allclose(gains.y_trim[:, 2], [m.trim["T24"] * 1.8 for m in models], rtol=1e-9)
+    for j, name in enumerate(models[0].sensor_names):
+        assert np.allclose(gains.y_trim[:, j], [m.trim[name] for m in models], rtol=1e-9), name
+    assert not gains.constant
