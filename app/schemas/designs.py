@@ -78,6 +78,9 @@ class EngineModelOut(Row):
     sensor_names: list[str]
     health_names: list[str]
     aux_names: list[str]
+    signals: dict[str, list[dict[str, str]]] = Field(
+        description="states, inputs, health, sensors and aux, each {name, unit} as the model "
+        "file declares them (of a schedule, its design-point model's)")
     created_at: AwareDatetime
     locked_at: AwareDatetime | None
 
