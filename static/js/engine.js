@@ -133,11 +133,6 @@ function draw() {
   // performance panels in engineering units, then the rest.
   const ordered = ORDER.map((k) => trend.groups.find((g) => g.key === k)).filter(Boolean);
   const groups = [...ordered.slice(0, 1), ...performancePanels(), ...ordered.slice(1)];
-  // A type other than the built-in engine has no engineering-unit panels: said, not left out.
-  if (trend.performance_note) {
-    container.append(h("section", { class: "card", id: "performance-note" }, h("h2", {}, "Engineering units"),
-      h("p", { class: "notice" }, trend.performance_note)));
-  }
   for (const group of groups) {
     const id = `plot-${group.key}`;
     // Many traces: a taller plot, so the legend's rows below it leave the data its height.
@@ -184,6 +179,11 @@ function draw() {
     divs.push(div);
     pending.push([div, traces, lay]);
     if (group.key === "health") pendingClicks.push(div);
+  }
+  // A type other than the built-in engine has no engineering-unit panels: said, not left out.
+  if (trend.performance_note) {
+    container.append(h("section", { class: "card", id: "performance-note" }, h("h2", {}, "Engineering units"),
+      h("p", { class: "notice" }, trend.performance_note)));
   }
   // Plot once every card is in the grid, so each plot takes its card's final width (which the
   // marker labels are packed for).
@@ -405,7 +405,7 @@ async function parameterSet(typeId) {
     const p = await api(`/api/v1/engine-types/${typeId}/parameters`);
     section.querySelector("h2").textContent = `Signals of ${p.engine_type}`;
     section.append(
-      p.from_models ? null : h("p", { class: "muted" }, "No model of this type declares its signals yet: the built-in engine's stand in."),
+      p.from_models ? "" : h("p", { class: "muted" }, "No model of this type declares its signals yet: the built-in engine's stand in."),
       h("ul", { class: "signals" }, p.signals.map((s) => h("li", { "data-signal": s.name }, `${s.name} [${s.unit || "–"}]`))),
       h("p", { class: "muted" }, p.scheduled_on.length
         ? `Every record needs ${p.scheduled_on.join(", ")}${p.phase_required ? " and phase" : ""}.`
