@@ -114,6 +114,7 @@ def test_every_route_shows_the_engine_in_its_types_names_and_units(
     cells = " ".join(str(v) for ws in book.worksheets for row in ws.iter_rows(values_only=True)
                      for v in row if v is not None)
     assert builtin_names_in(cells) == [] and "fan_loss" in cells
+    assert "built-in engine's nonlinear model" in cells  # why it has no engineering figures
 
 
 # Scripts of the pages allowed to name the built-in engine's signals, and why.
