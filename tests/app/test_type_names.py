@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import io
 import re
+from datetime import timedelta
 from pathlib import Path
 from typing import Any
 
@@ -54,15 +55,22 @@ def custom(client: TestClient, session: Session,
                                headers={**headers, "Content-Type": "text/csv"})
         assert response.status_code in (200, 201, 202), response.text
 
-    fleet = own.setup(post, upload, n=60)
+    fleet = own.setup(post, upload, n=120)
     run_pending(session_factory)
     return fleet, headers
 
 
 def test_every_route_shows_the_engine_in_its_types_names_and_units(
-    client: TestClient, custom: tuple[own.CustomFleet, dict[str, str]]
+    client: TestClient, custom: tuple[own.CustomFleet, dict[str, str]],
+    session_factory: sessionmaker[Session],
 ) -> None:
     fleet, headers = custom
+    # A water wash half-way: the recovery across it is measured in the type's health names.
+    wash = client.post("/api/v1/maintenance-actions", headers=headers, json={
+        "engine_id": fleet.engine_id, "kind": "water_wash",
+        "performed_at": own.utc(own.T0 + timedelta(days=25, hours=6))})
+    assert wash.status_code == 201, wash.text
+    run_pending(session_factory)
 
     def get(path: str, **params: Any) -> Any:
         response = client.get(path, params=params, headers=headers)
@@ -70,7 +78,7 @@ def test_every_route_shows_the_engine_in_its_types_names_and_units(
         return response
 
     trend = get(f"/api/v1/engines/{fleet.engine_id}/trend").json()
-    assert trend["n_records"] == 60
+    assert trend["n_records"] == 120
     groups = {g["key"]: g for g in trend["groups"]}
     assert [s["name"] for s in groups["health"]["series"]] == list(own.HEALTH)
     assert [s["name"] for s in groups["aux"]["series"]] == ["THR", "SMC"]
@@ -101,11 +109,13 @@ def test_every_route_shows_the_engine_in_its_types_names_and_units(
         "deterioration": get("/api/v1/fleet/deterioration").text,
         "events": get("/api/v1/events").text,
         "snapshots": snapshots,
+        "recovery": get(f"/api/v1/maintenance-actions/{wash.json()['id']}/recovery").text,
     }
     for name, text in texts.items():
         assert builtin_names_in(text) == [], name
     for name in ("N1", "EGT", "fan_loss", "THR"):
         assert name in texts["trend"] and name in texts["trend CSV"], name
+    assert "fan_loss" in texts["recovery"]
     # The engine's report (Excel): its sheets name the type's signals only.
     from openpyxl import load_workbook
 
