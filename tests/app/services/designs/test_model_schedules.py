@@ -204,6 +204,19 @@ def test_an_engine_of_a_scheduled_type_is_estimated_to_its_known_health(
         std = np.array(health[name]["sigma"][-90:], dtype=float)
         assert abs(float(np.mean(last)) - truth) < 3 * float(np.mean(std)) + 0.1, (name, last)
         assert float(np.mean(std)) < 0.5, name
+    # The design's evaluation runs on its design-point model; the nonlinear-engine run says why
+    # it is absent.
+    job = client.post(f"{API}/jobs", headers=tenant.headers(), json={
+        "kind": "evaluate_design", "parameters": {
+            "design_id": design["id"], "n_cases": 8, "duration_s": 3.0, "window_s": 1.0,
+            "fault_duration_s": 3.0, "seed": 5}})
+    assert job.status_code in (200, 201, 202), job.text
+    run_pending(session_factory)
+    evaluation = client.get(f"{API}/designs/{design['id']}/evaluation",
+                            headers=tenant.headers()).json()["result"]
+    assert evaluation["monte_carlo"]["health"]["names"] == HEALTH
+    assert evaluation["nonlinear_engine"] is None
+    assert "built-in engine" in evaluation["nonlinear_engine_note"]
     # The estimator's schedule gives each node's own trims, in the stored units.
     stored = estimator.estimator_for_design(session, designs.get_design(
         session, operator_id=tenant.operator_id, design_id=design["id"]))
