@@ -68,3 +68,22 @@ SENSORS = (
 CONDITION_COLUMNS = tuple(s.column for s in OPERATING_CONDITION)
 MEASURED = ACTUATORS + SENSORS  # nullable: NULL is a missing value
 SIGNALS = OPERATING_CONDITION + MEASURED
+# Signals outside the catalogue (an engine type's own names) are stored by name in one JSON
+# column of the snapshot table; ``stored_at`` names where a signal is: its column, or
+# ``other_signals.NAME``.
+OTHER_SIGNALS = "other_signals"
+_CATALOGUE_COLUMNS = {s.name: s.column for s in MEASURED}
+
+
+def stored_at(name: str) -> str:
+    """Where a signal's values are stored in the snapshot table: a catalogue signal's column
+    (``T30`` -> ``t30``), any other's key in ``other_signals`` (``EGT`` ->
+    ``other_signals.EGT``)."""
+    column = _CATALOGUE_COLUMNS.get(name)
+    return column if column is not None else f"{OTHER_SIGNALS}.{name}"
+
+
+def other_signal(stored: str) -> str | None:
+    """The signal name of an ``other_signals.NAME`` place (``stored_at``), else None."""
+    prefix = OTHER_SIGNALS + "."
+    return stored[len(prefix):] if stored.startswith(prefix) else None

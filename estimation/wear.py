@@ -862,6 +862,9 @@ def wear_steps(
     cycles = state.cycle + np.cumsum(np.asarray(new_cycle, bool)).astype(float)
     resets = np.asarray(resets, bool)
     S = len(x)
+    if det.H.shape[1] == 0:  # an empty fault library: no wear to attribute, cycles counted
+        return WearRun((), tuple((j, replace(state, cycle=float(cycles[j]))) for j in keep),
+                       replace(state, cycle=float(cycles[-1])) if S else state)
     cuts = sorted({0, S, *np.flatnonzero(resets).tolist(), *(j + 1 for j in keep)})
     alerts: list[WearAlert] = []
     states: list[tuple[int, WearState]] = []

@@ -126,6 +126,21 @@ class EngineModel(Base):
 
     engine_type: Mapped[EngineType] = relationship(lazy="joined")
 
+    @property
+    def signals(self) -> dict[str, list[dict[str, str]]]:
+        """The model's signals by group (states, inputs, health, sensors, aux), each name with
+        its unit; of a model schedule, its design-point model's (all its models share them)."""
+        content: Any = self.content or {}
+        models = content.get("models")
+        if isinstance(models, list) and models:
+            point = content.get("design_point", 0)
+            content = models[point if isinstance(point, int) and 0 <= point < len(models) else 0]
+        block = content.get("signals") if isinstance(content, dict) else None
+        block = block if isinstance(block, dict) else {}
+        return {group: [{"name": str(s.get("name", "")), "unit": str(s.get("unit", ""))}
+                        for s in block.get(group) or [] if isinstance(s, dict)]
+                for group in ("states", "inputs", "health", "sensors", "aux")}
+
 
 class EstimatorDesign(Base):
     __tablename__ = "estimator_designs"

@@ -4,7 +4,13 @@ Snapshots keep one fixed ``DOUBLE PRECISION`` column per signal of the built-in 
 JSON document of sensor values: a 100,000-row COPY then writes plain numbers (no per-row JSON
 encoding on the way in, no JSON parsing on the way out), a trend query reads ten thousand rows
 of native floats through the ``(engine_id, recorded_at)`` index, and the database checks each
-value's type. NULL is a missing sensor. The unique key ``(engine_id, recorded_at)`` makes the
+value's type. NULL is a missing sensor. Signals outside the catalogue (an engine type's own,
+``N1``, ``EGT`` ...: ``fleet.parameter_sets``) go in ``other_signals``, one JSON object of
+numbers by name in stored units, NULL when a row has none: a type's signals are read by name
+(``->>`` on PostgreSQL, ``json_extract`` on SQLite), so a type whose models change, or an engine
+that changes type, never reads a value under another signal's name (a positional blob would).
+The operating condition and ``phase`` are NULL on rows of a type whose models are not scheduled
+on them (migration 0019). The unique key ``(engine_id, recorded_at)`` makes the
 same snapshot twice store nothing. An engine or aircraft with data cannot be deleted (the
 fleet service answers 409). Stream samples stay in Parquet files under
 ``data_dir/recordings``; the database holds their metadata and one row per received chunk.
@@ -40,6 +46,7 @@ from app.signals import (  # noqa: F401  (the catalogue, as the tables use it)
     MAX_CHUNK_INDEX,
     MEASURED,
     OPERATING_CONDITION,
+    OTHER_SIGNALS,
     PHASES,
     SENSORS,
     SIGNALS,
@@ -144,12 +151,12 @@ class Snapshot(Base):
     aircraft_id: Mapped[int]
     position: Mapped[int] = mapped_column(SmallInteger)
     upload_id: Mapped[int]
-    phase: Mapped[str] = mapped_column(String(8))
+    phase: Mapped[str | None] = mapped_column(String(8), default=None)
     flight_id: Mapped[str | None] = mapped_column(String(64), default=None)
-    alt_ft: Mapped[float] = mapped_column(Double)
-    mach: Mapped[float] = mapped_column(Double)
-    dtamb_k: Mapped[float] = mapped_column(Double)
-    power_pct: Mapped[float] = mapped_column(Double)
+    alt_ft: Mapped[float | None] = mapped_column(Double, default=None)
+    mach: Mapped[float | None] = mapped_column(Double, default=None)
+    dtamb_k: Mapped[float | None] = mapped_column(Double, default=None)
+    power_pct: Mapped[float | None] = mapped_column(Double, default=None)
     wf: Mapped[float | None] = mapped_column(Double, default=None)
     vsv: Mapped[float | None] = mapped_column(Double, default=None)
     vbv: Mapped[float | None] = mapped_column(Double, default=None)
@@ -164,6 +171,7 @@ class Snapshot(Base):
     p50: Mapped[float | None] = mapped_column(Double, default=None)
     t50: Mapped[float | None] = mapped_column(Double, default=None)
     p15: Mapped[float | None] = mapped_column(Double, default=None)
+    other_signals: Mapped[dict[str, float] | None] = mapped_column(JSONDocument, default=None)
 
 
 # The table's columns in COPY order.
@@ -176,7 +184,7 @@ SNAPSHOT_COLUMNS = (
     "recorded_at",
     "phase",
     "flight_id",
-) + tuple(s.column for s in SIGNALS)
+) + tuple(s.column for s in SIGNALS) + (OTHER_SIGNALS,)
 
 
 class StreamRecording(Base):

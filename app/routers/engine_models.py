@@ -47,14 +47,20 @@ def list_engine_models(
 def import_engine_model(
     body: EngineModelImport, response: Response, session: DbSession, principal: Analyst
 ) -> EngineModelOut:
-    """Validate and store a model as the next version of ``name`` (201); identical content
-    to a stored version returns that version (200) and stores nothing."""
+    """Validate and store a model or a model schedule as the next version of ``name`` (201);
+    identical content to a stored version returns that version (200) and stores nothing.
+    Several model files (``models``) are stored as one schedule over ``variables``."""
+    schedule = None
+    if body.models is not None:
+        schedule = engine_models.schedule_from_files(
+            body.models, body.variables or [], body.corrections, body.design_point)
     row, created = engine_models.import_engine_model(
         session,
         operator_id=principal.operator_id,
         engine_type_id=body.engine_type_id,
         name=body.name,
         content=body.model,
+        schedule=schedule,
     )
     if not created:
         response.status_code = status.HTTP_200_OK

@@ -13,9 +13,12 @@ from app.schemas.fleet import (
     EngineTypeUpdate,
     Page,
     PageParams,
+    ParameterSetOut,
+    SignalOut,
 )
 from app.security import Analyst, CurrentPrincipal, DbSession
 from app.services.fleet import service as fleet
+from app.services.fleet.parameter_sets import parameter_sets
 
 router = APIRouter(prefix="/api/v1/engine-types", tags=["fleet"])
 
@@ -49,6 +52,24 @@ def get_engine_type(
         session, operator_id=principal.operator_id, engine_type_id=engine_type_id
     )
     return EngineTypeOut.model_validate(row)
+
+
+@router.get("/{engine_type_id}/parameters", response_model=ParameterSetOut)
+def get_parameter_set(
+    engine_type_id: int, session: DbSession, principal: CurrentPrincipal
+) -> ParameterSetOut:
+    """The type's parameter set: the signals its snapshots carry with their names and units,
+    and the operating-condition columns they need, read from the type's models."""
+    row = fleet.get_engine_type(
+        session, operator_id=principal.operator_id, engine_type_id=engine_type_id
+    )
+    params = parameter_sets(session, [row.id])[row.id]
+    return ParameterSetOut(
+        engine_type_id=row.id, engine_type=row.name, from_models=params.from_models,
+        signals=[SignalOut(name=s.name, unit=s.unit, quantity=s.quantity)
+                 for s in params.signals],
+        scheduled_on=list(params.scheduled_on), phase_required=params.phase_required,
+    )
 
 
 @router.patch("/{engine_type_id}", response_model=EngineTypeOut)

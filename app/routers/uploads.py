@@ -211,7 +211,7 @@ def engine_snapshots(
     for name, value in (("start", start), ("end", end)):
         if value is not None and value.tzinfo is None:
             raise InvalidInput(f"{name}: give a time zone (e.g. Z)")
-    engine, table = uploads_store.engine_snapshots(
+    engine, table, units = uploads_store.engine_snapshots(
         session,
         operator_id=principal.operator_id,
         engine_id=engine_id,
@@ -221,6 +221,11 @@ def engine_snapshots(
     )
     if fmt == "csv":
         sink = io.BytesIO()
+        if tuple(table.column_names) != uploads_store.SNAPSHOT_OUTPUT:
+            # An engine type's own signals: each header with its unit (``EGT[degC]``), so the
+            # file reads back as an upload of that type.
+            table = table.rename_columns([f"{name}[{units[name]}]" if units.get(name) else name
+                                          for name in table.column_names])
         pacsv.write_csv(table, sink)
         return Response(
             sink.getvalue(),
@@ -232,7 +237,8 @@ def engine_snapshots(
         pc.strftime(table["recorded_at"], "%Y-%m-%dT%H:%M:%S"), "Z", ""
     )
     records = table.set_column(0, "recorded_at", iso).to_pylist()
-    body = EngineSnapshots(engine_id=engine.id, esn=engine.esn, count=len(records), snapshots=[])
+    body = EngineSnapshots(engine_id=engine.id, esn=engine.esn, count=len(records),
+                           units=units, snapshots=[])
     document = body.model_dump()
     document["snapshots"] = records
     # Built directly: ten thousand records need no per-field validation on the way out.

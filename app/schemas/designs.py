@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import AwareDatetime, BaseModel, Field
+from pydantic import AwareDatetime, BaseModel, Field, model_validator
 
 from app.schemas.fleet import Row, StrictInput
 
@@ -12,14 +12,46 @@ Name = Field(min_length=1, max_length=100)
 
 
 class EngineModelImport(StrictInput):
-    """An engine model file: ``model`` is a ``fleethealth.linear-model/1`` JSON object."""
+    """An engine model: ``model``, one ``fleethealth.linear-model/1`` or
+    ``fleethealth.model-schedule/1`` JSON object; or ``models``, several linear-model files at
+    operating points that make one schedule over ``variables`` (docs/model-format.md)."""
 
     engine_type_id: int
     name: str = Name
-    model: dict[str, Any] = Field(
+    model: dict[str, Any] | None = Field(
+        None,
         description="the fleethealth.linear-model/1 document (format, dt, signals, matrices, "
-        "trim, sensor_noise_std, operating_condition)"
+        "trim, sensor_noise_std, operating_condition) or a fleethealth.model-schedule/1 "
+        "document (format, variables, models, corrections, design_point)",
     )
+    models: list[dict[str, Any]] | None = Field(
+        None, min_length=1, max_length=1000,
+        description="several fleethealth.linear-model/1 documents, one per operating point, "
+        "stored as one model schedule (instead of ``model``)",
+    )
+    variables: list[str] | None = Field(
+        None, description="with ``models``: the scheduling variables, operating-condition "
+        "columns (alt_ft, mach, dtamb_k, power_pct) each model's operating_condition gives",
+    )
+    corrections: dict[str, str] | None = Field(
+        None, description="with ``models``: signal name -> correction of its trim (none, "
+        "temperature, pressure, thrust, speed, fuel_flow); default from the signal's unit",
+    )
+    design_point: int = Field(
+        0, description="with ``models``: index of the model designs are made on")
+
+    @model_validator(mode="after")
+    def _one_form(self) -> EngineModelImport:
+        if (self.model is None) == (self.models is None):
+            raise ValueError("give either model (one file) or models (several files)")
+        if self.models is not None and not self.variables:
+            raise ValueError("models needs variables: the operating-condition columns the "
+                             "models are scheduled on")
+        if self.model is not None and (self.variables is not None
+                                       or self.corrections is not None):
+            raise ValueError("variables and corrections go with models; a schedule file "
+                             "carries its own")
+        return self
 
 
 class BuiltinModelCreate(StrictInput):
@@ -46,6 +78,9 @@ class EngineModelOut(Row):
     sensor_names: list[str]
     health_names: list[str]
     aux_names: list[str]
+    signals: dict[str, list[dict[str, str]]] = Field(
+        description="states, inputs, health, sensors and aux, each {name, unit} as the model "
+        "file declares them (of a schedule, its design-point model's)")
     created_at: AwareDatetime
     locked_at: AwareDatetime | None
 

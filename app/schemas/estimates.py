@@ -107,6 +107,9 @@ class EngineTrend(BaseModel):
         "(null: a snapshot, or a bucket of records of several sources)",
     )
     groups: list[TrendGroup]
+    performance_note: str | None = Field(
+        None, description="why the trend has no performance group (engineering units), when "
+        "it has estimates but no such group: the design's engine is not the built-in one")
     installations: list[InstallationMarker]
     maintenance: list[MaintenanceMarker]
     events: list[EventMarker]

@@ -142,6 +142,27 @@ class EngineTypeOut(Row):
     )
 
 
+class SignalOut(BaseModel):
+    name: str
+    unit: str
+    quantity: str = Field(description="what the unit measures (temperature, pressure ...); "
+                          "empty for a unit fleethealth does not convert")
+
+
+class ParameterSetOut(BaseModel):
+    """The columns an engine type's snapshots carry, read from its models."""
+
+    engine_type_id: int
+    engine_type: str
+    from_models: bool = Field(
+        description="false: no model of the type declares a signal yet, and the built-in "
+        "engine's catalogue stands in")
+    signals: list[SignalOut] = Field(description="inputs and sensors, in the model files' "
+                                     "names and units")
+    scheduled_on: list[str] = Field(description="operating-condition columns every row needs")
+    phase_required: bool
+
+
 # ---------------------------------------------------------------------------- aircraft
 
 

@@ -6,7 +6,8 @@ that follows needs the same numbers back. When that job runs in the process that
 database: on 100,000 records that read is 0.3-0.6 s, a third of the job.
 
 Kept rows are exactly the stored rows (the upload's new rows after deduplication, the
-columns of the ``snapshots`` table, values as COPYed), registered only once their transaction
+columns of the ``snapshots`` table, values as COPYed, and each signal outside the catalogue
+as a column of its own, ``app.signals.stored_at``), registered only once their transaction
 has committed. A job uses them for an engine only when they are complete: as many as the
 engine's backlog marks count when it continues from its filter state, else as many as the
 database counts after its restart point (kept rows are stored rows, so equal counts mean the
@@ -102,7 +103,9 @@ def take(session: Session, engine_ids: Iterable[int]) -> pa.Table | None:
     parts = _remove(session, engine_ids)
     if not parts:
         return None
-    table = pa.concat_tables(parts) if len(parts) > 1 else parts[0]
+    # Uploads of engine types with signals of their own carry other columns: unified, a
+    # column an upload lacks is null there.
+    table = pa.concat_tables(parts, promote_options="default") if len(parts) > 1 else parts[0]
     table = table.set_column(
         table.schema.get_field_index("engine_id"), "engine_id",
         pc.cast(table["engine_id"], pa.int64()),

@@ -76,3 +76,14 @@ def flight_condition(
     p2 = INLET_RECOVERY * p * ram**3.5
     v0 = m * xp.sqrt(1.4 * R_GAS * t)
     return FlightCondition(t, p, v0, t2, p2, t2 / T_SL, p2 / P_SL)
+
+
+def correction_factors(
+    exponents: np.ndarray, alt_ft: np.ndarray, mach: np.ndarray, dtamb: np.ndarray
+) -> np.ndarray:
+    """theta^a delta^b [K, n] at K conditions for n signals with exponents [n, 2] (a, b): a
+    value divided by its factor is the corrected parameter (seed 004: temperatures (1, 0),
+    pressures and thrust (0, 1), speeds (0.5, 0), fuel flow (0.5, 1))."""
+    fc = flight_condition(alt_ft, mach, dtamb)
+    ab = np.asarray(exponents, dtype=float).reshape(-1, 2)
+    return fc.theta[:, None] ** ab[:, 0] * fc.delta[:, None] ** ab[:, 1]

@@ -27,11 +27,12 @@ from typing import Any
 
 import numpy as np
 
-from estimation.engine.atmosphere import flight_condition
+from estimation.engine.atmosphere import correction_factors
 from estimation.engine.design import engine_design
 from estimation.engine.linearize import DEFAULT_DT, linear_model_at
 from estimation.engine.steady import SteadyState, steady_state
 from estimation.errors import ModelFormatError
+from estimation.grid import Grid, model_stacks
 from estimation.model import MATRIX_NAMES, LinearModel
 
 SCHEDULE_FORMAT = "fleethealth.engine-schedule/1"
@@ -42,7 +43,6 @@ DEFAULT_AXES: dict[str, tuple[float, ...]] = {
     "power": (0.0, 25.0, 50.0, 75.0, 100.0),
     "dtamb": (0.0,),
 }
-GAIN_NAMES = ("Gy", "Gz", "Guy", "Guz")
 # Trim correction: value = corrected * theta2^a * delta2^b (seed 004 corrected parameters).
 _SPEED, _TEMP, _PRES, _FUEL = (0.5, 0.0), (1.0, 0.0), (0.0, 1.0), (0.5, 1.0)
 CORRECTION: dict[str, tuple[float, float]] = {
@@ -54,9 +54,8 @@ CORRECTION: dict[str, tuple[float, float]] = {
 
 def _correction(names: Sequence[str], cond: np.ndarray) -> np.ndarray:
     """Factors theta2^a delta2^b [K, n_trim] at conditions [K, 4]."""
-    fc = flight_condition(cond[:, 0], cond[:, 1], cond[:, 3])
-    ab = np.array([CORRECTION.get(n, (0.0, 0.0)) for n in names])
-    return fc.theta[:, None] ** ab[:, 0] * fc.delta[:, None] ** ab[:, 1]
+    ab = np.array([CORRECTION.get(n, (0.0, 0.0)) for n in names]).reshape(-1, 2)
+    return correction_factors(ab, cond[:, 0], cond[:, 1], cond[:, 3])
 
 
 def design_fingerprint() -> str:
@@ -77,29 +76,9 @@ class EngineSchedule:
     template: LinearModel
     fingerprint: str
 
-    def _weights(self, cond: np.ndarray) -> list[tuple[tuple[np.ndarray, ...], np.ndarray]]:
-        """Corner indices and weights of multilinear interpolation for cond [K, 4]."""
-        lo, frac = [], []
-        for k, ax in enumerate(self.axes):
-            c = np.clip(cond[:, k], ax[0], ax[-1])
-            if len(ax) == 1:
-                lo.append(np.zeros(len(c), dtype=int))
-                frac.append(np.zeros(len(c)))
-                continue
-            i = np.clip(np.searchsorted(ax, c, side="right") - 1, 0, len(ax) - 2)
-            lo.append(i)
-            frac.append((c - ax[i]) / (ax[i + 1] - ax[i]))
-        out = []
-        for corner in itertools.product((0, 1), repeat=len(self.axes)):
-            w = np.ones(cond.shape[0])
-            idx = []
-            for k, bit in enumerate(corner):
-                if len(self.axes[k]) == 1 and bit:
-                    w = w * 0.0
-                w = w * (frac[k] if bit else 1.0 - frac[k])
-                idx.append(np.minimum(lo[k] + bit, len(self.axes[k]) - 1))
-            out.append((tuple(idx), w))
-        return out
+    @property
+    def grid(self) -> Grid:
+        return Grid(self.axes)
 
     def interpolate(self, name: str, cond: np.ndarray) -> np.ndarray:
         """``values[name]`` at conditions cond [K, 4] (alt, mach, power, dtamb): [K, ...]."""
@@ -108,27 +87,12 @@ class EngineSchedule:
             raise ValueError(
                 f"conditions must be [K, 4] (alt, mach, power, dtamb), got {cond.shape}"
             )
-        v = self.values[name]
-        acc = np.zeros((cond.shape[0],) + v.shape[len(self.axes):])
-        for idx, w in self._weights(cond):
-            acc += w.reshape((-1,) + (1,) * (acc.ndim - 1)) * v[idx]
-        return acc
+        return self.grid.interpolate(self.values[name], cond)
 
     def corners(self, cond: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Flat node indices and weights [C, K] of multilinear interpolation at conditions
-        cond [K, 4] (alt, mach, power, dtamb), the corners of a one-node axis left out: with
-        ``flat`` the values over the grid's nodes [n_nodes, F] (C-order), the interpolated
-        values are sum_c weights[c, :, None] * flat[indices[c]]."""
-        cond = np.atleast_2d(np.asarray(cond, dtype=float))
-        shape = tuple(len(a) for a in self.axes)
-        idx, wts = [], []
-        for corner, (i, w) in zip(itertools.product((0, 1), repeat=len(self.axes)),
-                                  self._weights(cond), strict=True):
-            if any(bit and len(a) == 1 for bit, a in zip(corner, self.axes, strict=True)):
-                continue
-            idx.append(np.ravel_multi_index(i, shape))
-            wts.append(w)
-        return np.stack(idx), np.stack(wts)
+        """Flat node indices and weights [C, K] at conditions cond [K, 4] (alt, mach, power,
+        dtamb): ``estimation.grid.Grid.corners``."""
+        return self.grid.corners(np.atleast_2d(np.asarray(cond, dtype=float)))
 
     def model_at(
         self, alt: float, mach: float, power: float, dtamb: float = 0.0
@@ -204,13 +168,7 @@ def build_schedule(
         )
         models.append(linear_model_at(one, dt))
     shape = tuple(len(a) for a in grid)
-    values: dict[str, np.ndarray] = {}
-    for m in MATRIX_NAMES:
-        values[m] = np.stack([getattr(mod, m) for mod in models]).reshape(
-            shape + getattr(models[0], m).shape)
-    gains = [mod.steady_state_gains() + mod.steady_state_input_gains() for mod in models]
-    for j, g in enumerate(GAIN_NAMES):
-        values[g] = np.stack([gg[j] for gg in gains]).reshape(shape + gains[0][j].shape)
+    values = model_stacks(models, shape)
     trim_names = tuple(models[0].trim)
     trim = np.array([[mod.trim[n] for n in trim_names] for mod in models])
     values["trim_corrected"] = (trim / _correction(trim_names, nodes)).reshape(

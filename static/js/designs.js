@@ -119,7 +119,7 @@ async function column(id, side) {
   const confusion = h("div", { class: "plot tall", id: `confusion-${side}` });
   const pmc = h("div", { class: "plot tall", id: `pmc-${side}` });
   card.append(h("h3", {}, "Health parameters: squared bias + variance, theory next to Monte Carlo"), health,
-    h("h3", {}, "Auxiliary outputs (thrust, temperatures, stall margins): squared bias + variance"), aux);
+    h("h3", {}, `Auxiliary outputs (${theory.aux.names.map(label).join(", ") || "none"}): squared bias + variance`), aux);
   const variant = $("#variant").value;
   if (conf && conf[variant]) {
     card.append(h("h3", {}, `Confusion matrix: ${VARIANTS[variant] || variant}, correct ${fmtNum(conf[variant].correct_rate, 1)} %`), confusion);
@@ -213,10 +213,16 @@ async function evaluate(designId) {
   }
 }
 
+// The chosen model's sensors with their units, as its file declares them; a sensor that is also
+// a measured input of the model (fuel flow on the built-in engine) starts unchecked: the
+// estimator reads it as the input.
 function sensorChecks() {
   const model = models.find((m) => String(m.id) === $("#model").value);
-  $("#sensors").replaceChildren(...(model ? model.sensor_names : []).map((s) =>
-    h("label", {}, h("input", { type: "checkbox", name: "sensor", value: s, checked: s !== "Wf" }), ` ${s}`)));
+  const sensors = model ? model.signals.sensors : [];
+  const inputs = new Set(model ? model.signals.inputs.map((s) => s.name) : []);
+  $("#sensors").replaceChildren(...sensors.map((s) =>
+    h("label", { "data-sensor": s.name }, h("input", { type: "checkbox", name: "sensor", value: s.name, checked: !inputs.has(s.name) }),
+      ` ${s.name}`, s.unit ? h("span", { class: "muted" }, ` [${s.unit}]`) : "")));
 }
 
 async function create(e) {
@@ -287,7 +293,8 @@ async function main() {
   try {
     await loadList();
     models = (await api("/api/v1/engine-models", { query: { limit: 200 } })).items;
-    $("#model").replaceChildren(...models.map((m) => h("option", { value: m.id }, `${m.name} v${m.version}`)));
+    const types = Object.fromEntries((await api("/api/v1/engine-types", { query: { limit: 200 } })).items.map((t) => [t.id, t.name]));
+    $("#model").replaceChildren(...models.map((m) => h("option", { value: m.id }, `${types[m.engine_type_id] ?? `type ${m.engine_type_id}`}: ${m.name} v${m.version}`)));
     sensorChecks();
   } catch (err) {
     showError($("#message"), err, "Designs");

@@ -8,15 +8,17 @@ import { maintenancePanel } from "./maintenance.js";
 import { reportButtons } from "./reports.js";
 
 const ORDER = ["health", "aux", "tuners", "residuals", "wssr"];
+// The auxiliary outputs are the design model's own (thrust and stall margins on the built-in
+// engine, whatever the type's model declares on another): titled by their names.
 const TITLES = {
   health: "Health parameters",
-  aux: "Thrust deficit and stall-margin estimates",
+  aux: (group) => `Estimated auxiliary outputs: ${group.series.map((s) => label(s.name)).join(", ")}`,
   tuners: "Tuners",
   residuals: "Sensor residuals",
   wssr: "WSSR per fault hypothesis",
 };
 // Short y-axis titles, so the unit stays visible on a narrow plot.
-const YLABELS = { health: "Health change", aux: "Thrust / margin change", tuners: "Tuner", residuals: "Residual", wssr: "WSSR" };
+const YLABELS = { health: "Health change", aux: "Output change", tuners: "Tuner", residuals: "Residual", wssr: "WSSR" };
 let trend = null;
 let designs = [];
 let principal = null;
@@ -144,7 +146,8 @@ function draw() {
       if (group.uncertainty === "uncalibrated") notes.push("Band: the filter's own 1-sigma (the design has no calibrated model error).");
       if (group.view === "change") notes.push("Change since the engine's baseline (first settled records after installation or shop visit).");
     }
-    const title = group.key === "health" && group.view === "change" ? "Health parameters: change since baseline" : group.title || TITLES[group.key] || group.label;
+    const titled = typeof TITLES[group.key] === "function" ? TITLES[group.key](group) : TITLES[group.key];
+    const title = group.key === "health" && group.view === "change" ? "Health parameters: change since baseline" : group.title || titled || group.label;
     container.append(h("section", { class: "card" }, h("h2", {}, title),
       ...notes.map((n) => h("p", { class: "muted" }, n)), div));
     const raw = axis === "date" ? trend.time : trend.seq;
@@ -176,6 +179,11 @@ function draw() {
     divs.push(div);
     pending.push([div, traces, lay]);
     if (group.key === "health") pendingClicks.push(div);
+  }
+  // A type other than the built-in engine has no engineering-unit panels: said, not left out.
+  if (trend.performance_note) {
+    container.append(h("section", { class: "card", id: "performance-note" }, h("h2", {}, "Engineering units"),
+      h("p", { class: "notice" }, trend.performance_note)));
   }
   // Plot once every card is in the grid, so each plot takes its card's final width (which the
   // marker labels are packed for).
@@ -363,8 +371,10 @@ async function main() {
     document.body.dataset.ready = "true";
     return;
   }
+  let engineType = null;
   try {
     const engine = await api(`/api/v1/engines/${id}`);
+    engineType = engine.engine_type_id;
     designs = (await api("/api/v1/designs", { query: { engine_type_id: engine.engine_type_id, limit: 100 } })).items;
     $("#design").replaceChildren(h("option", { value: "" }, "active design"), ...designs.filter((d) => d.status === "ready")
       .map((d) => h("option", { value: d.id }, `${d.name}${d.active ? " (active)" : ""}`)));
@@ -380,9 +390,29 @@ async function main() {
   // The engine's report (active design, every record), as PDF or Excel with the plots as images.
   $("#export").after(...reportButtons(`/api/v1/engines/${id}/report`, $("#message"), `engine-report-${id}`));
   await load(id);
+  await parameterSet(engineType);
   await listRecordings(id);
   await maintenancePanel(id, () => load(id));
   document.body.dataset.ready = "true";
+}
+
+// The signals of the engine's type with their units, as its models declare them (the columns its
+// snapshots carry), and the operating-condition columns every record needs.
+async function parameterSet(typeId) {
+  const section = h("section", { class: "card", id: "parameters" }, h("h2", {}, "Signals of this engine type"));
+  $("main").append(section);
+  try {
+    const p = await api(`/api/v1/engine-types/${typeId}/parameters`);
+    section.querySelector("h2").textContent = `Signals of ${p.engine_type}`;
+    section.append(
+      p.from_models ? "" : h("p", { class: "muted" }, "No model of this type declares its signals yet: the built-in engine's stand in."),
+      h("ul", { class: "signals" }, p.signals.map((s) => h("li", { "data-signal": s.name }, `${s.name} [${s.unit || "–"}]`))),
+      h("p", { class: "muted" }, p.scheduled_on.length
+        ? `Every record needs ${p.scheduled_on.join(", ")}${p.phase_required ? " and phase" : ""}.`
+        : "Records need no operating condition (the type's model is at one operating point)."));
+  } catch (err) {
+    showError(section, err, "Signals");
+  }
 }
 
 // The engine's stream recordings, each linked to its recording page.

@@ -153,7 +153,7 @@ async function loadDeterioration() {
       });
     });
     if (!traces.length) message.append(h("p", { class: "muted" }, "No estimates yet."));
-    const label = which === "health" ? "Fleet-average health parameter change" : "Fleet-average thrust and margin change";
+    const label = which === "health" ? "Fleet-average health parameter change" : "Fleet-average auxiliary output change";
     await plot(div, traces, layout({
       xaxis: { title: { text: "Date (UTC)" }, type: "date" },
       yaxis: { title: { text: axisTitle(label, unitOf(units.map((unit) => ({ unit })))) } },

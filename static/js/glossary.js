@@ -49,7 +49,7 @@ const AUX = [
   ["SM_HPC", "HPC stall margin", "margin points", "Distance of the high-pressure compressor operating point from its stall line, in margin points on the performance panels."],
   ["BPR", "Bypass ratio", "1", "Bypass flow over core flow."],
 ].map(([code, name, unit, meaning]) => ({ code, name, unit, group: "Thrust, temperatures and stall margins",
-  meaning: `${meaning} The engine page's "Thrust deficit and stall-margin estimates" plot gives its change from the nominal engine in percent.` }));
+  meaning: `${meaning} The engine page's "Estimated auxiliary outputs" plot gives its change from the nominal engine in percent.` }));
 
 const PERFORMANCE = [
   ["egt_margin", "EGT margin", "degC", "Red-line EGT minus the take-off EGT corrected to ISA+15 K: what is left before the limit."],

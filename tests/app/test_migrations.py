@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
@@ -179,6 +180,49 @@ def test_migration_0018_keeps_interval_schedules_and_uploads_and_checks_cron_or_
             assert connection.execute(text(
                 "SELECT kind, interval_seconds FROM job_schedules")).all() == [
                 ("fleet_diagnostics", 86400)]
+        engine.dispose()
+    finally:
+        urls.close()
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_migration_0019_keeps_snapshots_and_takes_rows_of_any_engine_type(
+    backend: str, tmp_path: Path
+) -> None:
+    from sqlalchemy import text
+
+    columns = ("operator_id, engine_id, aircraft_id, position, upload_id, recorded_at, phase, "
+               "alt_ft, mach, dtamb_k, power_pct, t30")
+    urls = fresh_database_url(backend, tmp_path)
+    url = next(urls)
+    try:
+        upgrade(url, "0018")
+        engine = make_engine(url)
+        with engine.begin() as connection:
+            connection.execute(text(
+                f"INSERT INTO snapshots ({columns}) VALUES (1, 7, 3, 1, 5, "
+                "'2026-05-01 00:00:00+00:00', 'cruise', 35000, 0.8, 0, 85, 1400.5)"))
+        upgrade(url)
+        with engine.connect() as connection:
+            assert connection.execute(text(
+                "SELECT engine_id, phase, alt_ft, t30, other_signals FROM snapshots")).all() == [
+                (7, "cruise", 35000.0, 1400.5, None)]
+        with engine.begin() as connection:  # a single-point type's row: no condition, no phase
+            connection.execute(text(
+                "INSERT INTO snapshots (operator_id, engine_id, aircraft_id, position, "
+                "upload_id, recorded_at, other_signals) VALUES (1, 8, 3, 2, 6, "
+                "'2026-05-01 00:00:00+00:00', :doc)"), {"doc": '{"N1": 98.5, "EGT": 505}'})
+        with engine.connect() as connection:
+            other = connection.execute(text(
+                "SELECT other_signals FROM snapshots WHERE engine_id = 8")).scalar_one()
+            other = other if isinstance(other, dict) else json.loads(other)  # SQLite: text
+            assert other == {"N1": 98.5, "EGT": 505}
+        downgrade(url, "0018")  # the row the old table cannot hold goes, the other stays
+        with engine.connect() as connection:
+            assert connection.execute(text(
+                "SELECT engine_id, phase, t30 FROM snapshots")).all() == [(7, "cruise", 1400.5)]
+            names = {c["name"] for c in inspect(connection).get_columns("snapshots")}
+            assert "other_signals" not in names
         engine.dispose()
     finally:
         urls.close()

@@ -145,3 +145,43 @@ def reference_noise(model: LinearModel, health_std: float = 2.0) -> dict[str, np
         "Qh": np.eye(nh) * 1e-4,
         "Ph": np.eye(nh) * health_std**2,
     }
+
+
+def scheduled_models(
+    points: list[dict[str, float]], base: LinearModel | None = None
+) -> list[LinearModel]:
+    """``base`` (default the reference model) at each operating point of ``points`` (alt_ft,
+    mach, power_pct; dtamb_k 0): health and input effects and the trims vary smoothly with
+    power and altitude (made-up numbers of physical signs, not C-MAPSS's), the noise with
+    power."""
+    from dataclasses import replace
+
+    from estimation.engine.atmosphere import flight_condition
+
+    base = base or reference_model()
+    out = []
+    for p in points:
+        alt, mach, power = p.get("alt_ft", 35000.0), p.get("mach", 0.8), p.get("power_pct", 85.0)
+        s = 0.7 + 0.4 * power / 100.0 - 0.1 * alt / 40000.0
+        fc = flight_condition(np.array([alt]), np.array([mach]), np.array([0.0]))
+        theta, delta = float(fc.theta[0]), float(fc.delta[0])
+        trim = {}
+        for sig in (*base.states, *base.inputs, *base.sensors, *base.aux):
+            if sig.name not in base.trim:
+                continue
+            v = base.trim[sig.name] * (0.6 + 0.4 * power / 100.0)
+            if sig.unit in ("K", "degR"):
+                v *= theta
+            elif sig.unit in ("kPa", "psia", "kN"):
+                v *= delta
+            elif sig.unit == "rpm":
+                v *= theta ** 0.5
+            elif sig.unit in ("kg/s", "pps"):
+                v *= delta * theta ** 0.5
+            trim[sig.name] = v
+        out.append(replace(
+            base, L=base.L * s, M=base.M * s, N=base.N * s, B=base.B * (2.0 - s), trim=trim,
+            sensor_noise_std=base.sensor_noise_std * (1.2 - 0.2 * power / 100.0),
+            operating_condition={"alt_ft": alt, "mach": mach, "dtamb_k": 0.0,
+                                 "power_pct": power}))
+    return out

@@ -427,3 +427,16 @@ def test_the_measured_record_rate_sets_the_banks_threshold_in_scan_and_steps() -
     later = wear.wear_steps(det, wear.replace_state(first, bank_h=None), x[55:],
                             np.ones(S - 55, bool), np.zeros(S - 55, bool), z[55:]).alerts
     assert later[0].threshold == nominal
+
+
+def test_an_empty_fault_library_attributes_nothing_and_counts_the_cycles() -> None:
+    """A design whose library keeps no fault (an engine type whose health parameters no
+    library fault fits): the detector runs, raises nothing and keeps counting flights."""
+    rng = np.random.default_rng(3)
+    S, m = 400, 3
+    det = wear.WearDetector(np.zeros((m, 0)), np.eye(m), np.zeros(0, bool))
+    x = -np.linspace(0.0, 3.0, S)[:, None] * np.ones(m) + 0.05 * rng.normal(size=(S, m))
+    run = wear.wear_steps(det, wear.WearState(), x, np.ones(S, bool), np.zeros(S, bool),
+                          np.zeros((S, 0)), keep=[9, 299])
+    assert run.alerts == () and run.state.cycle == S
+    assert [(j, st.cycle) for j, st in run.states] == [(9, 10.0), (299, 300.0)]

@@ -142,11 +142,11 @@ def engine_runs(
     column_of = {spec.column: spec.name for spec in estimator.SNAPSHOT_SIGNALS.values()}
     y_all = np.full((int(keep.sum()), len(est.sensor_columns)), np.nan)
     for i, col in enumerate(est.sensor_columns):
-        if col:
+        if col in column_of:  # a signal of the built-in engine
             y_all[:, i] = snaps.sensors[keep, SENSOR_NAMES.index(column_of[col])]
     u_all = np.full((int(keep.sum()), len(est.input_columns)), np.nan)
     for i, col in enumerate(est.input_columns):
-        if col:
+        if col in column_of:  # a signal of the built-in engine
             u_all[:, i] = snaps.actuators[keep, ACTUATOR_NAMES.index(column_of[col])]
     phase = snaps.phase[keep].astype(str)
     fid = snaps.flight_id[keep].astype(str)

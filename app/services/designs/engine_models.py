@@ -1,5 +1,9 @@
-"""Engine models: imported linear-model files or the built-in engine's, validated by the
-estimation core and stored."""
+"""Engine models: imported linear-model files and model schedules, or the built-in engine's,
+validated by the estimation core and stored.
+
+A model schedule (``fleethealth.model-schedule/1``, docs/model-format.md) is stored as one
+engine model: designs are made on its design-point model, the estimator interpolates its
+models at each record's operating condition."""
 
 from __future__ import annotations
 
@@ -17,6 +21,16 @@ from app.services.common import delete_or_conflict, owned, paginate, referenced
 from estimation.engine.errors import EngineConvergenceError
 from estimation.engine.linearize import linearize
 from estimation.model import MODEL_FORMAT, LinearModel
+from estimation.schedule import SCHEDULE_FORMAT, ModelSchedule, schedule_of
+
+
+def _invalid(field: str, exc: Exception) -> InvalidInput:
+    # ModelFormatError, DimensionError, UnknownSignalError and plain value errors all carry a
+    # message that names the key, matrix or signal.
+    reason = str(exc) if str(exc) else type(exc).__name__
+    return InvalidInput(
+        f"{field}: {reason}", details=[{"location": ["body", field], "reason": reason}]
+    )
 
 
 def parse_linear_model(content: Any, *, field: str = "model") -> LinearModel:
@@ -24,12 +38,29 @@ def parse_linear_model(content: Any, *, field: str = "model") -> LinearModel:
     try:
         return LinearModel.from_dict(content)
     except (ValueError, KeyError, TypeError) as exc:
-        # ModelFormatError, DimensionError, UnknownSignalError and plain value errors all
-        # carry a message that names the key, matrix or signal.
-        reason = str(exc) if str(exc) else type(exc).__name__
-        raise InvalidInput(
-            f"{field}: {reason}", details=[{"location": ["body", field], "reason": reason}]
-        ) from None
+        raise _invalid(field, exc) from None
+
+
+def parse_model_schedule(content: Any, *, field: str = "model") -> ModelSchedule:
+    """A ``fleethealth.model-schedule/1`` dict read by the estimation core, or 422 naming the
+    key, model or operating point at fault."""
+    try:
+        return ModelSchedule.from_dict(content)
+    except (ValueError, KeyError, TypeError) as exc:
+        raise _invalid(field, exc) from None
+
+
+def schedule_from_files(
+    files: list[Any], variables: list[str], corrections: Mapping[str, Any] | None,
+    design_point: int,
+) -> ModelSchedule:
+    """One schedule of several ``fleethealth.linear-model/1`` files at operating points (the
+    ``models`` form of an import), or 422 naming the file or point at fault."""
+    models = [parse_linear_model(f, field=f"models[{i}]") for i, f in enumerate(files)]
+    try:
+        return schedule_of(models, variables, corrections or {}, design_point)
+    except (ValueError, KeyError, TypeError) as exc:
+        raise _invalid("models", exc) from None
 
 
 def checksum(document: Mapping[str, Any]) -> str:
@@ -44,10 +75,11 @@ def store_engine_model(
     operator_id: int,
     engine_type_id: int,
     name: str,
-    model: LinearModel,
+    model: LinearModel | ModelSchedule,
     source: str,
 ) -> tuple[EngineModel, bool]:
-    """Store ``model`` as the next version of ``name``; (row, created).
+    """Store ``model`` (a linear model or a model schedule) as the next version of ``name``;
+    (row, created).
 
     Identical content to a stored version of the same name returns that version
     (created False), so importing a file twice stores nothing new.
@@ -58,6 +90,10 @@ def store_engine_model(
     # Serialise version numbering per engine type.
     session.scalar(select(EngineType.id).where(EngineType.id == engine_type.id).with_for_update())
     content = model.to_dict()
+    if isinstance(model, ModelSchedule):
+        fmt, model = SCHEDULE_FORMAT, model.template
+    else:
+        fmt = MODEL_FORMAT
     digest = checksum(content)
     same = session.scalar(
         select(EngineModel).where(
@@ -79,7 +115,7 @@ def store_engine_model(
         name=name,
         version=(latest or 0) + 1,
         source=source,
-        format=MODEL_FORMAT,
+        format=fmt,
         content=content,
         checksum=digest,
         dt=model.dt,
@@ -94,11 +130,19 @@ def store_engine_model(
 
 
 def import_engine_model(
-    session: Session, *, operator_id: int, engine_type_id: int, name: str, content: Any
+    session: Session, *, operator_id: int, engine_type_id: int, name: str,
+    content: Any = None, schedule: ModelSchedule | None = None,
 ) -> tuple[EngineModel, bool]:
-    """Validate a ``fleethealth.linear-model/1`` dict and store it (see ``store_engine_model``)."""
+    """Validate a ``fleethealth.linear-model/1`` or ``fleethealth.model-schedule/1`` dict (or
+    take a schedule already read) and store it (see ``store_engine_model``)."""
     referenced(session, EngineType, operator_id, engine_type_id, "engine_type_id", "engine type")
-    model = parse_linear_model(content)
+    model: LinearModel | ModelSchedule
+    if schedule is not None:
+        model = schedule
+    elif isinstance(content, Mapping) and content.get("format") == SCHEDULE_FORMAT:
+        model = parse_model_schedule(content)
+    else:
+        model = parse_linear_model(content)
     return store_engine_model(
         session,
         operator_id=operator_id,
@@ -156,6 +200,9 @@ def get_engine_model(session: Session, *, operator_id: int, engine_model_id: int
 
 
 def load_linear_model(row: EngineModel) -> LinearModel:
+    """The model designs are made on: the stored model, or a schedule's design-point model."""
+    if row.format == SCHEDULE_FORMAT:
+        return ModelSchedule.from_dict(row.content).template
     return LinearModel.from_dict(row.content)
 
 

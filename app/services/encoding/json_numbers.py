@@ -13,10 +13,12 @@ from __future__ import annotations
 import json
 import re
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
 
 # Below this magnitude a float64 resolves 1e-4 by far, so the rounded decimal string is the
 # shortest one that reads back to the same float (and repr writes no exponent).
@@ -127,3 +129,21 @@ def dumps(document: Any, default: Callable[[Any], Any]) -> bytes:
     if raws:
         text = re.sub(f'"{token}(\\d+)"', lambda match: raws[int(match.group(1))], text)
     return text.encode()
+
+
+def number_objects(columns: Mapping[str, pa.ChunkedArray | pa.Array], n: int) -> pa.Array:
+    """Per row, one JSON object of the row's numbers by column name (``{"N1":98.5,"EGT":505}``),
+    written column-wise by Arrow (its float text is the shortest that reads back to the same
+    float); a null value has no key, a row of nulls is null. ``n``: the number of rows."""
+    pieces = []
+    for name, values in columns.items():
+        text = pc.cast(pc.cast(values, pa.float64()), pa.string())
+        piece = pc.binary_join_element_wise(json.dumps(name) + ":", text, ",", "")
+        pieces.append(pc.fill_null(piece, ""))
+    if not pieces:
+        return pa.nulls(n, pa.string())
+    body = pc.utf8_rtrim(pc.binary_join_element_wise(*pieces, ""), characters=",")
+    empty = pc.equal(pc.binary_length(body), 0)
+    text = pc.binary_join_element_wise("{", body, "}", "")
+    joined = pc.if_else(empty, pa.scalar(None, pa.string()), text)
+    return joined.combine_chunks() if isinstance(joined, pa.ChunkedArray) else joined

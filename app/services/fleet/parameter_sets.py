@@ -8,8 +8,9 @@ Every engine type is described the same way, the built-in one included:
   pps, %, rpm, degR, psia);
 - its operating-condition columns (alt_ft, mach, dtamb_k, power_pct) are required when a model
   is scheduled on them (a model linearised from the built-in engine: the estimator schedules
-  its trims and gains on each record's condition) and optional otherwise (a single-point model
-  uses none);
+  its trims and gains on each record's condition; a model schedule, on its scheduling variables
+  and, when it corrects trims, the altitude, Mach and dTamb that theta2 and delta2 come from)
+  and optional otherwise (a single-point model uses none);
 - ``phase`` is required with a scheduled model (the built-in engine's trends are read per flight
   phase) and optional otherwise; ``recorded_at``, ``tail`` and ``position`` always, ``flight_id``
   never.
@@ -31,6 +32,7 @@ from sqlalchemy.orm import Session
 from app.models import EngineModel, EngineType
 from app.services import units
 from app.signals import CONDITION_COLUMNS, MEASURED, OPERATING_CONDITION, SignalSpec
+from estimation.schedule import SCHEDULE_FORMAT, ModelSchedule
 
 CATALOGUE: dict[str, SignalSpec] = {s.name: s for s in MEASURED}
 CONDITIONS: dict[str, SignalSpec] = {s.name: s for s in OPERATING_CONDITION}
@@ -99,7 +101,15 @@ def parameter_set_of(
     """The parameter set of a type from its models, each given as (source, model file)."""
     signals: dict[str, SignalSpec] = {}
     scheduled = False
+    conditions: set[str] = set()
     for source, content in models:
+        if isinstance(content, Mapping) and content.get("format") == SCHEDULE_FORMAT:
+            try:
+                schedule = ModelSchedule.from_dict(content)
+            except (ValueError, KeyError, TypeError):
+                continue  # stored content is validated on import; nothing to read otherwise
+            conditions.update(schedule.required_conditions)
+            content = schedule.template.to_dict()
         block = content.get("signals") if isinstance(content, Mapping) else None
         if not isinstance(block, Mapping):
             continue
@@ -115,8 +125,9 @@ def parameter_set_of(
     if not signals:
         return ParameterSet(engine_type_id, engine_type, MEASURED, CONDITION_COLUMNS, True,
                             from_models=False)
-    conditions = CONDITION_COLUMNS if scheduled else ()
-    return ParameterSet(engine_type_id, engine_type, tuple(signals.values()), conditions,
+    required = CONDITION_COLUMNS if scheduled else tuple(
+        c for c in CONDITION_COLUMNS if c in conditions)
+    return ParameterSet(engine_type_id, engine_type, tuple(signals.values()), required,
                         scheduled)
 
 

@@ -137,6 +137,7 @@ class EngineReport:
     figures: tuple[Figure, ...]
     events: tuple[EventLine, ...]
     maintenance: tuple[MaintenanceLine, ...]
+    performance_note: str | None = None  # why there are no engineering figures (the trend's)
 
 
 @dataclass(frozen=True)
@@ -283,6 +284,7 @@ def engine_report(session: Session, operator_id: int, engine_id: int) -> EngineR
         events=active_events(session, operator_id, engine_id),
         maintenance=tuple(MaintenanceLine(m["performed_at"], m["kind"], m["notes"])
                           for m in trend["maintenance"]),
+        performance_note=trend.get("performance_note"),
     )
 
 

@@ -126,6 +126,8 @@ def engine_pdf(report: EngineReport, images: list[Image]) -> bytes:
             widths=[5.5 * cm, 3.5 * cm, 2.5 * cm, 2.5 * cm, 3.0 * cm]))
     else:
         story.append(_none("No estimates for this engine."))
+    if report.performance_note:
+        story.append(_none(escape(report.performance_note)))
     story += [Paragraph("Active events and their isolation", h2),
               _events(report.events, with_engine=False),
               Paragraph("Maintenance actions", h2)]

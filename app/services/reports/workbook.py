@@ -95,6 +95,7 @@ def engine_workbook(report: EngineReport, images: list[Image]) -> bytes:
         ("State", report.state), ("Severity", report.severity),
         ("Reason", report.reason or "within limits"), ("Records", report.n_records),
         ("Last data (UTC)", report.last_data),
+        ("Engineering figures", report.performance_note or "in the Figures and Trend sheets"),
     ):
         summary.append([key, _cell(value)])
         summary.cell(row=summary.max_row, column=1).font = HEADER

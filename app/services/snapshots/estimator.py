@@ -9,6 +9,11 @@ interpolated trims are off by up to ~0.5 % of a pressure, as much as a fault's s
 the sensor noise is constant in sensor units (so in percent of trim it grows with altitude).
 On the demo fleet this finds 5 of its 6 detectable faults and names each correctly, with no
 stored false alarm (bench/bench_detection.py).
+
+A type described by a model schedule (``fleethealth.model-schedule/1``, docs/model-format.md)
+takes each record's trims, gains and sensor noise from its models interpolated at the record's
+condition (``model_schedule_for``); an imported model at one operating point gives the same to
+every record (``single_point_schedule``).
 """
 
 from __future__ import annotations
@@ -28,12 +33,14 @@ from sqlalchemy.orm import Session
 from app.models import EngineModel, EstimatorDesign
 from app.models.estimates import EstimateLayout
 from app.services import units
-from app.signals import ACTUATORS, SENSORS, SignalSpec
+from app.signals import ACTUATORS, SENSORS, SignalSpec, stored_at
 from estimation.detection import CusumDesign, design_cusum
 from estimation.engine.power_setting import held_speed_aux_gains
 from estimation.engine.schedule import EngineSchedule
 from estimation.engine.trim_table import TrimTable
-from estimation.model import LinearModel
+from estimation.grid import Grid
+from estimation.model import LinearModel, Signal
+from estimation.schedule import SCHEDULE_FORMAT, ModelSchedule
 from estimation.shift_detector import SHIFT_LEVEL
 from estimation.snapshot_design import DesignResult, snapshot_design
 
@@ -91,11 +98,12 @@ Schedule = Callable[[np.ndarray], ScheduledGains]  # conditions [S, 4] -> gains
 
 
 def _stored_unit(name: str, unit: str, value: float) -> float:
-    """A trim value from the model's unit into the unit snapshots are stored in (NaN when the
-    signal is not stored or its unit does not convert)."""
+    """A trim value from the model's unit into the unit snapshots are stored in: the
+    catalogue's for a catalogue signal (NaN when the unit does not convert), the model file's
+    for any other (an engine type's own signal, ``fleet.parameter_sets.stored_spec``)."""
     spec = SNAPSHOT_SIGNALS.get(name)
     if spec is None:
-        return math.nan
+        return value
     if unit == spec.unit or not unit:
         return value
     try:
@@ -134,14 +142,101 @@ def single_point_schedule(model: LinearModel) -> Schedule:
     return schedule
 
 
+def stored_affine(signals: Sequence[Signal]) -> tuple[np.ndarray, np.ndarray]:
+    """(a, b) per signal taking a value in its model unit to the unit snapshots store it in
+    (stored = a value + b): the identity for a signal outside the catalogue (stored in its
+    model's unit) or given in the stored unit, NaN where the unit does not convert."""
+    a, b = np.ones(len(signals)), np.zeros(len(signals))
+    for k, sig in enumerate(signals):
+        spec = SNAPSHOT_SIGNALS.get(sig.name)
+        if spec is None or sig.unit in (spec.unit, ""):
+            continue
+        try:
+            a[k], b[k] = units.affine(
+                spec.quantity, sig.unit, spec.unit, reference=spec.percent_reference
+            )
+        except units.UnknownUnitError:
+            a[k], b[k] = np.nan, np.nan
+    return a, b
+
+
+def node_interpolation(
+    grid: Grid, corners: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+    blocks: Mapping[str, np.ndarray],
+) -> Callable[[np.ndarray], dict[str, np.ndarray]]:
+    """Interpolation of several node quantities at once: ``blocks`` name -> values over the
+    grid [*grid.shape, ...], every one a column of one array over the nodes [n_nodes, F],
+    interpolated in one pass (``Grid.corners``, given here as the schedule's ``corners``,
+    which reads the schedule's own conditions) -> name -> [S, ...]."""
+    n_nodes = int(np.prod(grid.shape))
+    shapes = {k: v.shape[len(grid.shape):] for k, v in blocks.items()}
+    flat = np.ascontiguousarray(
+        np.concatenate([v.reshape(n_nodes, -1) for v in blocks.values()], axis=1))
+    offsets = np.cumsum([0, *(int(np.prod(v)) for v in shapes.values())])
+
+    def interpolate(c: np.ndarray) -> dict[str, np.ndarray]:
+        idx, w = corners(c)
+        acc = np.zeros((c.shape[0], flat.shape[1]))
+        step = GAIN_ROWS
+        for r0 in range(0, c.shape[0], step):  # in blocks that stay in the cache
+            part = acc[r0: r0 + step]
+            for k in range(idx.shape[0]):
+                part += w[k, r0: r0 + step, None] * flat[idx[k, r0: r0 + step]]
+        return {name: acc[:, offsets[i]: offsets[i + 1]].reshape(-1, *shapes[name])
+                for i, name in enumerate(shapes)}
+
+    return interpolate
+
+
+def model_schedule_for(model: LinearModel, sched: ModelSchedule) -> Schedule:
+    """Gains, trims and sensor noise of ``model``'s signals (a design's selection of the
+    schedule's signals) at each record's operating condition, interpolated between the nodes of
+    an imported model schedule (trims as corrected parameters, docs/model-format.md). The aux
+    gains are open-loop, the inputs as measured, as for a model at one operating point."""
+    tmpl = sched.template
+    missing = [n for n in (*model.sensor_names, *model.input_names) if n not in sched.trim_names]
+    if missing:
+        raise PipelineError(f"the model schedule trims none of the signals {missing}")
+    yi = [tmpl.sensor_names.index(n) for n in model.sensor_names]
+    ui = [tmpl.input_names.index(n) for n in model.input_names]
+    zi = [tmpl.aux_names.index(n) for n in model.aux_names]
+    hi = [tmpl.health_names.index(n) for n in model.health_names]
+    ya, yb = stored_affine(model.sensors)
+    ua, ub = stored_affine(model.inputs)
+    if not np.all(np.isfinite(ya)):
+        bad = [s.name for s, v in zip(model.sensors, ya, strict=True) if not np.isfinite(v)]
+        raise PipelineError(f"no trim in a stored unit for the engine model's sensors {bad}")
+    values = sched.values
+    gains_at = node_interpolation(sched.grid, sched.corners, {
+        "Gy": values["Gy"][..., yi, :][..., hi],
+        "Guy": values["Guy"][..., yi, :][..., ui],
+        "Gz": values["Gz"][..., zi, :][..., hi],
+        "Guz": values["Guz"][..., zi, :][..., ui],
+        "noise": values["noise"][..., yi],
+    })
+
+    def schedule(conditions: np.ndarray) -> ScheduledGains:
+        # Snapshot columns are (alt, mach, dtamb, power): the schedule's CONDITIONS.
+        conditions = np.asarray(conditions, float)
+        trims = sched.trims_at(conditions)
+        y_trim = np.stack([trims[n] for n in model.sensor_names], axis=1) * ya + yb
+        u_trim = (np.stack([trims[n] for n in model.input_names], axis=1) * ua + ub
+                  if model.input_names else np.zeros((conditions.shape[0], 0)))
+        g = gains_at(conditions)
+        return ScheduledGains(y_trim, u_trim, g["Gy"], g["Guy"], g["Gz"], g["noise"],
+                              G_zu=g["Guz"])
+
+    return schedule
+
+
 @dataclass(frozen=True, eq=False)
 class SnapshotEstimator:
     """Everything the pipeline needs of one design, ready to run."""
 
     design_id: int
     layout: EstimateLayout
-    sensor_columns: tuple[str, ...]  # snapshot column per design sensor ("" = not stored)
-    input_columns: tuple[str, ...]
+    sensor_columns: tuple[str, ...]  # where each design sensor is stored (``stored_at``)
+    input_columns: tuple[str, ...]  # the same per input ("" = not used)
     vstar: np.ndarray  # [m, p]
     Vp: np.ndarray  # V*^+ [p, m]
     Qq: np.ndarray  # [m, m] tuner random walk per flight
@@ -212,15 +307,11 @@ def build_estimator(
             "faults": ["1"] * len(library),
         },
     )
-    sensor_columns = tuple(
-        SNAPSHOT_SIGNALS[s.name].column if s.name in SNAPSHOT_SIGNALS else ""
-        for s in model.sensors
-    )
+    sensor_columns = tuple(stored_at(s.name) for s in model.sensors)
     # An actuator is used only where its trim converts to the stored unit.
     input_columns = tuple(
-        SNAPSHOT_SIGNALS[s.name].column
-        if s.name in SNAPSHOT_SIGNALS
-        and np.isfinite(_stored_unit(s.name, s.unit, model.trim.get(s.name, math.nan)))
+        stored_at(s.name)
+        if np.isfinite(_stored_unit(s.name, s.unit, model.trim.get(s.name, math.nan)))
         else ""
         for s in model.inputs
     )
@@ -247,7 +338,7 @@ def build_estimator(
 
 def estimator_for_design(session: Session, design: EstimatorDesign) -> SnapshotEstimator:
     """The estimator of a stored design: the design's model (sensors and health selected) and,
-    for the built-in engine, its operating-condition schedule."""
+    for the built-in engine or a model schedule, its operating-condition schedule."""
     if design.status != "ready" or design.result is None:
         raise PipelineError(f"design {design.id} is not ready")
     row = session.get(EngineModel, design.engine_model_id)
@@ -258,6 +349,8 @@ def estimator_for_design(session: Session, design: EstimatorDesign) -> SnapshotE
     schedule = None
     if row.source == "builtin":
         schedule = engine_schedule_for(model, builtin_schedule(), builtin_trim_table())
+    elif row.format == SCHEDULE_FORMAT:
+        schedule = model_schedule_for(model, ModelSchedule.from_dict(row.content))
     return build_estimator(design.id, model, design.result, schedule)
 
 
@@ -350,24 +443,8 @@ def engine_schedule_for(
     ui = [tmpl.input_names.index(n) for n in model.input_names]
     zi = [tmpl.aux_names.index(n) for n in model.aux_names]
     hi = [tmpl.health_names.index(n) for n in model.health_names]
-    units_of = {s.name: s.unit for s in (*tmpl.sensors, *tmpl.inputs)}
-
-    def convert(names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
-        a, b = np.ones(len(names)), np.zeros(len(names))
-        for k, name in enumerate(names):
-            spec = SNAPSHOT_SIGNALS.get(name)
-            if spec is None or units_of[name] in (spec.unit, ""):
-                continue
-            try:
-                a[k], b[k] = units.affine(
-                    spec.quantity, units_of[name], spec.unit, reference=spec.percent_reference
-                )
-            except units.UnknownUnitError:
-                a[k], b[k] = np.nan, np.nan
-        return a, b
-
-    ya, yb = convert(model.sensor_names)
-    ua, ub = convert(model.input_names)
+    ya, yb = stored_affine(model.sensors)
+    ua, ub = stored_affine(model.inputs)
     # The built-in engine's sensor noise is a constant in sensor units (seed 001 Table 2), so
     # in percent of trim it grows with altitude: about four times larger at cruise than at
     # take-off for the pressures. Each record gets its own.
@@ -384,33 +461,15 @@ def engine_schedule_for(
     noise_abs = noise_abs * np.abs(ya)
     table = trims
 
-    # The gains this model needs, every one of them a column of one array over the
-    # schedule's nodes [n_nodes, F], interpolated in one pass (``EngineSchedule.corners``).
     values = sched.values
-    blocks = {
+    gains_at = node_interpolation(sched.grid, sched.corners, {
         "Gy": values["Gy"][..., yi, :][..., hi],
         "Guy": values["Guy"][..., yi, :][..., ui],
         "Gz": values["Gz"][..., zi, :][..., hi],
         "Guz": values["Guz"][..., zi, :][..., ui],
         "Gy_held": values["Gy"][..., held, :][..., hi],
         "Guy_held": values["Guy"][..., held, :][..., ui],
-    }
-    n_nodes = int(np.prod([len(a) for a in sched.axes]))
-    shapes = {k: v.shape[len(sched.axes):] for k, v in blocks.items()}
-    flat = np.ascontiguousarray(
-        np.concatenate([v.reshape(n_nodes, -1) for v in blocks.values()], axis=1))
-    offsets = np.cumsum([0, *(int(np.prod(v)) for v in shapes.values())])
-
-    def gains_at(c: np.ndarray) -> dict[str, np.ndarray]:
-        idx, w = sched.corners(c)
-        acc = np.zeros((c.shape[0], flat.shape[1]))
-        step = GAIN_ROWS
-        for r0 in range(0, c.shape[0], step):  # in blocks that stay in the cache
-            part = acc[r0: r0 + step]
-            for k in range(idx.shape[0]):
-                part += w[k, r0: r0 + step, None] * flat[idx[k, r0: r0 + step]]
-        return {name: acc[:, offsets[i]: offsets[i + 1]].reshape(-1, *shapes[name])
-                for i, name in enumerate(shapes)}
+    })
 
     trimmed = {*model.sensor_names, *model.input_names}
 

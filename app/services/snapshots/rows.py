@@ -29,7 +29,7 @@ from sqlalchemy.orm import Session
 from app.models import Snapshot
 from app.models.estimates import VALUE_DTYPE, Estimate
 from app.services.encoding.pgcopy import HEADER, PG_EPOCH_US, TRAILER, fixed_copy_rows
-from app.signals import CONDITION_COLUMNS, PHASES
+from app.signals import CONDITION_COLUMNS, PHASES, other_signal
 
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 _MICROSECOND = timedelta(microseconds=1)
@@ -41,9 +41,10 @@ ESTIMATE_COLUMNS = ("operator_id", "engine_id", "design_id", "seq", "recorded_at
 class Records:
     """One engine's records in time order, as columns.
 
-    epoch [S] (seconds since 1970, UTC), phase [S], conditions [S, 4]
-    (alt_ft, mach, dtamb_k, power_pct), y [S, ny] and u [S, nu] in stored units with NaN for
-    a missing value (a column the design reads but snapshots do not store is all NaN).
+    epoch [S] (seconds since 1970, UTC), phase [S] ("" where a record has none), conditions
+    [S, 4] (alt_ft, mach, dtamb_k, power_pct; NaN where a record has none), y [S, ny] and
+    u [S, nu] in stored units with NaN for a missing value (a column the design reads but
+    snapshots do not store is all NaN).
     """
 
     epoch: np.ndarray
@@ -63,11 +64,13 @@ def load_records(
 ) -> dict[int, Records]:
     """Each engine's records after its time (None: all of them), for (engine id, after) pairs.
 
-    ``sensor_columns``/``input_columns`` name the snapshot column of each design signal
-    ("" = not stored). ``kept``: rows an upload committed in this process (``fresh_records``,
-    sorted by engine and time); an engine's records come from there when they are all there,
-    else from the database. ``expected``: how many records engines are known to have after
-    their time (the backlog's count); the others are counted in the database.
+    ``sensor_columns``/``input_columns`` name where each design signal is stored
+    (``app.signals.stored_at``: a column, or ``other_signals.NAME``; "" = not stored).
+    ``kept``: rows an upload committed in this process (``fresh_records``, sorted by engine
+    and time, each other signal a column named as it is stored); an engine's records come
+    from there when they are all there, else from the database. ``expected``: how many
+    records engines are known to have after their time (the backlog's count); the others are
+    counted in the database.
     """
     if not wants:
         return {}
@@ -177,8 +180,10 @@ def _table_columns(
     """Rows ``lo:hi`` of ``table`` for each engine, as columns of the stored numbers."""
     micros = np.asarray(pc.cast(pc.cast(table["recorded_at"], pa.timestamp("us", tz="UTC")),
                                 pa.int64()).to_numpy())
-    phase = table["phase"].to_pylist()
-    values = {c: _floats(table, c) for c in (*CONDITION_COLUMNS, *stored)}
+    phase = [p or "" for p in table["phase"].to_pylist()]
+    n = table.num_rows
+    values = {c: _floats(table, c) if c in table.column_names else np.full(n, np.nan)
+              for c in (*CONDITION_COLUMNS, *stored)}
     conditions = np.column_stack([values[c] for c in CONDITION_COLUMNS])
     epoch = micros / 1e6
     return {
@@ -205,14 +210,22 @@ def _aggregated(
     """
     phase = "CASE s.phase " + " ".join(
         f"WHEN '{name}' THEN {code}" for code, name in enumerate(PHASES)
-    ) + " END::int2"
+    ) + " ELSE -1 END::int2"  # no phase: -1 (a NULL would drop the whole row from the bytea)
     fields = [
         ("engine_id", "int4send(s.engine_id)", ">i4"),
         ("micros", "int8send((extract(epoch FROM s.recorded_at) * 1000000)::int8)", ">i8"),
         ("phase", f"int2send({phase})", ">i2"),
     ]
-    fields += [(c, f"float8send(COALESCE(s.{c}, 'NaN'))", ">f8")
-               for c in (*CONDITION_COLUMNS, *stored)]
+    params: dict[str, Any] = dict(_window_params(wants))
+    for c in (*CONDITION_COLUMNS, *stored):
+        name = other_signal(c)
+        if name is None:
+            value = f"s.{c}"
+        else:  # by name from the JSON document, the name a parameter
+            key = f"signal_{len(params)}"
+            params[key] = name
+            value = f"(s.other_signals ->> %({key})s)::float8"
+        fields.append((c, f"float8send(COALESCE({value}, 'NaN'))", ">f8"))
     query = (
         f"SELECT string_agg({' || '.join(sql for _n, sql, _w in fields)}, ''::bytea "
         "ORDER BY s.engine_id, s.recorded_at) FROM snapshots s "
@@ -222,7 +235,7 @@ def _aggregated(
     driver = session.connection().connection.driver_connection
     assert driver is not None
     with driver.cursor(binary=True) as cursor:
-        cursor.execute(query, _window_params(wants))
+        cursor.execute(query, params)
         found = cursor.fetchone()
     payload = b"" if found is None or found[0] is None else bytes(found[0])
     dtype = np.dtype([(name, w) for name, _sql, w in fields])
@@ -230,7 +243,7 @@ def _aggregated(
         raise ValueError(f"rows of {dtype.itemsize} bytes expected, {len(payload)} bytes found")
     rows = np.frombuffer(payload, dtype=dtype)
     engines = rows["engine_id"].astype(np.int64)
-    phases = np.array(PHASES, dtype=object)
+    phases = np.array([*PHASES, ""], dtype=object)  # -1: ""
     out: dict[int, Columns] = {}
     for engine_id, _after in wants:
         lo, hi = np.searchsorted(engines, [engine_id, engine_id + 1])
@@ -252,7 +265,9 @@ def _select(
     """Other databases: one engine's records in one SELECT, transposed once."""
     table = Snapshot.__table__
     columns = [table.c.recorded_at, table.c.phase]
-    columns += [table.c[c] for c in (*CONDITION_COLUMNS, *stored)]
+    columns += [table.c[c] if other_signal(c) is None
+                else table.c.other_signals[other_signal(c)].as_float()
+                for c in (*CONDITION_COLUMNS, *stored)]
     query = select(*columns).where(table.c.engine_id == engine_id).order_by(table.c.recorded_at)
     if after is not None:
         query = query.where(table.c.recorded_at > after)
@@ -261,9 +276,9 @@ def _select(
     cols: list[Sequence[Any]] = list(zip(*rows, strict=True)) if n else [()] * len(columns)
     epoch = np.array([t.timestamp() for t in cols[0]], dtype=float)
     k = len(CONDITION_COLUMNS)
-    conditions = np.array(cols[2 : 2 + k], dtype=float).reshape(k, n).T.copy()
+    conditions = np.array(cols[2 : 2 + k], dtype=float).reshape(k, n).T.copy()  # None: NaN
     values = {c: np.array(cols[2 + k + j], dtype=float) for j, c in enumerate(stored)}
-    return epoch, list(cols[1]), conditions, values
+    return epoch, [p or "" for p in cols[1]], conditions, values
 
 
 def epoch_micros(epoch: np.ndarray) -> np.ndarray:
@@ -375,7 +390,8 @@ def _copy_rows(operator_id: int, design_id: int, blocks: Sequence[Block]) -> byt
             ("design_id", np.full(len(at), design_id, dtype=">i4")),
             ("seq", seq[at].astype(">i4")),
             ("recorded_at", micros[at].astype(">i8")),
-            ("phase", np.full(len(at), text, dtype=f"S{len(text)}")),
+            ("phase", np.full(len(at), text, dtype=f"S{len(text)}") if text
+             else np.zeros(len(at), dtype=np.dtype((np.void, 0)))),  # no phase: ""
             ("packed", raw[at]),
         ]))
     return b"".join(parts)

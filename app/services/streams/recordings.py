@@ -30,10 +30,11 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.errors import Conflict, InvalidInput
-from app.models import StreamChunk, StreamRecording, Upload
+from app.models import Engine, StreamChunk, StreamRecording, Upload
 from app.models.base import utcnow
 from app.services import common
 from app.services.fleet import service as fleet
+from app.services.fleet.parameter_sets import CATALOGUE, parameter_sets
 from app.services.streams import samples, steady
 from app.services.uploads.parse import ParsedTable, RowError, UploadRejected, parse_body
 from app.services.uploads.store import content_checksum, find_replay
@@ -107,7 +108,24 @@ def _resolve(session: Session, operator_id: int, meta: StreamMeta) -> tuple[int,
             f"at {meta.started_at.isoformat()}"
         )
         raise InvalidInput(reason, details=[{"row": None, "column": "position", "reason": reason}])
+    _check_streamable(session, engine)
     return engine.id, aircraft.id
+
+
+def _check_streamable(session: Session, engine: Engine) -> None:
+    """Streams are read in the signal catalogue's names and estimated on the built-in engine's
+    schedule: an engine whose type has signals of its own (``fleet.parameter_sets``) sends
+    snapshots instead, and a stream of it is refused (422) saying so."""
+    params = parameter_sets(session, [engine.engine_type_id])[engine.engine_type_id]
+    own = [spec.name for spec in params.signals if spec.name not in CATALOGUE]
+    if own:
+        reason = (
+            f"engine {engine.esn!r} is of engine type {params.engine_type!r}, whose signals "
+            f"({', '.join(own[:8])}{' ...' if len(own) > 8 else ''}) are not the signal "
+            "catalogue's: stream recordings take the catalogue's signals only and are "
+            "estimated on the built-in engine; send this engine's data as snapshots"
+        )
+        raise InvalidInput(reason, details=[{"row": None, "column": None, "reason": reason}])
 
 
 def open_recording(
@@ -263,6 +281,9 @@ def upload_recording(
         recording = session.get(StreamRecording, earlier.recording_id)
         if recording is not None:
             return earlier, recording, True
+    # The engine first: a stream of an engine type with signals of its own is refused for
+    # that (``_check_streamable``), not for its columns.
+    _resolve(session, operator_id, stream_meta)
     parsed = parse_body(body, content_format, kind="stream", mapping=mapping)
     recording = open_recording(
         session, operator_id=operator_id, meta=stream_meta, dt_s=_dt_of(parsed)

@@ -54,15 +54,23 @@ from app.models.estimates import (
 from app.services.encoding import json_numbers
 from app.services.encoding.json_numbers import RawJSON
 from app.services.encoding.pgcopy import PG_EPOCH_US
+from app.services.fleet import performance
 from app.services.trends import health as health_view
 from app.services.trends.performance import performance_group
 from app.signals import PHASES
 
+# Why a trend has no ``performance`` group (a design of another engine type than the built-in).
+PERFORMANCE_NOTE = (
+    "EGT margin, ΔEGT, thrust in engineering units and stall margins are computed from the "
+    "built-in engine's nonlinear model; this engine's type is not the built-in engine, so its "
+    "trend has the estimates of its own model only (health parameters, auxiliary outputs, "
+    "residuals, WSSR)."
+)
 # Trend groups as the dashboard draws them: (key, value block, sigma block, names group, label).
 GROUPS = (
     ("tuners", "q", "q_sigma", "tuners", "Tuners"),
     ("health", "h", "h_sigma", "health", "Health parameters"),
-    ("aux", "z", "z_sigma", "aux", "Thrust and stall margins"),
+    ("aux", "z", "z_sigma", "aux", "Auxiliary outputs"),
     ("residuals", "residual", None, "sensors", "Sensor residuals"),
     ("wssr", "wssr", None, "faults", "WSSR per fault hypothesis"),
 )
@@ -582,6 +590,7 @@ def engine_trend(
         "phase": [],
         "recording": [],
         "groups": [],
+        "performance_note": None,
     }
     if data is not None and len(data.epoch):
         starts = decimate(len(data.epoch), max_points)
@@ -599,6 +608,8 @@ def engine_trend(
         )
         if extra is not None:
             groups.append(extra)
+        elif performance.builtin_schedule_for_design(session, target.design_id) is None:
+            out["performance_note"] = PERFORMANCE_NOTE
         out.update(columns)
         out.update(
             n_records=len(data.epoch),

@@ -21,7 +21,6 @@ from sqlalchemy.orm import Session
 
 from app.models import Engine
 from app.services.fleet.parameter_sets import (
-    CATALOGUE,
     CONDITIONS,
     ParameterSet,
     parameter_sets,
@@ -32,7 +31,6 @@ from app.services.uploads.parse import (
     ErrorLimitReached,
     ErrorLog,
     ParsedTable,
-    UploadRejected,
     convert_signal,
 )
 from app.signals import SignalSpec
@@ -160,30 +158,3 @@ def _converts(
         log.add(None, source, reason)
         return False
     return True
-
-
-def unstorable(typed: TypedRows, parsed: ParsedTable) -> None:
-    """Refuse what the snapshot table cannot hold yet: signals outside the catalogue, rows
-    without an operating condition or a phase (an upload in a single-point type's own set)."""
-    log = ErrorLog()
-    table = typed.table
-    try:
-        for name, source in parsed.sources.items():
-            if name in CATALOGUE or name in CONDITIONS:
-                continue
-            carried = np.flatnonzero(_valid(table, name))
-            if carried.size:
-                log.add(int(carried[0]) + 1, source,
-                        f"column {name!r} is a parameter of its engine type, but snapshots "
-                        "store only the signal catalogue's signals so far; nothing was stored")
-        for name in (*CONDITIONS, "phase"):
-            present = name in table.column_names
-            missing = ~_valid(table, name) if present else np.ones(table.num_rows, bool)
-            if missing.any():
-                row = int(np.flatnonzero(missing)[0]) + 1
-                log.add(row, name, f"snapshots without {name!r} are valid for their engine "
-                                   "type but cannot be stored yet; nothing was stored")
-    except ErrorLimitReached:
-        pass
-    if log.errors:
-        raise UploadRejected(log.errors, truncated=log.truncated)

@@ -21,7 +21,7 @@ import sqlite3
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime, timedelta
-from typing import Any, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 import psycopg
@@ -37,13 +37,21 @@ from app.errors import Conflict, NotFound, ServiceError
 from app.models import Aircraft, Engine, Snapshot, Upload
 from app.models.ingest import SNAPSHOT_COLUMNS
 from app.services import common, fresh_records
+from app.services.encoding.json_numbers import number_objects
 from app.services.encoding.pgcopy import HEADER, TRAILER, binary_copy_rows
 from app.services.fleet import service as fleet
+from app.services.fleet.parameter_sets import (
+    CATALOGUE,
+    ParameterSet,
+    parameter_sets,
+    stored_spec,
+)
 from app.services.snapshots import backlog
 from app.services.uploads import back_dating, parameters
 from app.services.uploads.origin import UploadOrigin, stamp
 from app.services.uploads.parse import (
     MAX_ERRORS,
+    SNAPSHOT_KEYS,
     ErrorLimitReached,
     ErrorLog,
     ParsedTable,
@@ -51,7 +59,7 @@ from app.services.uploads.parse import (
     UploadRejected,
     parse_body,
 )
-from app.signals import SIGNALS
+from app.signals import OPERATING_CONDITION, OTHER_SIGNALS, SIGNALS, other_signal, stored_at
 
 COPY_BATCH_ROWS = 20_000
 # Unique violations surface from SQLAlchemy, or from the drivers under COPY / executemany.
@@ -282,7 +290,6 @@ def ingest_snapshots(
     parsed = parse_body(body, content_format, kind="snapshots", mapping=mapping, by_type=True)
     typed = parameters.check_parameters(
         session, resolve_rows(session, operator_id=operator_id, parsed=parsed), parsed)
-    parameters.unstorable(typed, parsed)
     rows = typed.table
     replay = functools.partial(
         find_replay, session, operator_id=operator_id, kind="snapshots", checksum=checksum,
@@ -424,6 +431,16 @@ def _iso(value: np.datetime64) -> str:
 
 _COMPARED = ("aircraft_id", "position", "phase", "flight_id") + tuple(s.name for s in SIGNALS)
 _ID_CHUNK = 5000
+# Columns of resolved rows that are no signal (``resolve_rows``).
+_RESOLVED = ("engine_id", "aircraft_id", "row")
+_CATALOGUE_NAMES = frozenset(s.name for s in SIGNALS)
+
+
+def other_signals(rows: pa.Table) -> list[str]:
+    """The signal columns of ``rows`` outside the catalogue (stored in ``other_signals``)."""
+    return [name for name in rows.column_names
+            if name not in _CATALOGUE_NAMES and name not in SNAPSHOT_KEYS
+            and name not in _RESOLVED]
 
 
 def drop_stored(session: Session, rows: pa.Table) -> tuple[pa.Table, int]:
@@ -449,6 +466,7 @@ def drop_stored(session: Session, rows: pa.Table) -> tuple[pa.Table, int]:
                 Snapshot.phase,
                 Snapshot.flight_id,
                 *columns,
+                Snapshot.other_signals,
             ).where(
                 Snapshot.engine_id.in_(unique_ids[start : start + _ID_CHUNK]),
                 Snapshot.recorded_at >= lo,
@@ -464,12 +482,14 @@ def drop_stored(session: Session, rows: pa.Table) -> tuple[pa.Table, int]:
     matched = [i for i, key in enumerate(keys) if key in stored]
     if not matched:
         return rows, 0
-    present = [name for name in _COMPARED if name in rows.column_names]
+    others = other_signals(rows)
+    present = [name for name in _COMPARED if name in rows.column_names] + others
     mine = rows.take(pa.array(matched)).select(present).to_pylist()
     conflicts: list[RowError] = []
     for index, values in zip(matched, mine, strict=True):
         theirs = stored[keys[index]]
-        upload_id, their_values = theirs[0], dict(zip(_COMPARED, theirs[1:], strict=True))
+        upload_id, their_values = theirs[0], dict(zip(_COMPARED, theirs[1:-1], strict=True))
+        their_values.update({name: (theirs[-1] or {}).get(name) for name in others})
         # A column the upload does not have says nothing; one it has must match (null too).
         different = [name for name in present if values[name] != their_values[name]]
         if different and len(conflicts) < MAX_ERRORS:
@@ -539,7 +559,9 @@ def summarise(session: Session, rows: pa.Table) -> list[AffectedEngine]:
 
 
 def snapshot_table(rows: pa.Table, *, operator_id: int, upload_id: int) -> pa.Table:
-    """The rows as the ``snapshots`` table's columns, in ``SNAPSHOT_COLUMNS`` order."""
+    """The rows as the ``snapshots`` table's columns, in ``SNAPSHOT_COLUMNS`` order: a column
+    the rows do not have is null (the phase and operating condition of a type not scheduled on
+    them too), signals outside the catalogue are one JSON object a row (``other_signals``)."""
     n = rows.num_rows
     columns: dict[str, pa.Array | pa.ChunkedArray] = {
         "operator_id": pa.array(np.full(n, operator_id, dtype=np.int64)),
@@ -548,15 +570,14 @@ def snapshot_table(rows: pa.Table, *, operator_id: int, upload_id: int) -> pa.Ta
         "position": rows["position"],
         "upload_id": pa.array(np.full(n, upload_id, dtype=np.int64)),
         "recorded_at": rows["recorded_at"],
-        "phase": rows["phase"],
-        "flight_id": rows["flight_id"]
-        if "flight_id" in rows.column_names
-        else pa.nulls(n, pa.string()),
+        **{name: rows[name] if name in rows.column_names else pa.nulls(n, pa.string())
+           for name in ("phase", "flight_id")},
     }
     for signal in SIGNALS:
         columns[signal.column] = (
             rows[signal.name] if signal.name in rows.column_names else pa.nulls(n, pa.float64())
         )
+    columns[OTHER_SIGNALS] = number_objects({name: rows[name] for name in other_signals(rows)}, n)
     return pa.table({name: columns[name] for name in SNAPSHOT_COLUMNS})
 
 
@@ -564,7 +585,14 @@ def insert_snapshots(session: Session, rows: pa.Table, *, operator_id: int, uplo
     """Insert new rows in the caller's transaction: COPY on PostgreSQL, executemany on SQLite;
     once it commits, the rows are kept in memory for the estimation job (``fresh_records``)."""
     table = snapshot_table(rows, operator_id=operator_id, upload_id=upload_id)
-    fresh_records.keep_after_commit(session, upload_id, table)
+    # Kept with each other signal as a column of numbers (``stored_at``), as the pipeline
+    # reads them; stored without a column no row has (the catalogue's rows: no JSON at all).
+    kept = table
+    for name in other_signals(rows):
+        kept = kept.append_column(stored_at(name), pc.cast(rows[name], pa.float64()))
+    fresh_records.keep_after_commit(session, upload_id, kept)
+    if table[OTHER_SIGNALS].null_count == table.num_rows:
+        table = table.drop_columns([OTHER_SIGNALS])
     connection = session.connection()
     if connection.dialect.name == "postgresql":
         copy_binary(connection.connection.driver_connection, "snapshots", table, SNAPSHOT_PG_TYPES)
@@ -583,6 +611,7 @@ SNAPSHOT_PG_TYPES = {
     "phase": "text",
     "flight_id": "text",
     **{s.column: "float8" for s in SIGNALS},
+    OTHER_SIGNALS: "jsonb",
 }
 
 
@@ -650,6 +679,31 @@ SNAPSHOT_OUTPUT = ("recorded_at", "tail", "position", "phase", "flight_id") + tu
 )
 
 
+class OutputSignal(NamedTuple):
+    """A signal column of an engine's snapshots as given out: name, stored unit, selected."""
+
+    name: str
+    unit: str
+    column: Any
+
+
+def output_signals(params: ParameterSet) -> list[OutputSignal]:
+    """The signal columns of an engine's snapshots as given out: every catalogue signal for a
+    type whose signals are all the catalogue's (the built-in engine's, as always); else the
+    operating condition and the type's own signals, in the units they are stored in."""
+    if all(spec.name in CATALOGUE for spec in params.signals):
+        return [OutputSignal(spec.name, spec.unit, getattr(Snapshot, spec.column))
+                for spec in SIGNALS]
+    out = [OutputSignal(spec.name, spec.unit, getattr(Snapshot, spec.column))
+           for spec in OPERATING_CONDITION]
+    for spec in params.signals:
+        place = stored_at(spec.name)
+        column = (getattr(Snapshot, place) if other_signal(place) is None
+                  else Snapshot.other_signals[spec.name].as_float())
+        out.append(OutputSignal(spec.name, stored_spec(spec).unit, column))
+    return out
+
+
 def engine_snapshots(
     session: Session,
     *,
@@ -658,10 +712,15 @@ def engine_snapshots(
     start: datetime | None = None,
     end: datetime | None = None,
     limit: int = 10_000,
-) -> tuple[Engine, pa.Table]:
+) -> tuple[Engine, pa.Table, dict[str, str]]:
     """The engine's snapshots in [start, end), oldest first, at most ``limit``, as columns
-    named as uploaded (``SNAPSHOT_OUTPUT``), in stored units."""
+    named as uploaded (``SNAPSHOT_OUTPUT`` for the built-in engine's signals, else the
+    engine type's: ``output_signals``), in stored units; and the unit of each signal."""
     engine = fleet.get_engine(session, operator_id=operator_id, engine_id=engine_id)
+    signals = output_signals(parameter_sets(session, [engine.engine_type_id])[
+        engine.engine_type_id])
+    names = ("recorded_at", "tail", "position", "phase", "flight_id",
+             *(signal.name for signal in signals))
     stmt = (
         select(
             # Plain DateTime: Arrow takes the driver's values in bulk (aware on PostgreSQL,
@@ -671,7 +730,7 @@ def engine_snapshots(
             Snapshot.position,
             Snapshot.phase,
             Snapshot.flight_id,
-            *[getattr(Snapshot, s.column) for s in SIGNALS],
+            *[signal.column for signal in signals],
         )
         .outerjoin(Aircraft, Aircraft.id == Snapshot.aircraft_id)
         .where(Snapshot.engine_id == engine.id)
@@ -683,8 +742,9 @@ def engine_snapshots(
     if end is not None:
         stmt = stmt.where(Snapshot.recorded_at < end)
     rows = session.connection().execute(stmt).all()  # Core: no ORM row loading
-    columns = list(zip(*rows, strict=True)) if rows else [() for _ in SNAPSHOT_OUTPUT]
+    columns = list(zip(*rows, strict=True)) if rows else [() for _ in names]
     types = [pa.timestamp("us", tz="UTC"), pa.string(), pa.int16(), pa.string(), pa.string()]
-    types += [pa.float64()] * len(SIGNALS)
+    types += [pa.float64()] * len(signals)
     arrays = [pa.array(list(c), t) for c, t in zip(columns, types, strict=True)]
-    return engine, pa.table(dict(zip(SNAPSHOT_OUTPUT, arrays, strict=True)))
+    units = {signal.name: signal.unit for signal in signals}
+    return engine, pa.table(dict(zip(names, arrays, strict=True))), units

@@ -61,3 +61,34 @@ def test_binary_payload_round_trips_through_postgresql(connection: Connection) -
 def test_an_empty_table_is_just_header_and_trailer() -> None:
     payload = binary_copy_payload(sample(0), TYPES)
     assert payload == b"PGCOPY\n\xff\r\n\x00" + bytes(8) + b"\xff\xff"
+
+
+def test_jsonb_objects_of_numbers_round_trip_through_postgresql(connection: Connection) -> None:
+    """``other_signals``: one JSON object of numbers a row (Arrow's shortest float text), NULL
+    where a row has none, read back by name as the same floats."""
+    if connection.dialect.name != "postgresql":
+        pytest.skip("binary COPY is PostgreSQL's")
+    from app.services.encoding.json_numbers import number_objects
+
+    rng = np.random.default_rng(3)
+    n = 500
+    values = {name: np.where(rng.random(n) < 0.2, np.nan, rng.normal(0, 1e4, n) * 10.0 ** (
+        rng.integers(-8, 8, n))) for name in ("N1", "EGT", 'odd "name"')}
+    values["N1"][:5] = np.nan  # rows of no number at all
+    values["EGT"][:5] = np.nan
+    values['odd "name"'][:5] = np.nan
+    objects = number_objects({k: pa.array(v, from_pandas=True) for k, v in values.items()}, n)
+    connection.exec_driver_sql("CREATE TEMP TABLE objects (k int4, o jsonb)")
+    table = pa.table({"k": pa.array(np.arange(n), pa.int32()), "o": objects})
+    driver = connection.connection.driver_connection
+    with driver.cursor() as cursor:
+        with cursor.copy("COPY objects (k, o) FROM STDIN (FORMAT binary)") as copy:
+            copy.write(binary_copy_payload(table, {"k": "int4", "o": "jsonb"}))
+    for name, expected in values.items():
+        got = connection.exec_driver_sql(
+            "SELECT (o ->> %(name)s)::float8 FROM objects ORDER BY k", {"name": name}).scalars()
+        assert np.array_equal(np.array([np.nan if v is None else v for v in got]), expected,
+                              equal_nan=True)
+    nulls = connection.exec_driver_sql("SELECT count(*) FROM objects WHERE o IS NULL").scalar()
+    none = np.all([np.isnan(v) for v in values.values()], axis=0)
+    assert none[:5].all() and nulls == int(none.sum())

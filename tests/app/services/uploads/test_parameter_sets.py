@@ -188,17 +188,21 @@ def test_required_columns_and_units_follow_the_type(
     assert detail["column"] == "alt_ft"
     assert detail["reason"] == ("required column 'alt_ft' is missing (engine type "
                                 "'Built-in turbofan' is scheduled on it)")
-    # The custom type's own columns with their declared units pass validation: what stops
-    # them is storage (signals outside the catalogue are not stored yet), not the names.
-    header = ["recorded_at", "tail", "position", "N1[%]", "N2[%]", "EGT[degC]", "PS3[kPa]",
+    # The custom type's own columns with their declared units are stored by name, in the
+    # units of its model file (EGT in degC, FF in kg/h), without a condition or a phase.
+    header = ["recorded_at", "tail", "position", "N1[%]", "N2[%]", "EGT[degF]", "PS3[kPa]",
               "FF[kg/h]"]
     body = write_csv(tmp_path / "custom.csv", header,
-                     [[at(3), "N300", 2, 98.0, 99.0, 505.0, 3100.0, 4500.0]])
+                     [[at(3), "N300", 2, 98.0, 99.0, 941.0, 3100.0, 4500.0]])
     response = post_csv(client, two_types, body)
-    assert response.status_code == 422, response.text
-    reasons = [d["reason"] for d in response.json()["error"]["details"]]
-    assert not any("unknown column" in r for r in reasons)
-    assert "store only the signal catalogue's signals so far" in reasons[0]
+    assert response.status_code == 201, response.text
+    row = session.execute(select(Snapshot.phase, Snapshot.alt_ft, Snapshot.t48,
+                                 Snapshot.other_signals).where(
+        Snapshot.operator_id == two_types.operator_id)).one()
+    assert row.phase is None and row.alt_ft is None and row.t48 is None
+    assert set(row.other_signals) == {"N1", "N2", "EGT", "PS3", "FF"}
+    assert row.other_signals["EGT"] == pytest.approx(505.0)
+    assert row.other_signals["FF"] == 4500.0 and row.other_signals["N1"] == 98.0
     # A unit that is not one of the signal's quantity is refused by name.
     body = write_csv(tmp_path / "bad_unit.csv", ["recorded_at", "tail", "position",
                                                   "EGT[psia]"], [[at(4), "N300", 2, 7.0]])
@@ -207,7 +211,7 @@ def test_required_columns_and_units_follow_the_type(
     detail = response.json()["error"]["details"][0]
     assert detail["column"] == "EGT[psia]" and "unknown unit 'psia' for temperature" in \
         detail["reason"]
-    assert stored(session, two_types) == 0
+    assert stored(session, two_types) == 1
 
 
 def test_one_upload_holds_engines_of_two_types_on_one_tail(
@@ -239,11 +243,9 @@ def test_one_upload_holds_engines_of_two_types_on_one_tail(
     response = post_csv(client, two_types, body)
     assert response.status_code == 422
     assert "'P30'" in response.text and "'Reference'" in response.text
-    # Its rows need no operating condition and no phase to be valid; the snapshot table
-    # cannot hold them without one yet, and says so.
+    # Its rows need no operating condition and no phase: they are stored without them.
     body = write_csv(tmp_path / "reference_only.csv", ["recorded_at", "tail", "position",
                                                        "T30"], [[at(2), "N301", 2, 1590.0]])
     response = post_csv(client, two_types, body)
-    assert response.status_code == 422
-    assert "valid for their engine type but cannot be stored yet" in response.text
-    assert stored(session, two_types) == 2
+    assert response.status_code == 201, response.text
+    assert stored(session, two_types) == 3

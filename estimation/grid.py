@@ -1,0 +1,94 @@
+"""Multilinear interpolation on a rectilinear grid of operating conditions.
+
+A grid is one sorted axis of distinct values per scheduling variable; a value over the grid is
+an array [n_1, ..., n_k, ...] (node values first, any trailing shape). At a query the value is
+the weighted sum of the 2^k corners of its cell, weights products of the fractions along each
+axis: every node is reproduced exactly and between nodes every entry lies between its corner
+values. An axis of one value is constant along its variable; queries outside the grid are
+clipped to its edges. Used by the built-in engine's schedule (``estimation.engine.schedule``)
+and by the model schedules of other engine types (``estimation.schedule``).
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimation.model import MATRIX_NAMES, LinearModel
+
+GAIN_NAMES = ("Gy", "Gz", "Guy", "Guz")
+
+
+@dataclass(frozen=True, eq=False)
+class Grid:
+    """Axes [n_i] of a rectilinear grid, one per scheduling variable, sorted and distinct."""
+
+    axes: tuple[np.ndarray, ...]
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return tuple(len(a) for a in self.axes)
+
+    def weights(self, cond: np.ndarray) -> list[tuple[tuple[np.ndarray, ...], np.ndarray]]:
+        """Corner indices and weights of multilinear interpolation for cond [K, n_axes]: one
+        (index per axis [K], weight [K]) per corner of the cell (2^n_axes corners; a corner
+        beyond a one-node axis has weight 0)."""
+        lo, frac = [], []
+        for k, ax in enumerate(self.axes):
+            c = np.clip(cond[:, k], ax[0], ax[-1])
+            if len(ax) == 1:
+                lo.append(np.zeros(len(c), dtype=int))
+                frac.append(np.zeros(len(c)))
+                continue
+            i = np.clip(np.searchsorted(ax, c, side="right") - 1, 0, len(ax) - 2)
+            lo.append(i)
+            frac.append((c - ax[i]) / (ax[i + 1] - ax[i]))
+        out = []
+        for corner in itertools.product((0, 1), repeat=len(self.axes)):
+            w = np.ones(cond.shape[0])
+            idx = []
+            for k, bit in enumerate(corner):
+                if len(self.axes[k]) == 1 and bit:
+                    w = w * 0.0
+                w = w * (frac[k] if bit else 1.0 - frac[k])
+                idx.append(np.minimum(lo[k] + bit, len(self.axes[k]) - 1))
+            out.append((tuple(idx), w))
+        return out
+
+    def interpolate(self, values: np.ndarray, cond: np.ndarray) -> np.ndarray:
+        """``values`` [*shape, ...] at conditions cond [K, n_axes]: [K, ...]."""
+        acc = np.zeros((cond.shape[0],) + values.shape[len(self.axes):])
+        for idx, w in self.weights(cond):
+            acc += w.reshape((-1,) + (1,) * (acc.ndim - 1)) * values[idx]
+        return acc
+
+    def corners(self, cond: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Flat node indices and weights [C, K] of multilinear interpolation at conditions
+        cond [K, n_axes], the corners of a one-node axis left out: with ``flat`` the values
+        over the grid's nodes [n_nodes, F] (C-order), the interpolated values are
+        sum_c weights[c, :, None] * flat[indices[c]]."""
+        idx, wts = [], []
+        for corner, (i, w) in zip(itertools.product((0, 1), repeat=len(self.axes)),
+                                  self.weights(cond), strict=True):
+            if any(bit and len(a) == 1 for bit, a in zip(corner, self.axes, strict=True)):
+                continue
+            idx.append(np.ravel_multi_index(i, self.shape))
+            wts.append(w)
+        return np.stack(idx), np.stack(wts)
+
+
+def model_stacks(models: Sequence[LinearModel], shape: tuple[int, ...]) -> dict[str, np.ndarray]:
+    """The matrices A..N and steady-state gains (``GAIN_NAMES``: G_y, G_z of docs/math.md
+    section 1 and those of the inputs) of models at the grid's nodes (C-order), each stacked
+    over the grid: name -> [*shape, rows, columns]."""
+    values: dict[str, np.ndarray] = {}
+    for m in MATRIX_NAMES:
+        values[m] = np.stack([getattr(mod, m) for mod in models]).reshape(
+            shape + getattr(models[0], m).shape)
+    gains = [mod.steady_state_gains() + mod.steady_state_input_gains() for mod in models]
+    for j, g in enumerate(GAIN_NAMES):
+        values[g] = np.stack([gg[j] for gg in gains]).reshape(shape + gains[0][j].shape)
+    return values
