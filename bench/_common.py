@@ -13,6 +13,12 @@ import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from sqlalchemy.orm import Session
+
+    from app.models import EstimatorDesign
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
@@ -157,7 +163,7 @@ def schedule_cache(cache: Path) -> Iterator[Path]:
             get_settings.cache_clear()
 
 
-def demo_design(session, operator_id: int):  # type: ignore[no-untyped-def]
+def demo_design(session: Session, operator_id: int) -> tuple[int, EstimatorDesign]:
     """The demo's engine type for the built-in engine, its cruise model and the demo's active
     design (``demo.ACTIVE_DESIGN``, designed and activated by the product's design service, as
     the demo makes it) on the operator; returns (engine type id, design)."""

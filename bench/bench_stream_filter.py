@@ -59,6 +59,7 @@ from app.services.streams.run import Carry, _first_outside, filter_inputs, filte
 from app.services.tenancy.service import create_operator  # noqa: E402
 from app.services.uploads.parse import parse_body  # noqa: E402
 from estimation.errors import UnobservableDesignError  # noqa: E402
+from estimation.stream_filter import SegmentGain  # noqa: E402
 
 SIZES = "10x9000,1000x1000,10000x100,100000x10"
 TARGET = 1.5  # the product's filter within 1.5x of the minimal loop (issue 17)
@@ -80,11 +81,14 @@ class Gain(NamedTuple):
     sigma: np.ndarray
 
 
-def bound_gain(g) -> Gain:  # type: ignore[no-untyped-def]
+def bound_gain(g: SegmentGain) -> Gain:
     IKC = np.eye(g.A.shape[0]) - g.K @ g.C
-    return Gain(*(np.ascontiguousarray(a) for a in (
-        (IKC @ g.A).T, g.K.T, (g.K @ g.D).T, (IKC @ g.B).T, g.A.T, g.B.T, g.C.T, g.D.T, g.F.T,
-        g.G.T)), g.sigma)
+
+    def c(a: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(a)
+
+    return Gain(c((IKC @ g.A).T), c(g.K.T), c((g.K @ g.D).T), c((IKC @ g.B).T), c(g.A.T),
+                c(g.B.T), c(g.C.T), c(g.D.T), c(g.F.T), c(g.G.T), g.sigma)
 
 
 def product_estimator(signals: list[str]) -> StreamEstimator:
@@ -100,7 +104,8 @@ def product_estimator(signals: list[str]) -> StreamEstimator:
     return est
 
 
-def segments(est: StreamEstimator, cond: np.ndarray, keys: dict) -> list[tuple[int, int, int]]:
+def segments(est: StreamEstimator, cond: np.ndarray, keys: dict[tuple[float, ...], int]
+             ) -> list[tuple[int, int, int]]:
     """(start, end, gain index) of one recording's segments, as ``filter_piece`` finds them."""
     out, i = [], 0
     while i < cond.shape[0]:
@@ -111,20 +116,25 @@ def segments(est: StreamEstimator, cond: np.ndarray, keys: dict) -> list[tuple[i
 
 
 def filterable(est: StreamEstimator, cond: np.ndarray, dt: float) -> int:
-    """First sample after the last segment whose gain the product cannot compute. At ground
-    idle (the simulated flight's first 120 s, power 0 %) the design's reduced model is
-    unobservable (``UnobservableDesignError`` from the DARE), so ``filter_piece`` raises there
-    and a recording with ground idle cannot be estimated; the bench filters what follows."""
-    start = 0
-    for i, j, _g in segments(est, cond, {}):
+    """First sample after the last one whose condition, taken as a segment's anchor, has a
+    gain the product cannot compute (every sample can anchor a segment of a stretch starting
+    there). At ground idle (the simulated flight's first 120 s, power 0 %) the design's reduced
+    model is unobservable (``UnobservableDesignError`` from the DARE), so ``filter_piece``
+    raises there and a recording with ground idle cannot be estimated; the bench filters what
+    follows."""
+    keys = [est.snapped(c) for c in cond]
+    bad = set()
+    for key in set(keys):
         try:
-            est.gain(est.snapped(cond[i]), dt)
+            est.gain(key, dt)
         except UnobservableDesignError:
-            start = j
-    return start
+            bad.add(key)
+    return max((i + 1 for i, k in enumerate(keys) if k in bad), default=0)
 
 
-def minimal_engine(segs, dy, du, gains: list[Gain], VpT, sl, width, n):  # type: ignore[no-untyped-def]
+def minimal_engine(segs: list[tuple[int, int, int]], dy: np.ndarray, du: np.ndarray,
+                   gains: list[Gain], VpT: np.ndarray, sl: dict[str, slice], width: int,
+                   n: int) -> np.ndarray:
     """One engine's rows [S, width] by the plainest numpy loop with the given segments."""
     S = dy.shape[0]
     rows = np.empty((S, width))
@@ -155,7 +165,8 @@ def minimal_engine(segs, dy, du, gains: list[Gain], VpT, sl, width, n):  # type:
     return rows
 
 
-def batched(gid, dy, du, gains: list[Gain], VpT, sl, width, n):  # type: ignore[no-untyped-def]
+def batched(gid: np.ndarray, dy: np.ndarray, du: np.ndarray, gains: list[Gain],
+            VpT: np.ndarray, sl: dict[str, slice], width: int, n: int) -> np.ndarray:
     """All engines' rows [E, S, width] by one time-major loop over the engines at once, each
     engine with its own gain at each sample (the products per gain over the samples sorted by
     gain, the recursion through a gather of Phi)."""
@@ -200,7 +211,8 @@ def batched(gid, dy, du, gains: list[Gain], VpT, sl, width, n):  # type: ignore[
     return rows
 
 
-def run_size(est, pool, dt: float, E: int, S: int, rng: np.random.Generator) -> float:  # type: ignore[no-untyped-def]
+def run_size(est: StreamEstimator, pool: tuple[np.ndarray, ...], dt: float, E: int, S: int,
+             rng: np.random.Generator) -> float:
     """Time the product and the bounds on E engines x S samples; the product's ratio."""
     cond_all, dy_all, du_all, starts, lengths = pool
     flights = rng.integers(0, len(starts), size=E)
@@ -247,7 +259,7 @@ def run_size(est, pool, dt: float, E: int, S: int, rng: np.random.Generator) -> 
     n_segs = sum(len(s) for s in segs)
     print(f"\n{E:,} engines x {S:,} samples ({N:,} samples, {len(np.unique(first)):,} distinct "
           f"stretches of {len(starts)} flights), {n_segs:,} segments ({n_segs / E:.1f} an "
-          f"engine), {len(gains)} gains (DAREs and first pass {t_gains:.1f} s, untimed)")
+          f"engine), {len(gains)} gains (segments and gains found untimed in {t_gains:.1f} s)")
     print(f"  {'filter_piece per engine':<26} {t_ours:8.3f} s  {N / t_ours:11,.0f} samples/s  "
           f"{1e6 * t_ours / E:9.1f} us an engine  {t_ours / t_min:5.2f}x the bound  the product")
     print(f"  {'minimal loop per engine':<26} {t_min:8.3f} s  {N / t_min:11,.0f} samples/s  "
@@ -286,11 +298,11 @@ def main() -> None:
         print(f"pool: {len(tables)} simulated flights of {args.seconds:g} s at {1 / dt:g} Hz, "
               f"{total:,} samples; filter_inputs (trims, deviations) {total / t_in:,.0f} "
               "samples/s")
-        inputs = [tuple(a[filterable(est, i[0], dt):] for a in i) for i in inputs]
-        lengths = np.array([i[0].shape[0] for i in inputs])
+        kept = [tuple(a[filterable(est, i[0], dt):] for a in i) for i in inputs]
+        lengths = np.array([i[0].shape[0] for i in kept])
         print(f"  kept {lengths.sum():,} samples: {total - lengths.sum():,} at ground idle cut "
               "(power 0 %: its gain is unobservable, see filterable)")
-        pool = (*(np.concatenate([i[k] for i in inputs]) for k in range(3)),
+        pool = (*(np.concatenate([i[k] for i in kept]) for k in range(3)),
                 np.concatenate([[0], np.cumsum(lengths)[:-1]]), lengths)
         rng = np.random.default_rng(args.seed)
         ratios = {}
