@@ -1,8 +1,11 @@
-"""Shared helpers of the benchmark scripts: import path, timing, the test model."""
+"""Shared helpers of the benchmark scripts: import path, timing, the test model, throw-away
+databases, ``fleethealth serve`` on a socket, simulated stream flights, the demo's design."""
 
 from __future__ import annotations
 
+import json
 import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -10,6 +13,12 @@ import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from sqlalchemy.orm import Session
+
+    from app.models import EstimatorDesign
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
@@ -82,3 +91,98 @@ def run_on_backends(backends: str, run: Callable[[str, str], bool]) -> None:
             ok &= run(url, label)
     print(f"load average at the end {os.getloadavg()[0]:.2f}")
     print("PASS" if ok else "FAIL")
+
+
+BENCH_DATA = Path("/tmp/fh-bench")  # the served data directories' parent and the pool cache
+
+
+@contextmanager
+def serving(url: str, port: int | None = None, data_dir: Path | None = None,
+            schedule_cache: Path | None = None) -> Iterator[str]:
+    """``fleethealth serve`` on the migrated database ``url`` in its own process (no demo, its
+    job runner on), on ``port`` (a free one if None); yields its base URL and stops it after.
+    ``data_dir``: the server's data directory (a temporary one under ``BENCH_DATA`` if None,
+    removed after); ``schedule_cache``: a folder of the built-in engine's cached schedule and
+    trim table, linked in as the data directory's ``cache`` so the server does not build them."""
+    from tests.support import server
+
+    BENCH_DATA.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="served-", dir=BENCH_DATA) as tmp:
+        root = Path(tmp) if data_dir is None else data_dir
+        if schedule_cache is not None and not (root / "cache").exists():
+            root.mkdir(parents=True, exist_ok=True)
+            (root / "cache").symlink_to(schedule_cache.resolve(), target_is_directory=True)
+        with server.serving(url, root, port=port) as (_process, base):
+            yield base
+
+
+def simulated_streams(aircraft: int, seconds: float, seed: int, rate_hz: float = 20.0,
+                      folder: Path | None = None) -> list[tuple[Path, dict[str, object]]]:
+    """Whole-flight stream files of the built-in engine as ``fleethealth simulate --mode
+    stream`` writes them (CSV, ``aircraft`` twin-engine aircraft, one flight each, the first
+    ``seconds`` of the flight at ``rate_hz``): (path, manifest entry) per flight. The files are
+    kept under ``BENCH_DATA`` (or ``folder``) and simulated again only when missing."""
+    out = folder or BENCH_DATA / f"streams-{aircraft}x{seconds:g}s-{rate_hz:g}hz-{seed}"
+    manifest = out / "streams" / "manifest.json"
+    if not manifest.exists():
+        t0 = time.perf_counter()
+        subprocess.run(
+            [sys.executable, "-c", "from app.cli import main; main()", "simulate", "--out",
+             str(out), "--mode", "stream", "--aircraft", str(aircraft), "--flights", "1",
+             "--seed", str(seed), "--rate-hz", f"{rate_hz:g}", "--stream-seconds",
+             f"{seconds:g}", "--format", "csv"],
+            cwd=ROOT, check=True, stdout=subprocess.DEVNULL,
+            env={**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+                 "MKL_NUM_THREADS": "1"})
+        print(f"simulated {2 * aircraft} stream flights into {out} "
+              f"({time.perf_counter() - t0:.0f} s)")
+    flights = json.loads(manifest.read_text())["flights"]
+    return [(out / next(f for f in e["files"] if f.endswith(".csv")), e) for e in flights]
+
+
+@contextmanager
+def schedule_cache(cache: Path) -> Iterator[Path]:
+    """This process's data directory (``FLEETHEALTH_DATA_DIR``, a temporary one, removed
+    after) with the built-in engine's cached schedule and trim table ``cache`` linked in as its
+    ``cache``, so ``estimator.builtin_schedule`` reads them instead of building them."""
+    from app.config import get_settings
+
+    BENCH_DATA.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="data-", dir=BENCH_DATA) as tmp:
+        (Path(tmp) / "cache").symlink_to(cache.resolve(), target_is_directory=True)
+        before = os.environ.get("FLEETHEALTH_DATA_DIR")
+        os.environ["FLEETHEALTH_DATA_DIR"] = tmp
+        get_settings.cache_clear()
+        try:
+            yield Path(tmp)
+        finally:
+            if before is None:
+                os.environ.pop("FLEETHEALTH_DATA_DIR", None)
+            else:
+                os.environ["FLEETHEALTH_DATA_DIR"] = before
+            get_settings.cache_clear()
+
+
+def demo_design(session: Session, operator_id: int) -> tuple[int, EstimatorDesign]:
+    """The demo's engine type for the built-in engine, its cruise model and the demo's active
+    design (``demo.ACTIVE_DESIGN``, designed and activated by the product's design service, as
+    the demo makes it) on the operator; returns (engine type id, design)."""
+    from app.services.demo import fleet as demo
+    from app.services.designs import engine_models
+    from app.services.designs import service as designs
+    from app.services.fleet import service as fleet
+    from app.services.snapshots import estimator
+
+    kind = fleet.create_engine_type(session, operator_id=operator_id, name=demo.ENGINE_TYPE)
+    point = demo.DESIGN_POINT
+    model = estimator.builtin_schedule().model_at(point["alt"], point["mach"], point["power"])
+    row, _created = engine_models.register_builtin_model(
+        session, operator_id=operator_id, engine_type_id=kind.id,
+        name="built-in turbofan, cruise", model=model)
+    method, tuners = demo.ACTIVE_DESIGN
+    spec = demo.design_spec(method, tuners, [n for n in model.sensor_names if n != "Wf"])
+    design = designs.create_design(session, operator_id=operator_id, engine_model_id=row.id,
+                                   name=f"all health parameters (m = {tuners})", spec=spec)
+    designs.run_design(session, design, designs.design_step)
+    designs.activate_design(session, operator_id=operator_id, design_id=design.id)
+    return kind.id, design

@@ -36,8 +36,8 @@ from datetime import timedelta
 import httpx
 import numpy as np
 import pyarrow.csv as pacsv
-from _common import run_on_backends
-from bench_ingest import T0, add_design, build_fleet, serving, snapshots
+from _common import run_on_backends, serving
+from bench_ingest import T0, add_design, build_fleet, snapshots
 from sqlalchemy import text
 
 from app.db import make_engine

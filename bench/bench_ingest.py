@@ -33,8 +33,6 @@ import statistics
 import sys
 import time
 import uuid
-from collections.abc import Iterator
-from contextlib import contextmanager
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
@@ -50,6 +48,8 @@ from sqlalchemy.engine import make_url
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from _common import serving  # noqa: E402
+
 from app.db import make_engine, make_sessionmaker, transaction  # noqa: E402
 from app.migrate import upgrade  # noqa: E402
 from app.models.ingest import SNAPSHOT_COLUMNS  # noqa: E402
@@ -59,7 +59,6 @@ from app.services.snapshots import estimator  # noqa: E402
 from app.services.tenancy import service as tenancy  # noqa: E402
 from app.services.uploads.store import SNAPSHOT_PG_TYPES, snapshot_table  # noqa: E402
 from tests.estimation.models import reference_model  # noqa: E402
-from tests.support import server  # noqa: E402
 from tests.support.fleet_fixture import add_reference_design  # noqa: E402
 
 POSTGRES_URL = os.environ.get(
@@ -269,14 +268,6 @@ def wait_for_jobs(engine: Any, operator_id: int, started: float) -> None:
         if time.perf_counter() - started > 600:
             raise SystemExit("the estimation job did not end")
         time.sleep(0.005)
-
-
-@contextmanager
-def serving(url: str) -> Iterator[str]:
-    """``fleethealth serve`` on ``url`` in its own process (no demo, migrated already, its job
-    runner on); yields its base URL."""
-    with server.serving(url, Path("/tmp/fh-bench")) as (_process, base):
-        yield base
 
 
 def sustained(
