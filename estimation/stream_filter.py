@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from estimation.errors import UnobservableDesignError
 from estimation.kalman import filter_stream_states, steady_state_gain
 from estimation.model import LinearModel
 from estimation.reduced import reduced_model
@@ -72,11 +73,23 @@ def segment_gain(
     """The reduced model and steady-state gain of ``model`` at sample interval ``dt``, with the
     random walks and process noise Q, Qh given per sample of the model (they scale with the
     sample interval). ``R_regions`` (region -> R_b, seed 004 eq. 6) adds one gain per
-    transient-index region."""
+    transient-index region.
+
+    Where the sensors cannot estimate the tuners at this condition (no stabilising
+    steady-state gain: at ground idle the demo's ten-tuner design has unobservable
+    directions), the segment runs on the model's prediction alone: K = 0 (the tuners hold their
+    last estimate, the spool states follow the inputs) and every 1-sigma is NaN, "not
+    estimated here", rather than failing the recording."""
     ratio = dt / model.dt
     model = resample(model, dt)
     red = reduced_model(model, vstar, Q * ratio, Qh * ratio)
-    ss = steady_state_gain(red.A, red.C, red.Q, model.R)
+    try:
+        ss = steady_state_gain(red.A, red.C, red.Q, model.R)
+    except UnobservableDesignError:
+        K = np.zeros((red.A.shape[0], red.C.shape[0]))
+        sigma = np.full(vstar.shape[0] + Vp.shape[0] + red.F.shape[0], np.nan)
+        return SegmentGain(red.A, red.B, red.C, red.D, red.F, red.G, K, sigma,
+                           {r: K for r in (R_regions or {})})
     P = ss.P_post
     nx = model.n_states
     Pq = P[nx:, nx:]

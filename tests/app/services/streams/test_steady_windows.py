@@ -39,6 +39,7 @@ from app.services.fleet import service as fleet_service
 from app.services.snapshots import backlog, estimator
 from app.services.snapshots import store as snapshots_store
 from app.services.streams import steady
+from app.services.streams import store as stream_store
 from app.services.tenancy import service as tenancy
 from app.services.trends import service as trends
 from app.services.uploads import store as uploads_store
@@ -50,6 +51,7 @@ from estimation.steady_windows import field_of, steady_windows, window_length, w
 from tests.app.services.streams.simulated import (
     FAULT,
     FLIGHTS,
+    TIMES_S,
     Simulated,
     simulate_engine,
     stream_csv,
@@ -189,6 +191,24 @@ def test_streams_join_the_engines_history_with_its_snapshots(
     np.testing.assert_allclose(got, middle, atol=1e-3)
     upload = session.get(Upload, first["upload"]["id"])
     assert upload is not None and upload.affected[0]["rows"] == len(expected)
+
+    # The stream filter runs the whole flight under the demo's design, ground idle included:
+    # at idle its ten tuners are unobservable, so the filter predicts there and says "not
+    # estimated" (null 1-sigma) instead of failing the recording; from take-off on every
+    # window is estimated.
+    stream_store.estimate_recording(session, operator_id=seeded.operator_id,
+                                    recording_id=recording.id, data_dir=settings.data_dir)
+    body = client.get(f"/api/v1/streams/{recording.id}/estimates",
+                      headers=seeded.headers).json()
+    assert body["n_samples_estimated"] == recording.n_samples
+    t = np.array(body["t_s"])
+    sigma = np.array([[np.nan if v is None else v for v in series]
+                      for series in body["h_sigma"].values()])
+    idle = t < TIMES_S[1] - body["window_s"]
+    flying = t >= TIMES_S[2]
+    assert idle.any() and np.isnan(sigma[:, idle]).all()
+    assert np.isfinite(sigma[:, flying]).all()
+    assert all(v is not None for series in body["h_hat"].values() for v in series)
 
     # Each record is the snapshot the engine would give at the window's mean condition:
     # the steady-state solver with the flight's true health, within a fraction of the noise.
