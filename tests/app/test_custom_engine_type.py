@@ -296,3 +296,57 @@ def test_a_stream_of_a_custom_type_engine_is_refused_saying_why(
     live = client.post("/api/v1/streams/live", json={**meta, "dt_s": 0.1}, headers=fleet.key)
     assert live.status_code == 422 and "'MadeUp M2'" in live.text
     assert api(client, fleet.key, "GET", "/streams")["total"] == 0
+
+
+def test_a_custom_types_records_read_the_same_from_memory_and_from_the_database(
+    client: TestClient, session: Session, fleet: Fleet
+) -> None:
+    """The estimation reads the design's signals where they are stored: kept in memory after
+    the upload (each other signal a column) or from the database (by name from the JSON
+    object; PostgreSQL's binary path or the generic one), the same numbers either way; rows
+    without a phase or an operating condition read as "" and NaN."""
+    from app.services import fresh_records
+    from app.services.snapshots import rows
+    from app.signals import stored_at
+
+    response = upload(client, fleet, csv_body(fleet, 0, drift(30), seed=4))
+    assert response.status_code == 201, response.text
+    places = tuple(stored_at(n) for n, _u in SENSORS)
+    inputs = (stored_at("FF"),)
+    wants = [(fleet.custom_engine, None)]
+    kept = fresh_records.take(session, [fleet.custom_engine, fleet.builtin_engine])
+    assert kept is not None and kept.num_rows == 60
+    memory = rows.load_records(session, wants, places, inputs, kept=kept)[fleet.custom_engine]
+    stored = rows.load_records(session, wants, places, inputs)[fleet.custom_engine]
+    assert len(stored.epoch) == 30 and stored.phase == [""] * 30
+    assert np.isnan(stored.conditions).all()
+    expected = sensor_values(fleet.model, drift(30), np.random.default_rng(4))
+    np.testing.assert_allclose(stored.y, expected, rtol=1e-6)  # as written in the CSV
+    assert np.all(stored.u == TRIM["FF"])
+    for a, b in ((memory.y, stored.y), (memory.u, stored.u), (memory.conditions,
+                                                               stored.conditions)):
+        assert np.array_equal(a, b, equal_nan=True)
+    assert memory.phase == stored.phase and np.array_equal(memory.epoch, stored.epoch)
+
+
+def test_a_custom_types_rows_sent_again_are_duplicates_and_other_values_a_conflict(
+    client: TestClient, fleet: Fleet
+) -> None:
+    body = csv_body(fleet, 0, drift(4), seed=5)
+    assert upload(client, fleet, body).status_code == 201
+    # The same rows in another file with two more flights: the stored ones are duplicates.
+    more = csv_body(fleet, 4, drift(2), seed=6).decode().splitlines()[1:]
+    extra = "\n".join([*body.decode().splitlines(), *more]).encode()
+    response = upload(client, fleet, extra)
+    assert response.status_code == 201, response.text
+    assert (response.json()["rows_stored"], response.json()["rows_duplicate"]) == (4, 8)
+    # Another EGT under a stored engine and time: 409, naming the signal; nothing stored.
+    lines = body.decode().splitlines()
+    header = lines[0].split(",")
+    row = lines[2].split(",")
+    row[header.index("EGT[degC]")] = str(float(row[header.index("EGT[degC]")]) + 5.0)
+    response = upload(client, fleet, "\n".join([lines[0], lines[1], ",".join(row)]).encode())
+    assert response.status_code == 409, response.text
+    assert "differs in EGT" in response.text
+    assert api(client, fleet.key, "GET", f"/engines/{fleet.custom_engine}/snapshots")[
+        "count"] == 6
