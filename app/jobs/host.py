@@ -6,6 +6,9 @@ would wait on the job's compute, and one of the machine's cores would sit idle. 
 serve`` therefore starts its runner and scheduler (``app.jobs.background``) in a child process
 on the same database and wakes it through a pipe when a request queues a job.
 
+On PostgreSQL the child also starts the pool of processes an estimation job spreads its engine
+groups over (``app.jobs.engine_groups``, ``estimation_workers - 1`` of them).
+
 The child lives only as long as the server: it stops when the server sends "stop" (finishing
 its running jobs for a few seconds, as the in-process runner does) and exits at once when the
 pipe breaks, i.e. when the server died. A job it was running then has a dead claimant, and the

@@ -21,7 +21,8 @@ once (from memory when the upload that stored them committed in this process, el
 ``estimate_rows``), filtered and derived for all engines per chunk of records, and their
 estimate rows streamed into one binary COPY while the filter computes: 0.85-1.1 s for 100,000
 records of 100 engines in a job of ``fleethealth serve`` on a two-core machine
-(bench/bench_ingest.py).
+(bench/bench_ingest.py). On PostgreSQL a job spreads a pass over engine groups estimated in
+parallel by other processes (``catch_up``, ``groups``; docs/jobs.md).
 """
 
 from __future__ import annotations
