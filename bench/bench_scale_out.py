@@ -17,7 +17,10 @@ Workers: the pool runs with ``FLEETHEALTH_ESTIMATION_WORKERS`` 1 (the job alone)
 and one pool process); Celery with ``FLEETHEALTH_ESTIMATION_WORKERS=2`` and 1 or 2 worker
 processes (with one, the job finds the groups it sent still queued and estimates them itself).
 
-Target (issue 17): with 2 workers the backlog finishes >= 1.7x faster than with 1.
+Target (issue 17): with 2 workers the backlog finishes >= 1.7x faster than with 1. A shared
+machine caps what any second process can buy (Linux shares CPU time between sessions, not
+processes, when the cores are busy): ``headroom`` measures that cap with a pure-Python control
+before and after each mode's runs, to read the speed-up against.
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 \\
         .venv/bin/python bench/bench_scale_out.py [--rows 100000] [--modes pool,celery]
@@ -165,6 +168,32 @@ def _nothing() -> Iterator[None]:
     yield
 
 
+def _busy(n: int = 3_000_000) -> int:
+    total = 0
+    for i in range(n):
+        total += i
+    return total
+
+
+def headroom() -> float:
+    """What a second process buys on this machine now: the time of two units of pure-Python
+    work in one process over one unit in each of two processes (2.0 on two idle cores; on a
+    shared machine the scheduler's share for this session caps it, whatever the code)."""
+    import multiprocessing
+
+    started = time.perf_counter()
+    _busy()
+    _busy()
+    one = time.perf_counter() - started
+    started = time.perf_counter()
+    processes = [multiprocessing.get_context("fork").Process(target=_busy) for _ in range(2)]
+    for process in processes:
+        process.start()
+    for process in processes:
+        process.join()
+    return one / (time.perf_counter() - started)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rows", type=int, default=100_000)
@@ -197,8 +226,11 @@ def main() -> None:
     bodies = csv_bodies(table, args.chunk)
     times = {}
     for mode in args.modes.split(","):
+        print(f"{mode}: the machine's headroom for a second process now {headroom():.2f}x "
+              "(a pure-Python control; 2.00x on idle cores)", flush=True)
         for workers in (int(w) for w in args.workers.split(",")):
             times[mode, workers] = one_run(args, plan, warm, bodies, n, mode, workers)
+        print(f"{mode}: headroom after {headroom():.2f}x", flush=True)
     ok = True
     for mode in args.modes.split(","):
         if (mode, 1) in times and (mode, 2) in times:
