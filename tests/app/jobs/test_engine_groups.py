@@ -4,7 +4,7 @@ row; a worker killed while it holds its engines loses nothing (the job waits on 
 locks and estimates what the worker left). On SQLite the job estimates alone.
 
 Real parts: a really-committing database, uploads through the app, the embedded default's
-process pool (``app.jobs.engine_groups``), SIGKILL.
+process pool (``app.jobs.engine_groups``), a Celery worker with two processes on Redis, SIGKILL.
 """
 
 from __future__ import annotations
@@ -12,7 +12,10 @@ from __future__ import annotations
 import multiprocessing
 import os
 import signal
+import subprocess
+import sys
 import threading
+import uuid
 from collections.abc import Iterator, Sequence
 from datetime import datetime
 from pathlib import Path
@@ -40,7 +43,8 @@ from app.models.estimates import (
 )
 from app.services.snapshots import backlog, groups
 from tests.support.fleet_fixture import add_reference_design, csv_bytes, make_fleet, reference_rows
-from tests.support.jobs import live_database
+from tests.support.jobs import live_database, wait_until
+from tests.support.paths import ROOT
 
 ROWS = 6000
 
@@ -247,3 +251,60 @@ def test_on_sqlite_the_job_estimates_alone(tmp_path: Path) -> None:
                 assert groups.launcher_for(session) is None
             finally:
                 groups.configure(None)
+
+
+def test_under_celery_the_groups_go_to_the_worker_processes_as_tasks(
+    two_fleets: tuple[str, sessionmaker[Session], int, int], tmp_path: Path
+) -> None:
+    """``fleethealth worker --concurrency 2``: the job runs in one worker process and sends its
+    groups as ``estimate_group`` tasks, which the other process takes."""
+    import redis
+
+    from app.jobs.celery_app import CeleryDispatch
+    from app.jobs.celery_tasks import celery
+    from tests.app.jobs.test_celery_jobs import redis_unavailable_reason
+
+    broker = str(celery.conf.broker_url)
+    if (reason := redis_unavailable_reason(broker)) is not None:
+        if os.environ.get("CI"):
+            pytest.fail(f"CI must run the Celery tests, but {reason}")
+        pytest.skip(reason)
+    url, factory, alone, spread = two_fleets
+    with transaction(factory) as session:
+        session.execute(Job.__table__.update().where(Job.operator_id == spread)
+                        .values(status="cancelled"))
+    _run_alone(factory)
+    with transaction(factory) as session:
+        session.execute(Job.__table__.update().where(Job.operator_id == spread)
+                        .values(status="queued"))
+    job_id = _estimation(factory, spread).id
+    queue = f"fleethealth-test-{uuid.uuid4().hex[:12]}"
+    env = {**os.environ, "FLEETHEALTH_DATABASE_URL": url, "FLEETHEALTH_REDIS_URL": broker,
+           "FLEETHEALTH_DATA_DIR": str(tmp_path / "worker-data"), "FLEETHEALTH_LOG_JSON": "false",
+           "FLEETHEALTH_ESTIMATION_WORKERS": "2", "OMP_NUM_THREADS": "1"}
+    log_path = tmp_path / "worker.log"
+    with log_path.open("w") as log:
+        worker = subprocess.Popen(
+            [sys.executable, "-c", "from app.cli import main; main()", "worker",
+             "--concurrency", "2", "--queue", queue],
+            cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
+    try:
+        CeleryDispatch(queue, celery).dispatch(job_id)
+        wait_until(lambda: _estimation(factory, spread).status not in ("queued", "running"),
+                   "the estimation job ended", timeout=300)
+    finally:
+        worker.terminate()
+        try:
+            worker.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            worker.kill()
+            worker.wait(timeout=10)
+        redis.Redis.from_url(broker).delete(queue, f"_kombu.binding.{queue}")
+        print(log_path.read_text()[-4000:])
+    job = _estimation(factory, spread)
+    assert job.status == "succeeded", job.error
+    assert job.result is not None and job.result["groups"] == 4
+    assert job.result["records"] < ROWS  # the other worker process estimated some engines
+    _same(_stored(factory, spread), _stored(factory, alone))
+    with transaction(factory, write=False) as session:
+        assert backlog.pending(session, spread) == {}
