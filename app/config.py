@@ -36,6 +36,12 @@ class Settings(BaseSettings):
         description="The heartbeat timeout: a running job whose last heartbeat is older is "
         "taken as abandoned by a stopped worker and requeued.",
     )
+    estimation_workers: int = Field(
+        default=2, ge=1,
+        description="Processes one operator's estimation job spreads its engine groups over on "
+        "PostgreSQL, its own included: the embedded default starts a pool of one fewer; under "
+        "Celery the groups go to the workers as tasks. 1: the job estimates alone.",
+    )
     upload_lateness_days: float = Field(
         default=7.0, gt=0,
         description="An upload's records recorded longer than this before it arrived are late.",

@@ -171,6 +171,7 @@ def main() -> None:
     ap.add_argument("--chunk", type=int, default=250_000, help="records per request")
     ap.add_argument("--warm", type=int, default=2000, help="records estimated before timing")
     ap.add_argument("--seed", type=int, default=20260101)
+    ap.add_argument("--port", type=int, default=None, help="the server's (default: a free one)")
     ap.add_argument("--data-dir", default="/tmp/fh-bench-fleet",
                     help="the server's data directory (its engine caches are kept)")
     args = ap.parse_args()
@@ -196,7 +197,7 @@ def main() -> None:
         upgrade(url)
         key, operator_id, design_s = build_operator(url, plan)
         print(f"the demo's engine type and designs built in {design_s:.1f} s (not timed below)")
-        with server.serving(url, Path(args.data_dir)) as (process, base):
+        with server.serving(url, Path(args.data_dir), port=args.port) as (process, base):
             engine = create_engine(url)
             with httpx.Client(base_url=base, timeout=1800, headers={"X-API-Key": key}) as client:
                 t0 = time.perf_counter()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 
 from celery import Celery
 
@@ -14,6 +15,7 @@ log = logging.getLogger("fleethealth.jobs")
 CELERY_QUEUE = "fleethealth"
 RUN_JOB_TASK = "fleethealth.run_job"
 TICK_TASK = "fleethealth.tick"
+ESTIMATE_GROUP_TASK = "fleethealth.estimate_group"
 
 
 def make_celery() -> Celery:
@@ -56,3 +58,25 @@ class CeleryDispatch:
             self._celery.send_task(RUN_JOB_TASK, args=[job_id], queue=self.queue)
         except Exception:  # broker down: the job stays queued and the next tick re-sends it
             log.exception("could not send job %s to the Celery broker", job_id)
+
+
+class CeleryGroups:
+    """A ``groups.Launcher`` for a deployment: each engine group is an ``estimate_group``
+    task (``app.jobs.celery_tasks``) on the queue the estimation job came from, for whichever
+    worker is free; ``workers``: the setting ``estimation_workers``."""
+
+    def __init__(self, workers: int, queue: str = CELERY_QUEUE, celery: Celery | None = None
+                 ) -> None:
+        self.workers = workers
+        self.queue = queue
+        self._celery = celery
+
+    def launch(self, operator_id: int, groups: Sequence[Sequence[int]]) -> None:
+        if self._celery is None:
+            self._celery = make_celery()
+        for group in groups:
+            try:
+                self._celery.send_task(ESTIMATE_GROUP_TASK, args=[operator_id, list(group)],
+                                       queue=self.queue)
+            except Exception:  # broker down: the job estimates the group itself
+                log.exception("could not send an engine group to the Celery broker")

@@ -17,9 +17,11 @@ from celery.signals import worker_ready
 
 from app.jobs.celery_app import (
     CELERY_QUEUE,
+    ESTIMATE_GROUP_TASK,
     RUN_JOB_TASK,
     TICK_TASK,
     CeleryDispatch,
+    CeleryGroups,
     make_celery,
 )
 from app.jobs.claim import (
@@ -37,6 +39,7 @@ from app.jobs.runner import execute
 from app.jobs.scheduler import submit_due
 from app.models.base import utcnow
 from app.services.jobs.registry import JobRegistry
+from app.services.snapshots import groups, store
 
 log = logging.getLogger("fleethealth.jobs")
 
@@ -53,6 +56,7 @@ class WorkerContext:
     registry: JobRegistry
     heartbeat_seconds: float = HEARTBEAT_SECONDS
     stale_after: timedelta = STALE_AFTER
+    estimation_workers: int = 1  # processes an estimation job spreads engine groups over
 
 
 _context: WorkerContext | None = None
@@ -72,14 +76,18 @@ def worker_context() -> WorkerContext:
             registry=load_kinds(),
             heartbeat_seconds=settings.job_heartbeat_seconds,
             stale_after=settings.job_stale_after,
+            estimation_workers=settings.estimation_workers,
         )
     return _context
 
 
-def configure(factory: SessionFactory, registry: JobRegistry) -> None:
+def configure(
+    factory: SessionFactory, registry: JobRegistry, estimation_workers: int = 1
+) -> None:
     """Use this database and registry instead of the settings' (a worker inside a test)."""
     global _context
-    _context = WorkerContext(factory=factory, registry=registry)
+    _context = WorkerContext(factory=factory, registry=registry,
+                             estimation_workers=estimation_workers)
 
 
 @celery.task(name=RUN_JOB_TASK, bind=True)
@@ -92,10 +100,21 @@ def run_job(self: Any, job_id: int) -> str:
     # Jobs this job queues go to the queue this worker took it from.
     queue = (self.request.delivery_info or {}).get("routing_key") or CELERY_QUEUE
     dispatcher = CeleryDispatch(queue, celery)
+    # An estimation job sends its engine groups to the same queue (``estimate_group``).
+    groups.configure(CeleryGroups(context.estimation_workers, queue, celery))
     return execute(
         context.factory, claim, context.registry, dispatcher=dispatcher,
         heartbeat_seconds=context.heartbeat_seconds,
     )
+
+
+@celery.task(name=ESTIMATE_GROUP_TASK)
+def estimate_group(operator_id: int, engine_ids: list[int]) -> dict[str, Any]:
+    """An engine group of an estimation job (``app.services.snapshots.groups``): whatever of
+    it no other process holds. A redelivered or late message finds its engines done."""
+    context = worker_context()
+    with context.factory() as session:
+        return store.run_group(session, operator_id, engine_ids)
 
 
 @celery.task(name=TICK_TASK)

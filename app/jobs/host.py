@@ -6,6 +6,9 @@ would wait on the job's compute, and one of the machine's cores would sit idle. 
 serve`` therefore starts its runner and scheduler (``app.jobs.background``) in a child process
 on the same database and wakes it through a pipe when a request queues a job.
 
+On PostgreSQL the child also starts the pool of processes an estimation job spreads its engine
+groups over (``app.jobs.engine_groups``, ``estimation_workers - 1`` of them).
+
 The child lives only as long as the server: it stops when the server sends "stop" (finishing
 its running jobs for a few seconds, as the in-process runner does) and exits at once when the
 pipe breaks, i.e. when the server died. A job it was running then has a dead claimant, and the
@@ -84,8 +87,10 @@ def _serve_jobs(settings_doc: dict[str, Any], pipe: Connection) -> None:
     (the server died: exit at once, leaving running jobs to the next server's takeover)."""
     from app.db import make_engine, make_sessionmaker
     from app.jobs.background import start_background_jobs
+    from app.jobs.engine_groups import PoolLauncher
     from app.jobs.kinds import load_kinds
     from app.log import configure_logging
+    from app.services.snapshots import groups
 
     settings = Settings(**settings_doc)
     configure_logging(settings.log_level, settings.log_json)
@@ -101,6 +106,15 @@ def _serve_jobs(settings_doc: dict[str, Any], pipe: Connection) -> None:
         if message == _STOP:
             return
     engine = make_engine(settings.resolved_database_url)
+    pool = None
+    if settings.estimation_workers > 1 and engine.dialect.name == "postgresql":
+        # The server ends this process with itself (``daemon``); its pool's processes end
+        # with it in turn (``engine_groups``), which multiprocessing refuses to a daemon's
+        # children unless told this process is not one.
+        multiprocessing.current_process().daemon = False
+        pool = PoolLauncher(settings)
+        pool.start()
+        groups.configure(pool)
     background = start_background_jobs(
         make_sessionmaker(engine), registry,
         heartbeat_seconds=settings.job_heartbeat_seconds, stale_after=settings.job_stale_after,
@@ -108,4 +122,7 @@ def _serve_jobs(settings_doc: dict[str, Any], pipe: Connection) -> None:
     while (message := receive()) != _STOP:
         background.runner.dispatch(0)
     background.stop()
+    if pool is not None:
+        groups.configure(None)
+        pool.stop()
     engine.dispose()

@@ -8,7 +8,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -24,15 +24,16 @@ def free_port() -> int:
 
 
 @contextmanager
-def serving(url: str, data_dir: Path, *, start_timeout: float = 60.0, port: int | None = None
+def serving(url: str, data_dir: Path, *, start_timeout: float = 60.0, port: int | None = None,
+            env: Mapping[str, str] | None = None,
             ) -> Iterator[tuple[subprocess.Popen[bytes], str]]:
     """``fleethealth serve`` on the migrated database ``url`` (no demo, its job runner on),
-    until /health answers, on ``port`` (a free one if None); yields the process and its base
-    URL, and stops it after (if it still runs)."""
+    until /health answers; yields the process and its base URL, and stops it after (if it
+    still runs). ``port``: a free one if None; ``env``: more of its environment."""
     port = port or free_port()
     env = {**os.environ, "FLEETHEALTH_DATABASE_URL": url, "FLEETHEALTH_DATA_DIR": str(data_dir),
            "FLEETHEALTH_LOG_LEVEL": "WARNING", "FLEETHEALTH_LOG_JSON": "false",
-           "OMP_NUM_THREADS": "1"}
+           "OMP_NUM_THREADS": "1", **(env or {})}
     command = [sys.executable, "-c", "from app.cli import main; main()", "serve", "--no-demo",
                "--skip-migrate", "--host", "127.0.0.1", "--port", str(port)]
     server = subprocess.Popen(command, env=env, cwd=ROOT, stdout=subprocess.DEVNULL)

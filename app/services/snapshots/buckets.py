@@ -16,13 +16,14 @@ from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
 
 import numpy as np
-from sqlalchemy import and_, delete, insert, or_, select
+from sqlalchemy import and_, delete, func, insert, or_, select
 from sqlalchemy.orm import Session
 
 from app.models.estimates import DeteriorationBucket, Estimate, EstimateLayout, FleetPeriod
 from app.services.snapshots.rows import Block
 
 PERIODS = ("week", "month")
+FLEET_PERIOD_LOCK = 0x46480012  # first key of a design's fleet-period advisory lock
 _MONDAY = np.datetime64("1969-12-29")  # 1970-01-01 was a Thursday
 
 
@@ -155,6 +156,10 @@ class FleetChange:
     def apply(self, session: Session, *, operator_id: int, design_id: int) -> None:
         if not self.delta:
             return
+        if session.get_bind().dialect.name == "postgresql":
+            # Engine groups estimated in parallel change the same fleet periods: one
+            # transaction at a time from here to its commit, or two could both insert a period.
+            session.execute(select(func.pg_advisory_xact_lock(FLEET_PERIOD_LOCK, design_id)))
         keys = list(self.delta)
         stored = {
             (row.period, row.start.timestamp()): row

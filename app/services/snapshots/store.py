@@ -21,7 +21,8 @@ once (from memory when the upload that stored them committed in this process, el
 ``estimate_rows``), filtered and derived for all engines per chunk of records, and their
 estimate rows streamed into one binary COPY while the filter computes: 0.85-1.1 s for 100,000
 records of 100 engines in a job of ``fleethealth serve`` on a two-core machine
-(bench/bench_ingest.py).
+(bench/bench_ingest.py). On PostgreSQL a job spreads a pass over engine groups estimated in
+parallel by other processes (``catch_up``, ``groups``; docs/jobs.md).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+from sqlalchemy import Engine as SqlEngine
 from sqlalchemy import and_, delete, func, insert, or_, select
 from sqlalchemy.orm import Session, defer
 
@@ -44,7 +46,7 @@ from app.models.estimates import Estimate, Event, FilterCheckpoint, FilterState
 from app.models.fleet import BASELINE_RESET_KINDS
 from app.services import fresh_records
 from app.services.notifications import outbox
-from app.services.snapshots import backlog, buckets, detector, rows
+from app.services.snapshots import backlog, buckets, detector, groups, rows
 from app.services.snapshots.estimator import SnapshotEstimator, estimator_for_design
 from app.services.snapshots.run import EngineOutput, EngineRun, PipelineState, run_filters
 from estimation.snapshot import SnapshotState
@@ -186,6 +188,14 @@ def _no_gc_pauses() -> Iterator[None]:
             gc.enable()
 
 
+COUNTS = ("engines", "records", "events", "reruns")
+
+
+def empty_summary() -> dict[str, Any]:
+    """The counts of an estimation that estimated nothing (``estimate_engines``')."""
+    return {"engines": 0, "records": 0, "events": 0, "reruns": 0, "skipped_no_design": 0}
+
+
 def estimate_engines(
     session: Session,
     operator_id: int,
@@ -213,8 +223,8 @@ def estimate_engines(
             .order_by(Engine.id)
         ).all()
         designs, by_design, skipped = _active_designs(session, operator_id, engines, design_id)
-    summary: dict[str, Any] = {"engines": 0, "records": 0, "events": 0, "reruns": 0,
-                               "skipped_no_design": skipped}
+    summary = empty_summary()
+    summary["skipped_no_design"] = skipped
     total = sum(len(v) for v in by_design.values()) or 1
     done = 0
     for d_id, group in by_design.items():
@@ -246,11 +256,13 @@ def estimate_engines(
                         outputs = run_filters(est, runs, sink=periods.passing_to(writer.add))
                     for block in computed or ():
                         writer.add(block)
-                buckets.refresh(session, operator_id=operator_id, design_id=est.design_id,
-                                layout=est.layout, collected=periods)
                 _store_batch(session, est, runs, states, outputs)
                 if marks is not None:
                     backlog.settle(session, marks.values())
+                # Last: the fleet's periods are shared with the engine groups estimated in
+                # parallel, and held from here to the commit (``buckets.FleetChange.apply``).
+                buckets.refresh(session, operator_id=operator_id, design_id=est.design_id,
+                                layout=est.layout, collected=periods)
             for out in outputs:
                 summary["records"] += out.n_records
                 summary["events"] += len(out.events)
@@ -484,6 +496,57 @@ def audit(session: Session, operator_id: int) -> dict[int, datetime]:
     return behind
 
 
+def estimate_group(
+    session: Session, operator_id: int, engine_ids: Sequence[int], *, wait: bool,
+    commit: Callable[[], None], progress: Callable[[float, str], None] | None = None,
+) -> dict[str, Any]:
+    """Estimate the backlog of those of ``engine_ids`` whose locks this process gets
+    (``groups.engine_locks``: all, waiting for each, or those free now), committing batch by
+    batch; the counts, zero when another process had done them."""
+    bind = session.get_bind()
+    engine = bind if isinstance(bind, SqlEngine) else bind.engine
+    with groups.engine_locks(engine, engine_ids, wait=wait) as held:
+        work = backlog.pending(session, operator_id, held) if held else {}
+        if not work:
+            commit()  # end the read: no transaction left open while the others write
+            return empty_summary()
+        return estimate_engines(
+            session, operator_id, {e: m.earliest for e, m in work.items()}, progress,
+            commit=commit, from_backlog=True,
+        )
+
+
+def run_group(session: Session, operator_id: int, engine_ids: Sequence[int]) -> dict[str, Any]:
+    """An engine group in a worker (a pool process, a Celery task), in the worker's own
+    session: those of its engines no other process holds."""
+    return estimate_group(session, operator_id, engine_ids, wait=False, commit=session.commit)
+
+
+def _spread(
+    session: Session, operator_id: int, work: Mapping[int, backlog.Mark],
+    launcher: groups.Launcher, progress: Callable[[float, str], None] | None,
+    commit: Callable[[], None],
+) -> dict[str, Any]:
+    """One pass over the backlog in engine groups (``groups``): every group but the first goes
+    to ``launcher``; this process estimates the first, then whatever group no one started, from
+    the last backwards, then waits for the groups still running elsewhere and estimates what
+    they left (a worker that died). Returns the counts of what this process estimated."""
+    parts = groups.split(work, groups.GROUPS_PER_WORKER * launcher.workers)
+    launcher.launch(operator_id, parts[1:])
+    totals = empty_summary()
+    order = [(p, False) for p in [parts[0], *reversed(parts[1:])]]
+    order += [(p, True) for p in parts[1:]]
+    for done, (part, wait) in enumerate(order, start=1):
+        result = estimate_group(session, operator_id, part, wait=wait, commit=commit)
+        for key in COUNTS:
+            totals[key] += result[key]
+        if progress is not None:
+            progress(done / len(order), f"{len(parts)} engine groups: {done} of {len(order)} "
+                     "steps")
+    totals["groups"] = len(parts)
+    return totals
+
+
 def catch_up(
     session: Session,
     operator_id: int,
@@ -493,21 +556,34 @@ def catch_up(
 ) -> dict[str, Any]:
     """Estimate every engine of the operator's backlog until none is left (records that
     arrive meanwhile are marked and picked up by the next pass). Idempotent: a second call
-    finds nothing."""
+    finds nothing.
+
+    A job (``commit`` given) on PostgreSQL with a launcher configured (``groups``) spreads
+    each pass over engine groups estimated in parallel (``_spread``); its counts are then those
+    of the engines it estimated itself, and ``groups`` the groups of its last pass."""
     totals: dict[str, Any] = {"engines": 0, "records": 0, "events": 0, "reruns": 0, "passes": 0}
+    launcher = groups.launcher_for(session) if commit is not None else None
+    previous: dict[int, backlog.Mark] | None = None
     for _ in range(max_passes):
         with read_phase(session, commit is not None):
             work = backlog.pending(session, operator_id)
-        if not work:
-            break
-        result = estimate_engines(
-            session, operator_id, {e: m.earliest for e, m in work.items()}, progress,
-            commit=commit, from_backlog=True,
-        )
+        if not work or work == previous:
+            break  # nothing left, or nothing any process could estimate (no ready design)
+        previous = work
+        spread = launcher is not None and commit is not None and len(work) > 1
+        if spread:
+            assert launcher is not None and commit is not None
+            result = _spread(session, operator_id, work, launcher, progress, commit)
+            totals["groups"] = result["groups"]
+        else:
+            result = estimate_engines(
+                session, operator_id, {e: m.earliest for e, m in work.items()}, progress,
+                commit=commit, from_backlog=True,
+            )
         totals["passes"] += 1
-        for key in ("engines", "records", "events", "reruns"):
+        for key in COUNTS:
             totals[key] += result[key]
-        if result["records"] == 0:
+        if not spread and result["records"] == 0:
             break  # nothing could be estimated (no ready design): stop rather than spin
     # Marks and rows uploads kept in memory that no pass took (engines without an active
     # design: an activation marks them again).
