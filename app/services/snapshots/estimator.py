@@ -211,6 +211,7 @@ def build_estimator(
             "sensors": ["%"] * model.n_sensors,
             "faults": ["1"] * len(library),
         },
+        health_from_tuners=tuple(tuple(float(x) for x in row) for row in d.Vp),
     )
     sensor_columns = tuple(
         SNAPSHOT_SIGNALS[s.name].column if s.name in SNAPSHOT_SIGNALS else ""
