@@ -24,12 +24,12 @@ def free_port() -> int:
 
 
 @contextmanager
-def serving(url: str, data_dir: Path, *, start_timeout: float = 60.0
+def serving(url: str, data_dir: Path, *, start_timeout: float = 60.0, port: int | None = None,
             ) -> Iterator[tuple[subprocess.Popen[bytes], str]]:
     """``fleethealth serve`` on the migrated database ``url`` (no demo, its job runner on),
     until /health answers; yields the process and its base URL, and stops it after (if it
-    still runs)."""
-    port = free_port()
+    still runs). ``port``: the port to serve on (None: a free one)."""
+    port = port or free_port()
     env = {**os.environ, "FLEETHEALTH_DATABASE_URL": url, "FLEETHEALTH_DATA_DIR": str(data_dir),
            "FLEETHEALTH_LOG_LEVEL": "WARNING", "FLEETHEALTH_LOG_JSON": "false",
            "OMP_NUM_THREADS": "1"}
