@@ -45,10 +45,11 @@ import pyarrow as pa  # noqa: E402
 import pyarrow.compute as pc  # noqa: E402
 import pyarrow.parquet as pq  # noqa: E402
 from bench_ingest_fleet import simulate, threads_line  # noqa: E402
-from sqlalchemy import text  # noqa: E402
+from sqlalchemy import func, select, text  # noqa: E402
 
 from app.db import make_engine, make_sessionmaker, transaction  # noqa: E402
 from app.migrate import upgrade  # noqa: E402
+from app.models import Operator, Snapshot  # noqa: E402
 from app.services.demo import fleet as demo  # noqa: E402
 from app.services.snapshots import store  # noqa: E402
 from app.services.tenancy import service as tenancy  # noqa: E402
@@ -121,6 +122,69 @@ def sizes(url: str) -> list[tuple[str, int, int, int, int]]:
     return out
 
 
+def measure(url: str, key: str, n: int, args: argparse.Namespace) -> None:
+    """Sizes per row, then the fleet reads through ``fleethealth serve`` with its memory."""
+    vacuum = make_engine(url).execution_options(isolation_level="AUTOCOMMIT")
+    with vacuum.connect() as connection:
+        connection.execute(text("VACUUM ANALYZE"))
+    vacuum.dispose()
+    print("\nsize per row (table + indexes + TOAST):")
+    for name, rows, heap, index, total in sizes(url):
+        per = total / rows if rows else float("nan")
+        print(f"  {name:22s} {rows:>11,} rows  heap {heap / 1e6:9.1f} MB  indexes "
+              f"{index / 1e6:8.1f} MB  total {total / 1e6:9.1f} MB  {per:7.1f} B/row")
+    est = next(s for s in sizes(url) if s[0] == "estimates")
+    per_estimate = est[4] / est[1]
+    print(f"  target: estimates <= 150 B per record: {per_estimate:.1f} B "
+          f"{'PASS' if per_estimate <= 150 else 'FAIL'}")
+
+    with server.serving(url, Path(args.data_dir), port=args.port) as (process, base_url):
+        with httpx.Client(base_url=base_url, timeout=600,
+                          headers={"X-API-Key": key}) as client:
+            reads = [("fleet status", "/api/v1/fleet/status", {}),
+                     ("deterioration, week", "/api/v1/fleet/deterioration",
+                      {"bucket": "week"}),
+                     ("deterioration, month", "/api/v1/fleet/deterioration",
+                      {"bucket": "month"})]
+            for _label, path, params in reads:  # warm-up
+                client.get(path, params=params).raise_for_status()
+            rss0 = rss_kb(process.pid)
+            print(f"\nreads through fleethealth serve at {n:,} records ({load_line()}); "
+                  f"server RSS before {rss0 / 1024:.0f} MB")
+            worst = 0.0
+            with Peak(process.pid) as peak:
+                for label, path, params in reads:
+                    samples = []
+                    for _ in range(args.repeat):
+                        t = time.perf_counter()
+                        r = client.get(path, params=params)
+                        samples.append(time.perf_counter() - t)
+                        r.raise_for_status()
+                    p95 = float(np.percentile(samples, 95))
+                    worst = max(worst, p95)
+                    print(f"  GET {label:22s} median {1000 * np.median(samples):7.1f} ms "
+                          f"p95 {1000 * p95:7.1f} ms  target <= 300 ms "
+                          f"{'PASS' if p95 <= 0.300 else 'FAIL'}  ({len(r.content):,} B)")
+            grown = (peak.kb - rss0) / 1024
+            print(f"  server RSS peak during the reads {peak.kb / 1024:.0f} MB: "
+                  f"+{grown:.0f} MB, target <= +200 MB {'PASS' if grown <= 200 else 'FAIL'}")
+
+
+def existing(args: argparse.Namespace) -> None:
+    """Sizes and reads of a database an earlier run of this bench filled (and left)."""
+    os.environ["FLEETHEALTH_DATA_DIR"] = args.data_dir
+    print(f"{load_line()}; {threads_line()} (the server: OMP_NUM_THREADS=1)")
+    factory = make_sessionmaker(make_engine(args.existing))
+    with transaction(factory) as session:
+        operator = session.scalar(select(Operator).where(Operator.name == "Bench Storage Air"))
+        assert operator is not None, "not a database of this bench"
+        _row, key = tenancy.issue_api_key(session, operator=operator, role="analyst", name="r")
+        n = session.scalar(select(func.count()).select_from(Snapshot)) or 0
+    print(f"an earlier run's database: {n:,} records")
+    measure(args.existing, key, n, args)
+    print(f"done ({load_line()})")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--records", type=int, default=2_000_000)
@@ -131,7 +195,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=20260101)
     ap.add_argument("--data-dir", default="/tmp/fh-bench-storage",
                     help="the server's data directory (its engine caches are kept)")
+    ap.add_argument("--existing", default=None,
+                    help="measure a database this bench filled (its URL; a run stopped early)")
     args = ap.parse_args()
+    if args.existing:
+        existing(args)
+        return
     os.environ["FLEETHEALTH_DATA_DIR"] = args.data_dir
     print(f"{load_line()}; {threads_line()} (the server: OMP_NUM_THREADS=1)")
     from app.services.snapshots import estimator
@@ -181,50 +250,7 @@ def main() -> None:
         n = copies * base.num_rows
         print(f"loaded {n:,} records: store {load_s:.0f} s ({n / load_s:,.0f}/s), "
               f"estimation {estimate_s:.0f} s ({n / estimate_s:,.0f}/s)")
-        vacuum = make_engine(url).execution_options(isolation_level="AUTOCOMMIT")
-        with vacuum.connect() as connection:
-            connection.execute(text("VACUUM ANALYZE"))
-        vacuum.dispose()
-        print("\nsize per row (table + indexes + TOAST):")
-        for name, rows, heap, index, total in sizes(url):
-            per = total / rows if rows else float("nan")
-            print(f"  {name:22s} {rows:>11,} rows  heap {heap / 1e6:9.1f} MB  indexes "
-                  f"{index / 1e6:8.1f} MB  total {total / 1e6:9.1f} MB  {per:7.1f} B/row")
-        est = next(s for s in sizes(url) if s[0] == "estimates")
-        per_estimate = est[4] / est[1]
-        print(f"  target: estimates <= 150 B per record: {per_estimate:.1f} B "
-              f"{'PASS' if per_estimate <= 150 else 'FAIL'}")
-
-        with server.serving(url, Path(args.data_dir), port=args.port) as (process, base_url):
-            with httpx.Client(base_url=base_url, timeout=600,
-                              headers={"X-API-Key": key}) as client:
-                reads = [("fleet status", "/api/v1/fleet/status", {}),
-                         ("deterioration, week", "/api/v1/fleet/deterioration",
-                          {"bucket": "week"}),
-                         ("deterioration, month", "/api/v1/fleet/deterioration",
-                          {"bucket": "month"})]
-                for _label, path, params in reads:  # warm-up
-                    client.get(path, params=params).raise_for_status()
-                rss0 = rss_kb(process.pid)
-                print(f"\nreads through fleethealth serve at {n:,} records ({load_line()}); "
-                      f"server RSS before {rss0 / 1024:.0f} MB")
-                worst = 0.0
-                with Peak(process.pid) as peak:
-                    for label, path, params in reads:
-                        samples = []
-                        for _ in range(args.repeat):
-                            t = time.perf_counter()
-                            r = client.get(path, params=params)
-                            samples.append(time.perf_counter() - t)
-                            r.raise_for_status()
-                        p95 = float(np.percentile(samples, 95))
-                        worst = max(worst, p95)
-                        print(f"  GET {label:22s} median {1000 * np.median(samples):7.1f} ms "
-                              f"p95 {1000 * p95:7.1f} ms  target <= 300 ms "
-                              f"{'PASS' if p95 <= 0.300 else 'FAIL'}  ({len(r.content):,} B)")
-                grown = (peak.kb - rss0) / 1024
-                print(f"  server RSS peak during the reads {peak.kb / 1024:.0f} MB: "
-                      f"+{grown:.0f} MB, target <= +200 MB {'PASS' if grown <= 200 else 'FAIL'}")
+        measure(url, key, n, args)
         print(f"done ({load_line()})")
 
 
