@@ -50,6 +50,13 @@ class Settings(BaseSettings):
         default=7.0, gt=0,
         description="An installed engine without data for longer than this is overdue.",
     )
+    stream_retention_days: float | None = Field(
+        default=None, gt=0,
+        description="Raw stream samples (the Parquet files of closed recordings) are deleted "
+        "this many days after the recording closed, by the purge_stream_samples job; the "
+        "recordings' metadata, estimates and steady-window records are kept. Unset: kept "
+        "for ever.",
+    )
     host: str = "127.0.0.1"
     port: int = 8000
     log_level: str = "INFO"

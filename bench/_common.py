@@ -51,9 +51,10 @@ POSTGRES_ADMIN_URL = os.environ.get(
 
 
 @contextmanager
-def throwaway_database(backend: str) -> Iterator[tuple[str, str]]:
+def throwaway_database(backend: str, prefix: str = "fh_bench") -> Iterator[tuple[str, str]]:
     """(url, label) of an empty database of its own for one bench run, removed after: a SQLite
-    file in a temporary folder, or a database made on the machine's PostgreSQL server."""
+    file in a temporary folder, or a database made on the machine's PostgreSQL server (named
+    ``prefix`` and a random suffix)."""
     from sqlalchemy import create_engine, text
     from sqlalchemy.engine import make_url
 
@@ -61,7 +62,7 @@ def throwaway_database(backend: str) -> Iterator[tuple[str, str]]:
         with tempfile.TemporaryDirectory(prefix="fh-bench-") as tmp:
             yield f"sqlite:///{tmp}/fleethealth.db", "SQLite (embedded default)"
         return
-    name = f"fh_bench_{uuid.uuid4().hex[:10]}"
+    name = f"{prefix}_{uuid.uuid4().hex[:10]}"
     admin = create_engine(POSTGRES_ADMIN_URL, isolation_level="AUTOCOMMIT")
     with admin.connect() as connection:
         connection.execute(text(f'CREATE DATABASE "{name}"'))

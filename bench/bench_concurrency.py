@@ -225,7 +225,8 @@ def estimation_backlog(url: str, operator_id: int, wait_s: float = 0.0) -> Backl
                 counts = [connection.execute(text(query), {"o": operator_id}).scalar_one()
                           for query in (
                               "SELECT count(*) FROM snapshots WHERE operator_id = :o",
-                              "SELECT count(*) FROM estimates WHERE operator_id = :o",
+                              "SELECT count(*) FROM estimates e JOIN engines g "
+                              "ON g.id = e.engine_id WHERE g.operator_id = :o",
                               "SELECT count(*) FROM jobs WHERE operator_id = :o "
                               "AND status = 'failed'")]
             backlog = Backlog(*counts)

@@ -248,7 +248,8 @@ def end_to_end(
                   f"{ran:.3f} s")
     with engine.connect() as connection:
         estimated = connection.execute(text(
-            "SELECT count(*) FROM estimates WHERE operator_id = :o"), {"o": operator_id}
+            "SELECT count(*) FROM estimates e JOIN engines g ON g.id = e.engine_id "
+                "WHERE g.operator_id = :o"), {"o": operator_id}
         ).scalar_one()
     engine.dispose()
     if estimated != args.repeat * n:
@@ -284,7 +285,8 @@ def sustained(
     def stored() -> int:
         with engine.connect() as connection:
             return int(connection.execute(text(
-                "SELECT count(*) FROM estimates WHERE operator_id = :o"), {"o": operator_id}
+                "SELECT count(*) FROM estimates e JOIN engines g ON g.id = e.engine_id "
+                "WHERE g.operator_id = :o"), {"o": operator_id}
             ).scalar_one())
 
     def idle() -> bool:

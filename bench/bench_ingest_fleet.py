@@ -218,7 +218,8 @@ def main() -> None:
                 cpu = cpu_seconds(process.pid) - cpu0
             with engine.connect() as connection:
                 estimated = connection.execute(text(
-                    "SELECT count(*) FROM estimates WHERE operator_id = :o"),
+                    "SELECT count(*) FROM estimates e JOIN engines g ON g.id = e.engine_id "
+                "WHERE g.operator_id = :o"),
                     {"o": operator_id}).scalar_one() - args.warm
                 ran, jobs = connection.execute(text(
                     "SELECT coalesce(sum(extract(epoch FROM finished_at - started_at)), 0), "

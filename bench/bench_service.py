@@ -62,7 +62,8 @@ from app.models.estimates import (  # noqa: E402
 from app.services.fleet import status as fleet_status  # noqa: E402
 from app.services.snapshots import buckets  # noqa: E402
 from app.services.tenancy.service import create_operator, issue_api_key  # noqa: E402
-from app.services.trends import service as trends
+from app.services.trends import service as trends  # noqa: E402
+from app.signals import PHASES  # noqa: E402
 
 ADMIN_URL = os.environ.get(
     "FLEETHEALTH_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test"
@@ -76,7 +77,20 @@ LAYOUT = EstimateLayout(
     aux=("Fn", "T40", "SM_fan", "SM_LPC", "SM_HPC", "BPR"),
     sensors=("Nf", "Nc", "T24", "P24", "T30", "Ps30", "P30", "T48", "P50", "T50", "P15"),
     faults=("Fan", "LPC", "HPC", "HPT", "LPT", "Wf", "VSV", "VBV"),
+    health_from_tuners=tuple(tuple(row) for row in np.eye(10)),  # the demo design: h = q
 )
+
+
+def estimates(rng: np.random.Generator, n: int) -> np.ndarray:
+    """n random estimates (n, width): normal values, 1-sigmas 0.2-1.2, WSSRs 0-20."""
+    values = rng.normal(size=(n, LAYOUT.width))
+    s = LAYOUT.slices()
+    for block in ("q_sigma", "h_sigma", "z_sigma"):
+        values[:, s[block]] = 0.2 + rng.random((n, s[block].stop - s[block].start))
+    values[:, s["wssr"]] = 20.0 * rng.random((n, s["wssr"].stop - s["wssr"].start))
+    values[:, s["h"]] = values[:, s["q"]]
+    values[:, s["h_sigma"]] = values[:, s["q_sigma"]]
+    return values
 
 
 def timed(fn: Callable[[], object], repeat: int) -> list[float]:
@@ -149,17 +163,18 @@ def fill(url: str, n_snapshots: int, n_engines: int) -> dict[str, object]:
         session.execute(insert(Snapshot), [
             dict(common, engine_id=e, recorded_at=T0, phase="cruise") for e in engine_ids[1:]
         ])
-        values = rng.normal(size=(n_snapshots, LAYOUT.width))
-        blobs = LAYOUT.pack(values)
+        values = estimates(rng, n_snapshots)
+        cruise = np.full(n_snapshots, PHASES.index("cruise"))
+        blobs = LAYOUT.encode(values, cruise)
         session.execute(insert(Estimate), [
-            {"operator_id": operator.id, "engine_id": big, "design_id": design.id,
-             "seq": i, "recorded_at": times[i], "phase": "cruise", "packed": blobs[i]}
+            {"engine_id": big, "design_id": design.id, "seq": i, "recorded_at": times[i],
+             "packed": blobs[i].tobytes()}
             for i in range(n_snapshots)
         ])
-        one = LAYOUT.pack(rng.normal(size=(1, LAYOUT.width)))[0]
+        one = LAYOUT.encode(estimates(rng, 1), cruise[:1])[0].tobytes()
         session.execute(insert(Estimate), [
-            {"operator_id": operator.id, "engine_id": e, "design_id": design.id,
-             "seq": 0, "recorded_at": T0, "phase": "cruise", "packed": one}
+            {"engine_id": e, "design_id": design.id, "seq": 0, "recorded_at": T0,
+             "packed": one}
             for e in engine_ids[1:]
         ])
         session.execute(insert(FilterState), [
@@ -200,7 +215,7 @@ def fill_periods(ctx: dict[str, object], n_records: int) -> int:
     for start in range(0, len(engine_ids), 100):
         collector = buckets.BucketCollector(LAYOUT)
         for e in engine_ids[start:start + 100]:
-            packed = rng.normal(size=(n_records, LAYOUT.width)).astype(VALUE_DTYPE)
+            packed = estimates(rng, n_records).astype(VALUE_DTYPE)
             collector.add((e, 0, epoch, [], packed))
         with factory() as s:  # type: ignore[operator]
             buckets.refresh(s, operator_id=op, design_id=design_id, layout=LAYOUT,  # type: ignore[arg-type]
@@ -243,7 +258,7 @@ def main() -> None:
         def raw_select() -> object:
             with factory() as s:
                 return s.execute(text(
-                    "SELECT recorded_at, seq, phase, packed FROM estimates "
+                    "SELECT recorded_at, seq, packed FROM estimates "
                     "WHERE engine_id = :e ORDER BY seq"), {"e": big}).all()
 
         def json_storage() -> object:

@@ -217,6 +217,9 @@ class StreamRecording(Base):
     path: Mapped[str] = mapped_column(String(300))
     created_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
     closed_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
+    # When the retention setting deleted the sample files (app.services.streams.retention);
+    # None: they are kept.
+    samples_removed_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
 
 
 class StreamChunk(Base):

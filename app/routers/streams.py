@@ -23,7 +23,7 @@ from app.schemas.uploads import (
 )
 from app.security import Analyst, CurrentPrincipal, DbSession
 from app.services.jobs.queue import get_job_queue
-from app.services.streams import recordings, samples
+from app.services.streams import recordings, retention, samples
 
 router = APIRouter(prefix="/api/v1/streams", tags=["streams"])
 
@@ -221,10 +221,12 @@ def recording_samples(
     principal: CurrentPrincipal,
     fmt: Annotated[str, Query(alias="format", pattern="^(csv|parquet)$")] = "csv",
 ) -> Response:
-    """The recording's samples in stored units, as CSV or Parquet."""
+    """The recording's samples in stored units, as CSV or Parquet; 410 when the stream sample
+    retention (``stream_retention_days``) removed them."""
     recording = recordings.get_recording(
         session, operator_id=principal.operator_id, recording_id=recording_id
     )
+    retention.check_kept(recording)  # 410 once the retention removed them
     table = samples.read_all(data_dir(request), recording)
     sink = io.BytesIO()
     if fmt == "csv":

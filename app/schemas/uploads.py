@@ -168,6 +168,9 @@ class RecordingOut(BaseModel):
     signals: list[str]
     created_at: AwareDatetime
     closed_at: AwareDatetime | None
+    samples_removed_at: AwareDatetime | None = Field(
+        None, description="When the stream sample retention deleted the samples (their "
+        "estimates and steady-window records are kept); null: the samples are kept")
 
 
 class LiveRecordingCreate(BaseModel):

@@ -61,8 +61,10 @@ def upgrade() -> None:
     )).all()
     for operator_id, design_id, engine_id, layout in states:
         doc = layout if isinstance(layout, dict) else __import__('json').loads(layout)
-        rebuild(session, operator_id=operator_id, design_id=design_id,
-                layout=EstimateLayout.from_dict(doc), engine_ids=[engine_id])
+        layout = EstimateLayout.from_dict(doc)
+        # Blobs of float32 numbers until 0020.
+        rebuild(session, operator_id=operator_id, design_id=design_id, layout=layout,
+                engine_ids=[engine_id], decode=layout.unpack)
     session.flush()
 
 

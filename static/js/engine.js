@@ -426,6 +426,7 @@ async function listRecordings(id) {
     for (const r of trend?.recording || []) if (r !== null && r !== undefined) windows[r] = (windows[r] || 0) + 1;
     section.append(page.items.length ? h("ul", {}, page.items.map((r) => h("li", { "data-recording": r.id },
       h("a", { href: `/recording.html?id=${r.id}` }, `#${r.id}`), ` started ${fmtTime(r.started_at)}, ${r.n_samples} samples`,
+      r.samples_removed_at ? h("span", { class: "muted", "data-samples-removed": "" }, ` (samples removed ${fmtTime(r.samples_removed_at)}, estimates kept)`) : "",
       windows[r.id] ? h("span", { class: "stream-windows" }, ` · ${windows[r.id]} steady windows in the trend (open diamonds)`) : "")))
       : h("p", { class: "muted" }, "No stream recordings of this engine."));
   } catch (err) {

@@ -139,8 +139,16 @@ async function main() {
     `Started ${fmtTime(recording.started_at)}, ${recording.n_samples} samples at ${fmtNum(1 / recording.dt_s, 1)} Hz `,
     `(${fmtNum(recording.n_samples * recording.dt_s / 60, 1)} min), ${recording.n_chunks} chunk(s), `, badge(recording.status), " ",
     engine ? h("a", { href: `/engine.html?id=${recording.engine_id}`, id: "engine-link" }, `engine ${engine.esn} trend`) : ""));
+  // The stream sample retention may have removed the raw samples: said so, nothing fetched.
+  const removed = recording.samples_removed_at;
+  if (removed) {
+    $("#samples-note").replaceChildren(h("span", { class: "notice", id: "samples-removed" },
+      `The raw samples were removed on ${fmtTime(removed)} by the stream sample retention; ` +
+      "the estimates below and the steady-window records on the engine trend are kept."));
+  }
   const [samples, est, events] = await Promise.all([
-    apiText(`/api/v1/streams/${id}/samples`, { query: { format: "csv" } }).catch((err) => { showError($("#samples-plot"), err, "Samples"); return null; }),
+    removed ? Promise.resolve(null)
+      : apiText(`/api/v1/streams/${id}/samples`, { query: { format: "csv" } }).catch((err) => { showError($("#samples-plot"), err, "Samples"); return null; }),
     api(`/api/v1/streams/${id}/estimates`).catch((err) => { showError($("#tuners-plot"), err, "Estimates"); return null; }),
     api("/api/v1/events", { query: { engine_id: recording.engine_id, since: recording.started_at, until: end.toISOString(), limit: 200 } })
       .catch((err) => { showError($("#events"), err, "Events"); return null; }),

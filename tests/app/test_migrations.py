@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
-from sqlalchemy import inspect, select
+from sqlalchemy import inspect, select, text
 
 from app.db import make_engine, make_sessionmaker, transaction
 from app.migrate import downgrade, upgrade
-from app.models import Base, DeteriorationBucket, FilterState, FleetPeriod
+from app.models import Base, DeteriorationBucket, Engine, FilterState, FleetPeriod
+from app.services.trends.service import load_trend_data
 from tests.app.services.trends.test_trends import (
     LAYOUT,
     add_aircraft,
@@ -223,6 +224,80 @@ def test_migration_0019_keeps_snapshots_and_takes_rows_of_any_engine_type(
                 "SELECT engine_id, phase, t30 FROM snapshots")).all() == [(7, "cruise", 1400.5)]
             names = {c["name"] for c in inspect(connection).get_columns("snapshots")}
             assert "other_signals" not in names
+        engine.dispose()
+    finally:
+        urls.close()
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_migration_0020_packs_the_stored_estimates_and_unpacks_them_again(
+    backend: str, tmp_path: Path
+) -> None:
+    """Down to 0019 the estimates are float32 blobs with their phase and operator again; up
+    to 0020 they are packed, the layout gains the design's V*^+ and the numbers come back
+    within the stored precision."""
+    urls = fresh_database_url(backend, tmp_path)
+    url = next(urls)
+    try:
+        upgrade(url)
+        engine = make_engine(url)
+        factory = make_sessionmaker(engine)
+        rng = np.random.default_rng(21)
+        vstar = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # tuners: hpc_eff, hpc_flow
+        vp = np.linalg.solve(vstar @ vstar.T, vstar).T
+        s = LAYOUT.slices()
+        values = rng.normal(size=(40, LAYOUT.width))
+        for block in ("q_sigma", "z_sigma"):
+            values[:, s[block]] = 0.1 + rng.random((40, s[block].stop - s[block].start))
+        values[:, s["h"]] = values[:, s["q"]] @ vp.T
+        values[:, s["h_sigma"]] = values[:, s["q_sigma"]] @ np.abs(vp).T
+        values[:, s["wssr"]] = 4.0 * rng.random((40, 2))
+        times = [datetime(2026, 2, 1, tzinfo=UTC) + timedelta(hours=7 * k) for k in range(40)]
+        with transaction(factory) as session:
+            fleet = make_fleet(session, "Packing Air")
+            fleet.design.result = {"vstar": vstar.tolist()}
+            aircraft = add_aircraft(session, fleet, "F-PACK")
+            engine_id = add_engine(session, fleet, "P1").id
+            add_estimates(session, fleet, session.get(Engine, engine_id), aircraft, values, times)
+        phases = ["cruise" if i % 2 else "takeoff" for i in range(40)]
+
+        def float32_rows() -> tuple[np.ndarray, list[str], set[int]]:
+            with engine.connect() as connection:
+                rows = connection.execute(text(
+                    "SELECT phase, operator_id, packed FROM estimates WHERE engine_id = :e "
+                    "ORDER BY seq"), {"e": engine_id}).all()
+            return (LAYOUT.unpack([bytes(r[2]) for r in rows]), [r[0] for r in rows],
+                    {r[1] for r in rows})
+
+        def layout_doc() -> dict:
+            with factory() as session:
+                return session.scalars(select(FilterState.layout)).one()
+
+        def decoded() -> np.ndarray:
+            with factory() as session:
+                data = load_trend_data(session, engine_id, fleet.design.id)
+                assert data is not None and data.phase == phases
+                return data.values
+
+        stored = decoded()  # as written at head: h stored (the layout names no V*^+)
+        downgrade(url, "0019")
+        back, got_phases, operators = float32_rows()
+        assert got_phases == phases and operators == {fleet.operator_id}
+        np.testing.assert_allclose(back, stored, rtol=1e-6, atol=1e-6)
+        assert "health_from_tuners" not in layout_doc()
+
+        upgrade(url)
+        np.testing.assert_allclose(layout_doc()["health_from_tuners"], vp)
+        packed = decoded()
+        for block in ("q", "z"):
+            error = np.abs(packed[:, s[block]] - values[:, s[block]])
+            assert np.all(error <= values[:, s[block + "_sigma"]] / 7)  # packed twice
+        np.testing.assert_allclose(packed[:, s["h"]], packed[:, s["q"]] @ vp.T)
+        np.testing.assert_allclose(packed[:, s["h_sigma"]], packed[:, s["q_sigma"]] @ vp.T)
+        downgrade(url, "0019")
+        np.testing.assert_allclose(float32_rows()[0], packed, rtol=1e-6, atol=1e-6)
+        upgrade(url)
+        np.testing.assert_allclose(decoded(), packed, rtol=1e-6, atol=1e-6)
         engine.dispose()
     finally:
         urls.close()

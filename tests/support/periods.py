@@ -35,7 +35,7 @@ def periods_from_estimates(session: Session, engine_id: int, layout: EstimateLay
     ).all()
     days = np.array([r[0].replace(tzinfo=None) for r in rows], dtype="datetime64[us]"
                     ).astype("datetime64[D]")
-    values = layout.unpack([r[1] for r in rows])[:, buckets.value_columns(layout)]
+    values = layout.decode_blobs([r[1] for r in rows])[:, buckets.value_columns(layout)]
     monday = np.datetime64("2024-01-01")  # a Monday
     starts = {
         "week": monday + ((days - monday).astype(np.int64) // 7) * 7,

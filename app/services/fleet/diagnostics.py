@@ -59,7 +59,7 @@ def fleet_diagnostics(
         nearest = None
         nearest_wssr = None
         if packed is not None and layout.faults:
-            wssr = layout.unpack([packed])[0][layout.slices()["wssr"]]
+            wssr = layout.decode_blobs([packed])[0][layout.slices()["wssr"]]
             if np.isfinite(wssr).all():
                 k = int(np.argmin(wssr))
                 nearest, nearest_wssr = layout.faults[k], float(wssr[k])

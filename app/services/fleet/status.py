@@ -140,7 +140,7 @@ def _summaries(
         layout = layouts[(rows[i].engine_id, rows[i].design_id)]
         by_layout.setdefault(id(layout), (layout, []))[1].append(i)
     for layout, members in by_layout.values():
-        values = layout.unpack([rows[i].packed for i in members])
+        values = layout.decode_blobs([rows[i].packed for i in members])
         s = layout.slices()
         h, h_sigma, z = values[:, s["h"]], values[:, s["h_sigma"]], values[:, s["z"]]
         n_health = h.shape[1]
@@ -217,7 +217,7 @@ def _limit_values(
         members = by_pair.get((row.engine_id, row.design_id), [])
         old = [w for w in members if w.seq == row.seq - RATE_WINDOW]
         if layout is not None and old and layout.health:
-            h_old = layout.unpack([old[0].packed])[0, layout.slices()["h"]]
+            h_old = layout.decode_blobs([old[0].packed])[0, layout.slices()["h"]]
             h_now = np.array([summary["health"][n] for n in layout.health])
             change = np.abs(h_now - h_old) * 100.0 / RATE_WINDOW
             k = int(np.argmax(change))

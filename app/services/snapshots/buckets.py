@@ -47,9 +47,11 @@ def value_columns(layout: EstimateLayout) -> np.ndarray:
 
 class BucketCollector:
     """The blocks an ``EstimateWriter`` stores, reduced to what the periods need: each engine's
-    record times and health and auxiliary values (a sink to chain with the writer's)."""
+    record times and health and auxiliary values as stored (a sink to chain with the
+    writer's)."""
 
     def __init__(self, layout: EstimateLayout) -> None:
+        self.layout = layout
         self.columns = value_columns(layout)
         self.epoch: dict[int, list[np.ndarray]] = {}
         self.values: dict[int, list[np.ndarray]] = {}
@@ -68,8 +70,10 @@ class BucketCollector:
         if not len(epoch):
             return
         self.epoch.setdefault(engine_id, []).append(np.asarray(epoch, float))
+        # The numbers as stored (``EstimateLayout.as_stored``): a period summed partly from
+        # stored rows and partly from a run's new ones equals one summed from a single run.
         self.values.setdefault(engine_id, []).append(
-            np.asarray(packed, np.float32)[:, self.columns].astype(np.float64))
+            self.layout.as_stored(np.asarray(packed, np.float64))[:, self.columns])
 
 
 def _sums(epoch: np.ndarray, values: np.ndarray, period: str
@@ -118,7 +122,7 @@ def refresh(
         )
     ).all()
     if kept:
-        unpacked = layout.unpack([row[2] for row in kept])[:, value_columns(layout)]
+        unpacked = layout.decode_blobs([row[2] for row in kept])[:, value_columns(layout)]
         kept_ids = np.array([row[0] for row in kept])
         kept_epoch = np.array([row[1].timestamp() for row in kept])
         for e in engines:
@@ -199,8 +203,12 @@ def _time(epoch: float) -> datetime:
 
 
 def rebuild(session: Session, *, operator_id: int, design_id: int, layout: EstimateLayout,
-            engine_ids: Sequence[int]) -> None:
-    """Recompute the periods of ``engine_ids`` from all their estimates (migrations, repairs)."""
+            engine_ids: Sequence[int],
+            decode: Callable[[list[bytes]], np.ndarray] | None = None) -> None:
+    """Recompute the periods of ``engine_ids`` from all their estimates (migrations, repairs).
+    ``decode``: the blobs' numbers (default ``layout.decode_blobs``; a migration before 0020
+    passes ``layout.unpack``, the float32 blobs of its time)."""
+    decode = decode or layout.decode_blobs
     collector = BucketCollector(layout)
     for engine_id in engine_ids:
         stored = session.execute(
@@ -210,7 +218,6 @@ def rebuild(session: Session, *, operator_id: int, design_id: int, layout: Estim
         ).all()
         if stored:
             collector.add((engine_id, 0, np.array([r[0].timestamp() for r in stored]), [],
-                           np.frombuffer(b"".join(r[1] for r in stored), np.float32)
-                           .reshape(len(stored), layout.width)))
+                           decode([r[1] for r in stored])))
     refresh(session, operator_id=operator_id, design_id=design_id, layout=layout,
             collected=collector)

@@ -306,6 +306,7 @@ def build_estimator(
             "sensors": ["%"] * model.n_sensors,
             "faults": ["1"] * len(library),
         },
+        health_from_tuners=tuple(tuple(float(x) for x in row) for row in d.Vp),
     )
     sensor_columns = tuple(stored_at(s.name) for s in model.sensors)
     # An actuator is used only where its trim converts to the stored unit.

@@ -4,9 +4,10 @@ An estimation job reads every new record of a batch of engines and writes one es
 record. On PostgreSQL both move rows of one fixed width in PostgreSQL's binary encoding: the
 read is one query for the whole batch whose rows (a missing sensor as NaN, the phase as a code,
 the time in microseconds) are joined on the server into one bytea and parsed by one
-``numpy.frombuffer``; the write is one binary ``COPY estimates FROM STDIN`` built by numpy per
-phase (rows of one phase have one width). No value passes through a Python object on either
-side. Other databases read with one SELECT per engine and write with an executemany INSERT.
+``numpy.frombuffer``; the write is one binary ``COPY estimates FROM STDIN`` built by numpy
+(the estimates in their stored form, ``EstimateLayout.encode``, have one width per layout).
+No value passes through a Python object on either side. Other databases read with one
+SELECT per engine and write with an executemany INSERT.
 Records an upload committed in this process are taken from memory instead when they are all
 there (``fresh_records``, handed in by the caller).
 """
@@ -27,14 +28,14 @@ from sqlalchemy import func, insert, select
 from sqlalchemy.orm import Session
 
 from app.models import Snapshot
-from app.models.estimates import VALUE_DTYPE, Estimate
+from app.models.estimates import STORED_PHASES, Estimate, EstimateLayout
 from app.services.encoding.pgcopy import HEADER, PG_EPOCH_US, TRAILER, fixed_copy_rows
 from app.signals import CONDITION_COLUMNS, PHASES, other_signal
 
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 _MICROSECOND = timedelta(microseconds=1)
-ESTIMATE_COLUMNS = ("operator_id", "engine_id", "design_id", "seq", "recorded_at", "phase",
-                    "packed")
+ESTIMATE_COLUMNS = ("recorded_at", "engine_id", "design_id", "seq", "packed")
+_PHASE_INDEX = {name: i for i, name in enumerate(STORED_PHASES)}
 
 
 @dataclass(frozen=True)
@@ -304,10 +305,12 @@ class EstimateWriter:
 
     FLUSH_ROWS = 20_000
 
-    def __init__(self, session: Session, *, operator_id: int, design_id: int) -> None:
+    def __init__(self, session: Session, *, operator_id: int, design_id: int,
+                 layout: EstimateLayout) -> None:
         self.session = session
         self.operator_id = operator_id
         self.design_id = design_id
+        self.layout = layout
         self.rows = 0
         self._pending: list[Block] = []
         self._pending_rows = 0
@@ -341,13 +344,13 @@ class EstimateWriter:
 
     def _flush(self) -> None:
         if self._pending:
-            self._copy.write(_copy_rows(self.operator_id, self.design_id, self._pending))
+            self._copy.write(_copy_rows(self.layout, self.design_id, self._pending))
         self._pending, self._pending_rows = [], 0
 
     def __exit__(self, kind: object, error: object, trace: object) -> None:
         if self._stack is None:
             if kind is None:
-                _insert_rows(self.session, self.operator_id, self.design_id, self._pending)
+                _insert_rows(self.session, self.layout, self.design_id, self._pending)
             return
         try:
             if kind is None:
@@ -358,40 +361,39 @@ class EstimateWriter:
             self._stack.__exit__(kind, error, trace)  # type: ignore[arg-type]
 
 
-def _insert_rows(session: Session, operator_id: int, design_id: int,
+def _stored(layout: EstimateLayout, blocks: Sequence[Block]) -> np.ndarray:
+    """The blocks' estimates in their stored form: (rows, ``layout.stored_bytes``) uint8."""
+    values = np.concatenate([np.asarray(b[4]) for b in blocks])
+    phase = np.array([_PHASE_INDEX[p] for b in blocks for p in b[3]], dtype=np.int64)
+    return layout.encode(values, phase)
+
+
+def _insert_rows(session: Session, layout: EstimateLayout, design_id: int,
                  blocks: Sequence[Block]) -> None:
+    if not blocks:
+        return
+    stored = _stored(layout, blocks)
     rows = [
-        {"operator_id": operator_id, "engine_id": engine_id, "design_id": design_id,
-         "seq": seq0 + j, "recorded_at": datetime.fromtimestamp(float(epoch[j]), UTC),
-         "phase": phase[j], "packed": values[j].tobytes()}
-        for engine_id, seq0, epoch, phase, values in blocks
+        {"engine_id": engine_id, "design_id": design_id, "seq": seq0 + j,
+         "recorded_at": datetime.fromtimestamp(float(epoch[j]), UTC)}
+        for engine_id, seq0, epoch, _phase, _values in blocks
         for j in range(len(epoch))
     ]
-    if rows:
-        session.execute(insert(Estimate), rows)
+    for row, blob in zip(rows, stored, strict=True):
+        row["packed"] = blob.tobytes()
+    session.execute(insert(Estimate), rows)
 
 
-def _copy_rows(operator_id: int, design_id: int, blocks: Sequence[Block]) -> bytes:
-    """The blocks' rows of a binary COPY into ``estimates`` (no header or trailer)."""
+def _copy_rows(layout: EstimateLayout, design_id: int, blocks: Sequence[Block]) -> bytes:
+    """The blocks' rows of a binary COPY into ``estimates`` (no header or trailer): rows of
+    one layout have one width, so one fixed-width record array holds them all."""
     engine = np.concatenate([np.full(len(b[2]), b[0], dtype=np.int64) for b in blocks])
     seq = np.concatenate([b[1] + np.arange(len(b[2]), dtype=np.int64) for b in blocks])
     micros = np.concatenate([epoch_micros(b[2]) for b in blocks]) - PG_EPOCH_US
-    phase = np.concatenate([np.asarray(b[3], dtype=object) for b in blocks])
-    values = np.concatenate([np.ascontiguousarray(b[4], dtype=VALUE_DTYPE) for b in blocks])
-    raw = values.view(np.uint8).reshape(len(values), -1)
-    parts = []
-    # Rows of one phase have one width: one fixed-width record array per phase.
-    for name in dict.fromkeys(phase.tolist()):
-        at = np.flatnonzero(phase == name)
-        text = str(name).encode()
-        parts.append(fixed_copy_rows([
-            ("operator_id", np.full(len(at), operator_id, dtype=">i4")),
-            ("engine_id", engine[at].astype(">i4")),
-            ("design_id", np.full(len(at), design_id, dtype=">i4")),
-            ("seq", seq[at].astype(">i4")),
-            ("recorded_at", micros[at].astype(">i8")),
-            ("phase", np.full(len(at), text, dtype=f"S{len(text)}") if text
-             else np.zeros(len(at), dtype=np.dtype((np.void, 0)))),  # no phase: ""
-            ("packed", raw[at]),
-        ]))
-    return b"".join(parts)
+    return fixed_copy_rows([
+        ("recorded_at", micros.astype(">i8")),
+        ("engine_id", engine.astype(">i4")),
+        ("design_id", np.full(len(engine), design_id, dtype=">i4")),
+        ("seq", seq.astype(">i4")),
+        ("packed", _stored(layout, blocks)),
+    ])

@@ -250,7 +250,8 @@ def estimate_engines(
                 for engine_id, seq0 in redone:
                     _delete_from(session, engine_id, est.design_id, seq0)
                 with rows.EstimateWriter(
-                    session, operator_id=operator_id, design_id=est.design_id
+                    session, operator_id=operator_id, design_id=est.design_id,
+                    layout=est.layout,
                 ) as writer:
                     if computed is None:  # computed while the writer sends (PostgreSQL's COPY)
                         outputs = run_filters(est, runs, sink=periods.passing_to(writer.add))

@@ -71,6 +71,9 @@ def fit_design_bias(
             x_ref = est.x_ref()
             R = est.model.R
             all_names = names
+        if rec.samples_removed_at is not None:
+            raise InvalidInput(f"recording_ids[{k}]: the samples of recording {rec.id} were "
+                               "removed by the stream sample retention")
         table = samples.read_all(data_dir, rec)
         cond, dy, du = deviations(est, table)
         ti, innov = learning_residuals(est, float(rec.dt_s), cond, dy, du, x_ref, ti_tau_s)

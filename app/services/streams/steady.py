@@ -57,6 +57,8 @@ def summarise_windows(
 ) -> int:
     """Store the steady windows completed by the samples from ``from_sample`` on as
     snapshots of ``upload``, mark the engine's backlog; the number stored."""
+    if recording.samples_removed_at is not None:
+        return 0  # removed by the retention: the windows stored before stay
     W = window_length(float(recording.dt_s), CRITERIA.window_s)
     first_window = from_sample // W
     if (int(recording.n_samples) // W) <= first_window:

@@ -92,7 +92,11 @@ def estimate_one(
     session: Session, data_dir: Path, recording: StreamRecording, design: EstimatorDesign,
     progress: Progress | None = None,
 ) -> dict[str, Any]:
-    """Bring one recording's estimates under ``design`` up to its last received sample."""
+    """Bring one recording's estimates under ``design`` up to its last received sample. A
+    recording whose samples the retention removed keeps the estimates it has."""
+    if recording.samples_removed_at is not None:
+        return {"recording_id": recording.id, "samples": 0, "windows": 0,
+                "message": "samples removed by the retention: estimates kept as they are"}
     est = estimator_for(session, design, recording.signals)
     state_row = session.scalar(
         select(StreamFilterState).where(StreamFilterState.recording_id == recording.id,
@@ -202,8 +206,8 @@ def _carry_forward(
     rerun: list[int] = []
     for row in later:
         other = session.get(StreamRecording, row.recording_id)
-        if other is None:
-            continue
+        if other is None or other.samples_removed_at is not None:
+            continue  # samples removed by the retention: its estimates stay
         n = len(row.state["x_initial"])
         if _initial_x(session, other, design.id, n, n - len(row.layout["tuners"])) == \
                 row.state["x_initial"]:

@@ -45,7 +45,7 @@ from app.models import (
 )
 from app.models.estimates import (
     BLOCKS,
-    VALUE_DTYPE,
+    STORED_PHASES,
     Estimate,
     EstimateLayout,
     Event,
@@ -57,7 +57,6 @@ from app.services.encoding.pgcopy import PG_EPOCH_US
 from app.services.fleet import performance
 from app.services.trends import health as health_view
 from app.services.trends.performance import performance_group
-from app.signals import PHASES
 
 # Why a trend has no ``performance`` group (a design of another engine type than the built-in).
 PERFORMANCE_NOTE = (
@@ -83,8 +82,8 @@ class TrendData:
     """Decoded estimates of one engine and design, in time order (not decimated).
 
     epoch : (n,) seconds since 1970 UTC; seq : (n,) record numbers; phase : n strings;
-    values : (n, width) per ``layout``, float32 as stored (bucket minima and maxima are exact
-    in it, means are summed in float64).
+    values : (n, width) per ``layout``, float64 as decoded from the stored form
+    (``EstimateLayout.decode``; bucket means, minima and maxima are taken from them).
     """
 
     layout: EstimateLayout
@@ -238,39 +237,36 @@ def load_trend_data(
         return _load_aggregated(session, layout, engine_id, design_id, start, end)
     # Core columns on the connection: no ORM row processing for ten thousand rows.
     query = (
-        select(epoch_seconds(session), table.c.seq, table.c.phase, table.c.packed)
+        select(epoch_seconds(session), table.c.seq, table.c.packed)
         .where(*conditions)
         .order_by(table.c.seq)
     )
     rows = session.connection().execute(query).all()
     if not rows:
         return TrendData(layout, np.empty(0), np.empty(0, int), [], np.empty((0, layout.width)))
-    recorded, seq, phase, blobs = zip(*rows, strict=True)
+    recorded, seq, blobs = zip(*rows, strict=True)
+    decoded = layout.decode(b"".join(blobs), len(blobs))
     return TrendData(
         layout=layout,
         epoch=np.asarray(recorded, dtype=float),
         seq=np.asarray(seq, dtype=np.int64),
-        phase=list(phase),
-        values=np.frombuffer(b"".join(blobs), dtype=VALUE_DTYPE).reshape(
-            len(blobs), layout.width
-        ),
+        phase=_PHASE_NAMES[decoded.phase].tolist(),
+        values=decoded.values,
     )
 
 
-# PostgreSQL: the whole trend as one row of two values: each record's seq, time and phase code
-# in their binary send formats (fixed width), and every blob, each concatenated. The aggregates
-# carry no ORDER BY: each would sort the rows again, while all aggregates of one query see the
-# rows in the same order, so the two stay aligned and numpy puts them in seq order. (Arrays of
-# seq, time and phase cost twice as much: building and parsing arrays, numeric epochs.)
-_PHASE_CODE = "CASE phase " + " ".join(
-    f"WHEN '{name}' THEN {code}" for code, name in enumerate(PHASES)
-) + " ELSE -1 END::int2"
+# PostgreSQL: the whole trend as one row of two values: each record's seq and time in their
+# binary send formats (fixed width), and every blob (the phase is in it), each concatenated.
+# The aggregates carry no ORDER BY: each would sort the rows again, while all aggregates of one
+# query see the rows in the same order, so the two stay aligned and numpy puts them in seq
+# order. (Arrays of seq and time cost twice as much: building and parsing arrays.)
 _AGGREGATE_SQL = (
-    "SELECT string_agg(int4send(seq) || timestamptz_send(recorded_at) || "
-    f"int2send({_PHASE_CODE}), ''::bytea), string_agg(packed, ''::bytea) FROM estimates "
+    "SELECT string_agg(int4send(seq) || timestamptz_send(recorded_at), ''::bytea), "
+    "string_agg(packed, ''::bytea) FROM estimates "
     "WHERE engine_id = %(engine_id)s AND design_id = %(design_id)s"
 )
-_RECORD = np.dtype([("seq", ">i4"), ("micros", ">i8"), ("phase", ">i2")])
+_RECORD = np.dtype([("seq", ">i4"), ("micros", ">i8")])
+_PHASE_NAMES = np.array(STORED_PHASES, dtype=object)
 
 
 def _load_aggregated(
@@ -295,17 +291,16 @@ def _load_aggregated(
     records = np.frombuffer(keys, dtype=_RECORD)
     seq = records["seq"].astype(np.int64)
     epoch = (records["micros"].astype(np.int64) + PG_EPOCH_US) / 1e6
-    codes = records["phase"].astype(np.int64)
-    values = np.frombuffer(packed, dtype=VALUE_DTYPE).reshape(len(seq), layout.width)
+    decoded = layout.decode(bytes(packed), len(seq))
+    values, codes = decoded.values, decoded.phase
     order = None if np.all(seq[1:] > seq[:-1]) else np.argsort(seq, kind="stable")
     if order is not None:
         seq, epoch, values, codes = seq[order], epoch[order], values[order], codes[order]
-    names = np.array([*PHASES, ""], dtype=object)  # -1 (not a snapshot phase): ""
     return TrendData(
         layout=layout,
         epoch=epoch,
         seq=seq,
-        phase=names[codes].tolist(),
+        phase=_PHASE_NAMES[codes].tolist(),
         values=values,
     )
 

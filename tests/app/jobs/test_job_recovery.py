@@ -90,6 +90,7 @@ def test_a_job_killed_mid_run_is_finished_within_30_s_of_the_restart(
         assert took <= FINISH_WITHIN_S, f"finished {took:.1f} s after the restart"
         with factory.kw["bind"].connect() as connection:
             stored = connection.execute(text(
-                "SELECT count(*) FROM estimates WHERE operator_id = :o"
+                "SELECT count(*) FROM estimates e JOIN engines g ON g.id = e.engine_id "
+                "WHERE g.operator_id = :o"
             ), {"o": fleet.operator_id}).scalar_one()
         assert stored > 0

@@ -19,6 +19,7 @@ from tests.app.services.trends.test_trends import (
     add_aircraft,
     add_engine,
     add_estimates,
+    as_stored,
     make_fleet,
 )
 
@@ -52,7 +53,7 @@ def test_status_lists_every_engine_with_its_latest_state(
     assert by_esn["S1"]["tail"] is None and by_esn["S2"]["state"] == "no_data"
     assert by_esn["S1"]["state"] == "alert" and by_esn["S1"]["latest_event"]["fault"] == "HPC"
     h = LAYOUT.slices()["h"]
-    last = values[engines[0].id][-1].astype(np.float32).astype(float)
+    last = as_stored(values[engines[0].id])[-1]
     worst = int(np.argmax(np.abs(last[h])))
     health = by_esn["S0"]["health"]
     assert health["worst_health"] == LAYOUT.health[worst]
@@ -94,7 +95,7 @@ def test_deterioration_is_the_mean_over_engines_of_engine_means(session: Session
         v = rng.normal(size=(n, LAYOUT.width))
         times = [start + timedelta(hours=12 * k) for k in range(n)]  # March only
         add_estimates(session, fleet, engine, aircraft, v, times)
-        per_engine.append(v.astype(np.float32).astype(float)[:, LAYOUT.slices()["h"]].mean(0))
+        per_engine.append(as_stored(v)[:, LAYOUT.slices()["h"]].mean(0))
     out = status.fleet_deterioration(session, fleet.operator_id, "month")
     group = out["groups"][0]
     assert group["time"] == ["2026-03-01T00:00:00Z"] and group["n_engines"] == [2]
@@ -123,7 +124,7 @@ def test_status_summaries_equal_the_one_engine_reference(
         v[:, LAYOUT.slices()["h_sigma"]] = rng.uniform(0.05, 1.0, size=(4, len(LAYOUT.health)))
         add_estimates(session, fleet, engine, aircraft, v,
                       [T0 + timedelta(days=k, hours=i) for k in range(4)])
-        lasts[engine.id] = v[-1].astype(np.float32).astype(float)
+        lasts[engine.id] = as_stored(v)[-1]
     # One engine's layout document differs (its own health names): read for that engine.
     renamed = EstimateLayout.from_dict(
         dict(LAYOUT.to_dict(), health=[f"x_{n}" for n in LAYOUT.health])

@@ -20,6 +20,7 @@ from tests.app.services.trends.test_trends import (
     add_aircraft,
     add_engine,
     add_estimates,
+    as_stored,
     make_fleet,
 )
 
@@ -63,10 +64,11 @@ def test_wash_recovery_is_the_step_between_the_records_around_it(
     assert set(by_name) == set(LAYOUT.health)  # an imported model: no EGT margin
     hpc = by_name["hpc_eff"]
     col = LAYOUT.slices()["h"].start
-    before = values[N_BEFORE - RECOVERY_RECORDS:N_BEFORE, col]
+    kept = as_stored(values)
+    before = kept[N_BEFORE - RECOVERY_RECORDS:N_BEFORE, col]
     after_from = N_BEFORE + BASELINE_SETTLE_RECORDS
-    after = values[after_from:after_from + RECOVERY_RECORDS, col]
-    # The stored blob is float32 and the trend rounds to 4 decimals.
+    after = kept[after_from:after_from + RECOVERY_RECORDS, col]
+    # The trend rounds the stored numbers to 4 decimals.
     assert hpc["before"] == pytest.approx(before.mean(), abs=1e-4)
     assert hpc["after"] == pytest.approx(after.mean(), abs=1e-4)
     assert hpc["change"] == pytest.approx(after.mean() - before.mean(), abs=2e-4)
@@ -84,7 +86,7 @@ def test_wash_recovery_is_the_step_between_the_records_around_it(
     bounded = client.get(f"{API}/{wash.id}/recovery", headers=h).json()
     assert bounded["n_before"] == 5
     hpc = next(s for s in bounded["series"] if s["name"] == "hpc_eff")
-    assert hpc["before"] == pytest.approx(values[N_BEFORE - 5:N_BEFORE, col].mean(), abs=1e-4)
+    assert hpc["before"] == pytest.approx(kept[N_BEFORE - 5:N_BEFORE, col].mean(), abs=1e-4)
 
 
 def test_no_settled_records_yet_is_said_and_another_operator_gets_404(

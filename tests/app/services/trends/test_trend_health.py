@@ -22,6 +22,7 @@ from tests.app.services.trends.test_trends import (
     add_aircraft,
     add_engine,
     add_estimates,
+    as_stored,
     make_fleet,
 )
 
@@ -61,7 +62,7 @@ def _setup(session: Session, calibrated: bool = True):  # type: ignore[no-untype
     session.flush()
     if calibrated:
         calibration.store_calibration(session, fleet.design, CALIB)
-    stored = values.astype(np.float32).astype(float)
+    stored = as_stored(values)
     return fleet, engine, stored, times
 
 

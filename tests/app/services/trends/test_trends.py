@@ -28,6 +28,7 @@ from app.models.estimates import Estimate, EstimateLayout, FilterState
 from app.services.snapshots import buckets
 from app.services.tenancy.service import create_operator, issue_api_key
 from app.services.trends import service as trends
+from app.signals import PHASES
 
 T0 = datetime(2026, 1, 1, tzinfo=UTC)
 LAYOUT = EstimateLayout(
@@ -106,11 +107,11 @@ def add_estimates(
     ]
     session.add_all(snaps)
     session.flush()
-    blobs = LAYOUT.pack(values)
+    blobs = LAYOUT.encode(values, np.array([PHASES.index(s.phase) for s in snaps]))
     session.add_all(
         Estimate(
-            operator_id=fleet.operator_id, engine_id=engine.id, design_id=fleet.design.id,
-            seq=i, recorded_at=s.recorded_at, phase=s.phase, packed=blob,
+            engine_id=engine.id, design_id=fleet.design.id, seq=i, recorded_at=s.recorded_at,
+            packed=blob.tobytes(),
         )
         for i, (s, blob) in enumerate(zip(snaps, blobs, strict=True))
     )
@@ -127,8 +128,19 @@ def add_estimates(
                     layout=LAYOUT, engine_ids=[engine.id])
 
 
+def as_stored(values: np.ndarray) -> np.ndarray:
+    """``values`` as the stored estimates give them back (``EstimateLayout.encode``)."""
+    return LAYOUT.decode(LAYOUT.encode(values, np.zeros(len(values), dtype=int))).values
+
+
 def _values(rng: np.random.Generator, n: int) -> np.ndarray:
-    return rng.normal(size=(n, LAYOUT.width))
+    """Estimates of ``n`` records: normal values, 1-sigmas 0.1-1.1 and WSSRs 0-5."""
+    values = rng.normal(size=(n, LAYOUT.width))
+    s = LAYOUT.slices()
+    for block in ("q_sigma", "h_sigma", "z_sigma"):
+        values[:, s[block]] = 0.1 + rng.random((n, s[block].stop - s[block].start))
+    values[:, s["wssr"]] = 5.0 * rng.random((n, s["wssr"].stop - s["wssr"].start))
+    return values
 
 
 def _series(trend: dict, key: str, name: str) -> dict:
@@ -146,14 +158,14 @@ def test_full_resolution_trend_returns_the_stored_numbers(session: Session) -> N
 
     trend = trends.engine_trend(session, fleet.operator_id, engine.id, max_points=0)
     assert trend["n_records"] == 50 and not trend["decimated"]
-    stored = values.astype(np.float32).astype(float)  # the blob keeps float32
+    kept = as_stored(values)
     s = LAYOUT.slices()
     for j, name in enumerate(LAYOUT.health):
         series = _series(trend, "health", name)
-        np.testing.assert_allclose(series["value"], stored[:, s["h"]][:, j], atol=6e-5)
-        np.testing.assert_allclose(series["sigma"], stored[:, s["h_sigma"]][:, j], atol=6e-5)
+        np.testing.assert_allclose(series["value"], kept[:, s["h"]][:, j], atol=6e-5)
+        np.testing.assert_allclose(series["sigma"], kept[:, s["h_sigma"]][:, j], atol=6e-5)
     np.testing.assert_allclose(
-        _series(trend, "wssr", "HPC")["value"], stored[:, s["wssr"]][:, 1], atol=6e-5
+        _series(trend, "wssr", "HPC")["value"], kept[:, s["wssr"]][:, 1], atol=6e-5
     )
     parsed = [datetime.fromisoformat(t.replace("Z", "+00:00")) for t in trend["time"]]
     assert parsed == times
@@ -168,13 +180,13 @@ def test_time_range_and_decimation_match_a_direct_recomputation(session: Session
     values = _values(rng, n)
     times = [T0 + timedelta(hours=3 * i) for i in range(n)]
     add_estimates(session, fleet, engine, aircraft, values, times)
-    stored = values.astype(np.float32).astype(float)
+    kept = as_stored(values)
 
     start, end = times[100], times[900]
     trend = trends.engine_trend(
         session, fleet.operator_id, engine.id, start=start, end=end, max_points=64
     )
-    inside = stored[100:900]
+    inside = kept[100:900]
     assert trend["n_records"] == 800 and trend["decimated"] and trend["n_points"] == 64
     col = LAYOUT.slices()["h"].start
     series = _series(trend, "health", "hpc_eff")
@@ -308,12 +320,12 @@ def test_json_fast_path_equals_the_dict_and_a_direct_recomputation(
     ]
     session.add_all(snaps)
     session.flush()
-    blobs = LAYOUT.pack(values)
+    blobs = LAYOUT.encode(values, np.array([PHASES.index("cruise" if (i // 7) % 3 else "takeoff")
+                                             for i in range(n)]))
     session.add_all(
         Estimate(
-            operator_id=fleet.operator_id, engine_id=engine.id, design_id=fleet.design.id,
-            seq=int(i), recorded_at=s.recorded_at, phase=s.phase,
-            packed=blobs[i],
+            engine_id=engine.id, design_id=fleet.design.id, seq=int(i),
+            recorded_at=s.recorded_at, packed=blobs[i].tobytes(),
         )
         for i, s in zip(order, snaps, strict=True)
     )
@@ -326,7 +338,7 @@ def test_json_fast_path_equals_the_dict_and_a_direct_recomputation(
     session.commit()
     headers = {"X-API-Key": fleet.key}
     phases = ["cruise" if (i // 7) % 3 else "takeoff" for i in range(n)]
-    stored = values.astype(np.float32).astype(float)
+    kept = as_stored(values)
     for max_points in (0, 50, 333):
         body = client.get(
             f"/api/v1/engines/{engine.id}/trend", params={"max_points": max_points},
@@ -337,7 +349,7 @@ def test_json_fast_path_equals_the_dict_and_a_direct_recomputation(
         if max_points == 0:
             assert trend["phase"] == phases and trend["seq"] == list(range(n))
             continue
-        ref = _reference_trend(stored, phases, max_points)
+        ref = _reference_trend(kept, phases, max_points)
         assert trend["phase"] == ref["phase"]
         s = LAYOUT.slices()
         for key, block in (("health", "h"), ("residuals", "residual")):
