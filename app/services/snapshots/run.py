@@ -291,6 +291,8 @@ def _fault_signatures(est: SnapshotEstimator, G_y: np.ndarray, G_u: np.ndarray) 
     may)."""
     p, ny = G_y.shape[-1], G_y.shape[-2]
     out = np.zeros((*G_y.shape[:-1], est.S_full.shape[1]))
+    if out.size == 0:  # no record, or a design whose fault library keeps no fault
+        return out
     # Block by block of records, each term into one buffer: the same sums in the same order,
     # without a temporary of the whole chunk per term (memory-bound otherwise).
     flat, g_y, g_u = (out.reshape(-1, ny, out.shape[-1]), G_y.reshape(-1, ny, p),
