@@ -63,7 +63,8 @@ def test_demo_fleet_is_seeded_once_and_estimated(
     assert last_at > midnight - timedelta(days=2)
     assert engines == first["engines"]
     estimates = session.scalar(
-        select(func.count()).select_from(Estimate).where(Estimate.operator_id == operator_id)
+        select(func.count()).select_from(Estimate)
+        .join(Engine, Engine.id == Estimate.engine_id).where(Engine.operator_id == operator_id)
     )
     assert estimates == snapshots
     assert store.pending_work(session, operator_id) == {}
@@ -85,5 +86,6 @@ def test_demo_fleet_is_seeded_once_and_estimated(
     again = fleet.ensure_demo_fleet(session_factory, SMALL, echo=messages.append)
     assert again == first
     assert session.scalar(
-        select(func.count()).select_from(Estimate).where(Estimate.operator_id == operator_id)
+        select(func.count()).select_from(Estimate)
+        .join(Engine, Engine.id == Estimate.engine_id).where(Engine.operator_id == operator_id)
     ) == estimates
