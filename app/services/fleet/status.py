@@ -22,7 +22,7 @@ from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
-from sqlalchemy import and_, or_, select
+from sqlalchemy import and_, select, true
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidInput
@@ -173,26 +173,39 @@ def _summaries(
     return out
 
 
+def _window_rows(session: Session, operator_id: int) -> list[Any]:
+    """Each filter state's last ``RATE_WINDOW + 1`` estimates (seq, packed) with their
+    snapshots' condition and T48: the rate-of-change and EGT windows of the limit check.
+
+    On PostgreSQL one LATERAL query per filter state reads them as an index range of
+    (engine_id, design_id, seq) and looks each snapshot up by its key: a join over whole tables
+    made the planner hash-join every estimate and snapshot (13.8 s at 4.8M records)."""
+    f, est, snap = FilterState.__table__, Estimate.__table__, Snapshot.__table__
+    columns = (est.c.engine_id, est.c.design_id, est.c.seq, est.c.packed, snap.c.alt_ft,
+               snap.c.mach, snap.c.dtamb_k, snap.c.power_pct, snap.c.t48)
+    in_window = and_(est.c.engine_id == f.c.engine_id, est.c.design_id == f.c.design_id,
+                     est.c.seq >= f.c.n_records - 1 - RATE_WINDOW)
+    with_snapshot = and_(snap.c.engine_id == est.c.engine_id,
+                         snap.c.recorded_at == est.c.recorded_at)
+    if session.get_bind().dialect.name == "postgresql":
+        recent = (select(*columns).select_from(est.outerjoin(snap, with_snapshot))
+                  .where(in_window).lateral("recent"))
+        query = (select(*recent.c).select_from(f.join(recent, true()))
+                 .where(f.c.operator_id == operator_id))
+    else:
+        query = (select(*columns)
+                 .select_from(f.join(est, in_window).outerjoin(snap, with_snapshot))
+                 .where(f.c.operator_id == operator_id))
+    return list(session.connection().execute(query).all())
+
+
 def _limit_values(
     session: Session, operator_id: int, rows: list[Any],
     summaries: list[tuple[dict[str, Any] | None, bool]], redlines: list[float],
 ) -> list[dict[str, LimitValue]]:
     """Per chosen filter-state row: the values its engine type's limits are checked against."""
     out: list[dict[str, LimitValue]] = [{} for _ in rows]
-    f, est, snap = FilterState.__table__, Estimate.__table__, Snapshot.__table__
-    window = session.connection().execute(
-        select(est.c.engine_id, est.c.design_id, est.c.seq, est.c.packed, snap.c.alt_ft,
-               snap.c.mach, snap.c.dtamb_k, snap.c.power_pct, snap.c.t48)
-        .select_from(
-            f.join(est, and_(
-                est.c.engine_id == f.c.engine_id, est.c.design_id == f.c.design_id,
-                or_(est.c.seq >= f.c.n_records - EGT_WINDOW,
-                    est.c.seq == f.c.n_records - 1 - RATE_WINDOW),
-            )).outerjoin(snap, and_(snap.c.engine_id == est.c.engine_id,
-                                    snap.c.recorded_at == est.c.recorded_at))
-        )
-        .where(f.c.operator_id == operator_id)
-    ).all()
+    window = _window_rows(session, operator_id)
     by_pair: dict[tuple[int, int], list[Any]] = defaultdict(list)
     for w in window:
         by_pair[(w.engine_id, w.design_id)].append(w)
