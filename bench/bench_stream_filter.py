@@ -58,7 +58,6 @@ from app.services.streams.estimator import StreamEstimator, estimator_for  # noq
 from app.services.streams.run import Carry, _first_outside, filter_inputs, filter_piece  # noqa: E402
 from app.services.tenancy.service import create_operator  # noqa: E402
 from app.services.uploads.parse import parse_body  # noqa: E402
-from estimation.errors import UnobservableDesignError  # noqa: E402
 from estimation.stream_filter import SegmentGain  # noqa: E402
 
 SIZES = "10x9000,1000x1000,10000x100,100000x10"
@@ -116,19 +115,13 @@ def segments(est: StreamEstimator, cond: np.ndarray, keys: dict[tuple[float, ...
 
 
 def filterable(est: StreamEstimator, cond: np.ndarray, dt: float) -> int:
-    """First sample after the last one whose condition, taken as a segment's anchor, has a
-    gain the product cannot compute (every sample can anchor a segment of a stretch starting
-    there). At ground idle (the simulated flight's first 120 s, power 0 %) the design's reduced
-    model is unobservable (``UnobservableDesignError`` from the DARE), so ``filter_piece``
-    raises there and a recording with ground idle cannot be estimated; the bench filters what
-    follows."""
+    """First sample after the last one whose condition, taken as a segment's anchor, has no
+    measurement update (every sample can anchor a segment of a stretch starting there). At
+    ground idle (the simulated flight's first 120 s, power 0 %) the design's reduced model is
+    unobservable, so ``filter_piece`` runs the model's prediction alone there (K = 0, 1-sigma
+    not estimated); the bench times what follows, where the filter updates."""
     keys = [est.snapped(c) for c in cond]
-    bad = set()
-    for key in set(keys):
-        try:
-            est.gain(key, dt)
-        except UnobservableDesignError:
-            bad.add(key)
+    bad = {key for key in set(keys) if not est.gain(key, dt).K.any()}
     return max((i + 1 for i, k in enumerate(keys) if k in bad), default=0)
 
 

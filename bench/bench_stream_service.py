@@ -9,9 +9,9 @@ schedule is read from the cache (``--cache``), so neither process builds it.
 
 The flight: one of ``fleethealth simulate --mode stream``'s whole-flight CSV files of the
 built-in engine (20 Hz, the first ``--seconds`` of the flight: ground idle, take-off, climb).
-Ground idle is cut (its gain is unobservable: see ``bench_stream_filter.filterable``); the bench
-first sends the flight as simulated, ground idle included, and prints what the server's job
-made of it. Then, over HTTP (httpx, real sockets):
+Ground idle is cut (the filter only predicts there: ``bench_stream_filter.filterable``); the
+bench first sends the flight as simulated, ground idle included, and prints what the server's
+job made of it. Then, over HTTP (httpx, real sockets):
 
 1. warm-up: the flight uploaded for one engine and estimated (the job process's first run
    loads the schedule and computes the gains: printed as the cold figure);
