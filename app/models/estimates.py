@@ -338,33 +338,42 @@ RESIDUAL_MAX = 200.0
 WSSR_BITS = 8  # logarithmic over WSSR_RANGE, 0 = missing
 WSSR_RANGE = (0.01, 1.0e5)
 
-_SIGMA_STEP = math.log(SIGMA_RANGE[1] / SIGMA_RANGE[0]) / (2**SIGMA_BITS - 2)
-_WSSR_STEP = math.log(WSSR_RANGE[1] / WSSR_RANGE[0]) / (2**WSSR_BITS - 2)
 _RESIDUAL_TOP = 2 ** (RESIDUAL_BITS - 1) - 1
 _RESIDUAL_STEP = math.log1p(RESIDUAL_MAX / RESIDUAL_KNEE) / _RESIDUAL_TOP
 _VALUE_TOP = 2 ** (VALUE_BITS - 1) - 1  # -2**(bits-1): missing
 
 
-def _sigma_codes(sigma: np.ndarray) -> np.ndarray:
-    lo, hi = SIGMA_RANGE
-    x = np.asarray(sigma, dtype=np.float32)  # float32 logarithms: codes are 7 bits
-    with np.errstate(invalid="ignore", divide="ignore"):
-        steps = np.rint(np.log(np.minimum(np.maximum(x, lo), hi) * (1.0 / lo))
-                        * (1.0 / _SIGMA_STEP)) + 1
-    steps[~np.isfinite(x)] = 0
-    return steps.astype(np.int64)
+@dataclass(frozen=True)
+class _LogCode:
+    """A positive number as a code of ``bits`` bits, logarithmic over [lo, hi] (clipped to
+    it); code 0 is a missing number. ``table`` decodes: table[code]."""
+
+    bits: int
+    lo: float
+    hi: float
+    step: float = field(init=False)
+    table: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        step = math.log(self.hi / self.lo) / (2**self.bits - 2)
+        codes = np.arange(2**self.bits)
+        object.__setattr__(self, "step", step)
+        object.__setattr__(self, "table", np.where(
+            codes == 0, np.nan, self.lo * np.exp((codes - 1) * step)))
+
+    def codes(self, value: np.ndarray) -> np.ndarray:
+        x = np.asarray(value, dtype=np.float32)  # float32 logarithms: the codes are short
+        with np.errstate(invalid="ignore", divide="ignore"):
+            steps = np.rint(np.log(np.minimum(np.maximum(x, self.lo), self.hi) * (1.0 / self.lo))
+                            * (1.0 / self.step)) + 1
+        steps[~np.isfinite(x)] = 0
+        return steps.astype(np.int64)
 
 
-def _sigma_table() -> np.ndarray:
-    codes = np.arange(2**SIGMA_BITS)
-    return np.where(codes == 0, np.nan, SIGMA_RANGE[0] * np.exp((codes - 1) * _SIGMA_STEP))
-
-
-_SIGMAS = _sigma_table()
-
-
-def _sigmas(codes: np.ndarray) -> np.ndarray:
-    return _SIGMAS[codes]
+_SIGMA_CODE = _LogCode(SIGMA_BITS, *SIGMA_RANGE)
+_WSSR_CODE = _LogCode(WSSR_BITS, *WSSR_RANGE)
+_SIGMAS = _SIGMA_CODE.table
+_WSSRS = _WSSR_CODE.table
 
 
 def _value_codes(value: np.ndarray, sigma: np.ndarray) -> np.ndarray:
@@ -428,28 +437,6 @@ _RESIDUALS = _residual_table()
 
 def _residuals(codes: np.ndarray) -> np.ndarray:
     return _RESIDUALS[codes]
-
-
-def _wssr_codes(value: np.ndarray) -> np.ndarray:
-    lo, hi = WSSR_RANGE
-    x = np.asarray(value, dtype=np.float32)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        steps = np.rint(np.log(np.minimum(np.maximum(x, lo), hi) * (1.0 / lo))
-                        * (1.0 / _WSSR_STEP)) + 1
-    steps[~np.isfinite(x)] = 0
-    return steps.astype(np.int64)
-
-
-def _wssr_table() -> np.ndarray:
-    codes = np.arange(2**WSSR_BITS)
-    return np.where(codes == 0, np.nan, WSSR_RANGE[0] * np.exp((codes - 1) * _WSSR_STEP))
-
-
-_WSSRS = _wssr_table()
-
-
-def _wssrs(codes: np.ndarray) -> np.ndarray:
-    return _WSSRS[codes]
 
 
 class Decoded(NamedTuple):
@@ -566,10 +553,10 @@ class EstimateLayout:
         s = self.slices()
         sigma_blocks, value_blocks = self._parts()
         n_sigma, n_pairs, n_value = self._counts()
-        sig = {k: _sigma_codes(values[:, s[k]]) for k in sigma_blocks}
+        sig = {k: _SIGMA_CODE.codes(values[:, s[k]]) for k in sigma_blocks}
         for k in value_blocks:
             sig[k + "_sigma"] = _fitting(sig[k + "_sigma"], values[:, s[k]])
-        dec = {k: _sigmas(c) for k, c in sig.items()}
+        dec = {k: _SIGMAS[c] for k, c in sig.items()}
         out = np.zeros((n, self.stored_bytes), dtype=np.uint8)
         sigma_codes = np.zeros((n, n_sigma), dtype=np.int64)
         stacked = np.concatenate([sig[k] for k in sigma_blocks], axis=1)
@@ -587,7 +574,7 @@ class EstimateLayout:
         out[:, n_sigma:at] = triples.reshape(n, 3 * n_pairs)
         ny = len(self.sensors)
         out[:, at:at + ny] = _residual_codes(values[:, s["residual"]])
-        out[:, at + ny:] = _wssr_codes(values[:, s["wssr"]])
+        out[:, at + ny:] = _WSSR_CODE.codes(values[:, s["wssr"]])
         return out
 
     def decode(self, raw: bytes | np.ndarray, n: int | None = None) -> Decoded:

@@ -188,6 +188,17 @@ def node_interpolation(
     return interpolate
 
 
+def template_indices(
+    template: LinearModel, model: LinearModel
+) -> tuple[list[int], list[int], list[int], list[int]]:
+    """Where ``model``'s sensors, inputs, aux outputs and health parameters sit in the
+    schedule's template model (the rows and columns of its gains)."""
+    return ([template.sensor_names.index(n) for n in model.sensor_names],
+            [template.input_names.index(n) for n in model.input_names],
+            [template.aux_names.index(n) for n in model.aux_names],
+            [template.health_names.index(n) for n in model.health_names])
+
+
 def model_schedule_for(model: LinearModel, sched: ModelSchedule) -> Schedule:
     """Gains, trims and sensor noise of ``model``'s signals (a design's selection of the
     schedule's signals) at each record's operating condition, interpolated between the nodes of
@@ -197,10 +208,7 @@ def model_schedule_for(model: LinearModel, sched: ModelSchedule) -> Schedule:
     missing = [n for n in (*model.sensor_names, *model.input_names) if n not in sched.trim_names]
     if missing:
         raise PipelineError(f"the model schedule trims none of the signals {missing}")
-    yi = [tmpl.sensor_names.index(n) for n in model.sensor_names]
-    ui = [tmpl.input_names.index(n) for n in model.input_names]
-    zi = [tmpl.aux_names.index(n) for n in model.aux_names]
-    hi = [tmpl.health_names.index(n) for n in model.health_names]
+    yi, ui, zi, hi = template_indices(tmpl, model)
     ya, yb = stored_affine(model.sensors)
     ua, ub = stored_affine(model.inputs)
     if not np.all(np.isfinite(ya)):
@@ -440,10 +448,7 @@ def engine_schedule_for(
     with ``exact_trims`` they are solved per record (``exact_nominal_trims``), else the
     schedule's own. The gains are interpolated (they vary slowly)."""
     tmpl = sched.template
-    yi = [tmpl.sensor_names.index(n) for n in model.sensor_names]
-    ui = [tmpl.input_names.index(n) for n in model.input_names]
-    zi = [tmpl.aux_names.index(n) for n in model.aux_names]
-    hi = [tmpl.health_names.index(n) for n in model.health_names]
+    yi, ui, zi, hi = template_indices(tmpl, model)
     ya, yb = stored_affine(model.sensors)
     ua, ub = stored_affine(model.inputs)
     # The built-in engine's sensor noise is a constant in sensor units (seed 001 Table 2), so
