@@ -179,7 +179,8 @@ def _window_rows(session: Session, operator_id: int) -> list[Any]:
 
     On PostgreSQL one LATERAL query per filter state reads them as an index range of
     (engine_id, design_id, seq) and looks each snapshot up by its key: a join over whole tables
-    made the planner hash-join every estimate and snapshot (13.8 s at 4.8M records)."""
+    made the planner hash-join every estimate and snapshot (4.4-4.9 s for this query at 4.8M
+    estimates, 1,400 engines; 0.5-0.6 s now)."""
     f, est, snap = FilterState.__table__, Estimate.__table__, Snapshot.__table__
     columns = (est.c.engine_id, est.c.design_id, est.c.seq, est.c.packed, snap.c.alt_ft,
                snap.c.mach, snap.c.dtamb_k, snap.c.power_pct, snap.c.t48)
@@ -188,8 +189,11 @@ def _window_rows(session: Session, operator_id: int) -> list[Any]:
     with_snapshot = and_(snap.c.engine_id == est.c.engine_id,
                          snap.c.recorded_at == est.c.recorded_at)
     if session.get_bind().dialect.name == "postgresql":
+        # ORDER BY ... LIMIT keeps the planner from flattening the LATERAL into one hash join
+        # over whole tables (measured: 4.4-4.9 s against 0.5-0.6 s at 4.8M estimates).
         recent = (select(*columns).select_from(est.outerjoin(snap, with_snapshot))
-                  .where(in_window).lateral("recent"))
+                  .where(in_window).order_by(est.c.seq.desc()).limit(RATE_WINDOW + 1)
+                  .lateral("recent"))
         query = (select(*recent.c).select_from(f.join(recent, true()))
                  .where(f.c.operator_id == operator_id))
     else:
