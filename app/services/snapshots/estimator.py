@@ -199,6 +199,15 @@ def template_indices(
             [template.health_names.index(n) for n in model.health_names])
 
 
+def model_gains(
+    values: Mapping[str, np.ndarray], yi: list[int], ui: list[int], zi: list[int], hi: list[int]
+) -> dict[str, np.ndarray]:
+    """A schedule's node gains restricted to a model's signals (``template_indices``): G_y,
+    G_uy, G_z and G_uz over the nodes."""
+    return {"Gy": values["Gy"][..., yi, :][..., hi], "Guy": values["Guy"][..., yi, :][..., ui],
+            "Gz": values["Gz"][..., zi, :][..., hi], "Guz": values["Guz"][..., zi, :][..., ui]}
+
+
 def model_schedule_for(model: LinearModel, sched: ModelSchedule) -> Schedule:
     """Gains, trims and sensor noise of ``model``'s signals (a design's selection of the
     schedule's signals) at each record's operating condition, interpolated between the nodes of
@@ -216,12 +225,7 @@ def model_schedule_for(model: LinearModel, sched: ModelSchedule) -> Schedule:
         raise PipelineError(f"no trim in a stored unit for the engine model's sensors {bad}")
     values = sched.values
     gains_at = node_interpolation(sched.grid, sched.corners, {
-        "Gy": values["Gy"][..., yi, :][..., hi],
-        "Guy": values["Guy"][..., yi, :][..., ui],
-        "Gz": values["Gz"][..., zi, :][..., hi],
-        "Guz": values["Guz"][..., zi, :][..., ui],
-        "noise": values["noise"][..., yi],
-    })
+        **model_gains(values, yi, ui, zi, hi), "noise": values["noise"][..., yi]})
 
     def schedule(conditions: np.ndarray) -> ScheduledGains:
         # Snapshot columns are (alt, mach, dtamb, power): the schedule's CONDITIONS.
@@ -469,10 +473,7 @@ def engine_schedule_for(
 
     values = sched.values
     gains_at = node_interpolation(sched.grid, sched.corners, {
-        "Gy": values["Gy"][..., yi, :][..., hi],
-        "Guy": values["Guy"][..., yi, :][..., ui],
-        "Gz": values["Gz"][..., zi, :][..., hi],
-        "Guz": values["Guz"][..., zi, :][..., ui],
+        **model_gains(values, yi, ui, zi, hi),
         "Gy_held": values["Gy"][..., held, :][..., hi],
         "Guy_held": values["Guy"][..., held, :][..., ui],
     })
