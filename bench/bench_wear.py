@@ -27,7 +27,8 @@ only; the product's calibration meets the rate at every horizon up to an engine-
 its shorter horizons bind), beside the product's and Siegmund's thresholds, and the naive
 CUSUM's own probability on the same noise.
 
-    .venv/bin/python bench/bench_wear.py [--rate 1.5e-3 --margin 6 --floor 0.03 --limit 1]
+    OMP_NUM_THREADS=1 .venv/bin/python bench/bench_wear.py [--rate 1.5e-3 --margin 6]
+        [--floor 0.03 --limit 1]
         [--kappa 0.25 --alpha 0.05 --per-year 1 | --arl 365 | --h 3] [--siegmund]
         [--bank-rate 1e-3] [--confidence 1.3 --hold 1] [--no-bank]
         [--horizon 350 --runs 2000 | --skip-frontier]
@@ -42,11 +43,12 @@ bank's baseline as exact.)
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-import _common  # noqa: F401  (import path)
+import _common  # (import path)
 import numpy as np
 
 from app.engine_cache import engine_schedule
@@ -333,11 +335,13 @@ def main() -> None:
                             bank_calibrated=not args.siegmund,
                             bank_rate=args.bank_rate,
                             confidence=args.confidence, hold=args.hold)
+    print(_common.load_line())
     fig = fd001(args.fd001, cfg, args.units, not args.no_bank, args.cache)
     if not args.skip_frontier:
         frontier(fig, args.horizon, args.runs)
     if not args.skip_demo:
         demo(cfg, args.cache, not args.no_bank)
+    print(f"load average at the end {os.getloadavg()[0]:.2f}")
 
 
 if __name__ == "__main__":
