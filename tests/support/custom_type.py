@@ -3,11 +3,12 @@ check the routes and pages show an engine in its own type's names and units.
 
 ``model_file`` is a fleethealth.linear-model/1 file of a made-up two-spool engine: spool states
 NL and NH, inputs FF [kg/h] and IGV [deg], health parameters fan_loss, core_loss, hpt_loss and
-hpt_area, sensors N1 [%], N2 [%], EGT [degC], PS3 [kPa] and FF_meas [kg/h], aux THR [kN] and
-SMC [%]. ``setup`` defines it through the API (type, model, design with a fault library of its
-own, active), puts one engine on an aircraft and uploads ``records`` snapshots of a known
-health in the type's own columns (``samples`` simulates a stream recording of it instead); ``make_operator`` gives an operator of its own with an
-analyst key, so the type is alone in its tenant.
+hpt_area, sensors N1 [%], N2 [%], EGT [degC], PS3 [kPa] and FF_meas [kg/h], aux THR [kN] and SMC
+[%]. ``setup`` defines it through the API (type, model, design with a fault library of its own,
+active), puts one engine on an aircraft and uploads ``records`` snapshots of a known health in
+the type's own columns (``samples`` simulates a stream recording of it instead);
+``make_operator`` gives an operator of its own with an analyst key, so the type is alone in its
+tenant.
 """
 
 from __future__ import annotations
@@ -132,7 +133,8 @@ Post = Callable[[str, dict[str, Any]], dict[str, Any]]
 
 
 def setup(post: Post, upload_csv: Callable[[bytes], Any], n: int = 60) -> CustomFleet:
-    """The type, its model, an active design, an engine on an aircraft and ``n`` snapshots,
+    """The type, its model, an active design, an engine on an aircraft and ``n`` snapshots (none
+    for 0),
     all through the API (``post(path, body)`` answering the JSON of a success, and
     ``upload_csv(body)``)."""
     type_id = post("/api/v1/engine-types", {"name": "Made-up 2-spool"})["id"]

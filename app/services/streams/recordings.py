@@ -2,14 +2,14 @@
 
 A recording is one engine on one flight at a fixed sample interval ``dt_s``. Its samples are
 checked against the parameter set of the engine's type (``uploads.parameters.check_stream``: a
-column the type does not have refuses the upload, naming the column and the type; declared
-units are converted to the stored ones, the model file's for a type's own signals) and live
-under ``data_dir/recordings/<operator>/<recording>/chunk-000000.parquet, ...`` (time_s and the
-signals in stored units, by the type's names); the database keeps the metadata, one row per chunk and one upload
-row per request. A whole-flight file is chunk 0 of a closed recording. Live chunks arrive in
-order (``chunk_index`` 0, 1, ...); each continues the time axis of the one before. A chunk
-sent again with the same content is answered as before; other content under a received index
-is a 409.
+column the type does not have refuses the upload, naming the column and the type; declared units
+are converted to the stored ones, the model file's for a type's own signals) and live under
+``data_dir/recordings/<operator>/<recording>/chunk-000000.parquet, ...`` (time_s and the signals
+in stored units, by the type's names); the database keeps the metadata, one row per chunk and
+one upload row per request. A whole-flight file is chunk 0 of a closed recording. Live chunks
+arrive in order (``chunk_index`` 0, 1, ...); each continues the time axis of the one before. A
+chunk sent again with the same content is answered as before; other content under a received
+index is a 409.
 
 Files are written before the transaction commits, under names derived from the recording and
 chunk index: a rolled-back request may leave a file that the next accepted chunk of that index

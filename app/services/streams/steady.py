@@ -1,17 +1,17 @@
 """A recording's steady windows as records of the engine: streams in the engine's history.
 
 When samples of a recording are stored (a whole-flight file, or a live chunk that completes
-windows), its complete windows on the fixed grid from the recording's first sample are
-checked for steadiness (``estimation.steady_windows``: power setting, Mach number, altitude
-rate and the spools' transient index) and each steady window of the take-off, climb or cruise
-becomes one snapshot of the engine: the mean of every signal (operating condition, actuators,
-sensors) over the window, the window's phase, the recording's flight, ``recorded_at`` the
-window's middle (an engine type's own signals, outside the catalogue, among them: stored by
-name as any snapshot's are), stored in ``snapshots`` with the upload that carried the samples and marked in
-the estimation backlog like any upload's rows. The snapshot pipeline then runs the engine's
-filter, shift and wear detectors over them with the engine's snapshots, under one baseline,
-and the trend shows them (``trends.service.stream_records``: a record is a stream window when
-its upload belongs to a recording).
+windows), its complete windows on the fixed grid from the recording's first sample are checked
+for steadiness (``estimation.steady_windows``: power setting, Mach number, altitude rate and the
+spools' transient index) and each steady window of the take-off, climb or cruise becomes one
+snapshot of the engine: the mean of every signal (operating condition, actuators, sensors) over
+the window, the window's phase, the recording's flight, ``recorded_at`` the window's middle (an
+engine type's own signals, outside the catalogue, among them: stored by name as any snapshot's
+are), stored in ``snapshots`` with the upload that carried the samples and marked in the
+estimation backlog like any upload's rows. The snapshot pipeline then runs the engine's filter,
+shift and wear detectors over them with the engine's snapshots, under one baseline, and the
+trend shows them (``trends.service.stream_records``: a record is a stream window when its upload
+belongs to a recording).
 
 Idempotent: a window's time depends only on the recording's start and the grid, and a window
 whose (engine, recorded_at) is stored already is not stored again; a resent chunk or a
