@@ -134,8 +134,7 @@ Post = Callable[[str, dict[str, Any]], dict[str, Any]]
 
 def setup(post: Post, upload_csv: Callable[[bytes], Any], n: int = 60) -> CustomFleet:
     """The type, its model, an active design, an engine on an aircraft and ``n`` snapshots (none
-    for 0),
-    all through the API (``post(path, body)`` answering the JSON of a success, and
+    for 0), all through the API (``post(path, body)`` answering the JSON of a success, and
     ``upload_csv(body)``)."""
     type_id = post("/api/v1/engine-types", {"name": "Made-up 2-spool"})["id"]
     model_id = post("/api/v1/engine-models", {"engine_type_id": type_id, "name": "cruise",
