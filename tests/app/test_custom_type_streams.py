@@ -21,10 +21,12 @@ from typing import Any
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.config import Settings
 from app.jobs.runner import run_pending
+from app.models.stream_estimates import StreamFilterState
 from tests.support import custom_type as own
 
 TYPE = "'Made-up 2-spool'"
@@ -67,7 +69,7 @@ def meta(started: Any = STARTED) -> dict[str, Any]:
 
 
 def test_a_custom_type_stream_is_stored_in_its_units_and_tracks_a_known_health(
-    client: TestClient, custom: tuple[own.CustomFleet, dict[str, str]],
+    client: TestClient, custom: tuple[own.CustomFleet, dict[str, str]], session: Session,
     session_factory: sessionmaker[Session], settings: Settings, monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     fleet, headers = custom
@@ -99,6 +101,10 @@ def test_a_custom_type_stream_is_stored_in_its_units_and_tracks_a_known_health(
     assert body["names"]["health"] == list(own.HEALTH)
     assert body["names"]["sensors"] == ["N1", "N2", "EGT", "PS3"]
     assert body["n_samples_estimated"] == N
+    # A model at one operating point: one gain for the whole recording.
+    state = session.scalar(select(StreamFilterState).where(
+        StreamFilterState.recording_id == recording["id"]))
+    assert state is not None and state.n_segments == 1
     t = np.array(body["t_s"])
     shift_s = SHIFT_AT * 0.02
     before = (t >= 10.0) & (t < shift_s - 1.0)  # settled from the nominal start
