@@ -35,7 +35,7 @@ SENSORS = (("N1", "%"), ("N2", "%"), ("EGT", "K"), ("PS3", "kPa"))
 TRIM = {"N1": 92.0, "N2": 96.0, "EGT": 1050.0, "PS3": 2900.0, "FF": 3600.0, "thrust": 110.0}
 NOISE_STD = (0.15, 0.15, 0.25, 0.25)  # percent of trim
 # The design's fault library: names of this engine's maker, shifts in its health parameters.
-LIBRARY = [
+LIBRARY: list[dict[str, Any]] = [
     {"name": "Fan blade erosion", "shifts": {"fan_eff": -2.0}},
     {"name": "HPC fouling", "shifts": {"hpc_eff": -2.0}},
     {"name": "HPT nozzle burn-through", "shifts": {"hpt_eff": -1.5, "hpt_flow": 2.0}},
