@@ -3,11 +3,12 @@ check the routes and pages show an engine in its own type's names and units.
 
 ``model_file`` is a fleethealth.linear-model/1 file of a made-up two-spool engine: spool states
 NL and NH, inputs FF [kg/h] and IGV [deg], health parameters fan_loss, core_loss, hpt_loss and
-hpt_area, sensors N1 [%], N2 [%], EGT [degC], PS3 [kPa] and FF_meas [kg/h], aux THR [kN] and
-SMC [%]. ``setup`` defines it through the API (type, model, design with a fault library of its
-own, active), puts one engine on an aircraft and uploads ``records`` snapshots of a known
-health in the type's own columns; ``make_operator`` gives an operator of its own with an
-analyst key, so the type is alone in its tenant.
+hpt_area, sensors N1 [%], N2 [%], EGT [degC], PS3 [kPa] and FF_meas [kg/h], aux THR [kN] and SMC
+[%]. ``setup`` defines it through the API (type, model, design with a fault library of its own,
+active), puts one engine on an aircraft and uploads ``records`` snapshots of a known health in
+the type's own columns (``samples`` simulates a stream recording of it instead);
+``make_operator`` gives an operator of its own with an analyst key, so the type is alone in its
+tenant.
 """
 
 from __future__ import annotations
@@ -85,6 +86,32 @@ def records(n: int, seed: int = 1) -> tuple[list[str], list[list[Any]]]:
     return header, rows
 
 
+STREAM_HEADER = ["time_s", "alt_ft", "mach", "dtamb_k", "power_pct", "N1[%]", "N2[%]",
+                 "EGT[degF]", "PS3[kPa]", "FF_meas[kg/h]", "FF[kg/h]", "IGV[deg]"]
+
+
+def samples(n: int, health: np.ndarray, seed: int = 2) -> tuple[list[str], np.ndarray]:
+    """CSV header and [n, 12] values of a stream recording of the engine at the model's own
+    sample interval, in cruise, inputs at trim: the model file's dynamics run from the steady
+    state of ``health[0]`` through ``health`` [n, 4] (percent) with its sensor noise, the
+    sensors in the model's units (EGT sent in degF: column 7)."""
+    model = LinearModel.from_dict(model_file())
+    rng = np.random.default_rng(seed)
+    x = np.linalg.solve(np.eye(model.n_states) - model.A, model.L @ health[0])
+    dy = np.empty((n, model.n_sensors))
+    for k in range(n):
+        dy[k] = model.C @ x + model.M @ health[k]
+        x = model.A @ x + model.L @ health[k]
+    dy += rng.standard_normal(dy.shape) * model.sensor_noise_std
+    y = np.array([TRIM[s] for s in model.sensor_names]) * (1.0 + dy / 100.0)
+    y[:, 2] = y[:, 2] * 1.8 + 32.0
+    t = np.arange(n) * model.dt
+    values = np.column_stack([t, np.full(n, 35000.0), np.full(n, 0.8), np.zeros(n),
+                              np.full(n, 85.0), y, np.full(n, TRIM["FF"]),
+                              np.full(n, TRIM["IGV"])])
+    return STREAM_HEADER, values
+
+
 def make_operator(session: Session) -> tuple[int, str]:
     """An operator of its own and its analyst key (committed)."""
     operator = tenancy.create_operator(session, name=f"Own Types {uuid.uuid4().hex[:8]}")
@@ -106,8 +133,8 @@ Post = Callable[[str, dict[str, Any]], dict[str, Any]]
 
 
 def setup(post: Post, upload_csv: Callable[[bytes], Any], n: int = 60) -> CustomFleet:
-    """The type, its model, an active design, an engine on an aircraft and ``n`` snapshots,
-    all through the API (``post(path, body)`` answering the JSON of a success, and
+    """The type, its model, an active design, an engine on an aircraft and ``n`` snapshots (none
+    for 0), all through the API (``post(path, body)`` answering the JSON of a success, and
     ``upload_csv(body)``)."""
     type_id = post("/api/v1/engine-types", {"name": "Made-up 2-spool"})["id"]
     model_id = post("/api/v1/engine-models", {"engine_type_id": type_id, "name": "cruise",
@@ -123,9 +150,10 @@ def setup(post: Post, upload_csv: Callable[[bytes], Any], n: int = 60) -> Custom
     post("/api/v1/installations",
          {"engine_id": engine_id, "aircraft_id": aircraft_id, "position": 1,
           "installed_at": utc(T0 - timedelta(days=1))})
-    header, rows = records(n)
-    text = "\n".join(",".join(str(v) for v in line) for line in [header, *rows]) + "\n"
-    upload_csv(text.encode())
+    if n:
+        header, rows = records(n)
+        text = "\n".join(",".join(str(v) for v in line) for line in [header, *rows]) + "\n"
+        upload_csv(text.encode())
     return CustomFleet(type_id, model_id, design_id, engine_id, aircraft_id)
 
 

@@ -1,6 +1,13 @@
 """A stored design ready to filter streams (``StreamEstimator``): the design model restricted to
 the sensors a recording carries, V*, noise, the engine schedule and the gains per anchor
 condition (cached; the numerics are ``estimation.stream_filter``).
+
+Trims come as the snapshot pipeline takes them (``snapshots.estimator``): from the built-in
+engine's schedule for a model linearised from it; from an imported model schedule
+(``fleethealth.model-schedule/1``) at each sample's condition, with its models interpolated
+at each segment's anchor; from the model's own trims for an imported model at one operating
+point (one gain). They are in the unit the samples are stored in (``stored_affine``): the
+catalogue's for a catalogue signal, the model file's for an engine type's own signal.
 """
 
 from __future__ import annotations
@@ -27,6 +34,7 @@ from estimation.engine.health import HEALTH_NAMES
 from estimation.engine.schedule import EngineSchedule
 from estimation.engine.sensors import AUX_NAMES, SENSOR_NAMES
 from estimation.model import LinearModel
+from estimation.schedule import SCHEDULE_FORMAT, ModelSchedule
 from estimation.snapshot_design import DesignResult
 from estimation.stream_filter import ResampleError, SegmentGain, segment_gain
 
@@ -72,6 +80,7 @@ class StreamEstimator:
     layout: EstimateLayout
     bias: BiasModel | None = None  # transient bias compensation, for the sensors in use
     stream_filter: str = STREAM_FILTERS[0]
+    model_schedule: ModelSchedule | None = None  # an imported model schedule (not built-in)
     _gains: dict[tuple[Any, ...], SegmentGain] = field(default_factory=dict)
     _cgekf: dict[float, tuple[CgekfDesign, np.ndarray]] = field(default_factory=dict)
 
@@ -85,7 +94,7 @@ class StreamEstimator:
 
     def snapped(self, anchor: np.ndarray) -> tuple[float, ...]:
         """The lattice point the gain of an anchor condition is computed at."""
-        if self.schedule is None:
+        if self.schedule is None and self.model_schedule is None:
             return ()
         return tuple(float(v) for v in np.round(anchor / TOLERANCE) * TOLERANCE)
 
@@ -100,6 +109,12 @@ class StreamEstimator:
             at = at.select_sensors(model.sensor_names).select_health(model.health_names)
             model = replace(at.select_aux(model.aux_names),
                             sensor_noise_std=model.sensor_noise_std)
+        elif self.model_schedule is not None:
+            # (alt, Mach, dTamb, power): the stored column order is the schedule's; the sensor
+            # noise interpolated there too, as the snapshot pipeline takes it
+            at = self.model_schedule.model_at(key)
+            at = at.select_sensors(model.sensor_names).select_health(model.health_names)
+            model = at.select_aux(model.aux_names)
         R_regions = None if self.bias is None else {
             r: self.bias.covariance(r, model.R) for r in self.bias.regions()}
         try:
@@ -172,23 +187,38 @@ class StreamEstimator:
         """Sensor and actuator trims [S, ny], [S, nu] in stored units at conditions [S, 4]
         (stored column order alt, Mach, dTamb, power)."""
         model = self.model
+        if self.schedule is None:
+            return self._own_trims(cond)
         ys = [(s.name, s.unit) for s in model.sensors]
         us = [(s.name, s.unit) for s in model.inputs]
-        if self.schedule is None:
-            raw_y = np.array([model.trim.get(n, math.nan) for n, _ in ys])[None, :]
-            raw_u = np.array([model.trim.get(n, math.nan) for n, _ in us])[None, :]
-            raw_y = np.broadcast_to(raw_y, (cond.shape[0], len(ys)))
-            raw_u = np.broadcast_to(raw_u, (cond.shape[0], len(us)))
-            units_of = {n: u for n, u in ys + us}
-        else:
-            t = self.schedule.trims_at(cond[:, [0, 1, 3, 2]])
-            raw_y = np.stack([t[n] for n, _ in ys], axis=1)
-            raw_u = np.stack([t[n] for n, _ in us], axis=1) if us else np.zeros((len(cond), 0))
-            tmpl = self.schedule.template
-            units_of = {s.name: s.unit for s in (*tmpl.sensors, *tmpl.inputs)}
+        t = self.schedule.trims_at(cond[:, [0, 1, 3, 2]])
+        raw_y = np.stack([t[n] for n, _ in ys], axis=1)
+        raw_u = np.stack([t[n] for n, _ in us], axis=1) if us else np.zeros((len(cond), 0))
+        tmpl = self.schedule.template
+        units_of = {s.name: s.unit for s in (*tmpl.sensors, *tmpl.inputs)}
         ay = np.array([_stored_affine(n, units_of[n]) for n, _ in ys]).reshape(-1, 2)
         au = np.array([_stored_affine(n, units_of[n]) for n, _ in us]).reshape(-1, 2)
         return raw_y * ay[:, 0] + ay[:, 1], raw_u * au[:, 0] + au[:, 1]
+
+    def _own_trims(self, cond: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``trims`` of an imported model: the model schedule's at each condition, else the
+        model's own (one operating point), into the stored units as snapshots take them."""
+        model, S = self.model, cond.shape[0]
+        if self.model_schedule is not None:
+            t = self.model_schedule.trims_at(cond)
+            raw_y = np.stack([t[n] for n in model.sensor_names], axis=1)
+            raw_u = (np.stack([t[n] for n in model.input_names], axis=1) if model.inputs
+                     else np.zeros((S, 0)))
+        else:
+            raw_y = np.broadcast_to(
+                np.array([model.trim.get(n, math.nan) for n in model.sensor_names]),
+                (S, model.n_sensors))
+            raw_u = np.broadcast_to(
+                np.array([model.trim.get(n, math.nan) for n in model.input_names]),
+                (S, model.n_inputs))
+        ya, yb = estimator.stored_affine(model.sensors)
+        ua, ub = estimator.stored_affine(model.inputs)
+        return raw_y * ya + yb, raw_u * ua + ub
 
 
 _ESTIMATORS: dict[tuple[Any, ...], StreamEstimator] = {}
@@ -218,8 +248,9 @@ def estimator_for(
             f"design {design.id}: stream_filter must be one of {list(STREAM_FILTERS)}, "
             f"found {stream_filter!r}")
     sched = estimator.builtin_schedule() if row.source == "builtin" else None
-    key = (design.id, _document_key(result, None if isinstance(embedded, Mapping)
-                                    else row.content), tuple(signals), id(sched), stream_filter)
+    scheduled = row.source != "builtin" and row.format == SCHEDULE_FORMAT
+    key = (design.id, _document_key(result, row.content if scheduled or not isinstance(
+        embedded, Mapping) else None), tuple(signals), id(sched), stream_filter)
     cached = _ESTIMATORS.get(key)
     if cached is not None:
         return cached
@@ -260,8 +291,15 @@ def estimator_for(
             raise StreamEstimationError(f"design {design.id}: its transient bias model: {e}") from e
     if stream_filter == "cgekf":
         _check_cgekf(design.id, row.source, model)
+    model_schedule = ModelSchedule.from_dict(row.content) if scheduled else None
+    if model_schedule is not None:
+        missing = [n for n in (*model.sensor_names, *model.input_names)
+                   if n not in model_schedule.trim_names]
+        if missing:
+            raise StreamEstimationError(
+                f"design {design.id}: the model schedule trims none of the signals {missing}")
     est = StreamEstimator(design.id, model, vstar, Vp, Q, Qh, sched, layout, bias=bias,
-                          stream_filter=stream_filter)
+                          stream_filter=stream_filter, model_schedule=model_schedule)
     if len(_ESTIMATORS) > 32:
         _ESTIMATORS.clear()
     _ESTIMATORS[key] = est

@@ -1,12 +1,15 @@
 """Stream recordings: whole-flight files and live chunks, samples kept as Parquet files.
 
-A recording is one engine on one flight at a fixed sample interval ``dt_s``. Its samples live
-under ``data_dir/recordings/<operator>/<recording>/chunk-000000.parquet, ...`` (time_s and the
-signals in stored units); the database keeps the metadata, one row per chunk and one upload
-row per request. A whole-flight file is chunk 0 of a closed recording. Live chunks arrive in
-order (``chunk_index`` 0, 1, ...); each continues the time axis of the one before. A chunk
-sent again with the same content is answered as before; other content under a received index
-is a 409.
+A recording is one engine on one flight at a fixed sample interval ``dt_s``. Its samples are
+checked against the parameter set of the engine's type (``uploads.parameters.check_stream``: a
+column the type does not have refuses the upload, naming the column and the type; declared units
+are converted to the stored ones, the model file's for a type's own signals) and live under
+``data_dir/recordings/<operator>/<recording>/chunk-000000.parquet, ...`` (time_s and the signals
+in stored units, by the type's names); the database keeps the metadata, one row per chunk and
+one upload row per request. A whole-flight file is chunk 0 of a closed recording. Live chunks
+arrive in order (``chunk_index`` 0, 1, ...); each continues the time axis of the one before. A
+chunk sent again with the same content is answered as before; other content under a received
+index is a 409.
 
 Files are written before the transaction commits, under names derived from the recording and
 chunk index: a rolled-back request may leave a file that the next accepted chunk of that index
@@ -34,8 +37,8 @@ from app.models import Engine, StreamChunk, StreamRecording, Upload
 from app.models.base import utcnow
 from app.services import common
 from app.services.fleet import service as fleet
-from app.services.fleet.parameter_sets import CATALOGUE, parameter_sets
 from app.services.streams import samples, steady
+from app.services.uploads.parameters import check_stream
 from app.services.uploads.parse import ParsedTable, RowError, UploadRejected, parse_body
 from app.services.uploads.store import content_checksum, find_replay
 
@@ -93,8 +96,8 @@ def _write_chunk(path: Path, table: pa.Table) -> None:
     os.replace(partial, path)
 
 
-def _resolve(session: Session, operator_id: int, meta: StreamMeta) -> tuple[int, int]:
-    """(engine_id, aircraft_id) installed at the tail position when the recording started."""
+def _resolve(session: Session, operator_id: int, meta: StreamMeta) -> tuple[Engine, int]:
+    """(engine, aircraft_id) installed at the tail position when the recording started."""
     aircraft = fleet.find_aircraft(session, operator_id=operator_id, tail=meta.tail)
     if aircraft is None:
         raise InvalidInput(
@@ -108,24 +111,17 @@ def _resolve(session: Session, operator_id: int, meta: StreamMeta) -> tuple[int,
             f"at {meta.started_at.isoformat()}"
         )
         raise InvalidInput(reason, details=[{"row": None, "column": "position", "reason": reason}])
-    _check_streamable(session, engine)
-    return engine.id, aircraft.id
+    return engine, aircraft.id
 
 
-def _check_streamable(session: Session, engine: Engine) -> None:
-    """Streams are read in the signal catalogue's names and estimated on the built-in engine's
-    schedule: an engine whose type has signals of its own (``fleet.parameter_sets``) sends
-    snapshots instead, and a stream of it is refused (422) saying so."""
-    params = parameter_sets(session, [engine.engine_type_id])[engine.engine_type_id]
-    own = [spec.name for spec in params.signals if spec.name not in CATALOGUE]
-    if own:
-        reason = (
-            f"engine {engine.esn!r} is of engine type {params.engine_type!r}, whose signals "
-            f"({', '.join(own[:8])}{' ...' if len(own) > 8 else ''}) are not the signal "
-            "catalogue's: stream recordings take the catalogue's signals only and are "
-            "estimated on the built-in engine; send this engine's data as snapshots"
-        )
-        raise InvalidInput(reason, details=[{"row": None, "column": None, "reason": reason}])
+def _parse(
+    session: Session, engine_type_id: int, body: bytes, content_format: str,
+    mapping: Mapping[str, str | None] | None = None,
+) -> ParsedTable:
+    """A stream body read and checked against the engine type's parameter set, in stored
+    units."""
+    parsed = parse_body(body, content_format, kind="stream", mapping=mapping, by_type=True)
+    return check_stream(session, engine_type_id, parsed)
 
 
 def open_recording(
@@ -134,7 +130,8 @@ def open_recording(
     """A new open recording for the engine installed at the tail position at its start."""
     if meta.started_at.tzinfo is None:
         raise InvalidInput("started_at: give a time zone")
-    engine_id, aircraft_id = _resolve(session, operator_id, meta)
+    engine, aircraft_id = _resolve(session, operator_id, meta)
+    engine_id = engine.id
     taken = session.scalar(
         select(StreamRecording).where(
             StreamRecording.engine_id == engine_id,
@@ -281,10 +278,9 @@ def upload_recording(
         recording = session.get(StreamRecording, earlier.recording_id)
         if recording is not None:
             return earlier, recording, True
-    # The engine first: a stream of an engine type with signals of its own is refused for
-    # that (``_check_streamable``), not for its columns.
-    _resolve(session, operator_id, stream_meta)
-    parsed = parse_body(body, content_format, kind="stream", mapping=mapping)
+    # The engine first: its type decides which columns the samples may carry.
+    engine, _aircraft = _resolve(session, operator_id, stream_meta)
+    parsed = _parse(session, engine.engine_type_id, body, content_format, mapping)
     recording = open_recording(
         session, operator_id=operator_id, meta=stream_meta, dt_s=_dt_of(parsed)
     )
@@ -375,7 +371,9 @@ def append_chunk(
                 "reason": f"chunk {chunk_index} is out of order: {recording.n_chunks} comes next",
             }],
         )
-    parsed = parse_body(body, content_format, kind="stream")
+    engine = session.get(Engine, recording.engine_id)
+    assert engine is not None
+    parsed = _parse(session, engine.engine_type_id, body, content_format)
     upload = _upload_row(
         operator_id=operator_id,
         api_key_id=api_key_id,

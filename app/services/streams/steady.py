@@ -1,16 +1,17 @@
 """A recording's steady windows as records of the engine: streams in the engine's history.
 
 When samples of a recording are stored (a whole-flight file, or a live chunk that completes
-windows), its complete windows on the fixed grid from the recording's first sample are
-checked for steadiness (``estimation.steady_windows``: power setting, Mach number, altitude
-rate and the spools' transient index) and each steady window of the take-off, climb or cruise
-becomes one snapshot of the engine: the mean of every signal (operating condition, actuators,
-sensors) over the window, the window's phase, the recording's flight, ``recorded_at`` the
-window's middle, stored in ``snapshots`` with the upload that carried the samples and marked in
-the estimation backlog like any upload's rows. The snapshot pipeline then runs the engine's
-filter, shift and wear detectors over them with the engine's snapshots, under one baseline,
-and the trend shows them (``trends.service.stream_records``: a record is a stream window when
-its upload belongs to a recording).
+windows), its complete windows on the fixed grid from the recording's first sample are checked
+for steadiness (``estimation.steady_windows``: power setting, Mach number, altitude rate and the
+spools' transient index) and each steady window of the take-off, climb or cruise becomes one
+snapshot of the engine: the mean of every signal (operating condition, actuators, sensors) over
+the window, the window's phase, the recording's flight, ``recorded_at`` the window's middle (an
+engine type's own signals, outside the catalogue, among them: stored by name as any snapshot's
+are), stored in ``snapshots`` with the upload that carried the samples and marked in the
+estimation backlog like any upload's rows. The snapshot pipeline then runs the engine's filter,
+shift and wear detectors over them with the engine's snapshots, under one baseline, and the
+trend shows them (``trends.service.stream_records``: a record is a stream window when its upload
+belongs to a recording).
 
 Idempotent: a window's time depends only on the recording's start and the grid, and a window
 whose (engine, recorded_at) is stored already is not stored again; a resent chunk or a
@@ -96,7 +97,9 @@ def summarise_windows(
     keep = [j for j, t in enumerate(times) if t not in stored]
     if not keep:
         return 0
-    means = window_means(np.column_stack([_column(table, s.name) for s in SIGNALS]),
+    catalogue = [s.name for s in SIGNALS]
+    names = catalogue + [n for n in table.column_names if n not in catalogue and n != "time_s"]
+    means = window_means(np.column_stack([_column(table, name) for name in names]),
                          starts[keep], W)
     n = len(keep)
     columns: dict[str, pa.Array] = {
@@ -107,9 +110,9 @@ def summarise_windows(
         "phase": pa.array([windows[j].phase for j in keep], pa.string()),
         "flight_id": pa.array([recording.flight_id] * n, pa.string()),
     }
-    for k, s in enumerate(SIGNALS):
+    for k, name in enumerate(names):
         values = means[:, k]
-        columns[s.name] = pa.array(values, pa.float64(), mask=~np.isfinite(values))
+        columns[name] = pa.array(values, pa.float64(), mask=~np.isfinite(values))
     rows = pa.table(columns)
     affected = uploads_store.record_affected(session, upload, rows)
     upload.message = f"{upload.message}; {n} steady windows summarised"

@@ -7,6 +7,10 @@ columns it must carry (the operating condition and ``phase`` when the type's mod
 scheduled on them), and the unit of each signal (the model file's, for a signal outside the
 catalogue). Values are converted to the unit they are stored in and their physical range is
 checked, type by type, so one upload may hold engines of two types.
+
+A stream recording is one engine's samples: ``check_stream`` checks and converts them against
+that engine's type the same way (the operating condition and ``time_s`` every sample carries,
+the parser requires).
 """
 
 from __future__ import annotations
@@ -60,17 +64,33 @@ def check_parameters(session: Session, rows: pa.Table, parsed: ParsedTable) -> T
         np.searchsorted(unique, engine_ids)]
     types = parameter_sets(session, sorted(set(row_types.tolist())))
     masks = {type_id: row_types == type_id for type_id in types}
+    return TypedRows(_checked(rows, parsed, types, masks, required=True), types)
+
+
+def check_stream(session: Session, engine_type_id: int, parsed: ParsedTable) -> ParsedTable:
+    """A stream's samples (one engine, of type ``engine_type_id``) checked and converted to
+    their stored units; an ``UploadRejected`` names each column the type does not have."""
+    types = parameter_sets(session, [engine_type_id])
+    masks = {engine_type_id: np.ones(parsed.num_rows, dtype=bool)}
+    table = _checked(parsed.table, parsed, types, masks, required=False)
+    return ParsedTable(table, parsed.units, parsed.sources)
+
+
+def _checked(
+    table: pa.Table, parsed: ParsedTable, types: dict[int, ParameterSet],
+    masks: dict[int, np.ndarray], *, required: bool,
+) -> pa.Table:
     log = ErrorLog()
-    table = rows
     try:
         _check_columns(table, parsed, types, masks, log)
-        _check_required(table, parsed, types, masks, log)
+        if required:
+            _check_required(table, parsed, types, masks, log)
         log.raise_if_any()
         table = _convert(table, parsed, types, masks, log)
     except ErrorLimitReached:
         pass
     log.raise_if_any()
-    return TypedRows(table, types)
+    return table
 
 
 def _check_columns(

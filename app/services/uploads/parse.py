@@ -9,10 +9,10 @@ Column names are the upload names of docs/upload-format.md; a ``[unit]`` suffix 
 (``T30[degC]``), otherwise the stored unit is assumed. A column mapping renames foreign
 columns (``{"HPC_T": "T30"}``) or drops them (``{"Ps30_raw": null}``) before anything else.
 
-Snapshots are parsed ``by_type``: any signal column is read as numbers with its declared unit,
-and which columns a row may carry, which it must, and the units they convert from are decided
-once the row's engine, hence its engine type, is known (``app.services.uploads.parameters``).
-Streams are checked here against the signal catalogue.
+Snapshots and streams are parsed ``by_type``: any signal column is read as numbers with its
+declared unit, and which columns a row may carry, which it must, and the units they convert from
+are decided once the row's engine, hence its engine type, is known
+(``app.services.uploads.parameters``). Without ``by_type`` the signal catalogue decides here.
 """
 
 from __future__ import annotations
@@ -52,7 +52,8 @@ SNAPSHOT_REQUIRED = ("recorded_at", "tail", "position", "phase") + tuple(
 )
 # Required of every snapshot whatever its engine type (the rest: its parameter set).
 SNAPSHOT_REQUIRED_BY_TYPE = ("recorded_at", "tail", "position")
-STREAM_REQUIRED = ("time_s",) + tuple(s.name for s in OPERATING_CONDITION)
+STREAM_KEYS = ("time_s",)
+STREAM_REQUIRED = STREAM_KEYS + tuple(s.name for s in OPERATING_CONDITION)
 SIGNAL_BY_NAME: dict[str, SignalSpec] = {s.name: s for s in SIGNALS}
 MAX_POSITION = 4
 
@@ -161,7 +162,9 @@ class ParsedTable:
 
     @property
     def signals(self) -> tuple[str, ...]:
-        return tuple(name for name in self.table.column_names if name in SIGNAL_BY_NAME)
+        """The signal columns: the catalogue's, and (by_type) every other one sent."""
+        return tuple(name for name in self.table.column_names
+                     if name in SIGNAL_BY_NAME or name in self.sources)
 
 
 # ---------------------------------------------------------------- columns and units
@@ -183,12 +186,14 @@ def resolve_columns(
     mapping: Mapping[str, str | None] | None = None,
     units: Mapping[str, str] | None = None,
     log: ErrorLog,
+    keys: tuple[str, ...] = SNAPSHOT_KEYS,
 ) -> list[ColumnSpec]:
     """Map file columns to upload names: apply the mapping, split units, refuse unknowns.
 
     ``mapping`` keys are file column names (with or without their ``[unit]``); a None value
     drops the column. ``units`` declares units by upload name (the JSON ``"units"`` object).
-    ``allowed`` None takes any name as a signal whose unit is checked later (by type).
+    ``allowed`` None takes any name as a signal whose unit is checked later (by type), except
+    the ``keys`` (no unit).
     """
     mapping = dict(mapping or {})
     units = dict(units or {})
@@ -217,7 +222,7 @@ def resolve_columns(
             continue
         seen[target] = header
         unit = unit or units.get(target)
-        if unit is not None and by_type and target in SNAPSHOT_KEYS:
+        if unit is not None and by_type and target in keys:
             log.add(None, header, f"column {target!r} takes no unit (got {unit!r})")
         elif unit is not None and not by_type:
             _check_unit(target, unit, header, log)
@@ -580,7 +585,7 @@ def _build(
         _check_time_axis(table, log)
     if not by_type:
         return ParsedTable(table)
-    signals = [s for s in specs if s.target not in SNAPSHOT_KEYS]
+    signals = [s for s in specs if s.target not in _keys(kind)]
     return ParsedTable(table, {s.target: s.unit for s in signals},
                        {s.target: s.source for s in signals})
 
@@ -620,9 +625,14 @@ def _allowed(kind: str, by_type: bool = False) -> tuple[str, ...] | None:
 
 
 def _required(kind: str, by_type: bool = False) -> tuple[str, ...]:
-    if by_type:
-        return SNAPSHOT_REQUIRED_BY_TYPE
-    return SNAPSHOT_REQUIRED if kind == "snapshots" else STREAM_REQUIRED
+    if kind != "snapshots":
+        return STREAM_REQUIRED  # a stream's steady windows are found on its condition
+    return SNAPSHOT_REQUIRED_BY_TYPE if by_type else SNAPSHOT_REQUIRED
+
+
+def _keys(kind: str) -> tuple[str, ...]:
+    """The columns that are not signals."""
+    return SNAPSHOT_KEYS if kind == "snapshots" else STREAM_KEYS
 
 
 def _typed(target: str) -> pa.DataType:
@@ -669,7 +679,7 @@ def parse_csv(
     try:
         specs = resolve_columns(
             headers, allowed=_allowed(kind, by_type), required=_required(kind, by_type),
-            mapping=mapping, log=log,
+            mapping=mapping, log=log, keys=_keys(kind),
         )
     except ErrorLimitReached:
         pass
@@ -741,6 +751,7 @@ def parse_parquet(
             required=_required(kind, by_type),
             mapping=mapping,
             log=log,
+            keys=_keys(kind),
         )
     except ErrorLimitReached:
         pass
@@ -803,6 +814,7 @@ def parse_json(body: bytes, *, kind: str = "snapshots", by_type: bool = False) -
             mapping=mapping,
             units=units,
             log=log,
+            keys=_keys(kind),
         )
         log.raise_if_any()
         raw = {s.target: _json_column(records, s, log) for s in specs}
@@ -874,8 +886,8 @@ def parse_body(
     mapping: Mapping[str, str | None] | None = None,
     by_type: bool = False,
 ) -> ParsedTable:
-    """Dispatch on the body's format: ``csv``, ``json`` or ``parquet``. ``by_type``
-    (snapshots): signals are left in the units sent, for ``uploads.parameters``."""
+    """Dispatch on the body's format: ``csv``, ``json`` or ``parquet``. ``by_type``: signals
+    are left in the units sent, for ``uploads.parameters``."""
     if content_format == "csv":
         return parse_csv(body, kind=kind, mapping=mapping, by_type=by_type)
     if content_format == "parquet":

@@ -225,3 +225,76 @@ def test_an_engine_of_a_scheduled_type_is_estimated_to_its_known_health(
     for j, name in enumerate(models[0].sensor_names):
         assert np.allclose(gains.y_trim[:, j], [m.trim[name] for m in models], rtol=1e-9), name
     assert not gains.constant
+
+
+def test_a_stream_of_a_scheduled_type_is_scheduled_on_each_samples_condition(
+    client: TestClient, session: Session, tenant: Tenant, settings: Any,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A recording flying two of the schedule's nodes in turn (the sensors steady at the
+    engine's health, each from its node's model, in its own units and EGT in degF): the
+    stream filter takes each sample's trims and each segment's gain from the schedule, so the
+    health comes back at both nodes (on the design point's trims alone the second is far off)."""
+    from app.services.streams import estimator as stream_estimator
+    from app.services.streams import store as stream_store
+
+    monkeypatch.setattr("app.config.get_settings", lambda: settings)
+    model_id = post(client, tenant, f"{API}/engine-models", {
+        "engine_type_id": tenant.ids["type"], "name": "envelope",
+        "model": schedule_document()})["id"]
+    design = post(client, tenant, f"{API}/designs",
+                  {"engine_model_id": model_id, "name": "d", "spec": SPEC})
+    post(client, tenant, f"{API}/designs/{design['id']}/activate", {})
+    engine = fleet.create_engine(session, operator_id=tenant.operator_id, esn="S-2",
+                                 engine_type_id=tenant.ids["type"])
+    aircraft = fleet.create_aircraft(session, operator_id=tenant.operator_id, tail="N501")
+    fleet.install(session, operator_id=tenant.operator_id, engine_id=engine.id,
+                  aircraft_id=aircraft.id, position=1, installed_at=T0 - timedelta(days=1))
+    session.commit()
+
+    models = own_models()
+    nodes = (7, 5)  # 35,000 ft at 85 % (the design point), then 20,000 ft at 100 %
+    per = 800
+    dt = models[0].dt
+    rng = np.random.default_rng(21)
+    header = ["time_s", "alt_ft", "mach", "dtamb_k", "power_pct", "N1[rpm]", "N2[rpm]",
+              "T25[K]", "PS3[kPa]", "T3[K]", "EGT[degF]", "FF[kg/s]", "BLEED[%]"]
+    lines = [",".join(header)]
+    for s, i in enumerate(nodes):
+        point, model = POINTS[i], models[i]
+        g_y = model.select_health(HEALTH).steady_state_gains()[0]
+        dy = g_y @ TRUTH + rng.standard_normal((per, model.n_sensors)) * model.sensor_noise_std
+        y = np.array([model.trim[n] for n in model.sensor_names]) * (1.0 + dy / 100.0)
+        y[:, 5] = y[:, 5] * 1.8 + 32.0  # degC -> degF
+        for k in range(per):
+            lines.append(",".join(f"{v:.8g}" for v in [
+                (s * per + k) * dt, point["alt_ft"], point["mach"], 0.0, point["power_pct"],
+                *y[k], model.trim["FF"] / 3600.0, model.trim["BLEED"]]))
+    response = client.post(f"{API}/streams", content=("\n".join(lines) + "\n").encode(),
+                           params={"tail": "N501", "position": 1,
+                                   "started_at": (T0 + timedelta(days=1)).isoformat()},
+                           headers={**tenant.headers(), "Content-Type": "text/csv"})
+    assert response.status_code == 201, response.text
+    recording_id = response.json()["recording"]["id"]
+    summary = stream_store.estimate_recording(
+        session, operator_id=tenant.operator_id, recording_id=recording_id,
+        data_dir=settings.data_dir)
+    assert summary["samples"] == 2 * per and summary["segments"] == 2
+    body = client.get(f"{API}/streams/{recording_id}/estimates", headers=tenant.headers(),
+                      params={"max_points": 100_000}).json()
+    assert body["names"]["health"] == HEALTH
+    t = np.array(body["t_s"])
+    for s in range(len(nodes)):
+        settled = (t >= (s * per + per // 2) * dt) & (t < (s + 1) * per * dt - 1.0)
+        assert settled.sum() >= 3
+        for name, truth in zip(HEALTH, TRUTH, strict=True):
+            h = np.array(body["h_hat"][name], float)[settled]
+            sigma = np.array(body["h_sigma"][name], float)[settled]
+            assert abs(float(h.mean()) - truth) < float(sigma.mean()), (s, name, h, sigma)
+    # Its trims are the snapshot pipeline's at each condition, in the stored units.
+    row = designs.get_design(session, operator_id=tenant.operator_id, design_id=design["id"])
+    est = stream_estimator.estimator_for(session, row, models[0].sensor_names)
+    snap = estimator.estimator_for_design(session, row)
+    conditions = np.array([[p["alt_ft"], p["mach"], 0.0, p["power_pct"]] for p in POINTS])
+    np.testing.assert_allclose(est.trims(conditions)[0], snap.schedule(conditions).y_trim,
+                               rtol=1e-12)
