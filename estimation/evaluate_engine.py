@@ -83,6 +83,7 @@ from estimation.engine.health import HEALTH_NAMES, N_HEALTH
 from estimation.engine.schedule import EngineSchedule
 from estimation.engine.sensors import SENSOR_NAMES
 from estimation.engine.steady import steady_state
+from estimation.shift_detector import EVIDENCE_THRESHOLD, MAGNITUDE_RANGE
 
 WF = SENSOR_NAMES.index("Wf")
 NF = SENSOR_NAMES.index("Nf")
@@ -303,13 +304,16 @@ def chance_ceiling(event_sigmas: np.ndarray, no_signature: float = NO_SIGNATURE_
 @dataclass(frozen=True)
 class EngineDesign:
     """A design as evaluated here: sensors (names of SENSOR_NAMES), V* [m, 13] over the
-    engine's 13 health parameters, how fuel flow is used and which fault signatures."""
+    engine's 13 health parameters, how fuel flow is used, which fault signatures and the
+    magnitudes a fault's fit is held to (times the library's nominal shift: the product's
+    ``shift_detector.MAGNITUDE_RANGE``; None, the free fit of seed 002 eq. 21)."""
 
     name: str
     sensors: tuple[str, ...]
     vstar: np.ndarray
     wf: str = "input"
     signatures: str = "linear"
+    magnitudes: tuple[float, float] | None = MAGNITUDE_RANGE
 
     def __post_init__(self) -> None:
         if self.wf not in WF_MODES or self.signatures not in SIGNATURES:
@@ -337,6 +341,9 @@ class EngineEvaluation:
     health_rms   : (13,) RMS of V*^+ q_0 - h over the engines' baselines (percent)
     coverage     : (13,) fraction of |V*^+ q_0 - h| <= 1.96 sigma_i (sigma from the fit's
                    noise covariance plus the spread the tuners cannot represent)
+    explained    : (E,) the part of the change the isolated fault explains, c - WSSR (the
+                   product names a fault only when it reaches
+                   ``shift_detector.EVIDENCE_THRESHOLD``)
     """
 
     design: str
@@ -349,6 +356,17 @@ class EngineEvaluation:
     isolated: np.ndarray
     health_rms: np.ndarray
     coverage: np.ndarray
+    explained: np.ndarray
+
+    @property
+    def percent_on_evidence(self) -> float:
+        """Percent correct counting only the isolations whose fault explains at least
+        ``shift_detector.EVIDENCE_THRESHOLD`` of the change (mean over the faults): a fault
+        named by elimination (no signature, no change) does not count."""
+        ok = (self.isolated == self.true_fault) & (self.explained >= EVIDENCE_THRESHOLD)
+        return float(np.mean([100.0 * np.mean(ok[self.true_fault == i])
+                              for i in range(len(self.faults))
+                              if np.any(self.true_fault == i)]))
 
     @property
     def percent_correct(self) -> float:
@@ -456,8 +474,11 @@ def evaluate_design(
     a = np.einsum("eki,ekif,ekif->ef", wa, g, g)
     bb = np.einsum("eki,ekif,eki->ef", wa, g, r)
     c = np.einsum("eki,eki,eki->e", wa, r, r)
-    f = bb / a
-    wssr = np.maximum(c[:, None] - bb * f, 0.0)
+    if design.magnitudes is None:
+        f = bb / a
+        wssr = np.maximum(c[:, None] - bb * f, 0.0)
+    else:
+        wssr, f = isolation.bounded_fit(a, bb, c, design.magnitudes)
     isolated = np.argmin(wssr, axis=1)
     conf = isolation.confusion_percent(rec.fault, isolated, len(rec.faults))
     # health figures at the baseline
@@ -474,5 +495,6 @@ def evaluate_design(
     sigma = np.sqrt(np.diagonal(P_noise + P_bias, axis1=1, axis2=2))
     coverage = np.mean(np.abs(err) <= 1.96 * sigma, axis=0)
     dof = np.full(len(rec.fault), (rec.conditions.shape[1] - nb) * len(sensors) - 1)
+    explained = c - wssr[np.arange(len(isolated)), isolated]
     return EngineEvaluation(design.name, rec.fault_names, conf, wssr, dof, f, rec.fault,
-                            isolated, rms, coverage)
+                            isolated, rms, coverage, explained)
