@@ -11,10 +11,15 @@ mix (take-off and cruise as the product's replay; take-off or cruise alone; grou
 where the bleed valves open). ``--after`` lists event lengths: 20 as the product, longer to
 show what more records buy.
 
-Three ways of isolating are compared:
+Every way of isolating holds each fault's fitted magnitude to 0.5-3 times the library's
+shift, as the product's detector does (``shift_detector.MAGNITUDE_RANGE``,
+``isolation.bounded_fit``); the demo design on the product's path is also run with the free
+fit of seed 002 eq. 21 (``magnitudes=None``, the product before), which lets a fault win at a
+magnitude the library does not mean (an LPC fault taken for the VBV bias reversed and 270
+times its shift). Three ways of isolating are compared:
 
 - the product's path: 11 sensors, fuel flow a measured input, linear signatures (the
-  schedule's gains), as ``app.services.snapshots`` runs a design today;
+  schedule's gains), as ``app.services.snapshots`` runs a design;
 - the full 12-sensor suite: fuel flow a sensor at the closed-loop gain (the controller holds
   corrected fan speed), linear signatures;
 - the full suite with secant signatures (the nonlinear engine's own change from the baseline
@@ -25,15 +30,22 @@ and VBV faults read as offsets of full stroke (``STROKE_OFFSETS``,
 ``evaluate_engine.stroke_offset_sigmas``; docs/math.md section 4). Then per
 record mix and event length: each fault's event signature in noise sigmas (a fault is
 "visible" when its median reaches ``VISIBLE_SIGMAS``, as the design evaluation names it); the
-ceiling any design can expect over all eight (``evaluate_engine.chance_ceiling``: a fault
-under one sigma isolated at chance, every other one perfect); per design the percent correct
-over all eight faults, over the visible ones and over the seven with a signature (all but
-VBV), the baseline health RMS over the ten turbomachinery parameters, and the confusion
+ceiling the faults' evidence allows over all eight (``evaluate_engine.chance_ceiling``: a
+fault under one sigma isolated at chance, every other one perfect); per design the percent
+correct over all eight faults (the fault's onset given, so the VBV bias, which shows nothing,
+is named by elimination once the magnitudes are held), named on evidence as the product
+names faults in service (the fault explains ``shift_detector.EVIDENCE_THRESHOLD`` of the
+change; under the ceiling), over the visible ones and over the seven with a signature (all
+but VBV), the baseline health RMS over the ten turbomachinery parameters, and the confusion
 diagonal; the diagnostics-aware design against the SVD design of the same m and path. A
 summary with the targets beside closes the run.
 
     PYTHONPATH=. python bench/bench_isolation.py            # 20 engines per fault (~10 min)
     PYTHONPATH=. python bench/bench_isolation.py --engines 50 --mixes takeoff+cruise  # ~6 min
+
+Figures (50 engines a fault, seed 2; bench/README.md): the demo design on the product's path,
+take-off and cruise, 30 + 20 records, 90.5 % of the eight (free fit 76.2 %), 76.0 % named on
+evidence, 94.0 % of the seven with a signature; ceiling on evidence 89.1 %.
 """
 
 from __future__ import annotations
@@ -201,9 +213,10 @@ def main() -> None:
             event, visible = signature_table(rec)
             ceiling = ee.chance_ceiling(event)
             vis = np.flatnonzero(visible)
-            print(f"ceiling over all eight (faults under {ee.NO_SIGNATURE_SIGMAS:.0f} sigma at "
-                  f"chance): {ceiling:.1f} %  target {TARGET:.0f} %"
-                  f"{'' if ceiling >= TARGET else '  (out of reach for every design)'}")
+            print(f"ceiling on the evidence over all eight (faults under "
+                  f"{ee.NO_SIGNATURE_SIGMAS:.0f} sigma at chance): {ceiling:.1f} %  target "
+                  f"{TARGET:.0f} %"
+                  f"{'' if ceiling >= TARGET else '  (out of reach named on evidence)'}")
             print(f"\n{'design':56s} {'all 8':>6s} {'evid.':>6s} {'visib.':>6s} "
                   f"{'7 sig.':>6s} {'h RMS':>6s}  diagonal ({' '.join(rec.fault_names)})")
             scores: dict[tuple[str, str], float] = {}

@@ -352,10 +352,10 @@ def bounded_fit(
     a_i = H_i^T W H_i, b_i = H_i^T W q, c = q^T W q (any leading batch shape; ``c`` without
     the fault axis). WSSR_i(f) = c - 2 f b_i + f^2 a_i is a parabola in f, so its least value
     on the interval is at the free fit b_i / a_i clipped into it. A hypothesis that explains
-    the change only at a magnitude the library does not mean (a fault of no signature scaled
-    up fortyfold, a large fault scaled down to a tenth, any fault with its sign reversed)
-    then pays for it in WSSR instead of winning. A fault without signature (a_i = 0): f = 0,
-    WSSR = c.
+    the change only at a magnitude the library does not mean (a fault of almost no signature
+    scaled up a hundredfold, a large fault scaled down to a tenth, any fault with its sign
+    reversed) then pays for it in WSSR instead of winning. A fault without signature
+    (a_i = 0): f = 0, WSSR = c.
     """
     a, b = np.asarray(a, float), np.asarray(b, float)
     c = np.asarray(c, float)[..., None]

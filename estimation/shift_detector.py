@@ -13,14 +13,16 @@ record's own condition (health columns through G_y, actuator biases through G_u,
 fuel-flow or variable-geometry bias is a fault like any other) give f_i and WSSR_i of seed 002
 eq. 21-23 over all those records (``SensorFit``: four sums a fault), each fault's magnitude
 held to the plausible ``MAGNITUDE_RANGE`` of its nominal shift (``isolation.bounded_fit``):
-a free fit lets a fault of weak signature win by being scaled up thirtyfold (a 4 % LPC fault
-taken for the VBV bias) or a strong one by being scaled down to a tenth (the VSV bias taken
-for an HPT or fuel-flow fault); held to the range, the demo design isolates 90.5 % of the
-seed 002 library on the built-in engine where the free fit isolated 76.2 %
-(bench/bench_isolation.py). The alarm's ``Isolation`` names the fault of smallest WSSR when
-that is below the chi-squared quantile (times ``SENSOR_WSSR_MARGIN`` for the linearisation
-error), is an unexplained shift when the change is still improbable under no change, else is
-dropped.
+a free fit lets a fault of weak signature win by being scaled up and reversed (a 4 % LPC
+fault taken for the VBV bias at -270 times its shift) or a strong one by being scaled down
+(the VSV bias taken for 0.01-0.4 of a fuel-flow, Fan, HPC or LPT fault); held to the range,
+the demo design isolates 90.5 % of the seed 002 library on the built-in engine where the free
+fit isolated 76.2 % (bench/bench_isolation.py, the fault's onset given). The alarm's
+``Isolation`` names the fault of smallest WSSR when that is below the chi-squared quantile
+(times ``SENSOR_WSSR_MARGIN`` for the linearisation error) and the fault explains
+``EVIDENCE_THRESHOLD`` of the change (so a fault of no signature, which fits an unchanged
+engine at any magnitude, is never named by elimination), is an unexplained shift when the
+change is still improbable under no change, else is dropped.
 Then the baseline restarts. A reset (a maintenance action) restarts the baseline too; an
 alarm pending then is isolated on the records there are, with the covariance from before the
 reset.
