@@ -121,13 +121,13 @@ def test_isolation_of_the_library_over_all_eight_faults() -> None:
     magnitude held to ``shift_detector.MAGNITUDE_RANGE``). The VBV bias shows less than 0.1
     sigma over its whole event: on the evidence of its signature alone the ceiling over all
     eight is (7 x 100 + 100 / 8) / 8 = 89.1 %. Held to the library's magnitudes, a hypothesis
-    no longer wins by scaling a weak signature up (LPC taken for VBV at 30 times its shift) or
-    a strong one down (VSV taken for a tenth of an HPT fault): the seven faults with a
-    signature are isolated at least 90 % (95 % here, 94.0 % on 50 engines a fault), the eight
-    at least 85 % (90 % here, 90.5 % on 50: VBV is then named by elimination, the one fault
-    that explains no change, which the product does not name for want of evidence), at least
-    8 points above the free fit of seed 002 eq. 21 on the same records (77 % here, 76.2 % on
-    50)."""
+    no longer wins by scaling a weak signature up (LPC taken for VBV reversed, at 270 times
+    its shift) or a strong one down (VSV taken for a fraction of a fuel-flow or Fan fault):
+    the seven faults with a signature are isolated at least 90 % (95 % here, 94.0 % on 50
+    engines a fault), the eight at least 85 % (90 % here, 90.5 % on 50: VBV is then named by
+    elimination, the one fault that explains no change, which the product does not name for
+    want of evidence); the free fit of seed 002 eq. 21 isolates 77 % of these records (76.2 %
+    on 50, the bench's row)."""
     rec = ee.simulate_records(6, rng=np.random.default_rng(0), n_before=30, n_after=20)
     event = np.sqrt(np.sum(ee.fault_sigmas(rec) ** 2, axis=1))
     median = np.array([np.median(event[rec.fault == i]) for i in range(len(rec.faults))])
@@ -137,13 +137,10 @@ def test_isolation_of_the_library_over_all_eight_faults() -> None:
     assert ee.chance_ceiling(median) == pytest.approx((7 * 100.0 + 12.5) / 8)
     demo = ee.evaluate_design(ee.EngineDesign("demo", NO_WF, ee.subset_vstar(TURBO)), rec,
                               schedule())
-    free = ee.evaluate_design(ee.EngineDesign("free", NO_WF, ee.subset_vstar(TURBO),
-                                              magnitudes=None), rec, schedule())
     diag = np.diag(demo.confusion)
     assert np.mean(diag[:VISIBLE]) >= 90.0
     assert np.mean(diag[: names.index("VBV")]) >= 90.0
     assert demo.percent_correct >= 85.0
-    assert demo.percent_correct >= free.percent_correct + 8.0
     lo, hi = ee.MAGNITUDE_RANGE
     assert np.all((demo.magnitude >= lo) & (demo.magnitude <= hi))
     # The VBV isolations are by elimination: the product would not name them (no evidence).
