@@ -341,3 +341,26 @@ def confusion_percent(true_index: np.ndarray, isolated: np.ndarray, n_faults: in
 def correct_rate(percent: np.ndarray) -> float:
     """Overall correct isolation rate: mean of the diagonal (equal samples per fault)."""
     return float(np.nanmean(np.diag(percent)))
+
+
+def bounded_fit(
+    a: np.ndarray, b: np.ndarray, c: np.ndarray | float, bounds: tuple[float, float]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Seed 002 eq. 21-23 from its sums with the magnitude held to ``bounds`` (times the
+    library's nominal shift): WSSR_i and f_i of every fault.
+
+    a_i = H_i^T W H_i, b_i = H_i^T W q, c = q^T W q (any leading batch shape; ``c`` without
+    the fault axis). WSSR_i(f) = c - 2 f b_i + f^2 a_i is a parabola in f, so its least value
+    on the interval is at the free fit b_i / a_i clipped into it. A hypothesis that explains
+    the change only at a magnitude the library does not mean (a fault of almost no signature
+    scaled up a hundredfold, a large fault scaled down to a tenth, any fault with its sign
+    reversed) then pays for it in WSSR instead of winning. A fault without signature
+    (a_i = 0): f = 0, WSSR = c.
+    """
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    c = np.asarray(c, float)[..., None]
+    lo, hi = bounds
+    ok = a > 0
+    f = np.where(ok, np.clip(b / np.where(ok, a, 1.0), lo, hi), 0.0)
+    wssr = np.where(ok, np.maximum(c - 2.0 * f * b + f * f * a, 0.0), c)
+    return wssr, f

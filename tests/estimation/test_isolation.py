@@ -168,3 +168,61 @@ def test_confusion_percent_rows():
     np.testing.assert_allclose(c.sum(axis=1), 100.0)
     assert c[0, 0] == 75.0 and c[2, 0] == 25.0
     assert iso.correct_rate(c) == pytest.approx((75 + 100 + 75) / 3)
+
+
+def test_bounded_fit_is_the_least_wssr_within_the_bounds():
+    """The magnitude held to an interval: the free fit where it lies inside, else the bound;
+    WSSR is the least of the parabola on the interval (checked on a fine grid of f); a fault
+    without signature keeps f = 0 and WSSR = c."""
+    rng = np.random.default_rng(5)
+    a = rng.uniform(0.01, 4.0, (50, 6))
+    b = rng.normal(0.0, 3.0, (50, 6))
+    c = np.sum(b**2 / a, axis=1) + rng.uniform(0.0, 5.0, 50)  # c >= b^2 / a (Cauchy-Schwarz)
+    wssr, f = iso.bounded_fit(a, b, c, (0.5, 3.0))
+    grid = np.linspace(0.5, 3.0, 25001)
+    brute = c[:, None, None] - 2 * grid * b[..., None] + grid**2 * a[..., None]
+    np.testing.assert_allclose(wssr, brute.min(axis=-1), atol=1e-6)
+    assert np.all((f >= 0.5) & (f <= 3.0))
+    inside = (b / a >= 0.5) & (b / a <= 3.0)
+    np.testing.assert_allclose(f[inside], (b / a)[inside])
+    np.testing.assert_allclose(wssr[inside], (c[:, None] - b**2 / a)[inside], atol=1e-9)
+    w0, f0 = iso.bounded_fit(np.array([0.0, 1.0]), np.array([0.0, 1.0]), 2.0, (0.5, 3.0))
+    assert f0[0] == 0.0 and w0[0] == 2.0 and w0[1] == pytest.approx(1.0)
+
+
+def test_a_fault_without_signature_does_not_win_at_fifty_times_its_magnitude():
+    """The sensor-space fit of an alarm (``shift_detector.SensorFit``): a change along a
+    fault's direction but far larger than the fault can make (its free fit 100 times its
+    nominal shift, WSSR 0.01) is not that fault; held to ``MAGNITUDE_RANGE`` it costs 0.95 and
+    the fault that explains the change at half its nominal shift (WSSR 0.4) is named."""
+    from estimation.shift_detector import MAGNITUDE_RANGE, SensorFit
+
+    # g_1 = (1, 1), g_2 = (0.01, 0), r = (1, 0.1), unit weights
+    fit = SensorFit(a=(2.0, 1e-4), b=(1.1, 0.01), c=1.01, n=2)
+    free_w = np.array(fit.c) - np.array(fit.b) ** 2 / np.array(fit.a)
+    assert np.argmin(free_w) == 1
+    wssr, f = fit.solve()
+    assert np.argmin(wssr) == 0
+    assert f[0] == pytest.approx(0.55) and f[1] == MAGNITUDE_RANGE[1]
+    assert wssr[0] == pytest.approx(0.405) and wssr[1] == pytest.approx(0.9509)
+
+
+def test_a_fault_is_named_on_evidence_not_by_elimination():
+    """An alarm's isolation in sensor space (``shift_detector.isolate``): with the magnitudes
+    held to their range, a fault of no signature fits an unchanged engine best (20 sensor
+    values of noise, c = 20), but it explains none of the change, so it is not named (the
+    alarm is then dropped); a fault that explains a change of 50 beyond the noise is named."""
+    from typing import Any, cast
+
+    from estimation.shift_detector import EVIDENCE_THRESHOLD, PendingAlarm, SensorFit, isolate
+
+    def outcome(fit: SensorFit):
+        alarm = PendingAlarm(0, 0.0, 0.0, 0, (0.0,), fit=fit)
+        return isolate(cast(Any, None), alarm, np.zeros(1), np.eye(1))
+
+    quiet = outcome(SensorFit(a=(2.0, 1e-6), b=(0.1, 0.0), c=20.0, n=20))
+    assert quiet.nearest == 1 and quiet.wssr[1] <= quiet.wssr_threshold
+    assert quiet.distance - quiet.wssr[1] < EVIDENCE_THRESHOLD
+    assert not quiet.isolated and quiet.dropped
+    fault = outcome(SensorFit(a=(50.0, 1e-6), b=(50.0, 0.0), c=70.0, n=20))
+    assert fault.nearest == 0 and fault.f[0] == pytest.approx(1.0) and fault.isolated

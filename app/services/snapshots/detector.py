@@ -102,10 +102,11 @@ class EventDraft(NamedTuple):
 def event(est: SnapshotEstimator, iso: Isolation) -> EventDraft | None:
     """The event of an alarm's isolation, or None when it was dropped.
 
-    An ``isolated_fault`` when the smallest WSSR is consistent with its fault and the fitted
-    magnitude is plausible; an unexplained ``shift`` when the change is still large (its
-    Mahalanobis distance exceeds the isolation's threshold); otherwise the alarm is dropped
-    (model error, not a fault).
+    An ``isolated_fault`` when the smallest WSSR is consistent with its fault, the fitted
+    magnitude is plausible and the fault explains enough of the change
+    (``shift_detector.Isolation.isolated``); an unexplained ``shift`` when the change is still
+    large (its Mahalanobis distance exceeds the isolation's threshold); otherwise the alarm is
+    dropped (model error, not a fault).
     """
     if iso.dropped:
         return None

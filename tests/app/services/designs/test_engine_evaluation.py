@@ -91,10 +91,13 @@ def test_builtin_design_evaluation_has_the_nonlinear_engine_run(
     diag = np.diag(np.asarray(run["confusion_percent"]))
     shown = [run["faults"].index(f) for f in vis["visible"]]
     assert vis["percent_correct_visible"] == pytest.approx(float(np.mean(diag[shown])), abs=0.01)
-    # No design can pass the ceiling the faults under one sigma leave (VBV at chance).
+    # The ceiling the faults' evidence allows (VBV at chance); named on evidence, as the
+    # product names faults, no isolation passes it (VBV is named by elimination only).
     assert vis["ceiling_percent_correct"] == pytest.approx(
         ee.chance_ceiling(np.asarray(vis["event_sigmas"])), abs=1e-9)
     assert vis["ceiling_percent_correct"] < 90.0
+    assert run["percent_correct_on_evidence"] == pytest.approx(direct.percent_on_evidence)
+    assert run["percent_correct_on_evidence"] <= vis["ceiling_percent_correct"]
     np.testing.assert_allclose(np.sum(run["confusion_percent"], axis=1), 100.0, atol=0.05)
     # Ambiguity groups among the visible faults only, each pair linked by > 10 % confusion.
     assert not {f for g in run["ambiguity_groups"] for f in g} & set(vis["not_visible"])
