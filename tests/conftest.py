@@ -29,6 +29,7 @@ POSTGRES_URL = os.environ.get(
     "FLEETHEALTH_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test"
 )
 BACKENDS = ("sqlite", "postgresql")
+BACKEND_PROPERTY = "database backend"
 _backend_use: Counter[str] = Counter()
 
 
@@ -93,9 +94,9 @@ def db_engine(database_url: str) -> Iterator[Engine]:
 
 
 @pytest.fixture
-def connection(db_engine: Engine) -> Iterator[Connection]:
+def connection(db_engine: Engine, request: pytest.FixtureRequest) -> Iterator[Connection]:
     """A connection inside an outer transaction that is rolled back after the test."""
-    _backend_use[db_engine.dialect.name] += 1
+    request.node.user_properties.append((BACKEND_PROPERTY, db_engine.dialect.name))
     with db_engine.connect() as connection:
         outer = connection.begin()
         yield connection
@@ -133,6 +134,14 @@ def app(settings: Settings, db_engine: Engine, session_factory: sessionmaker[Ses
 def client(app: FastAPI) -> Iterator[TestClient]:
     with TestClient(app) as test_client:
         yield test_client
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    """Counts the backends from the reports, which reach the controlling process from every
+    worker when the suite runs in parallel (``pytest -n``)."""
+    if report.when == "call":
+        _backend_use.update(value for name, value in report.user_properties
+                            if name == BACKEND_PROPERTY)
 
 
 def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:

@@ -61,8 +61,11 @@ CSV = {"Content-Type": "text/csv"}
 SETTLE = 60  # snapshots after the first before they are scored (filter start-up)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def simulated() -> Simulated:
+    """Once per test process: the tests of both backends share the simulation (about a minute);
+    a module scope would run it again for the second backend, whose tests pytest groups
+    apart."""
     return simulate_engine()
 
 
