@@ -211,6 +211,22 @@ class DeteriorationSeries(BaseModel):
     sigma: list[float | None] = Field(description="spread over engines (standard deviation)")
 
 
+class DeteriorationSlope(BaseModel):
+    name: str
+    slope: float | None = Field(description="fleet-average slope; null: unobservable")
+    sigma: float | None = Field(description="its 1-sigma; null: uncalibrated or unobservable")
+
+
+class DeteriorationSlopes(BaseModel):
+    unit: Literal["%/year"]
+    uncertainty: Literal["calibrated", "uncalibrated"]
+    pieces: int = Field(description="engine trends (between baseline resets) the slopes use")
+    engines: int
+    unobservable: list[str] = Field(
+        description="parameters whose slope the design cannot observe (slope null)")
+    health: list[DeteriorationSlope]
+
+
 class DeteriorationGroup(BaseModel):
     engine_type: str
     design_id: int
@@ -218,6 +234,9 @@ class DeteriorationGroup(BaseModel):
     n_engines: list[int]
     health: list[DeteriorationSeries]
     aux: list[DeteriorationSeries]
+    slopes: DeteriorationSlopes = Field(
+        description="fleet-average deterioration slope per health parameter (weekly means "
+        "of each engine between baseline resets, inverse-variance mean, calibrated gain)")
 
 
 class FleetDeterioration(BaseModel):

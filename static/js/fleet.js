@@ -127,6 +127,29 @@ async function loadStatus() {
   drawTable();
 }
 
+// Fleet-average deterioration slope per health parameter: a number ± 1σ, or "unobservable"
+// where the design cannot observe it (the API's null).
+function drawSlopes(groups) {
+  const rows = [];
+  for (const g of groups) {
+    const s = g.slopes;
+    for (const p of s.health) {
+      rows.push(h("tr", { "data-code": p.name },
+        h("td", {}, nameOf(p.name)),
+        groups.length > 1 ? h("td", {}, g.engine_type) : null,
+        p.slope === null
+          ? h("td", { class: "muted" }, "unobservable")
+          : h("td", { class: "num" }, p.sigma === null ? fmtNum(p.slope) : `${fmtNum(p.slope)} ± ${fmtNum(p.sigma)}`)));
+    }
+  }
+  const note = groups.map((g) => `${g.engine_type}: ${g.slopes.pieces} engine trends over ${g.slopes.engines} engines (${g.slopes.uncertainty})`).join("; ");
+  $("#slopes").replaceChildren(
+    h("table", { class: "compact" },
+      h("thead", {}, h("tr", {}, h("th", {}, "Health parameter"), groups.length > 1 ? h("th", {}, "Engine type") : null, h("th", {}, "Slope [%/year]"))),
+      h("tbody", {}, ...rows)),
+    h("p", { class: "legend-note" }, note));
+}
+
 async function loadDeterioration() {
   const div = $("#deterioration");
   const message = $("#deterioration-message");
@@ -153,6 +176,7 @@ async function loadDeterioration() {
       });
     });
     if (!traces.length) message.append(h("p", { class: "muted" }, "No estimates yet."));
+    drawSlopes(data.groups);
     const label = which === "health" ? "Fleet-average health parameter change" : "Fleet-average auxiliary output change";
     await plot(div, traces, layout({
       xaxis: { title: { text: "Date (UTC)" }, type: "date" },

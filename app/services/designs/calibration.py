@@ -26,12 +26,13 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.errors import Conflict
 from app.models import EngineModel, EstimatorDesign
 from app.services.designs.service import get_design
-from app.services.snapshots import estimator
+from app.services.snapshots import buckets, estimator
 from app.services.snapshots import run as snapshots_run
 from estimation import uncertainty
 from estimation.engine.errors import EngineConvergenceError
@@ -44,8 +45,7 @@ RESULT_KEY = "uncertainty"
 JOB_KIND = "calibrate_design"
 # The fleet prior of the demo designs: P_h = 4 I (percent^2, design spec "Ph").
 PRIOR_VAR = 4.0
-# Slopes are compared relative to max(|true slope|, SLOPE_FLOOR) (percent per 1000 cycles).
-SLOPE_FLOOR = 0.1
+SLOPE_FLOOR = 0.05
 MIN_SEGMENT_RECORDS = 20
 # A slope needs a stretch of at least this many thousand cycles (each segment weighs the same
 # in the fleet average, and a short one's slope is mostly filter noise).
@@ -63,6 +63,15 @@ BAND_ONE_SIGMA = (0.50, 0.90)
 BAND_TWO_SIGMA = 0.80
 # Flights after a start or a shop visit before a record counts as settled (start-up transient).
 SETTLE_FLIGHTS = 30
+# Maintenance that moves the health baseline (a water wash does not), and the records after a
+# baseline reset before its baseline record (a take-off and a cruise record per flight).
+BASELINE_KINDS = ("shop_visit", "module_change")
+BASELINE_SETTLE_RECORDS = 2 * SETTLE_FLIGHTS
+# The fleet-average deterioration slope (``app.services.fleet.slopes``): from each engine's
+# weekly means of its stored estimates, over pieces between baseline resets spanning at least
+# MIN_SLOPE_YEARS; relative errors against max(|true slope|, SLOPE_FLOOR) (percent per year).
+SLOPE_PERIOD = "week"
+MIN_SLOPE_YEARS = 0.25
 # The calibration fleets: CALIBRATION_SEEDS fleets of CALIBRATION_AIRCRAFT aircraft (two
 # engines each plus spares) flying CALIBRATION_FLIGHTS rounds at two a day.
 CALIBRATION_SEEDS = (20260102, 20260103, 20260104)
@@ -99,6 +108,10 @@ class HealthTrack:
     z_hat: np.ndarray | None = None  # [S, nz]
     z_sigma: np.ndarray | None = None  # [S, nz]
     conditions: np.ndarray | None = None
+    # Each record's time (epoch seconds, as stored) and the engine's baseline resets (its
+    # installations: a re-installation is a shop visit); None where not kept.
+    epoch: np.ndarray | None = None
+    resets: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -197,9 +210,11 @@ def tracks(
             flights = np.zeros(len(t), dtype=int)
             for k in range(len(t)):
                 flights[k] = len(np.unique(data.flight_id[(t >= last_reset[k]) & (t <= t[k])]))
+            resets = np.array(sorted(i.installed_at for i in plan.installations
+                                     if i.esn == data.esn), dtype=float)
             out.append(HealthTrack(data.esn, rounds, flights > settle, values[:, s["h"]],
                                    values[:, s["h_sigma"]], h_true, values[:, s["z"]],
-                                   values[:, s["z_sigma"]], data.run.conditions))
+                                   values[:, s["z_sigma"]], data.run.conditions, t, resets))
     return out
 
 
@@ -291,15 +306,99 @@ def stack(segs: Sequence[Segment], drift: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def slopes(segs: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray]:
-    """Fleet-average slope [p] of h_hat and of the true h over the segments long enough
-    (NaN when none is)."""
+    """The fleet's mean deterioration rate [p], percent per 1000 cycles, of h_hat and of the
+    true h over the segments long enough (``uncertainty.fleet_slope``; NaN when none is): the
+    rate r of the drift bias d = B_h r."""
     long = [s for s in segs if np.ptp(s.kcycles) >= MIN_SLOPE_SPAN]
     if not long:
         nan = np.full(segs[0].h_hat.shape[1] if segs else 0, np.nan)
         return nan, nan.copy()
-    x = [s.kcycles for s in long]
-    return (uncertainty.fleet_slopes(x, [s.h_hat for s in long]),
-            uncertainty.fleet_slopes(x, [s.h_true for s in long]))
+    spans = np.array([np.ptp(s.kcycles) for s in long])
+    hat = np.array([uncertainty.piece_slope(s.kcycles, s.h_hat) for s in long])
+    true = np.array([uncertainty.piece_slope(s.kcycles, s.h_true) for s in long])
+    return uncertainty.fleet_slope(hat, spans)[0], uncertainty.fleet_slope(true, spans)[0]
+
+
+@dataclass(frozen=True)
+class TrendPieces:
+    """The pieces of the fleet-average slope (``uncertainty.period_pieces``), as the product
+    forms them from the stored estimates (``app.services.fleet.slopes``): per piece the slope of
+    h_hat and of the true h [S, p] (percent per year) and its span [S] (years)."""
+
+    hat: np.ndarray
+    true: np.ndarray
+    spans: np.ndarray
+
+    def fleet(self, gain: np.ndarray | None = None, noise: np.ndarray | None = None,
+              common: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(estimated slope, its 1-sigma, true slope) [p] over the fleet."""
+        slope, sigma = uncertainty.fleet_slope(self.hat, self.spans, gain, noise, common)
+        return slope, sigma, uncertainty.fleet_slope(self.true, self.spans)[0]
+
+
+def trend_pieces(track_list: Sequence[HealthTrack]) -> TrendPieces:
+    """Every engine's records in weekly means (``buckets.period_sums``: what the pipeline
+    stores for the fleet deterioration), split at its baseline resets, h_hat and the true h
+    alike."""
+    hat, true, spans = [], [], []
+    for t in track_list:
+        if t.epoch is None or not len(t.epoch):
+            continue
+        p = t.h_hat.shape[1]
+        starts, counts, sums = buckets.period_sums(t.epoch, np.c_[t.h_hat, t.h_true],
+                                                   SLOPE_PERIOD)
+        resets = np.zeros(0) if t.resets is None else t.resets
+        slope, span = uncertainty.period_pieces(
+            starts, buckets.period_ends(starts, SLOPE_PERIOD), counts, sums / counts[:, None],
+            resets, BASELINE_SETTLE_RECORDS, MIN_SLOPE_YEARS)
+        hat.append(slope[:, :p])
+        true.append(slope[:, p:])
+        spans.append(span)
+    p = track_list[0].h_hat.shape[1] if track_list else 0
+    return TrendPieces(np.concatenate(hat) if hat else np.empty((0, p)),
+                       np.concatenate(true) if true else np.empty((0, p)),
+                       np.concatenate(spans) if spans else np.empty(0))
+
+
+@dataclass(frozen=True)
+class SlopeCalibration:
+    """The fleet-average slope's calibration [p] each (``slope_check``)."""
+
+    error: np.ndarray  # pooled relative error of the uncorrected slope
+    sigma: np.ndarray  # its relative 1-sigma (pooled pieces)
+    gain: np.ndarray  # g (NaN: no trend to calibrate on, or read backwards)
+    noise: np.ndarray  # a
+    common: np.ndarray  # c
+
+
+def slope_check(fleets: Sequence[TrendPieces]) -> SlopeCalibration:
+    """The fleet-average slope's calibration over the pooled pieces of ``fleets``: the pooled
+    relative error of the uncorrected slope and its relative 1-sigma (the level's observability
+    rule), the gain g and the noise a (``uncertainty.fit_slope_gain``, ``fit_slope_noise``) and
+    the common error c: the mean over the fleets of the squared error of a fleet's slope,
+    corrected with the gain of the other fleets, beyond its piece noise (cross-validated; one
+    fleet: 0)."""
+    pooled = TrendPieces(np.concatenate([f.hat for f in fleets]),
+                         np.concatenate([f.true for f in fleets]),
+                         np.concatenate([f.spans for f in fleets]))
+    gain = uncertainty.fit_slope_gain(pooled.hat, pooled.true, pooled.spans, SLOPE_FLOOR)
+    noise = uncertainty.fit_slope_noise(pooled.hat, pooled.true, pooled.spans,
+                                        np.nan_to_num(gain, nan=1.0))
+    raw, raw_sigma, true = pooled.fleet(None, noise)
+    scale = np.maximum(np.abs(true), SLOPE_FLOOR)
+    excess = []
+    for k, f in enumerate(fleets):
+        others = [o for j, o in enumerate(fleets) if j != k]
+        if not others or not len(f.spans):
+            continue
+        g = uncertainty.fit_slope_gain(np.concatenate([o.hat for o in others]),
+                                       np.concatenate([o.true for o in others]),
+                                       np.concatenate([o.spans for o in others]), SLOPE_FLOOR)
+        g = np.where(np.isfinite(g), g, 1.0)
+        slope, _, true_f = f.fleet(g)
+        excess.append((slope - true_f) ** 2 - noise / np.sum(f.spans**2))
+    common = np.maximum(np.mean(excess, axis=0), 0.0) if excess else np.zeros_like(noise)
+    return SlopeCalibration((raw - true) / scale, raw_sigma / scale, gain, noise, common)
 
 
 def fleet_prior(segs: Sequence[Segment]) -> np.ndarray:
@@ -324,10 +423,12 @@ def calibrate(
     the smallest holding ``one_sigma`` and ``two_sigma`` of the pooled errors
     (``uncertainty.fit_model_std``); a parameter is shown when its honest steady-state sigma
     is at most ``reduction`` times the design's prior sigma sqrt(prior_var) and its
-    fleet-average slope over the pooled segments is within ``slope_tolerance`` of the truth
-    (``uncertainty.observable``).
+    fleet-average slope over the pooled pieces (``slope_check``) is within ``slope_tolerance``
+    of the truth with a 1-sigma of at most half of it (``uncertainty.observable``); its slope
+    is shown too when it has a gain.
     """
     segs: list[Segment] = []
+    pieces: list[TrendPieces] = []
     fleet_of: list[int] = []  # the fleet of each segment
     B_hs = []
     aux = tuple(est.layout.aux)
@@ -340,6 +441,7 @@ def calibrate(
             aux_err.append(e)
             aux_var.append(v)
         segs.extend(part)
+        pieces.append(trend_pieces(track_list))
         fleet_of.extend([k] * len(part))
         B_hs.append(bias_matrix(est, snaps))
         if progress is not None:
@@ -347,19 +449,20 @@ def calibrate(
     B_h = np.mean(B_hs, axis=0)
     p = B_h.shape[0]
     bias2 = uncertainty.analytic_bias2(B_h, fleet_prior(segs))
-    slope_hat, slope_true = slopes(segs)
+    _, rate = slopes(segs)
     # No trend long enough to measure the fleet's rate on: no drift term.
-    drift = uncertainty.drift_bias(B_h, np.nan_to_num(slope_true))
+    drift = uncertainty.drift_bias(B_h, np.nan_to_num(rate))
     st = stack(segs, drift)
     scale = uncertainty.fit_bias_scale(st["level_err"], bias2, st["filter_var"], one_sigma)
     level_std = uncertainty.fit_model_std(
         st["level_err"], scale**2 * bias2 + st["filter_var"], one_sigma, two_sigma)
     change_std = uncertainty.fit_model_std(st["change_err"], st["change_var"], one_sigma,
                                            two_sigma)
-    slope_error = (slope_hat - slope_true) / np.maximum(np.abs(slope_true), SLOPE_FLOOR)
+    sc = slope_check(pieces)
     shown = uncertainty.observable(
         np.full(p, prior_var), scale**2 * bias2, np.median(st["filter_var"], axis=0), level_std,
-        slope_error=slope_error, reduction=reduction, slope_tolerance=slope_tolerance)
+        slope_error=sc.error, reduction=reduction, slope_tolerance=slope_tolerance,
+        slope_sigma=sc.sigma)
     # Coverage of the pooled sigma on each fleet alone (BAND_ONE_SIGMA, BAND_TWO_SIGMA).
     sigma = np.sqrt(scale**2 * bias2 + st["filter_var"] + level_std**2)
     rows = np.concatenate([np.full(len(s.kcycles), k) for s, k in zip(segs, fleet_of,
@@ -380,7 +483,8 @@ def calibrate(
     return uncertainty.Calibration(
         aux_names=aux if aux_std is not None else (), aux_std=aux_std,
         names=tuple(est.layout.health), level_std=level_std, change_std=change_std,
-        slope_error=slope_error, bias2=bias2, drift=drift, observable=shown, bias_scale=scale,
+        slope_error=sc.error, bias2=bias2, drift=drift, observable=shown, bias_scale=scale,
+        slope_gain=sc.gain, slope_noise=sc.noise, slope_common=sc.common,
         source={"design": design, "seeds": None if seeds is None else list(seeds),
                 "engines": sum(len(plan.esns) for plan, _ in fleets),
                 "flights": fleets[0][0].config.n_flights if fleets else 0,
@@ -392,6 +496,17 @@ def calibrate(
                 "fleet_cover1_max": [round(float(x), 3) for x in cover1.max(axis=0)],
                 "fleet_cover2_min": [round(float(x), 3) for x in cover2.min(axis=0)]},
     )
+
+
+def design_calibration(session: Session, design_id: int) -> uncertainty.Calibration | None:
+    """The design's stored calibration (None: uncalibrated); reads only that key."""
+    document = session.scalar(
+        select(EstimatorDesign.__table__.c.result[RESULT_KEY]).where(
+            EstimatorDesign.id == design_id)
+    )
+    if not isinstance(document, dict):
+        return None
+    return uncertainty.Calibration.from_dict(document)
 
 
 @dataclass(frozen=True)

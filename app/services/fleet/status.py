@@ -45,7 +45,7 @@ from app.models.estimates import (
     FleetPeriod,
 )
 from app.services.events.service import latest_open_events, open_event_counts
-from app.services.fleet import performance
+from app.services.fleet import performance, slopes
 from app.services.fleet.severity import LEVELS, LimitValue, severity
 from estimation.engine.atmosphere import flight_condition
 
@@ -461,7 +461,8 @@ def fleet_deterioration(
     Each engine first counts once per bucket (the mean of its estimates there), then the
     fleet mean and spread are taken over engines, so a busy engine does not dominate. Read
     from the sums the pipeline keeps (``fleet_periods``): one row per period, whatever the
-    number of engines and estimates.
+    number of engines and estimates. Each group carries the fleet-average deterioration slope
+    of each health parameter with its 1-sigma, or null where unobservable (``slopes``).
     """
     if bucket not in ("week", "month"):
         raise InvalidInput(
@@ -515,6 +516,8 @@ def fleet_deterioration(
                 "n_engines": n_engines.tolist(),
                 "health": _series(layout.health, units.get("health"), mean, spread, 0),
                 "aux": _series(layout.aux, units.get("aux"), mean, spread, p),
+                "slopes": slopes.fleet_slopes(session, operator_id, design_id,
+                                              layout).to_dict(),
             }
         )
     return {"bucket": bucket, "groups": groups}

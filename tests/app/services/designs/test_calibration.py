@@ -19,7 +19,6 @@ from app.services.designs import service as designs
 from app.services.fleet import service as fleet_service
 from app.services.snapshots import estimator
 from app.services.tenancy.service import create_operator
-from app.services.trends import health as health_view
 from estimation.engine.schedule import EngineSchedule, build_schedule
 from estimation.uncertainty import Calibration
 from tests.support.fleetkit import make_tenant
@@ -56,13 +55,13 @@ def test_a_builtin_design_is_calibrated_and_the_trend_reads_it(
 ) -> None:
     monkeypatch.setattr(estimator, "builtin_schedule", lambda: coarse_schedule)
     design = _design(session, coarse_schedule)
-    assert health_view.design_calibration(session, design.id) is None
+    assert calibration.design_calibration(session, design.id) is None
     stored = calibration.calibrate_design(
         session, operator_id=design.operator_id, design_id=design.id, seeds=(5,), aircraft=1,
         flights=200,
     )
     session.expire_all()
-    back = health_view.design_calibration(session, design.id)
+    back = calibration.design_calibration(session, design.id)
     assert back is not None
     assert back.to_dict() == stored == Calibration.from_dict(stored).to_dict()
     assert back.names == tuple(design.spec["health"])
@@ -105,5 +104,5 @@ def test_the_calibration_job_stores_it_with_the_design(
     assert job.status_code == 202, job.text
     assert run_pending(session_factory) == [job.json()["id"]]
     session.expire_all()
-    back = health_view.design_calibration(session, design.id)
+    back = calibration.design_calibration(session, design.id)
     assert back is not None and back.source["seeds"] == [5]
