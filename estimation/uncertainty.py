@@ -50,9 +50,9 @@ with s.
 A parameter is shown as unobservable (no number) when the design cannot tell it apart from the
 fleet prior: its honest sigma (bias, filter and model error at steady state) is more than
 ``reduction`` of its prior sigma, or (for trends) the fleet-average slope the calibration run
-measured is off the true slope by more than ``slope_tolerance`` or too noisy to tell (its
-1-sigma more than half the tolerance) (``observable``). Its slope is unobservable as well, and
-also without a gain (no trend to calibrate it on, or one the design reads backwards).
+measured is off the true slope by more than ``slope_tolerance`` (``observable``). Its
+fleet-average slope is unobservable as well, and also without a gain (no trend the calibration
+fleets measure well enough to calibrate it on, or one the design reads backwards).
 """
 
 from __future__ import annotations
@@ -127,12 +127,12 @@ class Calibration:
     """Model-error term of one design, fitted on the nonlinear fleet simulator.
 
     names [p]: health parameters; level_std [p]: s_k, percent; change_std [p]: s_delta_k,
-    percent; slope_error [p]: (estimated - true) fleet-average slope over max(|true|, a
-    floor) on the calibration fleets; bias2 [p]: the analytic bias^2 (a^2 bias2 is used,
-    a = bias_scale); observable [p]: the rule's verdict; slope_gain [p]: g_k (None: 1; NaN:
-    the slope is unobservable); slope_noise [p]: a_k, (percent per year)^2 years^2 (None: not
-    calibrated); slope_common [p]: c_k, (percent per year)^2 (None: 0); source: how it was
-    made (seed, fleet size, design).
+    percent; slope_error [p]: (estimated - true) mean rate over the calibration fleets'
+    segments over max(|true|, a floor) (the level's observability rule); bias2 [p]: the
+    analytic bias^2 (a^2 bias2 is used, a = bias_scale); observable [p]: the rule's verdict;
+    slope_gain [p]: g_k (None: 1; NaN: the slope is unobservable); slope_noise [p]: a_k,
+    (percent per year)^2 years^2 (None: not calibrated); slope_common [p]: c_k, (percent per
+    year)^2 (None: 0); source: how it was made (seed, fleet size, design).
     """
 
     names: tuple[str, ...]
@@ -324,23 +324,20 @@ def fit_bias_scale(
 def observable(
     prior_var: np.ndarray, bias2: np.ndarray, filter_var: np.ndarray, model_std: np.ndarray,
     slope_error: np.ndarray | None = None, reduction: float = 0.5,
-    slope_tolerance: float = 0.3, slope_sigma: np.ndarray | None = None,
+    slope_tolerance: float = 0.3,
 ) -> np.ndarray:
     """Which parameters to show [p] bool (module docstring).
 
     prior_var [p]: diag(P_h); bias2, filter_var (steady state), model_std [p]. A parameter is
     observable when sqrt(bias2 + filter_var + s^2) <= reduction * sqrt(prior_var) (the design
     knows it at least 1/reduction times better than the fleet prior) and, given slope_error
-    (relative error of the fleet-average slope), |slope_error| <= slope_tolerance, and given
-    slope_sigma (its relative 1-sigma), slope_sigma <= slope_tolerance / 2.
+    (relative error of the fleet-average slope), |slope_error| <= slope_tolerance.
     """
     sigma = np.sqrt(np.asarray(bias2) + np.asarray(filter_var) + np.square(model_std))
     ok = sigma <= reduction * np.sqrt(np.asarray(prior_var, float))
     if slope_error is not None:
         r = np.asarray(slope_error, float)
         ok &= ~(np.isfinite(r) & (np.abs(r) > slope_tolerance))
-    if slope_sigma is not None:
-        ok &= ~(np.asarray(slope_sigma, float) > 0.5 * slope_tolerance)  # NaN: no verdict
     return np.asarray(ok, bool)
 
 

@@ -127,8 +127,8 @@ async function loadStatus() {
   drawTable();
 }
 
-// Fleet-average deterioration slope per health parameter: a number ± 1σ, or "unobservable"
-// where the design cannot observe it (the API's null).
+// Fleet-average deterioration slope per health parameter: a number ± 1σ, "unobservable" where
+// the design cannot observe it (listed by the API), or no trend yet (no engine trend long enough).
 function drawSlopes(groups) {
   const rows = [];
   for (const g of groups) {
@@ -138,7 +138,7 @@ function drawSlopes(groups) {
         h("td", {}, nameOf(p.name)),
         groups.length > 1 ? h("td", {}, g.engine_type) : null,
         p.slope === null
-          ? h("td", { class: "muted" }, "unobservable")
+          ? h("td", { class: "muted" }, s.unobservable.includes(p.name) ? "unobservable" : "no trend yet (an engine needs about 3 months between baseline resets)")
           : h("td", { class: "num" }, p.sigma === null ? fmtNum(p.slope) : `${fmtNum(p.slope)} ± ${fmtNum(p.sigma)}`)));
     }
   }

@@ -29,7 +29,7 @@ from estimation.engine.fleet import FleetPlan, Snapshots
 from tests.support import health_accuracy
 
 PRIOR_VAR = calibration.PRIOR_VAR
-SLOPE_FLOOR = calibration.SLOPE_FLOOR
+SLOPE_FLOOR = calibration.YEAR_SLOPE_FLOOR
 Segment = calibration.Segment
 segments = calibration.segments
 fleet_prior = calibration.fleet_prior
@@ -124,7 +124,7 @@ def score(
                     + calib.level_std**2)
     d_sigma = np.sqrt(st["change_var"] + calib.change_std**2)
     pieces = calibration.trend_pieces(tr)
-    slope_shown = calib.observable & np.isfinite(calib.slope_gain)
+    slope_shown = calib.observable & np.isfinite(np.asarray(calib.slope_gain))
     slope_hat, slope_sigma, slope_true = pieces.fleet(calib.slope_gain, calib.slope_noise,
                                                       calib.slope_common)
     slope_hat = np.where(slope_shown, slope_hat, np.nan)

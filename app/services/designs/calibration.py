@@ -45,7 +45,9 @@ RESULT_KEY = "uncertainty"
 JOB_KIND = "calibrate_design"
 # The fleet prior of the demo designs: P_h = 4 I (percent^2, design spec "Ph").
 PRIOR_VAR = 4.0
-SLOPE_FLOOR = 0.05
+# The level's observability rule compares the fleet's mean rate over the segments (percent
+# per 1000 cycles, ``slopes``) relative to max(|true|, SLOPE_FLOOR).
+SLOPE_FLOOR = 0.1
 MIN_SEGMENT_RECORDS = 20
 # A slope needs a stretch of at least this many thousand cycles (each segment weighs the same
 # in the fleet average, and a short one's slope is mostly filter noise).
@@ -69,12 +71,18 @@ BASELINE_KINDS = ("shop_visit", "module_change")
 BASELINE_SETTLE_RECORDS = 2 * SETTLE_FLIGHTS
 # The fleet-average deterioration slope (``app.services.fleet.slopes``): from each engine's
 # weekly means of its stored estimates, over pieces between baseline resets spanning at least
-# MIN_SLOPE_YEARS; relative errors against max(|true slope|, SLOPE_FLOOR) (percent per year).
+# MIN_SLOPE_YEARS; relative errors against max(|true slope|, YEAR_SLOPE_FLOOR) (percent per
+# year). A slope is shown when its calibration pool measures it to a relative 1-sigma of at most
+# half the slope tolerance.
 SLOPE_PERIOD = "week"
 MIN_SLOPE_YEARS = 0.25
+YEAR_SLOPE_FLOOR = 0.05
 # The calibration fleets: CALIBRATION_SEEDS fleets of CALIBRATION_AIRCRAFT aircraft (two
-# engines each plus spares) flying CALIBRATION_FLIGHTS rounds at two a day.
-CALIBRATION_SEEDS = (20260102, 20260103, 20260104)
+# engines each plus spares) flying CALIBRATION_FLIGHTS rounds at two a day. Six, not three:
+# the fleet-average slope's gain is a ratio of fleet means whose error common to a fleet's
+# engines is ~15 % of the slope per fleet (bench_uncertainty, subset:10 hpc_eff), so its
+# calibration needs the fleets, not more engines in one.
+CALIBRATION_SEEDS = (20260102, 20260103, 20260104, 20260105, 20260106, 20260107)
 CALIBRATION_AIRCRAFT = 8
 CALIBRATION_FLIGHTS = 730
 # The aux outputs' model error is fitted on every AUX_EVERY-th settled record (each needs two
@@ -307,16 +315,16 @@ def stack(segs: Sequence[Segment], drift: np.ndarray) -> dict[str, np.ndarray]:
 
 def slopes(segs: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray]:
     """The fleet's mean deterioration rate [p], percent per 1000 cycles, of h_hat and of the
-    true h over the segments long enough (``uncertainty.fleet_slope``; NaN when none is): the
-    rate r of the drift bias d = B_h r."""
+    true h over the segments long enough (each segment's least-squares slope, averaged; NaN
+    when none is): the rate r of the drift bias d = B_h r and the level's observability
+    rule."""
     long = [s for s in segs if np.ptp(s.kcycles) >= MIN_SLOPE_SPAN]
     if not long:
         nan = np.full(segs[0].h_hat.shape[1] if segs else 0, np.nan)
         return nan, nan.copy()
-    spans = np.array([np.ptp(s.kcycles) for s in long])
     hat = np.array([uncertainty.piece_slope(s.kcycles, s.h_hat) for s in long])
     true = np.array([uncertainty.piece_slope(s.kcycles, s.h_true) for s in long])
-    return uncertainty.fleet_slope(hat, spans)[0], uncertainty.fleet_slope(true, spans)[0]
+    return hat.mean(axis=0), true.mean(axis=0)
 
 
 @dataclass(frozen=True)
@@ -364,28 +372,30 @@ def trend_pieces(track_list: Sequence[HealthTrack]) -> TrendPieces:
 class SlopeCalibration:
     """The fleet-average slope's calibration [p] each (``slope_check``)."""
 
-    error: np.ndarray  # pooled relative error of the uncorrected slope
-    sigma: np.ndarray  # its relative 1-sigma (pooled pieces)
-    gain: np.ndarray  # g (NaN: no trend to calibrate on, or read backwards)
+    gain: np.ndarray  # g (NaN: the slope is unobservable)
     noise: np.ndarray  # a
     common: np.ndarray  # c
+    error: np.ndarray  # pooled relative error of the uncorrected slope
+    sigma: np.ndarray  # its relative 1-sigma over the pooled pieces
 
 
-def slope_check(fleets: Sequence[TrendPieces]) -> SlopeCalibration:
-    """The fleet-average slope's calibration over the pooled pieces of ``fleets``: the pooled
-    relative error of the uncorrected slope and its relative 1-sigma (the level's observability
-    rule), the gain g and the noise a (``uncertainty.fit_slope_gain``, ``fit_slope_noise``) and
-    the common error c: the mean over the fleets of the squared error of a fleet's slope,
-    corrected with the gain of the other fleets, beyond its piece noise (cross-validated; one
-    fleet: 0)."""
+def slope_check(fleets: Sequence[TrendPieces], tolerance: float = SLOPE_TOLERANCE
+                ) -> SlopeCalibration:
+    """The fleet-average slope's calibration over the pooled pieces of ``fleets``: the gain g
+    and the noise a (``uncertainty.fit_slope_gain``, ``fit_slope_noise``), the common error
+    c (the mean over the fleets of the squared error of a fleet's slope, corrected with the
+    gain of the other fleets, beyond its piece noise: cross-validated; one fleet: 0), and the
+    pooled uncorrected slope's relative error and 1-sigma. The gain is NaN (the slope
+    unobservable) where that 1-sigma is over half of ``tolerance``: the calibration fleets
+    cannot tell the trend from its noise."""
     pooled = TrendPieces(np.concatenate([f.hat for f in fleets]),
                          np.concatenate([f.true for f in fleets]),
                          np.concatenate([f.spans for f in fleets]))
-    gain = uncertainty.fit_slope_gain(pooled.hat, pooled.true, pooled.spans, SLOPE_FLOOR)
+    gain = uncertainty.fit_slope_gain(pooled.hat, pooled.true, pooled.spans, YEAR_SLOPE_FLOOR)
     noise = uncertainty.fit_slope_noise(pooled.hat, pooled.true, pooled.spans,
                                         np.nan_to_num(gain, nan=1.0))
     raw, raw_sigma, true = pooled.fleet(None, noise)
-    scale = np.maximum(np.abs(true), SLOPE_FLOOR)
+    scale = np.maximum(np.abs(true), YEAR_SLOPE_FLOOR)
     excess = []
     for k, f in enumerate(fleets):
         others = [o for j, o in enumerate(fleets) if j != k]
@@ -393,12 +403,14 @@ def slope_check(fleets: Sequence[TrendPieces]) -> SlopeCalibration:
             continue
         g = uncertainty.fit_slope_gain(np.concatenate([o.hat for o in others]),
                                        np.concatenate([o.true for o in others]),
-                                       np.concatenate([o.spans for o in others]), SLOPE_FLOOR)
-        g = np.where(np.isfinite(g), g, 1.0)
-        slope, _, true_f = f.fleet(g)
+                                       np.concatenate([o.spans for o in others]),
+                                       YEAR_SLOPE_FLOOR)
+        slope, _, true_f = f.fleet(np.where(np.isfinite(g), g, 1.0))
         excess.append((slope - true_f) ** 2 - noise / np.sum(f.spans**2))
     common = np.maximum(np.mean(excess, axis=0), 0.0) if excess else np.zeros_like(noise)
-    return SlopeCalibration((raw - true) / scale, raw_sigma / scale, gain, noise, common)
+    sigma = raw_sigma / scale
+    gain = np.where(sigma <= 0.5 * tolerance, gain, np.nan)  # NaN sigma: NaN gain
+    return SlopeCalibration(gain, noise, common, (raw - true) / scale, sigma)
 
 
 def fleet_prior(segs: Sequence[Segment]) -> np.ndarray:
@@ -422,10 +434,10 @@ def calibrate(
     The analytic bias^2 is taken under the simulated fleets' own prior (``fleet_prior``); s is
     the smallest holding ``one_sigma`` and ``two_sigma`` of the pooled errors
     (``uncertainty.fit_model_std``); a parameter is shown when its honest steady-state sigma
-    is at most ``reduction`` times the design's prior sigma sqrt(prior_var) and its
-    fleet-average slope over the pooled pieces (``slope_check``) is within ``slope_tolerance``
-    of the truth with a 1-sigma of at most half of it (``uncertainty.observable``); its slope
-    is shown too when it has a gain.
+    is at most ``reduction`` times the design's prior sigma sqrt(prior_var) and its mean rate
+    over the pooled segments (``slopes``) is within ``slope_tolerance`` of the truth
+    (``uncertainty.observable``). Its fleet-average slope is shown too when the pooled pieces
+    measure it well enough to calibrate a gain (``slope_check``).
     """
     segs: list[Segment] = []
     pieces: list[TrendPieces] = []
@@ -449,20 +461,20 @@ def calibrate(
     B_h = np.mean(B_hs, axis=0)
     p = B_h.shape[0]
     bias2 = uncertainty.analytic_bias2(B_h, fleet_prior(segs))
-    _, rate = slopes(segs)
+    slope_hat, slope_true = slopes(segs)
     # No trend long enough to measure the fleet's rate on: no drift term.
-    drift = uncertainty.drift_bias(B_h, np.nan_to_num(rate))
+    drift = uncertainty.drift_bias(B_h, np.nan_to_num(slope_true))
     st = stack(segs, drift)
     scale = uncertainty.fit_bias_scale(st["level_err"], bias2, st["filter_var"], one_sigma)
     level_std = uncertainty.fit_model_std(
         st["level_err"], scale**2 * bias2 + st["filter_var"], one_sigma, two_sigma)
     change_std = uncertainty.fit_model_std(st["change_err"], st["change_var"], one_sigma,
                                            two_sigma)
-    sc = slope_check(pieces)
+    slope_error = (slope_hat - slope_true) / np.maximum(np.abs(slope_true), SLOPE_FLOOR)
     shown = uncertainty.observable(
         np.full(p, prior_var), scale**2 * bias2, np.median(st["filter_var"], axis=0), level_std,
-        slope_error=sc.error, reduction=reduction, slope_tolerance=slope_tolerance,
-        slope_sigma=sc.sigma)
+        slope_error=slope_error, reduction=reduction, slope_tolerance=slope_tolerance)
+    sc = slope_check(pieces, slope_tolerance)
     # Coverage of the pooled sigma on each fleet alone (BAND_ONE_SIGMA, BAND_TWO_SIGMA).
     sigma = np.sqrt(scale**2 * bias2 + st["filter_var"] + level_std**2)
     rows = np.concatenate([np.full(len(s.kcycles), k) for s, k in zip(segs, fleet_of,
@@ -483,7 +495,7 @@ def calibrate(
     return uncertainty.Calibration(
         aux_names=aux if aux_std is not None else (), aux_std=aux_std,
         names=tuple(est.layout.health), level_std=level_std, change_std=change_std,
-        slope_error=sc.error, bias2=bias2, drift=drift, observable=shown, bias_scale=scale,
+        slope_error=slope_error, bias2=bias2, drift=drift, observable=shown, bias_scale=scale,
         slope_gain=sc.gain, slope_noise=sc.noise, slope_common=sc.common,
         source={"design": design, "seeds": None if seeds is None else list(seeds),
                 "engines": sum(len(plan.esns) for plan, _ in fleets),
@@ -491,6 +503,11 @@ def calibrate(
                 "records": int(st["level_err"].shape[0]), "segments": len(segs),
                 "prior_var": prior_var, "reduction": reduction,
                 "slope_tolerance": slope_tolerance, "one_sigma": one_sigma,
+                "slope_pieces": int(sum(len(f.spans) for f in pieces)),
+                "slope_error": [round(float(x), 3) if np.isfinite(x) else None
+                                for x in sc.error],
+                "slope_sigma": [round(float(x), 3) if np.isfinite(x) else None
+                                for x in sc.sigma],
                 "two_sigma": two_sigma,
                 "fleet_cover1_min": [round(float(x), 3) for x in cover1.min(axis=0)],
                 "fleet_cover1_max": [round(float(x), 3) for x in cover1.max(axis=0)],
