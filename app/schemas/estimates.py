@@ -218,6 +218,8 @@ class DeteriorationSlope(BaseModel):
 
 
 class DeteriorationSlopes(BaseModel):
+    engine_type: str
+    design_id: int
     unit: Literal["%/year"]
     uncertainty: Literal["calibrated", "uncalibrated"]
     pieces: int = Field(description="engine trends (between baseline resets) the slopes use")
@@ -234,14 +236,18 @@ class DeteriorationGroup(BaseModel):
     n_engines: list[int]
     health: list[DeteriorationSeries]
     aux: list[DeteriorationSeries]
-    slopes: DeteriorationSlopes = Field(
-        description="fleet-average deterioration slope per health parameter (weekly means "
-        "of each engine between baseline resets, inverse-variance mean, calibrated gain)")
 
 
 class FleetDeterioration(BaseModel):
     bucket: Literal["week", "month"]
     groups: list[DeteriorationGroup]
+
+
+class FleetDeteriorationSlopes(BaseModel):
+    groups: list[DeteriorationSlopes] = Field(
+        description="per active design: the fleet-average deterioration slope of each health "
+        "parameter (weekly means of each engine between baseline resets, inverse-variance "
+        "mean, the design's calibrated gain) with its 1-sigma")
 
 
 class CommentOut(BaseModel):

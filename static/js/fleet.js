@@ -132,7 +132,7 @@ async function loadStatus() {
 function drawSlopes(groups) {
   const rows = [];
   for (const g of groups) {
-    const s = g.slopes;
+    const s = g;
     for (const p of s.health) {
       rows.push(h("tr", { "data-code": p.name },
         h("td", {}, nameOf(p.name)),
@@ -142,7 +142,7 @@ function drawSlopes(groups) {
           : h("td", { class: "num" }, p.sigma === null ? fmtNum(p.slope) : `${fmtNum(p.slope)} ± ${fmtNum(p.sigma)}`)));
     }
   }
-  const note = groups.map((g) => `${g.engine_type}: ${g.slopes.pieces} engine trends over ${g.slopes.engines} engines (${g.slopes.uncertainty})`).join("; ");
+  const note = groups.map((g) => `${g.engine_type}: ${g.pieces} engine trends over ${g.engines} engines (${g.uncertainty})`).join("; ");
   $("#slopes").replaceChildren(
     h("table", { class: "compact" },
       h("thead", {}, h("tr", {}, h("th", {}, "Health parameter"), groups.length > 1 ? h("th", {}, "Engine type") : null, h("th", {}, "Slope [%/year]"))),
@@ -176,7 +176,7 @@ async function loadDeterioration() {
       });
     });
     if (!traces.length) message.append(h("p", { class: "muted" }, "No estimates yet."));
-    drawSlopes(data.groups);
+    drawSlopes((await api("/api/v1/fleet/deterioration/slopes")).groups);
     const label = which === "health" ? "Fleet-average health parameter change" : "Fleet-average auxiliary output change";
     await plot(div, traces, layout({
       xaxis: { title: { text: "Date (UTC)" }, type: "date" },

@@ -48,8 +48,8 @@ def test_fleet_status_lists_every_engine_and_plots_deterioration(
     assert "[%]" in title
     # The fleet-average slope of each health parameter: as the API gives it, a number or why
     # there is none.
-    slopes = httpx.get(f"{server.base_url}/api/v1/fleet/deterioration",
-                       headers={"X-API-Key": server.seeded.key}).json()["groups"][0]["slopes"]
+    slopes = httpx.get(f"{server.base_url}/api/v1/fleet/deterioration/slopes",
+                       headers={"X-API-Key": server.seeded.key}).json()["groups"][0]
     cells = page.locator("#slopes tbody tr td:last-child").all_inner_texts()
     assert len(cells) == len(slopes["health"]) == 10
     for cell, item in zip(cells, slopes["health"], strict=True):

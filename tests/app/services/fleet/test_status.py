@@ -157,9 +157,9 @@ def test_deterioration_slopes_split_at_shop_visits_calibrated_and_unobservable(
     np.testing.assert_allclose(got["hpc_eff"]["slope"], plain.slope[0] / 1.25, atol=1e-4)
     np.testing.assert_allclose(got["hpc_eff"]["sigma"], np.sqrt(0.02 / w.sum() + 0.01) / 1.25,
                                rtol=1e-3)
-    # The fleet deterioration carries the same slopes.
-    group = status.fleet_deterioration(session, fleet.operator_id, "month")["groups"][0]
-    assert group["slopes"] == out
+    # The fleet's slopes per active design are the same.
+    group = status.fleet_deterioration_slopes(session, fleet.operator_id)["groups"][0]
+    assert group == {"engine_type": "generic", "design_id": fleet.design.id, **out}
 
 
 def test_status_summaries_equal_the_one_engine_reference(
