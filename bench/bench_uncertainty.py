@@ -73,6 +73,9 @@ def main() -> None:
             f"{n}={v:.2f}" for n, v in zip(calib.names, np.sqrt(calib.bias2), strict=True)))
         print("calibration slope error (pooled, before the gain): " + " ".join(
             f"{n}={v:.0%}" for n, v in zip(calib.names, calib.slope_error, strict=True)))
+        print("slope error of a calibration fleet, cross-validated (RMS): " + " ".join(
+            f"{n}={v:.0%}" for n, v in zip(calib.names, calib.source["slope_cross_error"],
+                                           strict=True) if v is not None))
         print("slope gain (nan: slope unobservable): " + " ".join(
             f"{n}={v:.2f}" for n, v in zip(calib.names, calib.slope_gain, strict=True)))
         for seed, test_fleet in zip(test_seeds, test_fleets, strict=True):

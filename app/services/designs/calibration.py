@@ -384,10 +384,11 @@ def slope_check(fleets: Sequence[TrendPieces], tolerance: float = SLOPE_TOLERANC
     """The fleet-average slope's calibration over the pooled pieces of ``fleets``: the gain g
     and the noise a (``uncertainty.fit_slope_gain``, ``fit_slope_noise``), the common error
     c (the mean over the fleets of the squared error of a fleet's slope, corrected with the
-    gain of the other fleets, beyond its piece noise: cross-validated; one fleet: 0), and the
-    pooled uncorrected slope's relative error and 1-sigma. The gain is NaN (the slope
-    unobservable) where that 1-sigma is over half of ``tolerance``: the calibration fleets
-    cannot tell the trend from its noise."""
+    gain of the other fleets, beyond its piece noise: cross-validated; one fleet: 0), the
+    pooled uncorrected slope's relative error and 1-sigma, and the RMS relative error of the
+    cross-validated fleet slopes. The gain is NaN (the slope unobservable) where that 1-sigma
+    or that RMS error is over half of ``tolerance``: the calibration fleets cannot tell the
+    trend from its noise, or a fleet's corrected slope misses the tolerance too often."""
     pooled = TrendPieces(np.concatenate([f.hat for f in fleets]),
                          np.concatenate([f.true for f in fleets]),
                          np.concatenate([f.spans for f in fleets]))
@@ -396,7 +397,7 @@ def slope_check(fleets: Sequence[TrendPieces], tolerance: float = SLOPE_TOLERANC
                                         np.nan_to_num(gain, nan=1.0))
     raw, raw_sigma, true = pooled.fleet(None, noise)
     scale = np.maximum(np.abs(true), YEAR_SLOPE_FLOOR)
-    excess = []
+    excess, relative = [], []
     for k, f in enumerate(fleets):
         others = [o for j, o in enumerate(fleets) if j != k]
         if not others or not len(f.spans):
@@ -407,10 +408,14 @@ def slope_check(fleets: Sequence[TrendPieces], tolerance: float = SLOPE_TOLERANC
                                        YEAR_SLOPE_FLOOR)
         slope, _, true_f = f.fleet(np.where(np.isfinite(g), g, 1.0))
         excess.append((slope - true_f) ** 2 - noise / np.sum(f.spans**2))
+        relative.append((slope - true_f) / np.maximum(np.abs(true_f), YEAR_SLOPE_FLOOR))
     common = np.maximum(np.mean(excess, axis=0), 0.0) if excess else np.zeros_like(noise)
+    cross = (np.sqrt(np.mean(np.square(relative), axis=0)) if relative
+             else np.zeros_like(noise))
     sigma = raw_sigma / scale
-    gain = np.where(sigma <= 0.5 * tolerance, gain, np.nan)  # NaN sigma: NaN gain
-    return SlopeCalibration(gain, noise, common, (raw - true) / scale, sigma)
+    # NaN sigma or cross-validation error: NaN gain.
+    gain = np.where((sigma <= 0.5 * tolerance) & (cross <= 0.5 * tolerance), gain, np.nan)
+    return SlopeCalibration(gain, noise, common, (raw - true) / scale, sigma, cross)
 
 
 def fleet_prior(segs: Sequence[Segment]) -> np.ndarray:
@@ -508,6 +513,8 @@ def calibrate(
                                 for x in sc.error],
                 "slope_sigma": [round(float(x), 3) if np.isfinite(x) else None
                                 for x in sc.sigma],
+                "slope_cross_error": [round(float(x), 3) if np.isfinite(x) else None
+                                      for x in sc.cross],
                 "two_sigma": two_sigma,
                 "fleet_cover1_min": [round(float(x), 3) for x in cover1.min(axis=0)],
                 "fleet_cover1_max": [round(float(x), 3) for x in cover1.max(axis=0)],
