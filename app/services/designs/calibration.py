@@ -377,6 +377,7 @@ class SlopeCalibration:
     common: np.ndarray  # c
     error: np.ndarray  # pooled relative error of the uncorrected slope
     sigma: np.ndarray  # its relative 1-sigma over the pooled pieces
+    cross: np.ndarray  # RMS relative error of a fleet's corrected slope (cross-validated)
 
 
 def slope_check(fleets: Sequence[TrendPieces], tolerance: float = SLOPE_TOLERANCE
