@@ -388,8 +388,9 @@ def slope_check(fleets: Sequence[TrendPieces], tolerance: float = SLOPE_TOLERANC
     gain of the other fleets, beyond its piece noise: cross-validated; one fleet: 0), the
     pooled uncorrected slope's relative error and 1-sigma, and the RMS relative error of the
     cross-validated fleet slopes. The gain is NaN (the slope unobservable) where that 1-sigma
-    or that RMS error is over half of ``tolerance``: the calibration fleets cannot tell the
-    trend from its noise, or a fleet's corrected slope misses the tolerance too often."""
+    is over half of ``tolerance`` (the calibration fleets cannot tell the trend from its
+    noise) or that RMS error over ``tolerance`` (the level's rule for its slope, here for a
+    fleet's corrected slope on a fleet the gain did not see)."""
     pooled = TrendPieces(np.concatenate([f.hat for f in fleets]),
                          np.concatenate([f.true for f in fleets]),
                          np.concatenate([f.spans for f in fleets]))
@@ -415,7 +416,7 @@ def slope_check(fleets: Sequence[TrendPieces], tolerance: float = SLOPE_TOLERANC
              else np.zeros_like(noise))
     sigma = raw_sigma / scale
     # NaN sigma or cross-validation error: NaN gain.
-    gain = np.where((sigma <= 0.5 * tolerance) & (cross <= 0.5 * tolerance), gain, np.nan)
+    gain = np.where((sigma <= 0.5 * tolerance) & (cross <= tolerance), gain, np.nan)
     return SlopeCalibration(gain, noise, common, (raw - true) / scale, sigma, cross)
 
 
