@@ -77,7 +77,8 @@ def main() -> None:
             f"{n}={v:.0%}" for n, v in zip(calib.names, calib.source["slope_cross_error"],
                                            strict=True) if v is not None))
         print("slope gain (nan: slope unobservable): " + " ".join(
-            f"{n}={v:.2f}" for n, v in zip(calib.names, calib.slope_gain, strict=True)))
+            f"{n}={v:.2f}" for n, v in zip(calib.names, np.asarray(calib.slope_gain),
+                                           strict=True)))
         for seed, test_fleet in zip(test_seeds, test_fleets, strict=True):
             sc = health_uncertainty.score(est, calib, *test_fleet)
             s = sc.summary()
