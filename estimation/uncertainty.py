@@ -34,15 +34,30 @@ d = B_h r per 1000 cycles (``drift_bias``), over c thousand cycles since the bas
 filter noise at both ends (treated as independent: the filter's memory is much shorter than a
 trend); and a calibrated s_delta for the model error that varies along the trend.
 
+Fleet-average deterioration slope. Each engine's trend between baseline resets (a piece)
+gives a weighted least-squares slope b_e over its span T_e (``piece_slope``). Its error against
+the true slope is the change of a slowly wandering model error over the span (the level error
+drifts with the operating conditions and with the other modules' wear, over weeks, not record
+to record), so var(b_e - b_true,e) = a_k / T_e^2: the fleet slope is the inverse-variance
+mean with weights T_e^2 (``fleet_slope``), and its 1-sigma sqrt(a_k / sum T_e^2 + c_k), c_k
+the part of the error common to one fleet's pieces (what does not average out over its
+engines: the calibration fleets' errors beyond their piece noise). The nonlinear
+engine moves an estimated trend by a gain g_k (the linear theory's I + B_h along the fleet's
+rates: other modules' wear read as this one's); the estimate is divided by g_k. a_k
+(``fit_slope_noise``), c_k and g_k (``fit_slope_gain``) are calibrated on the simulated fleets
+with s.
+
 A parameter is shown as unobservable (no number) when the design cannot tell it apart from the
 fleet prior: its honest sigma (bias, filter and model error at steady state) is more than
 ``reduction`` of its prior sigma, or (for trends) the fleet-average slope the calibration run
-measured is off the true slope by more than ``slope_tolerance`` (``observable``).
+measured is off the true slope by more than ``slope_tolerance`` (``observable``). Its
+fleet-average slope is unobservable as well, and also without a gain (no trend the calibration
+fleets measure well enough to calibrate it on, or one the design reads backwards).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -112,10 +127,12 @@ class Calibration:
     """Model-error term of one design, fitted on the nonlinear fleet simulator.
 
     names [p]: health parameters; level_std [p]: s_k, percent; change_std [p]: s_delta_k,
-    percent; slope_error [p]: (estimated - true) fleet-average slope over max(|true|, a
-    floor) on the calibration fleet; bias2 [p]: the analytic bias^2 (a^2 bias2 is used,
-    a = bias_scale); observable [p]: the rule's verdict; source: how it was made (seed,
-    fleet size, design).
+    percent; slope_error [p]: (estimated - true) mean rate over the calibration fleets'
+    segments over max(|true|, a floor) (the level's observability rule); bias2 [p]: the
+    analytic bias^2 (a^2 bias2 is used, a = bias_scale); observable [p]: the rule's verdict;
+    slope_gain [p]: g_k (None: 1; NaN: the slope is unobservable); slope_noise [p]: a_k,
+    (percent per year)^2 years^2 (None: not calibrated); slope_common [p]: c_k, (percent per
+    year)^2 (None: 0); source: how it was made (seed, fleet size, design).
     """
 
     names: tuple[str, ...]
@@ -131,13 +148,24 @@ class Calibration:
     # level_std on the filter's aux variance (``fit_model_std``); empty: not calibrated.
     aux_names: tuple[str, ...] = ()
     aux_std: np.ndarray | None = None
+    # Fleet-average slope: gain g_k, noise a_k and common error c_k (module docstring); None:
+    # 1, unknown and 0.
+    slope_gain: np.ndarray | None = None
+    slope_noise: np.ndarray | None = None
+    slope_common: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         p = len(self.names)
         if self.bias_scale is None:
             object.__setattr__(self, "bias_scale", np.ones(p))
+        if self.slope_gain is None:
+            object.__setattr__(self, "slope_gain", np.ones(p))
+        if self.slope_noise is None:
+            object.__setattr__(self, "slope_noise", np.full(p, np.nan))
+        if self.slope_common is None:
+            object.__setattr__(self, "slope_common", np.zeros(p))
         for name in ("bias_scale", "level_std", "change_std", "slope_error", "bias2", "drift",
-                     "observable"):
+                     "observable", "slope_gain", "slope_noise", "slope_common"):
             value = np.asarray(getattr(self, name), bool if name == "observable" else float)
             if value.shape != (p,):
                 raise DimensionError(
@@ -179,6 +207,9 @@ class Calibration:
             "source": dict(self.source),
             "aux_names": list(self.aux_names),
             "aux_std": listed(np.asarray(self.aux_std)),
+            "slope_gain": listed(np.asarray(self.slope_gain)),
+            "slope_noise": listed(np.asarray(self.slope_noise)),
+            "slope_common": listed(np.asarray(self.slope_common)),
         }
 
     @classmethod
@@ -197,6 +228,9 @@ class Calibration:
             source=dict(d.get("source", {})),
             aux_names=tuple(d.get("aux_names", ())),
             aux_std=arr("aux_std") if "aux_std" in d else None,
+            slope_gain=arr("slope_gain") if "slope_gain" in d else None,
+            slope_noise=arr("slope_noise") if "slope_noise" in d else None,
+            slope_common=arr("slope_common") if "slope_common" in d else None,
         )
 
 
@@ -307,11 +341,91 @@ def observable(
     return np.asarray(ok, bool)
 
 
-def fleet_slopes(x: Sequence[np.ndarray], y: Sequence[np.ndarray]) -> np.ndarray:
-    """Fleet-average least-squares slope [p]: per engine the slope of y_e [S_e, p] on x_e
-    [S_e] (thousand cycles), averaged over the engines."""
-    slopes = []
-    for xe, ye in zip(x, y, strict=True):
-        xc = xe - xe.mean()
-        slopes.append((xc @ (ye - ye.mean(axis=0))) / (xc @ xc))
-    return np.mean(slopes, axis=0)
+def piece_slope(x: np.ndarray, y: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
+    """Weighted least-squares slope [p] of y [S, p] on x [S] (weights w [S], None: 1)."""
+    x = np.asarray(x, float)
+    w = np.ones_like(x) if w is None else np.asarray(w, float)
+    xc = x - (w @ x) / w.sum()
+    return ((w * xc) @ np.asarray(y, float)) / ((w * xc) @ xc)
+
+
+def fleet_slope(
+    slopes: np.ndarray, spans: np.ndarray, gain: np.ndarray | None = None,
+    noise: np.ndarray | None = None, common: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Fleet-average slope [p] and its 1-sigma [p] from the pieces' slopes [S, p] over spans
+    [S] (module docstring): the mean weighted by T_e^2, divided by the gain g [p] (None: 1);
+    sigma sqrt(a / sum T_e^2 + c) / |g| for the noise a [p] (None: NaN) and the error common
+    to a fleet's pieces c [p] (None: 0). No piece: NaN."""
+    slopes = np.asarray(slopes, float)
+    w = np.square(np.asarray(spans, float))
+    p = slopes.shape[1] if slopes.ndim == 2 else 0
+    g = np.ones(p) if gain is None else np.asarray(gain, float)
+    a = np.full(p, np.nan) if noise is None else np.asarray(noise, float)
+    c = np.zeros(p) if common is None else np.asarray(common, float)
+    if not w.size or w.sum() <= 0.0:
+        return np.full(p, np.nan), np.full(p, np.nan)
+    return (w @ slopes) / w.sum() / g, np.sqrt(a / w.sum() + c) / np.abs(g)
+
+
+def fit_slope_gain(hat: np.ndarray, true: np.ndarray, spans: np.ndarray,
+                   floor: float = 0.0) -> np.ndarray:
+    """Gain g [p] of the fleet-average slope: the T_e^2-weighted mean of the estimated piece
+    slopes hat [S, p] over that of the true ones true [S, p] (pooled over the calibration
+    fleets); NaN where the true mean is within ``floor`` of 0 or the ratio is not positive
+    (no trend to measure a gain on, or the design reads it backwards)."""
+    hat_mean, _ = fleet_slope(hat, spans)
+    true_mean, _ = fleet_slope(true, spans)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        g = hat_mean / true_mean
+    return np.where((np.abs(true_mean) > floor) & (g > 0.0), g, np.nan)
+
+
+def fit_slope_noise(hat: np.ndarray, true: np.ndarray, spans: np.ndarray,
+                    gain: np.ndarray) -> np.ndarray:
+    """Noise a [p] of a piece's slope, var(b_e / g - b_true,e) = a / T_e^2: the mean of
+    (T_e (b_e / g - b_true,e))^2 over the pieces (NaN without pieces)."""
+    spans = np.asarray(spans, float)
+    if not spans.size:
+        return np.full(np.asarray(hat).shape[1], np.nan)
+    err = np.asarray(hat, float) / np.asarray(gain, float) - np.asarray(true, float)
+    return np.mean(np.square(spans[:, None] * err), axis=0)
+
+
+YEAR_S = 365.25 * 86400.0
+
+
+def period_pieces(
+    start: np.ndarray, end: np.ndarray, n: np.ndarray, means: np.ndarray, resets: np.ndarray,
+    settle: int, min_span: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One engine's trend pieces from its period means: slopes [S, q] (per year) and spans [S]
+    (years).
+
+    start, end [K] (epoch seconds, time order), n [K] records and means [K, q] of each period;
+    resets [R] epoch seconds of the baseline resets. A period holding a reset mixes two pieces
+    and is left out; a piece starts ``settle`` records after its first record (the filter's
+    start-up transient) and counts when its periods span at least ``min_span`` years. Each
+    period sits at its middle, weighted by its records.
+    """
+    start, end = np.asarray(start, float), np.asarray(end, float)
+    n = np.asarray(n, float)
+    means = np.asarray(means, float)
+    resets = np.sort(np.asarray(resets, float))
+    piece = np.searchsorted(resets, start, side="right")
+    mixed = piece != np.searchsorted(resets, end, side="left")
+    slopes, spans = [], []
+    for k in np.unique(piece):
+        sel = np.flatnonzero((piece == k) & ~mixed)
+        before = np.cumsum(n[sel]) - n[sel]  # records of the piece before each period
+        sel = sel[before >= settle]
+        if sel.size < 3:
+            continue
+        x = 0.5 * (start[sel] + end[sel]) / YEAR_S
+        span = float(x.max() - x.min())
+        if span < min_span:
+            continue
+        slopes.append(piece_slope(x, means[sel], n[sel]))
+        spans.append(span)
+    q = means.shape[1] if means.ndim == 2 else 0
+    return np.reshape(slopes, (len(slopes), q)), np.asarray(spans, float)

@@ -12,6 +12,7 @@ from app.schemas.estimates import (
     EngineCoverageOut,
     EngineState,
     FleetDeterioration,
+    FleetDeteriorationSlopes,
     FleetStatus,
     TailCoverageOut,
 )
@@ -47,6 +48,13 @@ def fleet_deterioration(
 ) -> object:
     """Fleet-average health-parameter and auxiliary estimates per week or month."""
     return status.fleet_deterioration(session, principal.operator_id, bucket)
+
+
+@router.get("/deterioration/slopes", response_model=FleetDeteriorationSlopes)
+def fleet_deterioration_slopes(session: DbSession, principal: CurrentPrincipal) -> object:
+    """Fleet-average deterioration slope of each health parameter per active design (percent
+    per year, with its 1-sigma; null where the design cannot observe it)."""
+    return status.fleet_deterioration_slopes(session, principal.operator_id)
 
 
 @router.get("/data-coverage", response_model=DataCoverage)

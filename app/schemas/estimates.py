@@ -211,6 +211,24 @@ class DeteriorationSeries(BaseModel):
     sigma: list[float | None] = Field(description="spread over engines (standard deviation)")
 
 
+class DeteriorationSlope(BaseModel):
+    name: str
+    slope: float | None = Field(description="fleet-average slope; null: unobservable")
+    sigma: float | None = Field(description="its 1-sigma; null: uncalibrated or unobservable")
+
+
+class DeteriorationSlopes(BaseModel):
+    engine_type: str
+    design_id: int
+    unit: Literal["%/year"]
+    uncertainty: Literal["calibrated", "uncalibrated"]
+    pieces: int = Field(description="engine trends (between baseline resets) the slopes use")
+    engines: int
+    unobservable: list[str] = Field(
+        description="parameters whose slope the design cannot observe (slope null)")
+    health: list[DeteriorationSlope]
+
+
 class DeteriorationGroup(BaseModel):
     engine_type: str
     design_id: int
@@ -223,6 +241,13 @@ class DeteriorationGroup(BaseModel):
 class FleetDeterioration(BaseModel):
     bucket: Literal["week", "month"]
     groups: list[DeteriorationGroup]
+
+
+class FleetDeteriorationSlopes(BaseModel):
+    groups: list[DeteriorationSlopes] = Field(
+        description="per active design: the fleet-average deterioration slope of each health "
+        "parameter (weekly means of each engine between baseline resets, inverse-variance "
+        "mean, the design's calibrated gain) with its 1-sigma")
 
 
 class CommentOut(BaseModel):

@@ -127,6 +127,29 @@ async function loadStatus() {
   drawTable();
 }
 
+// Fleet-average deterioration slope per health parameter: a number ± 1σ, "unobservable" where
+// the design cannot observe it (listed by the API), or no trend yet (no engine trend long enough).
+function drawSlopes(groups) {
+  const rows = [];
+  for (const g of groups) {
+    const s = g;
+    for (const p of s.health) {
+      rows.push(h("tr", { "data-code": p.name },
+        h("td", {}, nameOf(p.name)),
+        groups.length > 1 ? h("td", {}, g.engine_type) : null,
+        p.slope === null
+          ? h("td", { class: "muted" }, s.unobservable.includes(p.name) ? "unobservable" : "no trend yet (an engine needs about 3 months between baseline resets)")
+          : h("td", { class: "num" }, p.sigma === null ? fmtNum(p.slope) : `${fmtNum(p.slope)} ± ${fmtNum(p.sigma)}`)));
+    }
+  }
+  const note = groups.map((g) => `${g.engine_type}: ${g.pieces} engine trends over ${g.engines} engines (${g.uncertainty})`).join("; ");
+  $("#slopes").replaceChildren(
+    h("table", { class: "compact" },
+      h("thead", {}, h("tr", {}, h("th", {}, "Health parameter"), groups.length > 1 ? h("th", {}, "Engine type") : null, h("th", {}, "Slope [%/year]"))),
+      h("tbody", {}, ...rows)),
+    h("p", { class: "legend-note" }, note));
+}
+
 async function loadDeterioration() {
   const div = $("#deterioration");
   const message = $("#deterioration-message");
@@ -153,6 +176,7 @@ async function loadDeterioration() {
       });
     });
     if (!traces.length) message.append(h("p", { class: "muted" }, "No estimates yet."));
+    drawSlopes((await api("/api/v1/fleet/deterioration/slopes")).groups);
     const label = which === "health" ? "Fleet-average health parameter change" : "Fleet-average auxiliary output change";
     await plot(div, traces, layout({
       xaxis: { title: { text: "Date (UTC)" }, type: "date" },

@@ -122,7 +122,8 @@ def test_the_api_reads_growing_tables_through_indexes(
     engine_id = engines[0].id
     for path in (
         "/api/v1/fleet/status", "/api/v1/fleet/deterioration?bucket=week",
-        "/api/v1/fleet/deterioration?bucket=month", f"/api/v1/engines/{engine_id}/trend",
+        "/api/v1/fleet/deterioration?bucket=month", "/api/v1/fleet/deterioration/slopes",
+        f"/api/v1/engines/{engine_id}/trend",
         f"/api/v1/engines/{engine_id}/trend?health=change", f"/api/v1/engines/{engine_id}",
         "/api/v1/events", "/api/v1/events?status=active", f"/api/v1/events?engine_id={engine_id}",
         "/api/v1/uploads", f"/api/v1/aircraft/{aircraft.id}/engines",

@@ -46,6 +46,18 @@ def test_fleet_status_lists_every_engine_and_plots_deterioration(
     assert len(plotted) == 10
     title = page.evaluate("document.querySelector('#deterioration').layout.yaxis.title.text")
     assert "[%]" in title
+    # The fleet-average slope of each health parameter: as the API gives it, a number or why
+    # there is none.
+    slopes = httpx.get(f"{server.base_url}/api/v1/fleet/deterioration/slopes",
+                       headers={"X-API-Key": server.seeded.key}).json()["groups"][0]
+    cells = page.locator("#slopes tbody tr td:last-child").all_inner_texts()
+    assert len(cells) == len(slopes["health"]) == 10
+    for cell, item in zip(cells, slopes["health"], strict=True):
+        if item["slope"] is None:
+            assert cell.startswith("unobservable" if item["name"] in slopes["unobservable"]
+                                   else "no trend yet")
+        else:
+            assert float(cell.split("±")[0]) == pytest.approx(item["slope"], abs=0.01)
     screenshot(page, "fleet-status")
     # Every plot exports its data as CSV from the mode bar: one row per plotted point.
     page.hover("#deterioration")

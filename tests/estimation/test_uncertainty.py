@@ -148,10 +148,73 @@ def test_observable_rule() -> None:
     assert unc.observable(prior, bias2, filt, model).tolist() == [True, False, False, True]
 
 
-def test_fleet_slopes_of_lines() -> None:
-    x = [np.linspace(0, 1, 20), np.linspace(0.2, 0.7, 30)]
-    y = [np.outer(xe, [1.0, -2.0]) + 5.0 for xe in x]
-    np.testing.assert_allclose(unc.fleet_slopes(x, y), [1.0, -2.0])
+def test_piece_slope_of_weighted_lines() -> None:
+    x = np.linspace(0.2, 0.7, 30)
+    y = np.outer(x, [1.0, -2.0]) + 5.0
+    np.testing.assert_allclose(unc.piece_slope(x, y), [1.0, -2.0])
+    # Weights move the fit only where the points leave the line.
+    y2 = y.copy()
+    y2[0] += 1.0
+    w = np.ones(30)
+    w[0] = 1e-9
+    np.testing.assert_allclose(unc.piece_slope(x, y2, w), [1.0, -2.0], atol=1e-6)
+
+
+def test_fleet_slope_weights_spans_squared_and_divides_the_gain() -> None:
+    slopes = np.array([[1.0], [4.0]])
+    spans = np.array([1.0, 2.0])  # weights 1 and 4
+    slope, sigma = unc.fleet_slope(slopes, spans, gain=np.array([2.0]), noise=np.array([0.5]))
+    np.testing.assert_allclose(slope, [(1.0 + 16.0) / 5.0 / 2.0])
+    np.testing.assert_allclose(sigma, [np.sqrt(0.5 / 5.0) / 2.0])
+    slope, sigma = unc.fleet_slope(np.empty((0, 1)), np.empty(0))
+    assert np.isnan(slope).all() and np.isnan(sigma).all()
+
+
+def test_slope_gain_and_noise_recovered_and_the_sigma_is_honest() -> None:
+    # Pieces whose estimated slope is g times the true one plus an error of variance a / T^2:
+    # the gain and the noise come back, and the fleet slope's sigma covers its error.
+    rng = np.random.default_rng(3)
+    g, a = np.array([1.2, 0.8]), np.array([0.04, 0.01])
+    errs, sigmas = [], []
+    for _ in range(400):
+        spans = rng.uniform(0.25, 1.0, 20)
+        true = rng.normal([-0.6, 0.4], 0.2, (20, 2))
+        hat = g * (true + rng.normal(size=(20, 2)) * np.sqrt(a) / spans[:, None])
+        slope, sigma = unc.fleet_slope(hat, spans, g, a)
+        errs.append(slope - unc.fleet_slope(true, spans)[0])
+        sigmas.append(sigma)
+    spans = rng.uniform(0.25, 1.0, 4000)
+    true = rng.normal([-0.6, 0.4], 0.2, (4000, 2))
+    hat = g * (true + rng.normal(size=(4000, 2)) * np.sqrt(a) / spans[:, None])
+    gain = unc.fit_slope_gain(hat, true, spans)
+    np.testing.assert_allclose(gain, g, rtol=0.03)
+    np.testing.assert_allclose(unc.fit_slope_noise(hat, true, spans, gain), a, rtol=0.1)
+    z = np.abs(np.array(errs)) / np.array(sigmas)
+    assert 0.6 <= np.mean(z <= 1.0) <= 0.76 and np.mean(z <= 2.0) >= 0.92
+    # A trend read backwards or no trend: no gain.
+    assert np.isnan(unc.fit_slope_gain(-hat, true, spans)).all()
+    assert np.isnan(unc.fit_slope_gain(hat, 0.0 * true, spans, floor=0.05)).all()
+
+
+def test_period_pieces_split_at_resets_settle_and_span() -> None:
+    week = 7 * 86400.0
+    start = np.arange(60) * week
+    end = start + week
+    n = np.full(60, 14.0)
+    years = 0.5 * (start + end) / unc.YEAR_S
+    means = np.c_[2.0 - 1.5 * years, 1.0 + 0.5 * years]
+    means[25] += 10.0  # the week a shop visit falls in: mixed, left out
+    reset = 25 * week + 3 * 86400.0
+    slopes, spans = unc.period_pieces(start, end, n, means, np.array([reset]), settle=28,
+                                      min_span=0.25)
+    assert slopes.shape == (2, 2)
+    np.testing.assert_allclose(slopes, [[-1.5, 0.5], [-1.5, 0.5]], atol=1e-9)
+    # First piece: weeks 2..24 (28 records settle), second: weeks 28..59.
+    np.testing.assert_allclose(spans, [22 * week / unc.YEAR_S, 31 * week / unc.YEAR_S])
+    # A piece shorter than min_span does not count.
+    _, spans = unc.period_pieces(start, end, n, means, np.array([reset]), settle=28,
+                                 min_span=0.5)
+    np.testing.assert_allclose(spans, [31 * week / unc.YEAR_S])
 
 
 def test_calibration_json_round_trip() -> None:
@@ -160,18 +223,25 @@ def test_calibration_json_round_trip() -> None:
         slope_error=np.array([np.nan, -0.1]), bias2=np.array([0.01, 1.0]),
         drift=np.array([0.0, 0.05]), observable=np.array([True, False]),
         source={"seed": 1, "design": "svd:6"}, aux_names=("Fn", "SM_HPC"),
-        aux_std=np.array([0.3, np.nan]),
+        aux_std=np.array([0.3, np.nan]), slope_gain=np.array([np.nan, 1.1]),
+        slope_noise=np.array([0.02, 0.03]),
     )
     back = unc.Calibration.from_dict(json.loads(json.dumps(cal.to_dict())))
     assert back.names == cal.names and back.source == cal.source
     for name in ("level_std", "change_std", "slope_error", "bias2", "drift", "observable",
-                 "aux_std"):
+                 "aux_std", "slope_gain", "slope_noise"):
         np.testing.assert_array_equal(getattr(back, name), getattr(cal, name))
     assert back.aux_model_std("Fn") == 0.3
     assert back.aux_model_std("SM_HPC") is None and back.aux_model_std("T40") is None
     # A document from before the aux outputs were calibrated: none of them is.
-    old = {k: v for k, v in cal.to_dict().items() if not k.startswith("aux_")}
+    old = {k: v for k, v in cal.to_dict().items()
+           if not k.startswith("aux_") and not k.startswith("slope_g")
+           and not k.startswith("slope_n")}
     assert unc.Calibration.from_dict(old).aux_model_std("Fn") is None
+    # ... and from before the slope was calibrated: gain 1, noise unknown.
+    before = unc.Calibration.from_dict(old)
+    assert np.asarray(before.slope_gain).tolist() == [1.0, 1.0]
+    assert np.isnan(np.asarray(before.slope_noise)).all()
     with pytest.raises(DimensionError):
         unc.Calibration(names=("a",), level_std=np.zeros(2), change_std=np.zeros(1),
                         slope_error=np.zeros(1), bias2=np.zeros(1), drift=np.zeros(1),

@@ -9,6 +9,11 @@ and 2-sigma of the level, level RMS, change RMS since the baseline and fleet-ave
 Baseline of a change: the first settled record (``calibration.tracks``: past the filter's
 start-up transient) after the engine's first record or its last shop visit (a re-installation);
 a water wash does not move the baseline (its recovery is part of the trend).
+
+Fleet-average slopes (percent per year) are the product's (``app.services.fleet.slopes``):
+weekly means of every engine's estimates, split at its baseline resets, combined by inverse
+variance and divided by the calibrated gain; a parameter whose slope the calibration finds
+unobservable is reported as such (``slope_shown``), not scored.
 """
 
 from __future__ import annotations
@@ -24,12 +29,11 @@ from estimation.engine.fleet import FleetPlan, Snapshots
 from tests.support import health_accuracy
 
 PRIOR_VAR = calibration.PRIOR_VAR
-SLOPE_FLOOR = calibration.SLOPE_FLOOR
+SLOPE_FLOOR = calibration.YEAR_SLOPE_FLOOR
 Segment = calibration.Segment
 segments = calibration.segments
 fleet_prior = calibration.fleet_prior
 _stack = calibration.stack
-_slopes = calibration.slopes
 
 
 def calibrate(
@@ -44,7 +48,7 @@ def calibrate(
 
 @dataclass(frozen=True)
 class Score:
-    """Figures against the truth per health parameter [p] (percent; slopes per 1000 cycles)."""
+    """Figures against the truth per health parameter [p] (percent; slopes per year)."""
 
     names: tuple[str, ...]
     observable: np.ndarray
@@ -57,32 +61,43 @@ class Score:
     change_cover2: np.ndarray
     change_rms: np.ndarray  # all settled records against their baseline
     end_change_rms: np.ndarray  # last record of each segment against its baseline
-    slope_hat: np.ndarray
+    slope_hat: np.ndarray  # the product's fleet-average slope (NaN where not shown)
+    slope_sigma: np.ndarray  # its 1-sigma
     slope_true: np.ndarray
+    slope_shown: np.ndarray  # bool: the slope is observable (else shown as unobservable)
     records: int
     segments: int
+    pieces: int  # engine trends the slopes are taken over
+
+    @property
+    def slope_error(self) -> np.ndarray:
+        """(slope - true) / max(|true|, SLOPE_FLOOR) [p]; NaN where the slope is not shown."""
+        return (self.slope_hat - self.slope_true) / np.maximum(np.abs(self.slope_true),
+                                                               SLOPE_FLOOR)
 
     def report(self) -> str:
         lines = [f"{'parameter':10s} {'shown':>5s} {'1s cov':>6s} {'2s cov':>6s} "
                  f"{'filt 1s':>7s} {'rms':>6s} {'sigma':>6s} {'d 1s':>6s} {'d 2s':>6s} "
-                 f"{'d rms':>6s} {'d end':>6s} {'slope':>7s} {'true':>7s} {'err':>6s}"]
+                 f"{'d rms':>6s} {'d end':>6s} {'slope/yr':>14s} {'true':>6s} {'err':>6s}"]
         for k, n in enumerate(self.names):
-            err = (self.slope_hat[k] - self.slope_true[k]) / max(abs(self.slope_true[k]),
-                                                                  SLOPE_FLOOR)
+            if self.slope_shown[k]:
+                slope = f"{self.slope_hat[k]:6.2f}+-{self.slope_sigma[k]:.2f}"
+                err = f"{self.slope_error[k]:6.0%}"
+            else:
+                slope, err = "unobservable", "-"
             lines.append(
                 f"{n:10s} {'yes' if self.observable[k] else 'no':>5s} {self.cover1[k]:6.2f} "
                 f"{self.cover2[k]:6.2f} {self.filter_cover1[k]:7.2f} {self.level_rms[k]:6.2f} "
                 f"{self.sigma[k]:6.2f} {self.change_cover1[k]:6.2f} "
                 f"{self.change_cover2[k]:6.2f} {self.change_rms[k]:6.2f} "
-                f"{self.end_change_rms[k]:6.2f} {self.slope_hat[k]:7.2f} "
-                f"{self.slope_true[k]:7.2f} {err:6.0%}")
+                f"{self.end_change_rms[k]:6.2f} {slope:>14s} {self.slope_true[k]:6.2f} {err:>6s}")
         return "\n".join(lines)
 
     def summary(self) -> dict[str, float]:
         """Figures over the shown parameters next to which the targets are stated."""
         o = self.observable
-        rel = np.abs(self.slope_hat - self.slope_true) / np.maximum(np.abs(self.slope_true),
-                                                                   SLOPE_FLOOR)
+        rel = np.abs(self.slope_error)
+        shown = self.slope_shown
         nan = float("nan")
         return {
             "shown": int(o.sum()),
@@ -93,7 +108,8 @@ class Score:
             "change_rms": float(np.sqrt(np.mean(self.change_rms[o] ** 2))) if o.any() else nan,
             "end_change_rms": float(np.sqrt(np.mean(self.end_change_rms[o] ** 2)))
             if o.any() else nan,
-            "slope_err_max": float(rel[o].max()) if o.any() else nan,
+            "slopes_shown": int(shown.sum()),
+            "slope_err_max": float(rel[shown].max()) if shown.any() else nan,
         }
 
 
@@ -107,7 +123,11 @@ def score(
     sigma = np.sqrt(np.asarray(calib.bias_scale) ** 2 * calib.bias2 + st["filter_var"]
                     + calib.level_std**2)
     d_sigma = np.sqrt(st["change_var"] + calib.change_std**2)
-    slope_hat, slope_true = _slopes(segs)
+    pieces = calibration.trend_pieces(tr)
+    slope_shown = calib.observable & np.isfinite(np.asarray(calib.slope_gain))
+    slope_hat, slope_sigma, slope_true = pieces.fleet(calib.slope_gain, calib.slope_noise,
+                                                      calib.slope_common)
+    slope_hat = np.where(slope_shown, slope_hat, np.nan)
     ends = np.array([(s.h_hat[-1] - s.h_hat[0]) - (s.h_true[-1] - s.h_true[0]) for s in segs])
     cov = uncertainty.coverage
     return Score(
@@ -119,6 +139,7 @@ def score(
         change_cover2=cov(st["change_err"], d_sigma, 2.0),
         change_rms=np.sqrt(np.mean(st["change_err"] ** 2, axis=0)),
         end_change_rms=np.sqrt(np.mean(ends**2, axis=0)),
-        slope_hat=slope_hat, slope_true=slope_true,
-        records=int(st["level_err"].shape[0]), segments=len(segs),
+        slope_hat=slope_hat, slope_sigma=np.where(slope_shown, slope_sigma, np.nan),
+        slope_true=slope_true, slope_shown=slope_shown,
+        records=int(st["level_err"].shape[0]), segments=len(segs), pieces=len(pieces.spans),
     )

@@ -80,7 +80,8 @@ class DemoSize:
     fault_rate: float = 1.0 / 3000.0
     months_per_upload: int = 1
     # Calibrate the active design's model error on simulated fleets (designs.calibration;
-    # a minute or two) so that its trends show the honest health sigma.
+    # six fleets, one to four minutes on a busy machine) so that its trends show the honest
+    # health sigma and the fleet page its calibrated deterioration slopes.
     calibrate: bool = True
 
 

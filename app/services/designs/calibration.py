@@ -26,12 +26,13 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.errors import Conflict
 from app.models import EngineModel, EstimatorDesign
 from app.services.designs.service import get_design
-from app.services.snapshots import estimator
+from app.services.snapshots import buckets, estimator
 from app.services.snapshots import run as snapshots_run
 from estimation import uncertainty
 from estimation.engine.errors import EngineConvergenceError
@@ -44,7 +45,8 @@ RESULT_KEY = "uncertainty"
 JOB_KIND = "calibrate_design"
 # The fleet prior of the demo designs: P_h = 4 I (percent^2, design spec "Ph").
 PRIOR_VAR = 4.0
-# Slopes are compared relative to max(|true slope|, SLOPE_FLOOR) (percent per 1000 cycles).
+# The level's observability rule compares the fleet's mean rate over the segments (percent
+# per 1000 cycles, ``slopes``) relative to max(|true|, SLOPE_FLOOR).
 SLOPE_FLOOR = 0.1
 MIN_SEGMENT_RECORDS = 20
 # A slope needs a stretch of at least this many thousand cycles (each segment weighs the same
@@ -63,9 +65,24 @@ BAND_ONE_SIGMA = (0.50, 0.90)
 BAND_TWO_SIGMA = 0.80
 # Flights after a start or a shop visit before a record counts as settled (start-up transient).
 SETTLE_FLIGHTS = 30
+# Maintenance that moves the health baseline (a water wash does not), and the records after a
+# baseline reset before its baseline record (a take-off and a cruise record per flight).
+BASELINE_KINDS = ("shop_visit", "module_change")
+BASELINE_SETTLE_RECORDS = 2 * SETTLE_FLIGHTS
+# The fleet-average deterioration slope (``app.services.fleet.slopes``): from each engine's
+# weekly means of its stored estimates, over pieces between baseline resets spanning at least
+# MIN_SLOPE_YEARS; relative errors against max(|true slope|, YEAR_SLOPE_FLOOR) (percent per
+# year). A slope is shown when its calibration pool measures it to a relative 1-sigma of at most
+# half the slope tolerance.
+SLOPE_PERIOD = "week"
+MIN_SLOPE_YEARS = 0.25
+YEAR_SLOPE_FLOOR = 0.05
 # The calibration fleets: CALIBRATION_SEEDS fleets of CALIBRATION_AIRCRAFT aircraft (two
-# engines each plus spares) flying CALIBRATION_FLIGHTS rounds at two a day.
-CALIBRATION_SEEDS = (20260102, 20260103, 20260104)
+# engines each plus spares) flying CALIBRATION_FLIGHTS rounds at two a day. Six, not three:
+# the fleet-average slope's gain is a ratio of fleet means whose error common to a fleet's
+# engines is ~15 % of the slope per fleet (bench_uncertainty, subset:10 hpc_eff), so its
+# calibration needs the fleets, not more engines in one.
+CALIBRATION_SEEDS = (20260102, 20260103, 20260104, 20260105, 20260106, 20260107)
 CALIBRATION_AIRCRAFT = 8
 CALIBRATION_FLIGHTS = 730
 # The aux outputs' model error is fitted on every AUX_EVERY-th settled record (each needs two
@@ -99,6 +116,10 @@ class HealthTrack:
     z_hat: np.ndarray | None = None  # [S, nz]
     z_sigma: np.ndarray | None = None  # [S, nz]
     conditions: np.ndarray | None = None
+    # Each record's time (epoch seconds, as stored) and the engine's baseline resets (its
+    # installations: a re-installation is a shop visit); None where not kept.
+    epoch: np.ndarray | None = None
+    resets: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -197,9 +218,11 @@ def tracks(
             flights = np.zeros(len(t), dtype=int)
             for k in range(len(t)):
                 flights[k] = len(np.unique(data.flight_id[(t >= last_reset[k]) & (t <= t[k])]))
+            resets = np.array(sorted(i.installed_at for i in plan.installations
+                                     if i.esn == data.esn), dtype=float)
             out.append(HealthTrack(data.esn, rounds, flights > settle, values[:, s["h"]],
                                    values[:, s["h_sigma"]], h_true, values[:, s["z"]],
-                                   values[:, s["z_sigma"]], data.run.conditions))
+                                   values[:, s["z_sigma"]], data.run.conditions, t, resets))
     return out
 
 
@@ -291,15 +314,110 @@ def stack(segs: Sequence[Segment], drift: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def slopes(segs: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray]:
-    """Fleet-average slope [p] of h_hat and of the true h over the segments long enough
-    (NaN when none is)."""
+    """The fleet's mean deterioration rate [p], percent per 1000 cycles, of h_hat and of the
+    true h over the segments long enough (each segment's least-squares slope, averaged; NaN
+    when none is): the rate r of the drift bias d = B_h r and the level's observability
+    rule."""
     long = [s for s in segs if np.ptp(s.kcycles) >= MIN_SLOPE_SPAN]
     if not long:
         nan = np.full(segs[0].h_hat.shape[1] if segs else 0, np.nan)
         return nan, nan.copy()
-    x = [s.kcycles for s in long]
-    return (uncertainty.fleet_slopes(x, [s.h_hat for s in long]),
-            uncertainty.fleet_slopes(x, [s.h_true for s in long]))
+    hat = np.array([uncertainty.piece_slope(s.kcycles, s.h_hat) for s in long])
+    true = np.array([uncertainty.piece_slope(s.kcycles, s.h_true) for s in long])
+    return hat.mean(axis=0), true.mean(axis=0)
+
+
+@dataclass(frozen=True)
+class TrendPieces:
+    """The pieces of the fleet-average slope (``uncertainty.period_pieces``), as the product
+    forms them from the stored estimates (``app.services.fleet.slopes``): per piece the slope of
+    h_hat and of the true h [S, p] (percent per year) and its span [S] (years)."""
+
+    hat: np.ndarray
+    true: np.ndarray
+    spans: np.ndarray
+
+    def fleet(self, gain: np.ndarray | None = None, noise: np.ndarray | None = None,
+              common: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(estimated slope, its 1-sigma, true slope) [p] over the fleet."""
+        slope, sigma = uncertainty.fleet_slope(self.hat, self.spans, gain, noise, common)
+        return slope, sigma, uncertainty.fleet_slope(self.true, self.spans)[0]
+
+
+def trend_pieces(track_list: Sequence[HealthTrack]) -> TrendPieces:
+    """Every engine's records in weekly means (``buckets.period_sums``: what the pipeline
+    stores for the fleet deterioration), split at its baseline resets, h_hat and the true h
+    alike."""
+    hat, true, spans = [], [], []
+    for t in track_list:
+        if t.epoch is None or not len(t.epoch):
+            continue
+        p = t.h_hat.shape[1]
+        starts, counts, sums = buckets.period_sums(t.epoch, np.c_[t.h_hat, t.h_true],
+                                                   SLOPE_PERIOD)
+        resets = np.zeros(0) if t.resets is None else t.resets
+        slope, span = uncertainty.period_pieces(
+            starts, buckets.period_ends(starts, SLOPE_PERIOD), counts, sums / counts[:, None],
+            resets, BASELINE_SETTLE_RECORDS, MIN_SLOPE_YEARS)
+        hat.append(slope[:, :p])
+        true.append(slope[:, p:])
+        spans.append(span)
+    p = track_list[0].h_hat.shape[1] if track_list else 0
+    return TrendPieces(np.concatenate(hat) if hat else np.empty((0, p)),
+                       np.concatenate(true) if true else np.empty((0, p)),
+                       np.concatenate(spans) if spans else np.empty(0))
+
+
+@dataclass(frozen=True)
+class SlopeCalibration:
+    """The fleet-average slope's calibration [p] each (``slope_check``)."""
+
+    gain: np.ndarray  # g (NaN: the slope is unobservable)
+    noise: np.ndarray  # a
+    common: np.ndarray  # c
+    error: np.ndarray  # pooled relative error of the uncorrected slope
+    sigma: np.ndarray  # its relative 1-sigma over the pooled pieces
+    cross: np.ndarray  # RMS relative error of a fleet's corrected slope (cross-validated)
+
+
+def slope_check(fleets: Sequence[TrendPieces], tolerance: float = SLOPE_TOLERANCE
+                ) -> SlopeCalibration:
+    """The fleet-average slope's calibration over the pooled pieces of ``fleets``: the gain g
+    and the noise a (``uncertainty.fit_slope_gain``, ``fit_slope_noise``), the common error
+    c (the mean over the fleets of the squared error of a fleet's slope, corrected with the
+    gain of the other fleets, beyond its piece noise: cross-validated; one fleet: 0), the
+    pooled uncorrected slope's relative error and 1-sigma, and the RMS relative error of the
+    cross-validated fleet slopes. The gain is NaN (the slope unobservable) where that 1-sigma
+    is over half of ``tolerance`` (the calibration fleets cannot tell the trend from its
+    noise) or that RMS error over ``tolerance`` (the level's rule for its slope, here for a
+    fleet's corrected slope on a fleet the gain did not see)."""
+    pooled = TrendPieces(np.concatenate([f.hat for f in fleets]),
+                         np.concatenate([f.true for f in fleets]),
+                         np.concatenate([f.spans for f in fleets]))
+    gain = uncertainty.fit_slope_gain(pooled.hat, pooled.true, pooled.spans, YEAR_SLOPE_FLOOR)
+    noise = uncertainty.fit_slope_noise(pooled.hat, pooled.true, pooled.spans,
+                                        np.nan_to_num(gain, nan=1.0))
+    raw, raw_sigma, true = pooled.fleet(None, noise)
+    scale = np.maximum(np.abs(true), YEAR_SLOPE_FLOOR)
+    excess, relative = [], []
+    for k, f in enumerate(fleets):
+        others = [o for j, o in enumerate(fleets) if j != k]
+        if not others or not len(f.spans):
+            continue
+        g = uncertainty.fit_slope_gain(np.concatenate([o.hat for o in others]),
+                                       np.concatenate([o.true for o in others]),
+                                       np.concatenate([o.spans for o in others]),
+                                       YEAR_SLOPE_FLOOR)
+        slope, _, true_f = f.fleet(np.where(np.isfinite(g), g, 1.0))
+        excess.append((slope - true_f) ** 2 - noise / np.sum(f.spans**2))
+        relative.append((slope - true_f) / np.maximum(np.abs(true_f), YEAR_SLOPE_FLOOR))
+    common = np.maximum(np.mean(excess, axis=0), 0.0) if excess else np.zeros_like(noise)
+    cross = (np.sqrt(np.mean(np.square(relative), axis=0)) if relative
+             else np.zeros_like(noise))
+    sigma = raw_sigma / scale
+    # NaN sigma or cross-validation error: NaN gain.
+    gain = np.where((sigma <= 0.5 * tolerance) & (cross <= tolerance), gain, np.nan)
+    return SlopeCalibration(gain, noise, common, (raw - true) / scale, sigma, cross)
 
 
 def fleet_prior(segs: Sequence[Segment]) -> np.ndarray:
@@ -323,11 +441,13 @@ def calibrate(
     The analytic bias^2 is taken under the simulated fleets' own prior (``fleet_prior``); s is
     the smallest holding ``one_sigma`` and ``two_sigma`` of the pooled errors
     (``uncertainty.fit_model_std``); a parameter is shown when its honest steady-state sigma
-    is at most ``reduction`` times the design's prior sigma sqrt(prior_var) and its
-    fleet-average slope over the pooled segments is within ``slope_tolerance`` of the truth
-    (``uncertainty.observable``).
+    is at most ``reduction`` times the design's prior sigma sqrt(prior_var) and its mean rate
+    over the pooled segments (``slopes``) is within ``slope_tolerance`` of the truth
+    (``uncertainty.observable``). Its fleet-average slope is shown too when the pooled pieces
+    measure it well enough to calibrate a gain (``slope_check``).
     """
     segs: list[Segment] = []
+    pieces: list[TrendPieces] = []
     fleet_of: list[int] = []  # the fleet of each segment
     B_hs = []
     aux = tuple(est.layout.aux)
@@ -340,6 +460,7 @@ def calibrate(
             aux_err.append(e)
             aux_var.append(v)
         segs.extend(part)
+        pieces.append(trend_pieces(track_list))
         fleet_of.extend([k] * len(part))
         B_hs.append(bias_matrix(est, snaps))
         if progress is not None:
@@ -360,6 +481,7 @@ def calibrate(
     shown = uncertainty.observable(
         np.full(p, prior_var), scale**2 * bias2, np.median(st["filter_var"], axis=0), level_std,
         slope_error=slope_error, reduction=reduction, slope_tolerance=slope_tolerance)
+    sc = slope_check(pieces, slope_tolerance)
     # Coverage of the pooled sigma on each fleet alone (BAND_ONE_SIGMA, BAND_TWO_SIGMA).
     sigma = np.sqrt(scale**2 * bias2 + st["filter_var"] + level_std**2)
     rows = np.concatenate([np.full(len(s.kcycles), k) for s, k in zip(segs, fleet_of,
@@ -381,17 +503,36 @@ def calibrate(
         aux_names=aux if aux_std is not None else (), aux_std=aux_std,
         names=tuple(est.layout.health), level_std=level_std, change_std=change_std,
         slope_error=slope_error, bias2=bias2, drift=drift, observable=shown, bias_scale=scale,
+        slope_gain=sc.gain, slope_noise=sc.noise, slope_common=sc.common,
         source={"design": design, "seeds": None if seeds is None else list(seeds),
                 "engines": sum(len(plan.esns) for plan, _ in fleets),
                 "flights": fleets[0][0].config.n_flights if fleets else 0,
                 "records": int(st["level_err"].shape[0]), "segments": len(segs),
                 "prior_var": prior_var, "reduction": reduction,
                 "slope_tolerance": slope_tolerance, "one_sigma": one_sigma,
+                "slope_pieces": int(sum(len(f.spans) for f in pieces)),
+                "slope_error": [round(float(x), 3) if np.isfinite(x) else None
+                                for x in sc.error],
+                "slope_sigma": [round(float(x), 3) if np.isfinite(x) else None
+                                for x in sc.sigma],
+                "slope_cross_error": [round(float(x), 3) if np.isfinite(x) else None
+                                      for x in sc.cross],
                 "two_sigma": two_sigma,
                 "fleet_cover1_min": [round(float(x), 3) for x in cover1.min(axis=0)],
                 "fleet_cover1_max": [round(float(x), 3) for x in cover1.max(axis=0)],
                 "fleet_cover2_min": [round(float(x), 3) for x in cover2.min(axis=0)]},
     )
+
+
+def design_calibration(session: Session, design_id: int) -> uncertainty.Calibration | None:
+    """The design's stored calibration (None: uncalibrated); reads only that key."""
+    document = session.scalar(
+        select(EstimatorDesign.__table__.c.result[RESULT_KEY]).where(
+            EstimatorDesign.id == design_id)
+    )
+    if not isinstance(document, dict):
+        return None
+    return uncertainty.Calibration.from_dict(document)
 
 
 @dataclass(frozen=True)

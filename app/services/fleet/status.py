@@ -45,7 +45,7 @@ from app.models.estimates import (
     FleetPeriod,
 )
 from app.services.events.service import latest_open_events, open_event_counts
-from app.services.fleet import performance
+from app.services.fleet import performance, slopes
 from app.services.fleet.severity import LEVELS, LimitValue, severity
 from estimation.engine.atmosphere import flight_condition
 
@@ -453,6 +453,37 @@ def _series(
     ]
 
 
+def _active_layouts(
+    session: Session, operator_id: int
+) -> list[tuple[int, str, EstimateLayout]]:
+    """(design id, engine type name, estimate layout) of each active design with estimates,
+    by engine type name."""
+    designs = session.execute(
+        select(EstimatorDesign.id, EngineType.name)
+        .join(EngineType, EngineType.id == EstimatorDesign.engine_type_id)
+        .where(EstimatorDesign.operator_id == operator_id, EstimatorDesign.active.is_(True))
+        .order_by(EngineType.name)
+    ).all()
+    out = []
+    for design_id, type_name in designs:
+        layout_doc = session.scalar(
+            select(FilterState.layout).where(FilterState.design_id == design_id).limit(1)
+        )
+        if layout_doc is not None:
+            out.append((design_id, type_name, EstimateLayout.from_dict(layout_doc)))
+    return out
+
+
+def fleet_deterioration_slopes(session: Session, operator_id: int) -> dict[str, Any]:
+    """The fleet-average deterioration slope of each health parameter per active design, with
+    its 1-sigma; null where unobservable (``app.services.fleet.slopes``)."""
+    return {"groups": [
+        {"engine_type": type_name, "design_id": design_id,
+         **slopes.fleet_slopes(session, operator_id, design_id, layout).to_dict()}
+        for design_id, type_name, layout in _active_layouts(session, operator_id)
+    ]}
+
+
 def fleet_deterioration(
     session: Session, operator_id: int, bucket: str = "month"
 ) -> dict[str, Any]:
@@ -461,27 +492,15 @@ def fleet_deterioration(
     Each engine first counts once per bucket (the mean of its estimates there), then the
     fleet mean and spread are taken over engines, so a busy engine does not dominate. Read
     from the sums the pipeline keeps (``fleet_periods``): one row per period, whatever the
-    number of engines and estimates.
+    number of engines and estimates. The slopes are ``fleet_deterioration_slopes``.
     """
     if bucket not in ("week", "month"):
         raise InvalidInput(
             "bucket must be week or month",
             details=[{"row": None, "column": "bucket", "reason": f"unknown bucket {bucket!r}"}],
         )
-    designs = session.execute(
-        select(EstimatorDesign.id, EngineType.name)
-        .join(EngineType, EngineType.id == EstimatorDesign.engine_type_id)
-        .where(EstimatorDesign.operator_id == operator_id, EstimatorDesign.active.is_(True))
-        .order_by(EngineType.name)
-    ).all()
     groups = []
-    for design_id, type_name in designs:
-        layout_doc = session.scalar(
-            select(FilterState.layout).where(FilterState.design_id == design_id).limit(1)
-        )
-        if layout_doc is None:
-            continue
-        layout = EstimateLayout.from_dict(layout_doc)
+    for design_id, type_name, layout in _active_layouts(session, operator_id):
         rows = session.execute(
             select(FleetPeriod.start, FleetPeriod.n_engines, FleetPeriod.sums,
                    FleetPeriod.squares)

@@ -76,8 +76,20 @@ class BucketCollector:
             self.layout.as_stored(np.asarray(packed, np.float64))[:, self.columns])
 
 
-def _sums(epoch: np.ndarray, values: np.ndarray, period: str
-          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def period_ends(starts: np.ndarray, period: str) -> np.ndarray:
+    """End (epoch seconds, the next period's start) of the periods starting at ``starts``."""
+    days = (np.asarray(starts, float) // 86400.0).astype("datetime64[D]")
+    if period == "week":
+        ends = days + 7
+    elif period == "month":
+        ends = (days.astype("datetime64[M]") + 1).astype("datetime64[D]")
+    else:
+        raise ValueError(f"unknown period {period!r}")
+    return ends.astype("datetime64[s]").astype(np.int64).astype(float)
+
+
+def period_sums(epoch: np.ndarray, values: np.ndarray, period: str
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(period starts, counts, sums [k, width]) of one engine's records."""
     starts, index = np.unique(period_starts(epoch, period), return_inverse=True)
     index = np.ravel(index)
@@ -134,7 +146,7 @@ def refresh(
     for period in PERIODS:
         for e in engines:
             keep = epoch[e] >= float(period_starts(np.array([first[e]]), period)[0])
-            starts, counts, sums = _sums(epoch[e][keep], values[e][keep], period)
+            starts, counts, sums = period_sums(epoch[e][keep], values[e][keep], period)
             for start, n, total in zip(starts, counts, sums, strict=True):
                 rows.append({"design_id": design_id, "period": period, "engine_id": e,
                              "start": _time(start), "operator_id": operator_id, "n": int(n),

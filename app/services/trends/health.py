@@ -25,16 +25,12 @@ import numpy as np
 from sqlalchemy import select, union_all
 from sqlalchemy.orm import Session
 
-from app.models import EstimatorDesign, Installation, MaintenanceAction
-from app.services.designs.calibration import RESULT_KEY, SETTLE_FLIGHTS
+from app.models import Installation, MaintenanceAction
+from app.services.designs.calibration import BASELINE_KINDS, BASELINE_SETTLE_RECORDS
 from estimation import uncertainty
 
 HealthView = Literal["level", "change"]
 HEALTH_VIEWS = ("level", "change")
-# Maintenance that moves the health baseline (a water wash does not).
-BASELINE_KINDS = ("shop_visit", "module_change")
-# A take-off and a cruise record per flight: the calibration's settle time in records.
-BASELINE_SETTLE_RECORDS = 2 * SETTLE_FLIGHTS
 
 
 @dataclass(frozen=True)
@@ -51,17 +47,6 @@ class HealthMeta:
                 "unobservable": list(self.unobservable),
                 "baselines": [datetime.fromtimestamp(t, UTC) for t in self.baselines]
                 if self.view == "change" else None}
-
-
-def design_calibration(session: Session, design_id: int) -> uncertainty.Calibration | None:
-    """The design's stored calibration (None: uncalibrated); reads only that key."""
-    document = session.scalar(
-        select(EstimatorDesign.__table__.c.result[RESULT_KEY]).where(
-            EstimatorDesign.id == design_id)
-    )
-    if not isinstance(document, dict):
-        return None
-    return uncertainty.Calibration.from_dict(document)
 
 
 def baseline_resets(session: Session, engine_id: int) -> np.ndarray:

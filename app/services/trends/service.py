@@ -51,6 +51,7 @@ from app.models.estimates import (
     Event,
     FilterState,
 )
+from app.services.designs import calibration
 from app.services.encoding import json_numbers
 from app.services.encoding.json_numbers import RawJSON
 from app.services.encoding.pgcopy import PG_EPOCH_US
@@ -555,7 +556,7 @@ def engine_trend(
         )
     calib = None
     if data is not None and len(data.epoch) and target.design_id is not None:
-        calib = health_view.design_calibration(session, target.design_id)
+        calib = calibration.design_calibration(session, target.design_id)
         resets = (health_view.baseline_resets(session, target.engine_id)
                   if health == "change" else None)
         values, meta = health_view.apply(

@@ -19,7 +19,6 @@ from app.services.designs import service as designs
 from app.services.fleet import service as fleet_service
 from app.services.snapshots import estimator
 from app.services.tenancy.service import create_operator
-from app.services.trends import health as health_view
 from estimation.engine.schedule import EngineSchedule, build_schedule
 from estimation.uncertainty import Calibration
 from tests.support.fleetkit import make_tenant
@@ -56,13 +55,13 @@ def test_a_builtin_design_is_calibrated_and_the_trend_reads_it(
 ) -> None:
     monkeypatch.setattr(estimator, "builtin_schedule", lambda: coarse_schedule)
     design = _design(session, coarse_schedule)
-    assert health_view.design_calibration(session, design.id) is None
+    assert calibration.design_calibration(session, design.id) is None
     stored = calibration.calibrate_design(
         session, operator_id=design.operator_id, design_id=design.id, seeds=(5,), aircraft=1,
         flights=200,
     )
     session.expire_all()
-    back = health_view.design_calibration(session, design.id)
+    back = calibration.design_calibration(session, design.id)
     assert back is not None
     assert back.to_dict() == stored == Calibration.from_dict(stored).to_dict()
     assert back.names == tuple(design.spec["health"])
@@ -105,5 +104,26 @@ def test_the_calibration_job_stores_it_with_the_design(
     assert job.status_code == 202, job.text
     assert run_pending(session_factory) == [job.json()["id"]]
     session.expire_all()
-    back = health_view.design_calibration(session, design.id)
+    back = calibration.design_calibration(session, design.id)
     assert back is not None and back.source["seeds"] == [5]
+
+
+def test_slope_check_calibrates_a_gain_and_hides_a_trend_it_cannot_carry() -> None:
+    """Three fleets whose first parameter reads 1.2 times the true slope with little noise and
+    whose second reads noise only: the first gets its gain back, the second no gain (its slope
+    unobservable); the cross-validated error of the first is small."""
+    rng = np.random.default_rng(4)
+    fleets = []
+    for _ in range(3):
+        spans = rng.uniform(0.3, 1.0, 20)
+        true = np.c_[rng.normal(-0.6, 0.2, 20), rng.normal(-0.5, 0.2, 20)]
+        hat = np.c_[1.2 * true[:, 0] + 0.02 * rng.normal(size=20) / spans,
+                    rng.normal(0.0, 0.5, 20) / spans]
+        fleets.append(calibration.TrendPieces(hat, true, spans))
+    sc = calibration.slope_check(fleets)
+    assert sc.gain[0] == pytest.approx(1.2, rel=0.03) and np.isnan(sc.gain[1])
+    assert sc.cross[0] < 0.05 and sc.cross[1] > calibration.SLOPE_TOLERANCE
+    assert sc.noise[0] == pytest.approx(0.02**2, rel=0.5)
+    # The corrected fleet slope of the first parameter is the true one within its sigma.
+    slope, sigma, true = fleets[0].fleet(sc.gain, sc.noise, sc.common)
+    assert abs(slope[0] - true[0]) <= 3.0 * sigma[0]

@@ -9,10 +9,11 @@ import numpy as np
 from fastapi.testclient import TestClient
 from sqlalchemy.orm import Session
 
-from app.models import EngineType, Installation
+from app.models import EngineType, Installation, MaintenanceAction
 from app.models.estimates import Event
-from app.services.fleet import status
+from app.services.fleet import slopes, status
 from app.services.fleet.severity import LimitValue, severity
+from estimation.uncertainty import YEAR_S, Calibration
 from tests.app.services.trends.test_trends import (
     LAYOUT,
     T0,
@@ -104,6 +105,61 @@ def test_deterioration_is_the_mean_over_engines_of_engine_means(session: Session
     got = [s["mean"][0] for s in group["health"]]
     np.testing.assert_allclose(got, expected, atol=1e-4)
     np.testing.assert_allclose([s["sigma"][0] for s in group["health"]], spread, atol=1e-4)
+
+
+def test_deterioration_slopes_split_at_shop_visits_calibrated_and_unobservable(
+    session: Session,
+) -> None:
+    """Each engine's weekly means between baseline resets give its trends: a shop visit's
+    step does not enter the slope, the fleet's is their T^2-weighted mean; with a stored
+    calibration it is divided by the gain, carries its 1-sigma, and an unobservable parameter
+    has no number."""
+    fleet = make_fleet(session, "Fleet Slope Air")
+    aircraft = add_aircraft(session, fleet, "F-SLP")
+    rng = np.random.default_rng(8)
+    h = LAYOUT.slices()["h"]
+    rates = np.array([[-1.0, 0.5, -0.2], [-2.0, 1.0, -0.4]])  # percent per year
+    for i, rate in enumerate(rates):
+        engine = add_engine(session, fleet, f"L{i}")
+        days = np.arange(400 if i == 0 else 200)
+        years = days * 86400.0 / YEAR_S
+        v = rng.normal(size=(len(days), LAYOUT.width)) * 0.01
+        v[:, h] = np.outer(years, rate) + 0.01 * rng.normal(size=(len(days), 3))
+        if i == 0:  # a shop visit on day 200 restores 5 %
+            v[200:, h] += 5.0
+            session.add(MaintenanceAction(operator_id=fleet.operator_id, engine_id=engine.id,
+                                          kind="shop_visit",
+                                          performed_at=T0 + timedelta(days=199, hours=12)))
+        add_estimates(session, fleet, engine, aircraft, v,
+                      [T0 + timedelta(days=int(d)) for d in days])
+    layout = LAYOUT
+    plain = slopes.fleet_slopes(session, fleet.operator_id, fleet.design.id, layout)
+    assert plain.uncertainty == "uncalibrated" and plain.engines == 2 and plain.pieces == 3
+    assert not plain.unobservable and np.isnan(plain.sigma).all()
+    # Spans 18 and 19 weeks (a 60-record settle, the shop visit's week left out) and 19 weeks.
+    w = (np.array([18.0, 19.0, 19.0]) * 7 * 86400.0 / YEAR_S) ** 2
+    expected = (w[:2].sum() * rates[0] + w[2] * rates[1]) / w.sum()
+    np.testing.assert_allclose(plain.slope, expected, rtol=0.02)
+    calib = Calibration(
+        names=("fan_eff", "hpc_eff", "hpc_flow"), level_std=np.zeros(3), change_std=np.zeros(3),
+        slope_error=np.zeros(3), bias2=np.zeros(3), drift=np.zeros(3),
+        observable=np.array([False, True, True]), slope_gain=np.array([1.0, 1.25, np.nan]),
+        slope_noise=np.array([0.01, 0.02, 0.02]), slope_common=np.array([0.0, 0.01, 0.0]),
+    )
+    fleet.design.result = {"uncertainty": calib.to_dict()}
+    session.flush()
+    out = slopes.fleet_slopes(session, fleet.operator_id, fleet.design.id, layout).to_dict()
+    assert out["uncertainty"] == "calibrated" and out["unit"] == "%/year"
+    # fan_eff: level unobservable; hpc_flow: no gain (its trend cannot be calibrated).
+    assert sorted(out["unobservable"]) == ["fan_eff", "hpc_flow"]
+    got = {s["name"]: s for s in out["health"]}
+    assert got["fan_eff"]["slope"] is None and got["hpc_flow"]["sigma"] is None
+    np.testing.assert_allclose(got["hpc_eff"]["slope"], plain.slope[0] / 1.25, atol=1e-4)
+    np.testing.assert_allclose(got["hpc_eff"]["sigma"], np.sqrt(0.02 / w.sum() + 0.01) / 1.25,
+                               rtol=1e-3)
+    # The fleet's slopes per active design are the same.
+    group = status.fleet_deterioration_slopes(session, fleet.operator_id)["groups"][0]
+    assert group == {"engine_type": "generic", "design_id": fleet.design.id, **out}
 
 
 def test_status_summaries_equal_the_one_engine_reference(
