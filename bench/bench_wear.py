@@ -87,7 +87,8 @@ def health_candidates(S_full: np.ndarray, p: int) -> np.ndarray:
 
 def fd001(path: Path, cfg: wear.WearSettings, units: int | None, use_sensors: bool,
           cache: Path, learnt_tail: int | None = None,
-          learnt_cfg: wear.WearSettings | None = None) -> Fd001Figures:
+          learnt_cfg: wear.WearSettings | None = None,
+          learnt_metric: bool = False) -> Fd001Figures:
     t0 = time.perf_counter()
     est = fd001_replay.fd001_estimator(fd001_replay.fd001_schedule())
     engines = fd001_replay.fd001_runs(path, est, units)
@@ -172,9 +173,12 @@ def fd001(path: Path, cfg: wear.WearSettings, units: int | None, use_sensors: bo
         print(f"{name:34s}{target:>12s}{ours_s:>10s}{naive_s:>10s}   {'PASS' if ok else 'FAIL'}")
     if learnt_tail is not None:
         cfg_l = learnt_cfg or cfg
-        fd001_learnt(learnt, cfg_l, cand, hpc, list(est.layout.faults), learnt_tail, W, est.H)
+        fd001_learnt(learnt, cfg_l, cand, hpc, list(est.layout.faults), learnt_tail, W, est.H,
+                     learnt_metric)
+        M = (np.mean([signature_metric(e.sig, e.var, cand) for e in learnt], axis=0)
+             if learnt_metric else None)
         v = fleet_direction([wear_drift(e.dy, e.var, e.sig, cand, cfg.n_base, learnt_tail)
-                             for e in learnt])
+                             for e in learnt], M)
         white_learnt(learnt[0], v, cfg, cfg_l, cand, 1000, 365)
     return Fd001Figures(zs, naive, cfg, rate)
 
@@ -263,7 +267,8 @@ def _share(k: int, n: int) -> str:
 
 
 def demo(cfg: wear.WearSettings, cache: Path, use_sensors: bool,
-         learnt_tail: int | None = None, learnt_cfg: wear.WearSettings | None = None) -> None:
+         learnt_tail: int | None = None, learnt_cfg: wear.WearSettings | None = None,
+         learnt_metric: bool = False) -> None:
     t0 = time.perf_counter()
     est = fleet.design_estimator(engine_schedule(cache), *fleet.ACTIVE_DESIGN)
     size = fleet.DemoSize()
@@ -335,7 +340,8 @@ def demo(cfg: wear.WearSettings, cache: Path, use_sensors: bool,
     for item in false[:10]:
         print("  ", item)
     if learnt_tail is not None:
-        demo_learnt(demo_runs, learnt_cfg or cfg, cand, W, est.H, learnt_tail, years)
+        demo_learnt(demo_runs, learnt_cfg or cfg, cand, W, est.H, learnt_tail, years,
+                    learnt_metric)
 
 
 # --- Experiment (``--learnt``): the fleet's wear direction learnt from other engines.
@@ -356,10 +362,19 @@ def wear_drift(dy: np.ndarray, var: np.ndarray, sig: np.ndarray, cand: np.ndarra
     return theta[-tail:].mean(axis=0) - theta[:n_base].mean(axis=0)
 
 
-def fleet_direction(drifts: list[np.ndarray]) -> np.ndarray:
+def signature_metric(sig: np.ndarray, var: np.ndarray, cand: np.ndarray) -> np.ndarray:
+    """M = mean over records of G_k^T R_k^-1 G_k [n_cand, n_cand]: a change theta in fault
+    magnitudes measured by the size of its sensor signature (|G theta| in noise units)."""
+    G = sig[:, :, cand]
+    return np.einsum("sjn,sj,sjm->nm", G, 1.0 / var, G) / len(G)
+
+
+def fleet_direction(drifts: list[np.ndarray], M: np.ndarray | None = None) -> np.ndarray:
     """The fleet's wear direction in candidate-fault magnitudes [n_cand]: the mean of the
-    engines' unit drifts (each engine counted alike, however far it has worn)."""
-    units = [d / np.linalg.norm(d) for d in drifts if np.linalg.norm(d) > 0]
+    engines' unit drifts (each engine counted alike, however far it has worn), unit in the
+    metric M (None: the magnitudes' own)."""
+    M = np.eye(len(drifts[0])) if M is None else M
+    units = [d / np.sqrt(d @ M @ d) for d in drifts if d @ M @ d > 0]
     v = np.mean(units, axis=0)
     return v / np.linalg.norm(v)
 
@@ -434,18 +449,22 @@ def tuner_name(drifts: list[np.ndarray], W: np.ndarray, H: np.ndarray, cand: np.
 
 
 def _learnt_leads(eng: list[LearntEngine], cfg: wear.WearSettings, cand: np.ndarray,
-                  drifts: list[np.ndarray], pool: list[int], naming: str,
+                  drifts: list[np.ndarray], pool: list[int] | np.ndarray, naming: str,
                   tuner_drifts: list[np.ndarray], W: np.ndarray, H: np.ndarray,
-                  ) -> dict[str, object]:
-    full = fleet_direction(drifts)
+                  M: np.ndarray | None = None) -> dict[str, object]:
+    """The learnt CUSUM's figures with the direction learnt from the engines ``pool`` (each
+    engine's own left out), or given (``pool`` an array: the direction itself)."""
+    full = fleet_direction(drifts, M)
+    given = isinstance(pool, np.ndarray)
     cross, alert, faults, both, both_faults, cos, sure, ratios = [], [], [], [], [], [], 0, []
     for i, e in enumerate(eng):
-        v = fleet_direction([drifts[j] for j in pool if j != i])
+        v = pool if given else fleet_direction([drifts[j] for j in pool if j != i], M)
         cos.append(float(v @ full))
         if naming == "sensor":
             named = nearest_fault(v, e.sig, e.var, cand, cfg.confidence)
         elif naming == "tuner":
-            named = tuner_name([tuner_drifts[j] for j in pool if j != i], W, H, cand,
+            named = tuner_name([tuner_drifts[j] for j in range(len(eng)) if j != i] if given
+                               else [tuner_drifts[j] for j in pool if j != i], W, H, cand,
                                cfg.confidence)
         else:
             named = (0, False, 0.0)
@@ -466,16 +485,19 @@ def _learnt_leads(eng: list[LearntEngine], cfg: wear.WearSettings, cand: np.ndar
             k, fault = min(firsts)
             both.append(int(end - e.cycles[k]))
             both_faults.append(fault)
-    return dict(v=full, cross=cross, alert=alert, faults=faults, both=both,
+    v = pool if given else fleet_direction([drifts[j] for j in pool], M)
+    return dict(v=v, cross=cross, alert=alert, faults=faults, both=both,
                 both_faults=both_faults, cos=cos, sure=sure, ratios=ratios)
 
 
 def fd001_learnt(eng: list[LearntEngine], cfg: wear.WearSettings, cand: np.ndarray, hpc: int,
-                 names: list[str], tail: int, W: np.ndarray, H: np.ndarray) -> None:
+                 names: list[str], tail: int, W: np.ndarray, H: np.ndarray,
+                 metric: bool = False) -> None:
     """The fleet-direction CUSUM on FD001, leave-one-out, learnt from the whole fleet and from
     its first 20 and 10 units only (a fleet starting out), beside the product detector."""
     n = len(eng)
     drifts = [wear_drift(e.dy, e.var, e.sig, cand, cfg.n_base, tail) for e in eng]
+    M = np.mean([signature_metric(e.sig, e.var, cand) for e in eng], axis=0) if metric else None
     b0 = cfg.settle
     tuner_drifts = [e.q[-tail:].mean(axis=0) - e.q[b0 : b0 + cfg.n_base].mean(axis=0)
                     for e in eng]
@@ -490,10 +512,12 @@ def fd001_learnt(eng: list[LearntEngine], cfg: wear.WearSettings, cand: np.ndarr
     print(f"{'learnt from':20s}{'direction (' + ' '.join(cn) + ')':>40s}{'cos min':>9s}"
           f"{'named':>7s}{'crossing':>10s}{'alert':>8s}{'HPC':>6s}{'n':>5s}"
           f"{'+bank':>8s}{'HPC':>6s}{'n':>5s}")
-    pools = (("all (n-1)", list(range(n))), ("first 20", list(range(min(20, n)))),
-             ("first 10", list(range(min(10, n)))))
+    hpc_given = (np.flatnonzero(cand) == hpc).astype(float)
+    pools: tuple[tuple[str, list[int] | np.ndarray], ...] = (
+        ("all (n-1)", list(range(n))), ("first 20", list(range(min(20, n)))),
+        ("first 10", list(range(min(10, n)))), ("HPC given", hpc_given))
     for (label, pool), naming in itertools.product(pools, ("sensor", "tuner", "wssr")):
-        r = _learnt_leads(eng, cfg, cand, drifts, pool, naming, tuner_drifts, W, H)
+        r = _learnt_leads(eng, cfg, cand, drifts, pool, naming, tuner_drifts, W, H, M)
         label = f"{label} {naming}"
         v = r["v"]
         print(f"{label:20s}{' '.join(f'{x:+.2f}' for x in v):>40s}{min(r['cos']):>9.3f}"
@@ -562,7 +586,8 @@ class DemoEngine:
 
 
 def demo_learnt(eng: list[DemoEngine], cfg: wear.WearSettings, cand: np.ndarray,
-                W: np.ndarray, H: np.ndarray, tail: int, years: float) -> None:
+                W: np.ndarray, H: np.ndarray, tail: int, years: float,
+                metric: bool = False) -> None:
     """The fleet-direction CUSUM on the demo fleet, its direction learnt from the fleet's own
     other engines' stretches (leave-one-out, the tuner naming): false alerts in healthy
     records, alone and with the product detector (the earlier alert of each stretch)."""
@@ -579,9 +604,11 @@ def demo_learnt(eng: list[DemoEngine], cfg: wear.WearSettings, cand: np.ndarray,
                           - e.q[s0 + cfg.settle : s0 + b1].mean(axis=0))
         sens.append(sd)
         tune.append(td)
+    M = (np.mean([signature_metric(e.sig, e.var, cand) for e in eng], axis=0)
+         if metric else None)
     false_l, fault_l, false_u, fault_u = 0, 0, 0, 0
     for i, e in enumerate(eng):
-        v = fleet_direction([d for j, ds in enumerate(sens) if j != i for d in ds])
+        v = fleet_direction([d for j, ds in enumerate(sens) if j != i for d in ds], M)
         named = tuner_name([d for j, ds in enumerate(tune) if j != i for d in ds], W, H, cand,
                            cfg.confidence)
         z = wear.matched_filter(e.dy, e.var, e.sig[:, :, cand] @ v[:, None])[:, 0]
@@ -643,6 +670,9 @@ def main() -> None:
     ap.add_argument("--learnt-per-year", type=float, default=None,
                     help="the learnt CUSUM's designed false alerts per engine-year "
                     "(default --per-year)")
+    ap.add_argument("--learnt-metric", action="store_true",
+                    help="each engine's change counted as a unit in its sensor signature's "
+                    "size (noise units), not in fault magnitudes")
     args = ap.parse_args()
     cfg = wear.WearSettings(limit=args.limit, rate=args.rate, margin=args.margin,
                             margin_floor=args.floor, bank_reference=args.kappa,
@@ -653,11 +683,12 @@ def main() -> None:
                             confidence=args.confidence, hold=args.hold)
     print(_common.load_line())
     cfg_l = replace(cfg, false_alerts_per_year=args.learnt_per_year or args.per_year)
-    fig = fd001(args.fd001, cfg, args.units, not args.no_bank, args.cache, args.learnt, cfg_l)
+    fig = fd001(args.fd001, cfg, args.units, not args.no_bank, args.cache, args.learnt, cfg_l,
+                args.learnt_metric)
     if not args.skip_frontier:
         frontier(fig, args.horizon, args.runs)
     if not args.skip_demo:
-        demo(cfg, args.cache, not args.no_bank, args.learnt, cfg_l)
+        demo(cfg, args.cache, not args.no_bank, args.learnt, cfg_l, args.learnt_metric)
     print(f"load average at the end {os.getloadavg()[0]:.2f}")
 
 
