@@ -94,7 +94,8 @@ def runtime_venv(tmp_path_factory: pytest.TempPathFactory) -> Path:
                                       "build", ".mypy_cache", ".ruff_cache", ".pytest_cache"),
     )
     result = subprocess.run(
-        [str(venv / "bin" / "python"), "-m", "pip", "install", "--quiet", "--no-compile", str(source)],
+        [str(venv / "bin" / "python"), "-m", "pip", "install", "--quiet", "--no-compile",
+         str(source)],
         capture_output=True, text=True, timeout=900,
     )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
