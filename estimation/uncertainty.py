@@ -57,8 +57,8 @@ fleets measure well enough to calibrate it on, or one the design reads backwards
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -173,6 +173,27 @@ class Calibration:
                 )
             object.__setattr__(self, name, value)
         object.__setattr__(self, "names", tuple(self.names))
+
+    def on(self, names: Sequence[str]) -> Calibration:
+        """The calibration in the order of ``names``; a name it does not hold gets no model
+        error (s = 0, no bias, no drift), a slope gain of 1 with unknown noise, and counts as
+        observable."""
+        where = {n: k for k, n in enumerate(self.names)}
+        index = np.array([where.get(n, -1) for n in names], int)
+        held = index >= 0
+
+        def pick(values: np.ndarray | None, missing: float | bool) -> np.ndarray:
+            out = np.full(len(index), missing, np.asarray(values).dtype)
+            out[held] = np.asarray(values)[index[held]]
+            return out
+
+        return replace(
+            self, names=tuple(names), level_std=pick(self.level_std, 0.0),
+            change_std=pick(self.change_std, 0.0), slope_error=pick(self.slope_error, 0.0),
+            bias2=pick(self.bias2, 0.0), drift=pick(self.drift, 0.0),
+            observable=pick(self.observable, True), bias_scale=pick(self.bias_scale, 1.0),
+            slope_gain=pick(self.slope_gain, 1.0), slope_noise=pick(self.slope_noise, np.nan),
+            slope_common=pick(self.slope_common, 0.0))
         object.__setattr__(self, "source", dict(self.source))
         object.__setattr__(self, "aux_names", tuple(self.aux_names))
         aux_std = np.asarray(np.zeros(0) if self.aux_std is None else self.aux_std, float)

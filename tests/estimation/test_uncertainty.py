@@ -259,3 +259,24 @@ def test_fit_bias_scale_shrinks_an_over_covering_bias_only() -> None:
                            one_sigma=stats.norm.cdf(1) * 2 - 1)
     assert a[0] == pytest.approx(0.5, rel=0.02)
     assert a[1] == 1.0
+
+
+def test_calibration_on_names_reorders_and_fills_the_names_it_does_not_hold() -> None:
+    cal = unc.Calibration(
+        names=("a", "b"), level_std=np.array([0.1, 0.2]), change_std=np.array([0.4, 0.3]),
+        slope_error=np.array([0.5, -0.1]), bias2=np.array([0.01, 1.0]),
+        drift=np.array([0.02, 0.05]), observable=np.array([True, False]),
+        bias_scale=np.array([2.0, 3.0]), slope_gain=np.array([np.nan, 1.1]),
+        slope_noise=np.array([0.02, 0.03]), slope_common=np.array([0.7, 0.8]),
+    )
+    on = cal.on(["b", "c", "a"])
+    assert on.names == ("b", "c", "a")
+    np.testing.assert_array_equal(on.level_std, [0.2, 0.0, 0.1])
+    np.testing.assert_array_equal(on.change_std, [0.3, 0.0, 0.4])
+    np.testing.assert_array_equal(on.bias2, [1.0, 0.0, 0.01])
+    np.testing.assert_array_equal(on.bias_scale, [3.0, 1.0, 2.0])
+    np.testing.assert_array_equal(on.drift, [0.05, 0.0, 0.02])
+    np.testing.assert_array_equal(on.observable, [False, True, True])
+    np.testing.assert_array_equal(on.slope_gain, [1.1, 1.0, np.nan])
+    np.testing.assert_array_equal(on.slope_noise, [0.03, np.nan, 0.02])
+    np.testing.assert_array_equal(on.slope_common, [0.8, 0.0, 0.7])

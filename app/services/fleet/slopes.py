@@ -115,20 +115,13 @@ def fleet_slopes(
     piece_slopes = np.concatenate(slopes) if slopes else np.empty((0, p))
     piece_spans = np.concatenate(spans) if spans else np.empty(0)
     calib = design_calibration(session, design_id)
-    gain = np.ones(p)
-    noise = np.full(p, np.nan)
-    common = np.zeros(p)
+    gain, noise, common = np.ones(p), np.full(p, np.nan), np.zeros(p)
     hidden = np.zeros(p, bool)
     if calib is not None:
-        where = {n: k for k, n in enumerate(calib.names)}
-        for j, name in enumerate(names):
-            k = where.get(name)
-            if k is None:
-                continue
-            gain[j] = np.asarray(calib.slope_gain)[k]
-            noise[j] = np.asarray(calib.slope_noise)[k]
-            common[j] = np.asarray(calib.slope_common)[k]
-            hidden[j] = not (calib.observable[k] and np.isfinite(gain[j]))
+        on = calib.on(names)
+        gain, noise, common = (np.asarray(v, float) for v in
+                               (on.slope_gain, on.slope_noise, on.slope_common))
+        hidden = ~(on.observable & np.isfinite(gain))
     slope, sigma = uncertainty.fleet_slope(piece_slopes, piece_spans,
                                            np.where(hidden, 1.0, gain), noise, common)
     return FleetSlopes(

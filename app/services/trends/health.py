@@ -95,23 +95,13 @@ def apply(
     h_cols, s_cols = layout_slices["h"], layout_slices["h_sigma"]
     h, f = out[:, h_cols], out[:, s_cols]
     p = len(names)
-    bias2 = np.zeros(p)
-    level_std = np.zeros(p)
-    change_std = np.zeros(p)
-    drift = np.zeros(p)
+    bias2, level_std, change_std, drift = (np.zeros(p) for _ in range(4))
     hidden = np.zeros(p, bool)
     if calib is not None:
-        where = {n: k for k, n in enumerate(calib.names)}
-        for j, name in enumerate(names):
-            k = where.get(name)
-            if k is None:
-                continue
-            scale = float(np.asarray(calib.bias_scale)[k])
-            bias2[j] = scale**2 * calib.bias2[k]
-            level_std[j] = calib.level_std[k]
-            change_std[j] = calib.change_std[k]
-            drift[j] = calib.drift[k]
-            hidden[j] = not calib.observable[k]
+        on = calib.on(names)
+        bias2 = np.asarray(on.bias_scale) ** 2 * on.bias2
+        level_std, change_std, drift = on.level_std, on.change_std, on.drift
+        hidden = ~on.observable
     baselines: tuple[float, ...] = ()
     if view == "level":
         new_h = h
