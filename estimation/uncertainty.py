@@ -173,6 +173,13 @@ class Calibration:
                 )
             object.__setattr__(self, name, value)
         object.__setattr__(self, "names", tuple(self.names))
+        object.__setattr__(self, "source", dict(self.source))
+        object.__setattr__(self, "aux_names", tuple(self.aux_names))
+        aux_std = np.asarray(np.zeros(0) if self.aux_std is None else self.aux_std, float)
+        if aux_std.shape != (len(self.aux_names),):
+            raise DimensionError(f"Incompatible dimensions of aux_std; expected "
+                                 f"({len(self.aux_names)},) but found {aux_std.shape}")
+        object.__setattr__(self, "aux_std", aux_std)
 
     def on(self, names: Sequence[str]) -> Calibration:
         """The calibration in the order of ``names``; a name it does not hold gets no model
@@ -194,13 +201,6 @@ class Calibration:
             observable=pick(self.observable, True), bias_scale=pick(self.bias_scale, 1.0),
             slope_gain=pick(self.slope_gain, 1.0), slope_noise=pick(self.slope_noise, np.nan),
             slope_common=pick(self.slope_common, 0.0))
-        object.__setattr__(self, "source", dict(self.source))
-        object.__setattr__(self, "aux_names", tuple(self.aux_names))
-        aux_std = np.asarray(np.zeros(0) if self.aux_std is None else self.aux_std, float)
-        if aux_std.shape != (len(self.aux_names),):
-            raise DimensionError(f"Incompatible dimensions of aux_std; expected "
-                                 f"({len(self.aux_names)},) but found {aux_std.shape}")
-        object.__setattr__(self, "aux_std", aux_std)
 
     def aux_model_std(self, name: str) -> float | None:
         """s of one aux output (percent of trim); None when it was not calibrated."""
