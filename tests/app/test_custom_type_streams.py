@@ -40,11 +40,7 @@ def custom(client: TestClient, session: Session) -> tuple[own.CustomFleet, dict[
     _operator, key = own.make_operator(session)
     headers = {"X-API-Key": key}
 
-    def post(path: str, body: dict[str, Any]) -> dict[str, Any]:
-        response = client.post(path, json=body, headers=headers)
-        assert response.status_code in (200, 201), (path, response.text)
-        result: dict[str, Any] = response.json()
-        return result
+    post = own.poster(client.post, headers)
 
     return own.setup(post, lambda _body: None, n=0), headers
 

@@ -44,11 +44,7 @@ def custom(client: TestClient, session: Session,
     _operator, key = own.make_operator(session)
     headers = {"X-API-Key": key}
 
-    def post(path: str, body: dict[str, Any]) -> dict[str, Any]:
-        response = client.post(path, json=body, headers=headers)
-        assert response.status_code in (200, 201), (path, response.text)
-        result: dict[str, Any] = response.json()
-        return result
+    post = own.poster(client.post, headers)
 
     def upload(body: bytes) -> None:
         response = client.post("/api/v1/snapshots/file", content=body,

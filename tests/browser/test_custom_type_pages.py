@@ -27,11 +27,7 @@ def custom(server: Server) -> tuple[own.CustomFleet, str]:
         _operator, key = own.make_operator(session)
     headers = {"X-API-Key": key}
 
-    def post(path: str, body: dict[str, Any]) -> dict[str, Any]:
-        response = httpx.post(f"{server.base_url}{path}", json=body, headers=headers)
-        assert response.status_code in (200, 201), (path, response.text)
-        result: dict[str, Any] = response.json()
-        return result
+    post = own.poster(httpx.post, headers, server.base_url)
 
     def upload(body: bytes) -> None:
         response = httpx.post(f"{server.base_url}/api/v1/snapshots/file", content=body,

@@ -132,6 +132,19 @@ class CustomFleet:
 Post = Callable[[str, dict[str, Any]], dict[str, Any]]
 
 
+def poster(send: Callable[..., Any], headers: dict[str, str], base_url: str = "") -> Post:
+    """A ``Post`` through ``send`` (a TestClient's or httpx's ``post``) that requires a 200
+    or 201 and returns the JSON body."""
+
+    def post(path: str, body: dict[str, Any]) -> dict[str, Any]:
+        response = send(f"{base_url}{path}", json=body, headers=headers)
+        assert response.status_code in (200, 201), (path, response.text)
+        result: dict[str, Any] = response.json()
+        return result
+
+    return post
+
+
 def setup(post: Post, upload_csv: Callable[[bytes], Any], n: int = 60) -> CustomFleet:
     """The type, its model, an active design, an engine on an aircraft and ``n`` snapshots (none
     for 0), all through the API (``post(path, body)`` answering the JSON of a success, and

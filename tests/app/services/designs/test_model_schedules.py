@@ -149,23 +149,32 @@ def test_a_file_that_makes_no_schedule_is_a_422_naming_why_and_stores_nothing(
     assert stored_models(session, tenant) == 0
 
 
-def test_an_engine_of_a_scheduled_type_is_estimated_to_its_known_health(
-    client: TestClient, session: Session, session_factory: Any, tenant: Tenant, tmp_path: Path
-) -> None:
-    from app.jobs.runner import run_pending
-
+def _scheduled_engine(
+    client: TestClient, session: Session, tenant: Tenant, *, esn: str, tail: str
+) -> tuple[Any, dict[str, Any]]:
+    """The schedule imported as the type's model, a design on it made active, and one engine
+    of the type installed on a new aircraft: (engine, design)."""
     model_id = post(client, tenant, f"{API}/engine-models", {
         "engine_type_id": tenant.ids["type"], "name": "envelope",
         "model": schedule_document()})["id"]
     design = post(client, tenant, f"{API}/designs",
                   {"engine_model_id": model_id, "name": "d", "spec": SPEC})
     post(client, tenant, f"{API}/designs/{design['id']}/activate", {})
-    engine = fleet.create_engine(session, operator_id=tenant.operator_id, esn="S-1",
+    engine = fleet.create_engine(session, operator_id=tenant.operator_id, esn=esn,
                                  engine_type_id=tenant.ids["type"])
-    aircraft = fleet.create_aircraft(session, operator_id=tenant.operator_id, tail="N500")
+    aircraft = fleet.create_aircraft(session, operator_id=tenant.operator_id, tail=tail)
     fleet.install(session, operator_id=tenant.operator_id, engine_id=engine.id,
                   aircraft_id=aircraft.id, position=1, installed_at=T0 - timedelta(days=1))
     session.commit()
+    return engine, design
+
+
+def test_an_engine_of_a_scheduled_type_is_estimated_to_its_known_health(
+    client: TestClient, session: Session, session_factory: Any, tenant: Tenant, tmp_path: Path
+) -> None:
+    from app.jobs.runner import run_pending
+
+    engine, design = _scheduled_engine(client, session, tenant, esn="S-1", tail="N500")
 
     # Records at the nine operating points in turn, each from that point's own model, with the
     # sensors' noise; EGT in degF and fuel flow in kg/s (the upload converts them).
@@ -239,18 +248,7 @@ def test_a_stream_of_a_scheduled_type_is_scheduled_on_each_samples_condition(
     from app.services.streams import store as stream_store
 
     monkeypatch.setattr("app.config.get_settings", lambda: settings)
-    model_id = post(client, tenant, f"{API}/engine-models", {
-        "engine_type_id": tenant.ids["type"], "name": "envelope",
-        "model": schedule_document()})["id"]
-    design = post(client, tenant, f"{API}/designs",
-                  {"engine_model_id": model_id, "name": "d", "spec": SPEC})
-    post(client, tenant, f"{API}/designs/{design['id']}/activate", {})
-    engine = fleet.create_engine(session, operator_id=tenant.operator_id, esn="S-2",
-                                 engine_type_id=tenant.ids["type"])
-    aircraft = fleet.create_aircraft(session, operator_id=tenant.operator_id, tail="N501")
-    fleet.install(session, operator_id=tenant.operator_id, engine_id=engine.id,
-                  aircraft_id=aircraft.id, position=1, installed_at=T0 - timedelta(days=1))
-    session.commit()
+    _, design = _scheduled_engine(client, session, tenant, esn="S-2", tail="N501")
 
     models = own_models()
     nodes = (7, 5)  # 35,000 ft at 85 % (the design point), then 20,000 ft at 100 %
