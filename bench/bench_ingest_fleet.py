@@ -135,15 +135,33 @@ def raw_binary_copy(url: str, operator_id: int) -> tuple[float, int]:
 
 
 def cpu_seconds(pid: int) -> float:
-    """User + system CPU seconds of a process and its children that have ended or still run."""
-    total = 0.0
-    for p in [pid, *children(pid)]:
-        try:
-            fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-    return total
+    """User + system CPU seconds of a process and its descendants that still run, and of
+    those that have ended and been waited for."""
+    return sum(cpu_by_process(pid).values())
+
+
+def cpu_by_process(pid: int) -> dict[int, float]:
+    """User + system CPU seconds of a process and of each of its descendants (with the
+    children they waited for), by process id."""
+    return {p: process_cpu(p) for p in [pid, *children(pid)]}
+
+
+def process_cpu(pid: int) -> float:
+    """User + system CPU seconds of one process and the children it waited for (0 if it
+    is gone)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return sum(int(f) for f in fields[11:15]) / os.sysconf("SC_CLK_TCK")
+
+
+def postgres_backends(engine: Any) -> list[int]:
+    """Process ids of the database's PostgreSQL backends (same machine)."""
+    with engine.connect() as connection:
+        return [int(p) for p in connection.execute(text(
+            "SELECT pid FROM pg_stat_activity WHERE datname = current_database() "
+            "AND pid <> pg_backend_pid()")).scalars()]
 
 
 def children(pid: int) -> list[int]:
@@ -208,14 +226,18 @@ def main() -> None:
                     before = connection.execute(text(
                         "SELECT coalesce(max(id), 0) FROM jobs WHERE operator_id = :o"),
                         {"o": operator_id}).scalar_one()
-                cpu0 = cpu_seconds(process.pid)
+                cpu0 = cpu_by_process(process.pid)
+                pg0 = {b: process_cpu(b) for b in postgres_backends(engine)}
                 load0 = os.getloadavg()[0]
                 t0 = time.perf_counter()
                 post_all(client, bodies)
                 posted = time.perf_counter()
                 wait_for_jobs(engine, operator_id, t0)
                 done = time.perf_counter()
-                cpu = cpu_seconds(process.pid) - cpu0
+                cpu1 = cpu_by_process(process.pid)
+                cpu = sum(cpu1.values()) - sum(cpu0.values())
+                roles = {p: c - cpu0.get(p, 0.0) for p, c in cpu1.items()}
+                pg_cpu = sum(process_cpu(b) - pg0.get(b, 0.0) for b in postgres_backends(engine))
             with engine.connect() as connection:
                 estimated = connection.execute(text(
                     "SELECT count(*) FROM estimates e JOIN engines g ON g.id = e.engine_id "
@@ -236,6 +258,10 @@ def main() -> None:
           f"{posted - t0:.2f} s, last job ended at {wall:.2f} s ({jobs} job(s) ran "
           f"{float(ran):.2f} s); server and job process CPU {cpu:.1f} s ({cpu / wall:.2f} "
           f"cores); load at start {load0:.2f}, at end {os.getloadavg()[0]:.2f}")
+    print("  CPU by process: " + ", ".join(
+        f"{'server' if p == process.pid else f'pid {p}'} {c:.2f} s" for p, c in roles.items())
+        + f"; PostgreSQL backends {pg_cpu:.2f} s; machine CPU per 100,000 records "
+        f"{(cpu + pg_cpu) * 1e5 / n:.2f} s")
     print(f"  {estimated} estimates stored of {n} records; {failed} job(s) not succeeded")
     print(f"  raw binary COPY of the same rows: {copy_s:.2f} s, {peer:,.0f} records/s, "
           f"{copy_bytes / 1e6:.1f} MB")

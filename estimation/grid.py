@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import sparse
 
 from estimation.model import MATRIX_NAMES, LinearModel
 
@@ -78,6 +79,19 @@ class Grid:
             idx.append(np.ravel_multi_index(i, self.shape))
             wts.append(w)
         return np.stack(idx), np.stack(wts)
+
+
+def corner_sums(indices: np.ndarray, weights: np.ndarray, flat: np.ndarray) -> np.ndarray:
+    """sum_c weights[c, :, None] * flat[indices[c]] -> [K, F] for the corners (``Grid.corners``)
+    of K queries and values over the nodes flat [n_nodes, F]: one sparse product (each query a
+    row of its C weights), a single pass over the values instead of one gathered copy per
+    corner. Each row's sum runs over its corners in order, as the formula reads, so a query's
+    value does not depend on the other queries of the call."""
+    C, K = indices.shape
+    rows = sparse.csr_matrix(
+        (np.ascontiguousarray(weights.T).ravel(), np.ascontiguousarray(indices.T).ravel(),
+         np.arange(0, C * K + 1, C)), shape=(K, flat.shape[0]))
+    return np.asarray(rows @ flat)
 
 
 def model_stacks(models: Sequence[LinearModel], shape: tuple[int, ...]) -> dict[str, np.ndarray]:

@@ -14,9 +14,10 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
+from typing import cast
 
 import numpy as np
-from sqlalchemy import and_, delete, func, insert, or_, select
+from sqlalchemy import Table, and_, delete, func, insert, or_, select
 from sqlalchemy.orm import Session
 
 from app.models.estimates import DeteriorationBucket, Estimate, EstimateLayout, FleetPeriod
@@ -46,9 +47,10 @@ def value_columns(layout: EstimateLayout) -> np.ndarray:
 
 
 class BucketCollector:
-    """The blocks an ``EstimateWriter`` stores, reduced to what the periods need: each engine's
-    record times and health and auxiliary values as stored (a sink to chain with the
-    writer's)."""
+    """What the periods need of the estimates a run stores: each engine's record times and
+    health and auxiliary values as stored. The writer hands over each batch it encodes
+    (``stored``, its ``EstimateWriter`` sink), so the numbers are those its rows decode to,
+    at the cost of a decode and no second encoding."""
 
     def __init__(self, layout: EstimateLayout) -> None:
         self.layout = layout
@@ -56,24 +58,30 @@ class BucketCollector:
         self.epoch: dict[int, list[np.ndarray]] = {}
         self.values: dict[int, list[np.ndarray]] = {}
 
-    def passing_to(self, sink: Callable[[Block], None]) -> Callable[[Block], None]:
-        """A sink that hands each block to ``sink`` (the writer), then keeps what it needs."""
-
-        def both(block: Block) -> None:
-            sink(block)
-            self.add(block)
-
-        return both
+    def stored(self, blocks: Sequence[Block], rows: np.ndarray) -> None:
+        """Blocks and their stored rows ((n, ``layout.stored_bytes``) uint8, block after
+        block)."""
+        values = self.layout.decode(rows).values[:, self.columns]
+        at = 0
+        for engine_id, _seq, epoch, _phase, _packed in blocks:
+            n = len(epoch)
+            if n:
+                self._keep(engine_id, np.asarray(epoch, float), values[at : at + n])
+            at += n
 
     def add(self, block: Block) -> None:
+        """A block of numbers, taken as their stored form gives them back
+        (``EstimateLayout.as_stored``)."""
         engine_id, _seq, epoch, _phase, packed = block
-        if not len(epoch):
-            return
-        self.epoch.setdefault(engine_id, []).append(np.asarray(epoch, float))
-        # The numbers as stored (``EstimateLayout.as_stored``): a period summed partly from
-        # stored rows and partly from a run's new ones equals one summed from a single run.
-        self.values.setdefault(engine_id, []).append(
-            self.layout.as_stored(np.asarray(packed, np.float64))[:, self.columns])
+        if len(epoch):
+            self._keep(engine_id, np.asarray(epoch, float),
+                       self.layout.as_stored(np.asarray(packed, np.float64))[:, self.columns])
+
+    def _keep(self, engine_id: int, epoch: np.ndarray, values: np.ndarray) -> None:
+        # The numbers as stored: a period summed partly from stored rows and partly from a
+        # run's new ones equals one summed from a single run.
+        self.epoch.setdefault(engine_id, []).append(epoch)
+        self.values.setdefault(engine_id, []).append(values)
 
 
 def period_ends(starts: np.ndarray, period: str) -> np.ndarray:
@@ -93,9 +101,12 @@ def period_sums(epoch: np.ndarray, values: np.ndarray, period: str
     """(period starts, counts, sums [k, width]) of one engine's records."""
     starts, index = np.unique(period_starts(epoch, period), return_inverse=True)
     index = np.ravel(index)
-    sums = np.zeros((len(starts), values.shape[1]))
-    np.add.at(sums, index, values)
-    return starts, np.bincount(index, minlength=len(starts)), sums
+    counts = np.bincount(index, minlength=len(starts))
+    if not len(index):
+        return starts, counts, np.zeros((0, values.shape[1]))
+    order = np.argsort(index, kind="stable")  # each period's records in their own order
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    return starts, counts, np.add.reduceat(np.asarray(values, float)[order], first, axis=0)
 
 
 def refresh(
@@ -152,8 +163,8 @@ def refresh(
                              "start": _time(start), "operator_id": operator_id, "n": int(n),
                              "sums": np.ascontiguousarray(total, "<f8").tobytes()})
                 change.add(period, float(start), total / n, +1)
-    if rows:
-        session.execute(insert(DeteriorationBucket), rows)
+    if rows:  # a Core insert: many rows in one statement, no ORM bookkeeping
+        session.execute(insert(cast(Table, DeteriorationBucket.__table__)), rows)
     change.apply(session, operator_id=operator_id, design_id=design_id)
 
 

@@ -38,7 +38,7 @@ from estimation.detection import CusumDesign, design_cusum
 from estimation.engine.power_setting import held_speed_aux_gains
 from estimation.engine.schedule import EngineSchedule
 from estimation.engine.trim_table import TrimTable
-from estimation.grid import Grid
+from estimation.grid import Grid, corner_sums
 from estimation.model import LinearModel, Signal
 from estimation.schedule import SCHEDULE_FORMAT, ModelSchedule
 from estimation.shift_detector import SHIFT_LEVEL
@@ -62,8 +62,6 @@ MODEL_ERROR = 0.2
 # The built-in engine's power setting: the controller holds this sensor (the fan speed) at its
 # demand by moving this input (the fuel flow).
 HELD_LOOP = ("Nf", "Wf")
-# Records per block of the scheduled gains' interpolation (its arrays stay in the cache).
-GAIN_ROWS = 1024
 
 SNAPSHOT_SIGNALS: dict[str, SignalSpec] = {s.name: s for s in SENSORS + ACTUATORS}
 
@@ -175,13 +173,7 @@ def node_interpolation(
     offsets = np.cumsum([0, *(int(np.prod(v)) for v in shapes.values())])
 
     def interpolate(c: np.ndarray) -> dict[str, np.ndarray]:
-        idx, w = corners(c)
-        acc = np.zeros((c.shape[0], flat.shape[1]))
-        step = GAIN_ROWS
-        for r0 in range(0, c.shape[0], step):  # in blocks that stay in the cache
-            part = acc[r0: r0 + step]
-            for k in range(idx.shape[0]):
-                part += w[k, r0: r0 + step, None] * flat[idx[k, r0: r0 + step]]
+        acc = corner_sums(*corners(c), flat)
         return {name: acc[:, offsets[i]: offsets[i + 1]].reshape(-1, *shapes[name])
                 for i, name in enumerate(shapes)}
 

@@ -14,7 +14,7 @@ there (``fresh_records``, handed in by the caller).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
@@ -306,8 +306,10 @@ class EstimateWriter:
     FLUSH_ROWS = 20_000
 
     def __init__(self, session: Session, *, operator_id: int, design_id: int,
-                 layout: EstimateLayout) -> None:
+                 layout: EstimateLayout,
+                 stored: Callable[[Sequence[Block], np.ndarray], None] | None = None) -> None:
         self.session = session
+        self.stored = stored  # told each batch's blocks and their stored rows, as encoded
         self.operator_id = operator_id
         self.design_id = design_id
         self.layout = layout
@@ -344,13 +346,21 @@ class EstimateWriter:
 
     def _flush(self) -> None:
         if self._pending:
-            self._copy.write(_copy_rows(self.layout, self.design_id, self._pending))
+            self._copy.write(_copy_rows(self.design_id, self._pending,
+                                        self._encoded(self._pending)))
         self._pending, self._pending_rows = [], 0
+
+    def _encoded(self, blocks: Sequence[Block]) -> np.ndarray:
+        stored = _stored(self.layout, blocks)
+        if self.stored is not None:
+            self.stored(blocks, stored)
+        return stored
 
     def __exit__(self, kind: object, error: object, trace: object) -> None:
         if self._stack is None:
-            if kind is None:
-                _insert_rows(self.session, self.layout, self.design_id, self._pending)
+            if kind is None and self._pending:
+                _insert_rows(self.session, self.design_id, self._pending,
+                             self._encoded(self._pending))
             return
         try:
             if kind is None:
@@ -368,11 +378,8 @@ def _stored(layout: EstimateLayout, blocks: Sequence[Block]) -> np.ndarray:
     return layout.encode(values, phase)
 
 
-def _insert_rows(session: Session, layout: EstimateLayout, design_id: int,
-                 blocks: Sequence[Block]) -> None:
-    if not blocks:
-        return
-    stored = _stored(layout, blocks)
+def _insert_rows(session: Session, design_id: int, blocks: Sequence[Block],
+                 stored: np.ndarray) -> None:
     rows = [
         {"engine_id": engine_id, "design_id": design_id, "seq": seq0 + j,
          "recorded_at": datetime.fromtimestamp(float(epoch[j]), UTC)}
@@ -384,7 +391,7 @@ def _insert_rows(session: Session, layout: EstimateLayout, design_id: int,
     session.execute(insert(Estimate), rows)
 
 
-def _copy_rows(layout: EstimateLayout, design_id: int, blocks: Sequence[Block]) -> bytes:
+def _copy_rows(design_id: int, blocks: Sequence[Block], stored: np.ndarray) -> bytes:
     """The blocks' rows of a binary COPY into ``estimates`` (no header or trailer): rows of
     one layout have one width, so one fixed-width record array holds them all."""
     engine = np.concatenate([np.full(len(b[2]), b[0], dtype=np.int64) for b in blocks])
@@ -395,5 +402,5 @@ def _copy_rows(layout: EstimateLayout, design_id: int, blocks: Sequence[Block]) 
         ("engine_id", engine.astype(">i4")),
         ("design_id", np.full(len(engine), design_id, dtype=">i4")),
         ("seq", seq.astype(">i4")),
-        ("packed", _stored(layout, blocks)),
+        ("packed", stored),
     ])

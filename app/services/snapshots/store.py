@@ -246,15 +246,15 @@ def estimate_engines(
                     )
                     if apart:  # computed now, written once the lock is taken
                         computed = []
-                        outputs = run_filters(est, runs, sink=periods.passing_to(computed.append))
+                        outputs = run_filters(est, runs, sink=computed.append)
                 for engine_id, seq0 in redone:
                     _delete_from(session, engine_id, est.design_id, seq0)
                 with rows.EstimateWriter(
                     session, operator_id=operator_id, design_id=est.design_id,
-                    layout=est.layout,
+                    layout=est.layout, stored=periods.stored,
                 ) as writer:
                     if computed is None:  # computed while the writer sends (PostgreSQL's COPY)
-                        outputs = run_filters(est, runs, sink=periods.passing_to(writer.add))
+                        outputs = run_filters(est, runs, sink=writer.add)
                     for block in computed or ():
                         writer.add(block)
                 _store_batch(session, est, runs, states, outputs)
