@@ -1,12 +1,16 @@
-"""Disk cache of the built-in engine's linear-model schedule and its nominal trim table.
+"""Disk cache of the built-in engine's linear-model schedule and its nominal trim table, and of
+the detectors' tables that every process would otherwise compute again.
 
 The schedule (``estimation.engine.schedule``) takes a few seconds to build; it
 is written once as JSON under the data directory, named by the engine design
 fingerprint and the grid, and read back afterwards. A file for another design
 or grid is never used; a damaged file is rebuilt. The nominal trim table
 (``estimation.engine.trim_table``) is kept the same way, as an ``.npz`` file.
-Writes go to a temporary file and are renamed into place, so a crash never
-leaves half a cache.
+The detectors' tables (``arrays``: a CUSUM's threshold, the wear bank's Monte Carlo
+calibration) are pure functions of a few numbers; each is kept as an ``.npz`` file named by
+those numbers, so the job process and each engine-group worker read it instead of spending
+a fraction of a second to seconds on it at their first job. Writes go to a temporary file and
+are renamed into place, so a crash never leaves half a cache.
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ import json
 import logging
 import os
 import tempfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -128,16 +132,40 @@ def load_trim_table(
 
 def save_trim_table(table: TrimTable, path: Path) -> None:
     """Write atomically: temporary file in the same directory, then rename."""
+    arrays: dict[str, Any] = {f"axis_{k}": a for k, a in enumerate(table.axes)}
+    _save_npz(path, names=np.array(table.names), corrected=table.corrected, **arrays)
+
+
+def _save_npz(path: Path, **arrays: Any) -> None:
+    """``np.savez`` atomically: a temporary file in the same directory, then renamed."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
     try:
-        arrays: dict[str, Any] = {f"axis_{k}": a for k, a in enumerate(table.axes)}
         with os.fdopen(fd, "wb") as f:
-            np.savez(f, names=np.array(table.names), corrected=table.corrected, **arrays)
+            np.savez(f, **arrays)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def arrays(
+    cache_dir: Path, name: str, key: Mapping[str, Any], build: Callable[[], Mapping[str, Any]]
+) -> dict[str, np.ndarray]:
+    """The arrays ``build`` returns for ``key`` (JSON numbers and strings), read from the
+    cache file of ``name`` and that key, or built and written there (a damaged file is
+    rebuilt)."""
+    digest = hashlib.sha256(json.dumps(dict(key), sort_keys=True).encode()).hexdigest()[:16]
+    path = Path(cache_dir) / f"{name}-{digest}.npz"
+    if path.exists():
+        try:
+            with np.load(path, allow_pickle=False) as f:
+                return {k: np.array(f[k]) for k in f.files}
+        except (OSError, ValueError, KeyError, EOFError) as exc:
+            log.warning("cache %s unreadable (%s); rebuilding", path, exc)
+    built = {k: np.asarray(v) for k, v in build().items()}
+    _save_npz(path, **built)
+    return built
 
 
 def engine_trim_table(

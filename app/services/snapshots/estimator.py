@@ -270,8 +270,20 @@ class SnapshotEstimator:
 
 @functools.lru_cache(maxsize=32)
 def cusum_for(m: int) -> CusumDesign:
-    """The CUSUM for m tuners at the pipeline's false-alarm rate (its design takes seconds)."""
-    return design_cusum(m, arl0=ARL0, reference=CUSUM_REFERENCE * m)
+    """The CUSUM for m tuners at the pipeline's false-alarm rate. Its design takes a fraction
+    of a second; it is kept in the data directory's cache, so each process reads it."""
+    from app.config import get_settings
+    from app.engine_cache import arrays
+
+    reference = CUSUM_REFERENCE * m
+
+    def build() -> dict[str, float]:
+        d = design_cusum(m, arl0=ARL0, reference=reference)
+        return {"threshold": d.threshold, "arl0": d.arl0}
+
+    table = arrays(get_settings().data_dir.resolve() / "cache", "cusum",
+                   {"m": m, "arl0": ARL0, "reference": reference}, build)
+    return CusumDesign(m, reference, float(table["threshold"]), float(table["arl0"]))
 
 
 def build_estimator(

@@ -76,3 +76,29 @@ def test_damaged_trim_table_is_rebuilt(tmp_path):
     path.rename(other)
     assert cache.load_trim_table(other, {**TRIM_AXES, "power": (80.0, 100.0)}) is None
     assert table.corrected.shape == (2, 2, 2, 2, len(table.names))
+
+
+def test_detector_arrays_built_once_per_key_then_read(tmp_path):
+    calls = []
+
+    def build(scale):
+        def run():
+            calls.append(scale)
+            return {"table": scale * np.arange(4.0), "level": scale}
+        return run
+
+    first = cache.arrays(tmp_path, "bank", {"n": 3, "scale": 1.5}, build(1.5))
+    again = cache.arrays(tmp_path, "bank", {"scale": 1.5, "n": 3}, build(99.0))
+    other = cache.arrays(tmp_path, "bank", {"n": 3, "scale": 2.0}, build(2.0))
+    assert calls == [1.5, 2.0]  # the same key (in any order) is read, not built again
+    assert np.array_equal(again["table"], first["table"]) and float(again["level"]) == 1.5
+    assert float(other["level"]) == 2.0
+
+
+def test_damaged_detector_arrays_are_rebuilt(tmp_path):
+    cache.arrays(tmp_path, "cusum", {"m": 6}, lambda: {"threshold": 14.7})
+    (path,) = tmp_path.glob("cusum-*.npz")
+    path.write_bytes(b"not a zip file")
+    rebuilt = cache.arrays(tmp_path, "cusum", {"m": 6}, lambda: {"threshold": 14.8})
+    assert float(rebuilt["threshold"]) == 14.8
+    assert float(cache.arrays(tmp_path, "cusum", {"m": 6}, lambda: {})["threshold"]) == 14.8
