@@ -82,6 +82,29 @@ def load_line() -> str:
             f"{os.environ.get('OMP_NUM_THREADS', 'unset')}")
 
 
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds of a process and its children that have ended or still run."""
+    total = 0.0
+    for p in [pid, *children(pid)]:
+        try:
+            fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return total
+
+
+def children(pid: int) -> list[int]:
+    """Every descendant process of ``pid`` (children of any of its threads)."""
+    found: list[int] = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            found += [int(c) for c in (task / "children").read_text().split()]
+        except OSError:
+            continue
+    return found + [g for c in found for g in children(c)]
+
+
 def run_on_backends(backends: str, run: Callable[[str, str], bool]) -> None:
     """``run(url, label)`` on a throw-away database of each of the comma-separated
     ``backends``, between the load line and the load at the end; PASS if every run passed."""

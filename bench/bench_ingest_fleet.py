@@ -36,7 +36,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from _common import ROOT, load_line, throwaway_database
+from _common import ROOT, cpu_seconds, load_line, throwaway_database
 
 sys.path.insert(0, str(ROOT / "bench"))
 
@@ -132,29 +132,6 @@ def raw_binary_copy(url: str, operator_id: int) -> tuple[float, int]:
                     copy.write(body[offset: offset + (1 << 20)])
         connection.commit()
         return time.perf_counter() - started, len(body)
-
-
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU seconds of a process and its children that have ended or still run."""
-    total = 0.0
-    for p in [pid, *children(pid)]:
-        try:
-            fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-    return total
-
-
-def children(pid: int) -> list[int]:
-    """Every descendant process of ``pid`` (children of any of its threads)."""
-    found: list[int] = []
-    for task in Path(f"/proc/{pid}/task").glob("*"):
-        try:
-            found += [int(c) for c in (task / "children").read_text().split()]
-        except OSError:
-            continue
-    return found + [g for c in found for g in children(c)]
 
 
 def post_all(client: httpx.Client, bodies: list[bytes]) -> None:
