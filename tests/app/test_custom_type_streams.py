@@ -11,9 +11,9 @@ unit its signal does not take, refuses the file or the live chunk naming the col
 type, and stores nothing.
 
 The type's model is at one operating point, so its recordings need no operating condition: a
-whole-flight file and a live recording carrying only ``time_s``, the inputs and the sensors are
-stored, estimated to the same health, and their steady windows (found on the inputs held and
-the sensors settled) become records without a phase or a condition.
+whole-flight file (CSV or Parquet) and a live recording carrying only ``time_s``, the inputs
+and the sensors are stored, estimated to the same health, and their steady windows (found on
+the inputs held and the sensors settled) become records without a phase or a condition.
 """
 
 from __future__ import annotations
@@ -24,6 +24,8 @@ from datetime import datetime, timedelta
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import select
@@ -208,7 +210,13 @@ def ms(text: str) -> int:
     return round(datetime.fromisoformat(text.replace("Z", "+00:00")).timestamp() * 1000.0)
 
 
-@pytest.mark.parametrize("path", ["file", "live"])
+def parquet_bytes(header: list[str], values: np.ndarray) -> bytes:
+    sink = io.BytesIO()
+    pq.write_table(pa.table({name: values[:, j] for j, name in enumerate(header)}), sink)
+    return sink.getvalue()
+
+
+@pytest.mark.parametrize("path", ["csv", "parquet", "live"])
 def test_a_single_point_type_stream_needs_no_operating_condition(
     client: TestClient, custom: tuple[own.CustomFleet, dict[str, str]],
     session_factory: sessionmaker[Session], settings: Settings, monkeypatch: pytest.MonkeyPatch,
@@ -220,9 +228,15 @@ def test_a_single_point_type_stream_needs_no_operating_condition(
     assert header == ["time_s", "N1[%]", "N2[%]", "EGT[degF]", "PS3[kPa]", "FF_meas[kg/h]",
                       "FF[kg/h]", "IGV[deg]"]
     csv_headers = {**headers, "Content-Type": "text/csv"}
-    if path == "file":
+    if path == "csv":
         response = client.post("/api/v1/streams", params=meta(),
                                content=csv_text(header, values), headers=csv_headers)
+        assert response.status_code == 201, response.text
+        recording = response.json()["recording"]
+    elif path == "parquet":
+        response = client.post(
+            "/api/v1/streams", params=meta(), content=parquet_bytes(header, values),
+            headers={**headers, "Content-Type": "application/vnd.apache.parquet"})
         assert response.status_code == 201, response.text
         recording = response.json()["recording"]
     else:
