@@ -594,11 +594,10 @@ def _stored_columns(rows: pa.Table, *, operator_id: int, upload_id: int) -> pa.T
 def _with_objects(table: pa.Table, others: list[str]) -> pa.Table:
     """``_stored_columns`` (or a slice of it) with its other signals joined into
     ``other_signals``, one JSON object a row (null for a row without any)."""
-    places = [stored_at(name) for name in others]
-    objects = number_objects({name: table[place] for name, place in zip(others, places,
-                                                                         strict=True)},
+    places = {name: stored_at(name) for name in others}
+    objects = number_objects({name: table[place] for name, place in places.items()},
                              table.num_rows)
-    return table.drop_columns(places).append_column(OTHER_SIGNALS, objects)
+    return table.drop_columns(list(places.values())).append_column(OTHER_SIGNALS, objects)
 
 
 def insert_snapshots(session: Session, rows: pa.Table, *, operator_id: int, upload_id: int) -> None:
