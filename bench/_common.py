@@ -13,7 +13,7 @@ import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from sqlalchemy.orm import Session
@@ -80,6 +80,48 @@ def load_line() -> str:
     a, b, c = os.getloadavg()
     return (f"load average {a:.2f} {b:.2f} {c:.2f}; {os.cpu_count()} cores; OMP/BLAS threads "
             f"{os.environ.get('OMP_NUM_THREADS', 'unset')}")
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds of a process and its descendants that still run, and of
+    the children they waited for."""
+    return sum(cpu_by_process(pid).values())
+
+
+def cpu_by_process(pid: int) -> dict[int, float]:
+    """``process_cpu`` of a process and of each of its descendants, by process id."""
+    return {p: process_cpu(p) for p in [pid, *children(pid)]}
+
+
+def process_cpu(pid: int) -> float:
+    """User + system CPU seconds of one process and the children it waited for (0 if it
+    is gone)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return sum(int(f) for f in fields[11:15]) / os.sysconf("SC_CLK_TCK")
+
+
+def postgres_backends(engine: Any) -> list[int]:
+    """Process ids of the database's other PostgreSQL backends (a server on this machine)."""
+    from sqlalchemy import text
+
+    with engine.connect() as connection:
+        return [int(p) for p in connection.execute(text(
+            "SELECT pid FROM pg_stat_activity WHERE datname = current_database() "
+            "AND pid <> pg_backend_pid()")).scalars()]
+
+
+def children(pid: int) -> list[int]:
+    """Every descendant process of ``pid`` (children of any of its threads)."""
+    found: list[int] = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            found += [int(c) for c in (task / "children").read_text().split()]
+        except OSError:
+            continue
+    return found + [g for c in found for g in children(c)]
 
 
 def run_on_backends(backends: str, run: Callable[[str, str], bool]) -> None:

@@ -36,7 +36,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-from _common import ROOT, load_line, throwaway_database
+from _common import (
+    ROOT,
+    cpu_by_process,
+    load_line,
+    postgres_backends,
+    process_cpu,
+    throwaway_database,
+)
 
 sys.path.insert(0, str(ROOT / "bench"))
 
@@ -132,47 +139,6 @@ def raw_binary_copy(url: str, operator_id: int) -> tuple[float, int]:
                     copy.write(body[offset: offset + (1 << 20)])
         connection.commit()
         return time.perf_counter() - started, len(body)
-
-
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU seconds of a process and its descendants that still run, and of
-    those that have ended and been waited for."""
-    return sum(cpu_by_process(pid).values())
-
-
-def cpu_by_process(pid: int) -> dict[int, float]:
-    """User + system CPU seconds of a process and of each of its descendants (with the
-    children they waited for), by process id."""
-    return {p: process_cpu(p) for p in [pid, *children(pid)]}
-
-
-def process_cpu(pid: int) -> float:
-    """User + system CPU seconds of one process and the children it waited for (0 if it
-    is gone)."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except OSError:
-        return 0.0
-    return sum(int(f) for f in fields[11:15]) / os.sysconf("SC_CLK_TCK")
-
-
-def postgres_backends(engine: Any) -> list[int]:
-    """Process ids of the database's PostgreSQL backends (same machine)."""
-    with engine.connect() as connection:
-        return [int(p) for p in connection.execute(text(
-            "SELECT pid FROM pg_stat_activity WHERE datname = current_database() "
-            "AND pid <> pg_backend_pid()")).scalars()]
-
-
-def children(pid: int) -> list[int]:
-    """Every descendant process of ``pid`` (children of any of its threads)."""
-    found: list[int] = []
-    for task in Path(f"/proc/{pid}/task").glob("*"):
-        try:
-            found += [int(c) for c in (task / "children").read_text().split()]
-        except OSError:
-            continue
-    return found + [g for c in found for g in children(c)]
 
 
 def post_all(client: httpx.Client, bodies: list[bytes]) -> None:

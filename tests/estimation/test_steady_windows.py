@@ -2,7 +2,10 @@
 after each throttle move, sensor noise) cut on the window grid: windows across a throttle
 step, a take-off roll, a level-off or a settling spool are refused, the others get the phase
 of their segment; a recording that starts in the air has no take-off; the grid does not
-depend on where the samples are split; window means skip missing values."""
+depend on where the samples are split; window means skip missing values. Without a condition,
+a single-point type's own inputs and sensors decide: a moved input or a sensor drifting
+beyond the dead band refuses its window, a missing value is not judged, and such windows have
+no phase."""
 
 from __future__ import annotations
 
@@ -12,7 +15,9 @@ import pytest
 from estimation.steady_windows import (
     SteadyCriteria,
     field_of,
+    held_steady,
     steady_windows,
+    unphased_windows,
     window_length,
     window_means,
 )
@@ -111,3 +116,30 @@ def test_criteria_are_what_they_say() -> None:
     windows = steady_windows(alt, mach, power, spools, DT, alt[0], criteria=loose)
     assert window_length(DT, 10.0) == 200
     assert all(w.stop - w.start == 200 for w in windows)
+
+
+def test_own_signals_decide_without_a_condition() -> None:
+    """Six 30 s windows at 50 Hz of two inputs (fuel flow, a vane at zero) and two sensors."""
+    dt, W = 0.02, 1500
+    n = 6 * W
+    rng = np.random.default_rng(3)
+    u = np.column_stack([np.full(n, 3600.0), np.zeros(n)])
+    y = np.column_stack([780.0 + rng.normal(0, 2.0, n), 92.0 + rng.normal(0, 0.15, n)])
+    u[W:2 * W, 0] *= np.linspace(1.0, 1.02, W)  # window 1: fuel flow moved by 2 %
+    # window 2: a sensor drifting by 4 % over 30 s (transient index 1.3e-3 /s > 1e-3)
+    y[2 * W:3 * W, 1] *= np.linspace(1.0, 1.04, W)
+    y[3 * W:4 * W, 1] *= np.linspace(1.0, 1.02, W)  # window 3: 2 % (6.7e-4 /s): settled
+    u[4 * W + 7, 0] = np.nan  # window 4: a missing input value is not judged there
+    u[5 * W + 9, 1] = 0.5  # window 5: the vane, centred on zero, moved
+    held = held_steady(u, y, dt)
+    assert held.tolist() == [True, False, False, True, True, False]
+    # Nothing to judge: no sensor, or every sensor missing in the window.
+    assert not held_steady(u, None, dt).any()
+    assert held_steady(None, y, dt)[[0, 1]].all()
+    gone = y.copy()
+    gone[10, :] = np.nan
+    assert held_steady(u, gone, dt).tolist()[0] is False
+    # Counted on the grid from the first window given, without a phase.
+    windows = unphased_windows(held, dt, first_window=4)
+    assert [(w.index, w.start, w.stop, w.phase) for w in windows] == [
+        (4, 4 * W, 5 * W, None), (7, 7 * W, 8 * W, None), (8, 8 * W, 9 * W, None)]

@@ -134,7 +134,17 @@ def dumps(document: Any, default: Callable[[Any], Any]) -> bytes:
 def number_objects(columns: Mapping[str, pa.ChunkedArray | pa.Array], n: int) -> pa.Array:
     """Per row, one JSON object of the row's numbers by column name (``{"N1":98.5,"EGT":505}``),
     written column-wise by Arrow (its float text is the shortest that reads back to the same
-    float); a null value has no key, a row of nulls is null. ``n``: the number of rows."""
+    float); a null value has no key, a row of nulls is null. ``n``: the number of rows.
+
+    Without a null anywhere (a type's own signals as most uploads carry them), each row is
+    one join of its key texts and numbers (the same text, in a third of the time)."""
+    if columns and all(values.null_count == 0 for values in columns.values()):
+        parts: list[Any] = []
+        for k, (name, values) in enumerate(columns.items()):
+            parts += [("{" if k == 0 else ",") + json.dumps(name) + ":",
+                      pc.cast(pc.cast(values, pa.float64()), pa.string())]
+        whole = pc.binary_join_element_wise(*parts, "}", "")
+        return whole.combine_chunks() if isinstance(whole, pa.ChunkedArray) else whole
     pieces = []
     for name, values in columns.items():
         text = pc.cast(pc.cast(values, pa.float64()), pa.string())

@@ -43,9 +43,9 @@ SCHEDULED_SOURCES = ("builtin",)  # model sources scheduled on the operating con
 class ParameterSet:
     """The columns one engine type's snapshots carry.
 
-    ``signals`` in the units of the model files; ``scheduled_on`` the operating-condition
-    columns its rows must carry; ``from_models`` False when no model declares a signal yet and
-    the catalogue stands in."""
+    ``signals`` in the units of the model files (``inputs`` and ``sensors`` name them by
+    role); ``scheduled_on`` the operating-condition columns its rows must carry;
+    ``from_models`` False when no model declares a signal yet and the catalogue stands in."""
 
     engine_type_id: int
     engine_type: str
@@ -53,6 +53,8 @@ class ParameterSet:
     scheduled_on: tuple[str, ...]
     phase_required: bool
     from_models: bool = True
+    inputs: tuple[str, ...] = ()
+    sensors: tuple[str, ...] = ()
 
     def signal(self, name: str) -> SignalSpec | None:
         for spec in self.signals:
@@ -68,6 +70,13 @@ class ParameterSet:
     @property
     def names(self) -> tuple[str, ...]:
         return tuple(s.name for s in self.signals)
+
+    def required(self, kind: str) -> tuple[str, ...]:
+        """The columns every row of this type must carry beyond the keys: the operating
+        condition it is scheduled on, and for a snapshot the ``phase`` when its trends are
+        read per phase (a stream's phase is found from its samples)."""
+        phase = ("phase",) if kind == "snapshots" and self.phase_required else ()
+        return self.scheduled_on + phase
 
 
 def quantity_of(unit: str) -> str | None:
@@ -102,6 +111,7 @@ def parameter_set_of(
     signals: dict[str, SignalSpec] = {}
     scheduled = False
     conditions: set[str] = set()
+    roles: dict[str, dict[str, None]] = {"inputs": {}, "sensors": {}}  # ordered sets
     for source, content in models:
         if isinstance(content, Mapping) and content.get("format") == SCHEDULE_FORMAT:
             try:
@@ -113,8 +123,13 @@ def parameter_set_of(
         block = content.get("signals") if isinstance(content, Mapping) else None
         if not isinstance(block, Mapping):
             continue
-        declared = _declared(block.get("inputs")) + _declared(block.get("sensors"))
+        given = {"inputs": _declared(block.get("inputs")),
+                 "sensors": _declared(block.get("sensors"))}
+        declared = given["inputs"] + given["sensors"]
         scheduled = scheduled or (source in SCHEDULED_SOURCES and bool(declared))
+        for role, entries in given.items():
+            roles[role].update((name, None) for name, _unit in entries
+                               if name not in CONDITIONS)
         for name, unit in declared:
             if name in signals or name in CONDITIONS:
                 continue  # the first model to declare a signal gives its unit
@@ -127,8 +142,9 @@ def parameter_set_of(
                             from_models=False)
     required = CONDITION_COLUMNS if scheduled else tuple(
         c for c in CONDITION_COLUMNS if c in conditions)
+    sensors = tuple(n for n in roles["sensors"] if n not in roles["inputs"])
     return ParameterSet(engine_type_id, engine_type, tuple(signals.values()), required,
-                        scheduled)
+                        scheduled, inputs=tuple(roles["inputs"]), sensors=sensors)
 
 
 def parameter_sets(session: Session, engine_type_ids: Sequence[int]) -> dict[int, ParameterSet]:

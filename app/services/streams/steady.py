@@ -2,9 +2,18 @@
 
 When samples of a recording are stored (a whole-flight file, or a live chunk that completes
 windows), its complete windows on the fixed grid from the recording's first sample are checked
-for steadiness (``estimation.steady_windows``: power setting, Mach number, altitude rate and the
-spools' transient index) and each steady window of the take-off, climb or cruise becomes one
-snapshot of the engine: the mean of every signal (operating condition, actuators, sensors) over
+for steadiness (``estimation.steady_windows``) and each steady window becomes one snapshot of
+the engine. What steady means depends on the engine's type (``fleet.parameter_sets``):
+
+- the built-in engine's type (and a type with no model yet, on the catalogue): power setting,
+  Mach number, altitude rate and the spools' transient index; a window of the take-off, climb
+  or cruise is kept, with its phase;
+- a type of imported models: its own inputs held and its own sensors settled
+  (``held_steady``), and, when the recording carries alt_ft, mach and power_pct, the
+  condition's criteria and phase as well; a recording without them (a single-point type needs
+  none) gives windows with no phase.
+
+Each kept window is the mean of every signal (operating condition, actuators, sensors) over
 the window, the window's phase, the recording's flight, ``recorded_at`` the window's middle (an
 engine type's own signals, outside the catalogue, among them: stored by name as any snapshot's
 are), stored in ``snapshots`` with the upload that carried the samples and marked in the
@@ -29,27 +38,72 @@ import pyarrow as pa
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from app.models import Snapshot, StreamChunk, StreamRecording, Upload
+from app.models import Engine, Snapshot, StreamChunk, StreamRecording, Upload
+from app.services.fleet.parameter_sets import ParameterSet, parameter_sets
 from app.services.snapshots import backlog
 from app.services.streams import samples
 from app.services.uploads import store as uploads_store
 from app.signals import SIGNALS
 from estimation.steady_windows import (
     SteadyCriteria,
+    SteadyWindow,
     field_of,
+    held_steady,
     steady_windows,
+    unphased_windows,
     window_length,
     window_means,
 )
 
 CRITERIA = SteadyCriteria()
 SPOOLS = ("Nf", "Nc")  # the spool speeds whose transient index marks a window unsettled
+FLIGHT = ("alt_ft", "mach", "power_pct")  # the condition a window's phase is told from
 
 
 def _column(table: pa.Table, name: str) -> np.ndarray:
     if name not in table.column_names:
         return np.full(table.num_rows, np.nan)
     return np.asarray(table[name].to_numpy(zero_copy_only=False), float)
+
+
+def _columns(table: pa.Table, names: tuple[str, ...]) -> np.ndarray | None:
+    present = [n for n in names if n in table.column_names]
+    return np.column_stack([_column(table, n) for n in present]) if present else None
+
+
+def _own_signals(params: ParameterSet) -> bool:
+    """Whether a type's windows are judged on its own inputs and sensors: a type of imported
+    models (the built-in engine's models tell phases, and a type with no model yet has the
+    catalogue)."""
+    return params.from_models and not params.phase_required
+
+
+def _windows(
+    session: Session, data_dir: Path, recording: StreamRecording, chunks: list[StreamChunk],
+    table: pa.Table, first_window: int,
+) -> list[SteadyWindow]:
+    """The steady windows of ``table`` (the samples from window ``first_window`` on)."""
+    engine = session.get(Engine, recording.engine_id)
+    assert engine is not None
+    params = parameter_sets(session, [engine.engine_type_id])[engine.engine_type_id]
+    dt = float(recording.dt_s)
+    held = None
+    if _own_signals(params):
+        held = held_steady(_columns(table, params.inputs), _columns(table, params.sensors), dt,
+                           CRITERIA)
+        if not all(c in table.column_names for c in FLIGHT):
+            return unphased_windows(held, dt, first_window, CRITERIA)
+    # The first sample (the departure field when on the ground): read again only when the
+    # samples read start later.
+    field = (table if first_window == 0 else samples.read_from(data_dir, recording, chunks[:1], 0)
+             ).slice(0, 1)
+    field_alt = (field_of(float(_column(field, "alt_ft")[0]), float(_column(field, "mach")[0]),
+                          CRITERIA) if field.num_rows else None)
+    spools = None if held is not None else _columns(table, SPOOLS)
+    return steady_windows(
+        _column(table, "alt_ft"), _column(table, "mach"), _column(table, "power_pct"), spools,
+        dt, field_alt, first_window, CRITERIA, held,
+    )
 
 
 def summarise_windows(
@@ -69,18 +123,7 @@ def summarise_windows(
         .order_by(StreamChunk.chunk_index)
     ).all()
     table = samples.read_from(data_dir, recording, chunks, first_window * W)
-    # The first sample (the departure field when on the ground): read again only when the
-    # samples read start later.
-    field = (table if first_window == 0 else samples.read_from(data_dir, recording, chunks[:1], 0)
-             ).slice(0, 1)
-    field_alt = (field_of(float(_column(field, "alt_ft")[0]), float(_column(field, "mach")[0]),
-                          CRITERIA) if field.num_rows else None)
-    spool_names = [s for s in SPOOLS if s in table.column_names]
-    spools = np.column_stack([_column(table, s) for s in spool_names]) if spool_names else None
-    windows = steady_windows(
-        _column(table, "alt_ft"), _column(table, "mach"), _column(table, "power_pct"), spools,
-        float(recording.dt_s), field_alt, first_window, CRITERIA,
-    )
+    windows = _windows(session, data_dir, recording, list(chunks), table, first_window)
     if not windows:
         return 0
     offset = first_window * W

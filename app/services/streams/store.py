@@ -64,8 +64,14 @@ Progress = Callable[[float, str | None], None]
 def _carry_of(state: Mapping[str, Any]) -> Carry:
     anchor = state.get("anchor")
     return Carry(np.asarray(state["x"], float), np.asarray(state["u_prev"], float),
-                 None if anchor is None else np.asarray(anchor, float),
+                 None if anchor is None else np.array(anchor, float),  # null: NaN
                  int(state.get("switches", 0)), float(state.get("ti", 0.0)), state.get("plant"))
+
+
+def _json_floats(values: np.ndarray) -> list[float | None]:
+    """Floats as JSON takes them: a condition a recording does not carry (a single-point
+    type's) is NaN, stored as null."""
+    return [v if np.isfinite(v) else None for v in np.asarray(values, float).tolist()]
 
 
 def _initial_x(session: Session, recording: StreamRecording, design_id: int, n: int,
@@ -177,7 +183,7 @@ def estimate_one(
     state = dict(state_row.state)
     if at_restart is not None:
         state.update(x=at_restart.x.tolist(), u_prev=at_restart.u_prev.tolist(),
-                     anchor=None if at_restart.anchor is None else at_restart.anchor.tolist(),
+                     anchor=None if at_restart.anchor is None else _json_floats(at_restart.anchor),
                      switches=at_restart.switches, plant=at_restart.plant)
         if est.bias is not None:
             state["ti"] = at_restart.ti

@@ -9,8 +9,10 @@ catalogue). Values are converted to the unit they are stored in and their physic
 checked, type by type, so one upload may hold engines of two types.
 
 A stream recording is one engine's samples: ``check_stream`` checks and converts them against
-that engine's type the same way (the operating condition and ``time_s`` every sample carries,
-the parser requires).
+that engine's type the same way (``time_s``, which every sample carries, the parser requires;
+the operating-condition columns are required of a type scheduled on them, on every sample, and
+of no other: a single-point type's steady windows are found on its own signals,
+``streams.steady``).
 """
 
 from __future__ import annotations
@@ -64,27 +66,27 @@ def check_parameters(session: Session, rows: pa.Table, parsed: ParsedTable) -> T
         np.searchsorted(unique, engine_ids)]
     types = parameter_sets(session, sorted(set(row_types.tolist())))
     masks = {type_id: row_types == type_id for type_id in types}
-    return TypedRows(_checked(rows, parsed, types, masks, required=True), types)
+    return TypedRows(_checked(rows, parsed, types, masks, kind="snapshots"), types)
 
 
 def check_stream(session: Session, engine_type_id: int, parsed: ParsedTable) -> ParsedTable:
     """A stream's samples (one engine, of type ``engine_type_id``) checked and converted to
-    their stored units; an ``UploadRejected`` names each column the type does not have."""
+    their stored units; an ``UploadRejected`` names each column the type does not have, and
+    each operating-condition column it is scheduled on that the samples lack."""
     types = parameter_sets(session, [engine_type_id])
     masks = {engine_type_id: np.ones(parsed.num_rows, dtype=bool)}
-    table = _checked(parsed.table, parsed, types, masks, required=False)
+    table = _checked(parsed.table, parsed, types, masks, kind="stream")
     return ParsedTable(table, parsed.units, parsed.sources)
 
 
 def _checked(
     table: pa.Table, parsed: ParsedTable, types: dict[int, ParameterSet],
-    masks: dict[int, np.ndarray], *, required: bool,
+    masks: dict[int, np.ndarray], *, kind: str,
 ) -> pa.Table:
     log = ErrorLog()
     try:
         _check_columns(table, parsed, types, masks, log)
-        if required:
-            _check_required(table, parsed, types, masks, log)
+        _check_required(table, parsed, types, masks, kind, log)
         log.raise_if_any()
         table = _convert(table, parsed, types, masks, log)
     except ErrorLimitReached:
@@ -124,13 +126,13 @@ def _listed(params: ParameterSet) -> str:
 
 def _check_required(
     table: pa.Table, parsed: ParsedTable, types: dict[int, ParameterSet],
-    masks: dict[int, np.ndarray], log: ErrorLog,
+    masks: dict[int, np.ndarray], kind: str, log: ErrorLog,
 ) -> None:
-    """The operating condition and phase of a type scheduled on them, on each of its rows."""
+    """The operating condition (and a snapshot's phase) of a type scheduled on them, on each
+    of its rows."""
     sources = {"phase": "phase", **parsed.sources}
     for type_id, params in types.items():
-        required = params.scheduled_on + (("phase",) if params.phase_required else ())
-        for name in required:
+        for name in params.required(kind):
             if name not in table.column_names:
                 log.add(None, name, f"required column {name!r} is missing (engine type "
                                     f"{params.engine_type!r} is scheduled on it)")

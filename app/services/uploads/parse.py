@@ -626,7 +626,9 @@ def _allowed(kind: str, by_type: bool = False) -> tuple[str, ...] | None:
 
 def _required(kind: str, by_type: bool = False) -> tuple[str, ...]:
     if kind != "snapshots":
-        return STREAM_REQUIRED  # a stream's steady windows are found on its condition
+        # By type, the operating condition is required of a type scheduled on it only
+        # (``uploads.parameters.check_stream``).
+        return STREAM_KEYS if by_type else STREAM_REQUIRED
     return SNAPSHOT_REQUIRED_BY_TYPE if by_type else SNAPSHOT_REQUIRED
 
 

@@ -562,6 +562,13 @@ def snapshot_table(rows: pa.Table, *, operator_id: int, upload_id: int) -> pa.Ta
     """The rows as the ``snapshots`` table's columns, in ``SNAPSHOT_COLUMNS`` order: a column
     the rows do not have is null (the phase and operating condition of a type not scheduled on
     them too), signals outside the catalogue are one JSON object a row (``other_signals``)."""
+    return _with_objects(_stored_columns(rows, operator_id=operator_id, upload_id=upload_id),
+                         other_signals(rows))
+
+
+def _stored_columns(rows: pa.Table, *, operator_id: int, upload_id: int) -> pa.Table:
+    """``snapshot_table`` with each signal outside the catalogue as a column of numbers
+    (named ``stored_at``, after the others) in place of ``other_signals``."""
     n = rows.num_rows
     columns: dict[str, pa.Array | pa.ChunkedArray] = {
         "operator_id": pa.array(np.full(n, operator_id, dtype=np.int64)),
@@ -577,27 +584,42 @@ def snapshot_table(rows: pa.Table, *, operator_id: int, upload_id: int) -> pa.Ta
         columns[signal.column] = (
             rows[signal.name] if signal.name in rows.column_names else pa.nulls(n, pa.float64())
         )
-    columns[OTHER_SIGNALS] = number_objects({name: rows[name] for name in other_signals(rows)}, n)
-    return pa.table({name: columns[name] for name in SNAPSHOT_COLUMNS})
+    order = [name for name in SNAPSHOT_COLUMNS if name != OTHER_SIGNALS]
+    for name in other_signals(rows):
+        columns[stored_at(name)] = pc.cast(rows[name], pa.float64())
+        order.append(stored_at(name))
+    return pa.table({name: columns[name] for name in order})
+
+
+def _with_objects(table: pa.Table, others: list[str]) -> pa.Table:
+    """``_stored_columns`` (or a slice of it) with its other signals joined into
+    ``other_signals``, one JSON object a row (null for a row without any)."""
+    places = {name: stored_at(name) for name in others}
+    objects = number_objects({name: table[place] for name, place in places.items()},
+                             table.num_rows)
+    return table.drop_columns(list(places.values())).append_column(OTHER_SIGNALS, objects)
 
 
 def insert_snapshots(session: Session, rows: pa.Table, *, operator_id: int, upload_id: int) -> None:
     """Insert new rows in the caller's transaction: COPY on PostgreSQL, executemany on SQLite;
     once it commits, the rows are kept in memory for the estimation job (``fresh_records``)."""
-    table = snapshot_table(rows, operator_id=operator_id, upload_id=upload_id)
     # Kept with each other signal as a column of numbers (``stored_at``), as the pipeline
     # reads them; stored without a column no row has (the catalogue's rows: no JSON at all).
-    kept = table
-    for name in other_signals(rows):
-        kept = kept.append_column(stored_at(name), pc.cast(rows[name], pa.float64()))
-    fresh_records.keep_after_commit(session, upload_id, kept)
-    if table[OTHER_SIGNALS].null_count == table.num_rows:
-        table = table.drop_columns([OTHER_SIGNALS])
+    table = _stored_columns(rows, operator_id=operator_id, upload_id=upload_id)
+    fresh_records.keep_after_commit(session, upload_id, table)
+    others = other_signals(rows)
+
+    def stored(part: pa.Table) -> pa.Table:
+        return _with_objects(part, others) if others else part
+
     connection = session.connection()
     if connection.dialect.name == "postgresql":
-        copy_binary(connection.connection.driver_connection, "snapshots", table, SNAPSHOT_PG_TYPES)
+        # The JSON objects are written batch by batch, while the server stores the batch
+        # before (``copy_binary``).
+        copy_binary(connection.connection.driver_connection, "snapshots", table,
+                    SNAPSHOT_PG_TYPES, stored)
     else:
-        executemany_rows(connection.connection.driver_connection, "snapshots", table)
+        executemany_rows(connection.connection.driver_connection, "snapshots", stored(table))
 
 
 # PostgreSQL types of SNAPSHOT_COLUMNS, for binary COPY.
@@ -616,18 +638,21 @@ SNAPSHOT_PG_TYPES = {
 
 
 def copy_binary(
-    driver_connection: Any, table_name: str, table: pa.Table, pg_types: Mapping[str, str]
+    driver_connection: Any, table_name: str, table: pa.Table, pg_types: Mapping[str, str],
+    stored: Callable[[pa.Table], pa.Table] | None = None,
 ) -> None:
-    """Binary COPY of ``table`` through psycopg 3 (the server parses no text). psycopg's
-    queued writer sends each batch from a thread while the next one is encoded, so the
-    server stores rows while Python encodes the following ones."""
-    names = ", ".join(table.column_names)
+    """Binary COPY of ``table`` through psycopg 3 (the server parses no text), each batch
+    of rows made what is stored by ``stored`` first when given. psycopg's queued writer sends
+    each batch from a thread while the next one is made and encoded, so the server stores
+    rows while Python prepares the following ones."""
+    finish = stored or (lambda part: part)
+    names = ", ".join(finish(table.slice(0, 0)).column_names)
     statement = f"COPY {table_name} ({names}) FROM STDIN (FORMAT binary)"
     with driver_connection.cursor() as cursor:
         with cursor.copy(statement, writer=QueuedLibpqWriter(cursor)) as copy:
             copy.write(HEADER)
             for batch in table.to_batches(max_chunksize=COPY_BATCH_ROWS):
-                copy.write(binary_copy_rows(pa.Table.from_batches([batch]), pg_types))
+                copy.write(binary_copy_rows(finish(pa.Table.from_batches([batch])), pg_types))
             copy.write(TRAILER)
 
 

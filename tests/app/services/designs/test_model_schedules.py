@@ -296,3 +296,60 @@ def test_a_stream_of_a_scheduled_type_is_scheduled_on_each_samples_condition(
     conditions = np.array([[p["alt_ft"], p["mach"], 0.0, p["power_pct"]] for p in POINTS])
     np.testing.assert_allclose(est.trims(conditions)[0], snap.schedule(conditions).y_trim,
                                rtol=1e-12)
+
+
+def test_a_stream_of_a_scheduled_type_without_its_condition_is_a_422_naming_both(
+    client: TestClient, session: Session, tenant: Tenant, settings: Any,
+) -> None:
+    """The type is scheduled on the operating condition: a recording (file or live chunk)
+    without one of its columns, or with a sample missing a value, is refused naming the column
+    and the type, and nothing is stored."""
+    _scheduled_engine(client, session, tenant, esn="S-3", tail="N502")
+    model = own_models()[7]  # the design point
+    header = ["time_s", "alt_ft", "mach", "dtamb_k", "power_pct", "N1[rpm]", "N2[rpm]",
+              "T25[K]", "PS3[kPa]", "T3[K]", "EGT", "FF[kg/h]", "BLEED[%]"]
+    point = [POINTS[7]["alt_ft"], POINTS[7]["mach"], 0.0, POINTS[7]["power_pct"]]
+    rows = [[k * model.dt, *point, *(model.trim[n] for n in model.sensor_names),
+             model.trim["FF"], model.trim["BLEED"]] for k in range(50)]
+
+    def body(drop: str | None = None, blank: tuple[int, str] | None = None) -> bytes:
+        keep = [j for j, name in enumerate(header) if name != drop]
+        lines = [",".join(header[j] for j in keep)]
+        for k, row in enumerate(rows):
+            cells = [f"{row[j]:.8g}" for j in keep]
+            if blank is not None and blank[0] == k:
+                cells[[header[j] for j in keep].index(blank[1])] = ""
+            lines.append(",".join(cells))
+        return ("\n".join(lines) + "\n").encode()
+
+    csv_headers = {**tenant.headers(), "Content-Type": "text/csv"}
+    meta = {"tail": "N502", "position": 1, "started_at": (T0 + timedelta(days=1)).isoformat()}
+    for name in ("mach", "power_pct"):
+        response = client.post(f"{API}/streams", params=meta, content=body(drop=name),
+                               headers=csv_headers)
+        assert response.status_code == 422, response.text
+        assert error_of(response)["details"] == [{
+            "row": None, "column": name,
+            "reason": f"required column {name!r} is missing (engine type 'TF-S' is scheduled "
+                      "on it)"}]
+    blank = client.post(f"{API}/streams", params=meta, content=body(blank=(2, "alt_ft")),
+                        headers=csv_headers)
+    assert blank.status_code == 422, blank.text
+    assert error_of(blank)["details"] == [
+        {"row": 3, "column": "alt_ft", "reason": "value is missing"}]
+    assert client.get(f"{API}/streams", headers=tenant.headers()).json()["total"] == 0
+
+    live = client.post(f"{API}/streams/live", json={**meta, "dt_s": model.dt},
+                       headers=tenant.headers("analyst"))
+    assert live.status_code == 201, live.text
+    rid = live.json()["id"]
+    chunk = client.post(f"{API}/streams/{rid}/chunks", params={"index": 0},
+                        content=body(drop="dtamb_k"), headers=csv_headers)
+    assert chunk.status_code == 422, chunk.text
+    assert "'dtamb_k' is missing (engine type 'TF-S'" in error_of(chunk)["message"]
+    assert client.get(f"{API}/streams/{rid}", headers=tenant.headers()).json()["n_samples"] == 0
+    assert not list((Path(settings.data_dir) / "recordings").rglob("*.parquet"))
+    # The same samples with the condition are stored.
+    good = client.post(f"{API}/streams/{rid}/chunks", params={"index": 0}, content=body(),
+                       headers=csv_headers)
+    assert good.status_code == 201, good.text

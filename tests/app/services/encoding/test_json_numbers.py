@@ -1,4 +1,5 @@
-"""Float columns written by numpy equal json.dumps of the rounded numbers, byte for byte."""
+"""Float columns written by numpy equal json.dumps of the rounded numbers, byte for byte; the
+JSON objects of a type's own signals are the same text with or without a null among them."""
 
 from __future__ import annotations
 
@@ -6,9 +7,10 @@ import json
 from datetime import UTC, datetime
 
 import numpy as np
+import pyarrow as pa
 import pytest
 
-from app.services.encoding.json_numbers import RawJSON, dumps, float_rows
+from app.services.encoding.json_numbers import RawJSON, dumps, float_rows, number_objects
 
 
 def _reference(matrix: np.ndarray, decimals: int) -> list[str]:
@@ -58,3 +60,26 @@ def test_dumps_places_raw_parts_as_if_they_were_values() -> None:
         return value.isoformat().replace("+00:00", "Z")
 
     assert dumps(document, default) == json.dumps(plain, separators=(",", ":")).encode()
+
+
+@pytest.mark.parametrize("chunked", [False, True])
+def test_number_objects_without_nulls_are_the_general_text(chunked: bool) -> None:
+    """A type's own signals without a missing value take the one-join path: the same text as
+    the path that skips nulls (the same column with one null added elsewhere), and each
+    object reads back as the row's floats."""
+    rng = np.random.default_rng(5)
+    n = 400
+    values = {name: rng.normal(0, 1e4, n) * 10.0 ** rng.integers(-9, 9, n)
+              for name in ("N1", "EGT", 'odd "name"')}
+    values["EGT"][:3] = [20.0, -0.0, 1e21]
+
+    def column(v: np.ndarray) -> pa.Array | pa.ChunkedArray:
+        array = pa.array(v, from_pandas=True)
+        return pa.chunked_array([array[:150], array[150:]]) if chunked else array
+
+    fast = number_objects({k: column(v) for k, v in values.items()}, n)
+    general = number_objects({**{k: column(v) for k, v in values.items()},
+                              "gap": column(np.full(n, np.nan))}, n)
+    assert fast.to_pylist() == general.to_pylist()
+    for k, text in enumerate(fast.to_pylist()):
+        assert json.loads(text) == {name: v[k] for name, v in values.items()}

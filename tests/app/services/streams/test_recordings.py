@@ -263,3 +263,22 @@ def test_bad_stream_input_and_tenancy(
         headers={**fleet_data.viewer, **CSV},
     )
     assert viewer.status_code == 403
+
+
+def test_a_builtin_type_stream_without_its_condition_is_refused_naming_it(
+    client: TestClient, session: Session, fleet_data: Fleet
+) -> None:
+    """The built-in engine's type is scheduled on the whole operating condition: a file
+    without one of its columns is a 422 naming the column and the type, nothing stored."""
+    before = n_recordings(session, fleet_data)
+    params = {"tail": "N101", "position": 1, "started_at": T0.isoformat()}
+    for name in ("alt_ft", "mach", "dtamb_k", "power_pct"):
+        body = csv(flight(60).drop_columns([name]))
+        response = client.post("/api/v1/streams", params=params, content=body,
+                               headers={**fleet_data.analyst, **CSV})
+        assert response.status_code == 422, response.text
+        assert response.json()["error"]["details"] == [{
+            "row": None, "column": name,
+            "reason": f"required column {name!r} is missing (engine type 'generic' is "
+                      "scheduled on it)"}]
+    assert n_recordings(session, fleet_data) == before
