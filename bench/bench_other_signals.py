@@ -28,6 +28,7 @@ import uuid
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
+import _common  # noqa: F401  (pins BLAS threads)
 import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
