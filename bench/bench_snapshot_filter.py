@@ -20,7 +20,7 @@ The bound, in the same run on the same arrays: the minimal numpy loop of the sam
 tuner-space sensor matrix H = G_y V*^+ formed per snapshot), and the matrix-form update with
 ``numpy.linalg.solve``. All three give the same estimates (the largest difference is printed).
 
-BLAS and OpenMP run one thread (set here before numpy loads); the load average is printed
+BLAS and OpenMP run one thread (``bench/_common.py``, before numpy loads); the load is printed
 first and last. Engines 10 / 1,000 / 10,000 / 100,000, with fewer snapshots each as the fleet
 grows (about 0.4M records at 100,000 engines).
 

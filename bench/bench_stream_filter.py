@@ -29,7 +29,7 @@ would give: the same recursion time-major over all engines at once, every engine
 own gain at every sample (the products grouped by gain, the recursion through a gather of
 Phi). All three give the same rows (the largest difference is printed).
 
-BLAS and OpenMP run one thread (set here before numpy loads); the load average is printed
+BLAS and OpenMP run one thread (``bench/_common.py``, before numpy loads); the load is printed
 first and last. Engines 10 / 1,000 / 10,000 / 100,000, with fewer samples each as the fleet
 grows (9e4, 1e6, 1e6 and 1e6 samples).
 
