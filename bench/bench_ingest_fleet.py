@@ -108,15 +108,17 @@ def csv_bodies(table: pa.Table, chunk: int) -> list[bytes]:
 def raw_binary_copy(url: str, operator_id: int, fmt: str = "binary", upload_id: int | None = None,
                     years: int = 100) -> tuple[float, int]:
     """Seconds for a COPY (``fmt``: binary or csv) of the operator's stored snapshots (of one
-    upload if ``upload_id``), ``years`` later, into the snapshots table and its commit; the
-    payload is read back before the clock starts. Returns (seconds, payload bytes)."""
+    upload if ``upload_id``; not the copies of earlier calls), ``years`` later, into the
+    snapshots table and its commit; the payload is read back before the clock starts.
+    Returns (seconds, payload bytes)."""
     import psycopg
 
     conninfo = make_url(url).set(drivername="postgresql").render_as_string(hide_password=False)
     columns = ", ".join(SNAPSHOT_COLUMNS)
     shifted = ", ".join(f"recorded_at + interval '{int(years)} years'" if c == "recorded_at"
                         else c for c in SNAPSHOT_COLUMNS)
-    which = f"operator_id = {int(operator_id)}" + (
+    # The rows as stored (copies made before are a century or more later).
+    which = f"operator_id = {int(operator_id)} AND recorded_at < '2100-01-01'" + (
         "" if upload_id is None else f" AND upload_id = {int(upload_id)}")
     with psycopg.connect(conninfo) as connection:
         sink = io.BytesIO()

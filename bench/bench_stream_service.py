@@ -156,9 +156,10 @@ def run(url: str, label: str, args: argparse.Namespace) -> bool:
         rid_raw, _ = upload(client, TAILS[0], raw)
         ok_raw = wait_estimated(client, rid_raw, parsed.num_rows, url, operator_id)
         jobs = job_runs(url, operator_id, rid_raw)
+        error = (jobs[-1].error or "").strip().splitlines() if jobs else []
         print(f"as simulated (ground idle included): estimated {ok_raw}; job "
-              f"{jobs[-1].status if jobs else 'none'}: "
-              f"{(jobs[-1].error or '').strip().splitlines()[-1][:160] if jobs else ''}")
+              f"{jobs[-1].status if jobs else 'none'}"
+              f"{': ' + error[-1][:160] if error else ''}")
 
         t0 = time.perf_counter()
         rid_warm, _ = upload(client, TAILS[1], body)
