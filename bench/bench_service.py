@@ -23,7 +23,8 @@ Peers measured in the same run on the same rows, in this process:
   (the storage not chosen);
 - fleet status: a bare ``SELECT`` of every engine's latest estimate row, and the status
   service in-process;
-- deterioration: a bare ``SELECT`` of the fleet's weekly period rows.
+- deterioration: a bare ``SELECT`` of the fleet's weekly period rows (``fleet_periods``, one
+  row a week, what the route reads).
 
 BLAS and OpenMP run one thread in this process and the server's; the load average is printed
 first and last.
@@ -205,9 +206,9 @@ def fleet_reads(client: httpx.Client, factory: sessionmaker[Any], operator_id: i
     def period_rows() -> object:
         with factory() as s:
             return s.execute(text(
-                "SELECT b.engine_id, b.start, b.n, b.sums FROM deterioration_buckets b "
-                "JOIN filter_states f ON f.engine_id = b.engine_id AND f.design_id = b.design_id "
-                "WHERE f.operator_id = :o AND b.period = 'week'"), {"o": operator_id}).all()
+                "SELECT start, n_engines, sums, squares FROM fleet_periods "
+                "WHERE operator_id = :o AND period = 'week' ORDER BY start"),
+                {"o": operator_id}).all()
 
     def http(path: str, **params: object) -> Callable[[], object]:
         def run() -> object:
@@ -221,7 +222,7 @@ def fleet_reads(client: httpx.Client, factory: sessionmaker[Any], operator_id: i
         ("bare SELECT of each engine's latest estimate (floor)", latest_rows),
         ("fleet status service in-process", status_service),
         ("GET fleet/status (HTTP)", http("/api/v1/fleet/status")),
-        ("bare SELECT of the weekly period rows (floor)", period_rows),
+        ("bare SELECT of the fleet's weekly period rows (floor)", period_rows),
         ("GET fleet/deterioration?bucket=week (HTTP)",
          http("/api/v1/fleet/deterioration", bucket="week")),
         ("GET fleet/deterioration?bucket=month (HTTP)",
