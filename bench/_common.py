@@ -1,5 +1,11 @@
-"""Shared helpers of the benchmark scripts: import path, timing, the test model, throw-away
-databases, ``fleethealth serve`` on a socket, simulated stream flights, the demo's design."""
+"""Shared helpers of the benchmark scripts: import path, BLAS threads, timing, the test model,
+throw-away databases, ``fleethealth serve`` on a socket, simulated stream flights, the demo's
+design.
+
+Importing this module pins BLAS and OpenMP to one thread (``THREAD_VARIABLES``, for this
+process and the servers and workers it starts): a bench imports it before numpy (``import
+_common`` sorts first), and ``load_line`` states the setting and says so if numpy came first.
+"""
 
 from __future__ import annotations
 
@@ -19,6 +25,11 @@ if TYPE_CHECKING:
     from sqlalchemy.orm import Session
 
     from app.models import EstimatorDesign
+
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+PINNED_LATE = "numpy" in sys.modules  # numpy's BLAS reads the variables when it loads
+for _name in THREAD_VARIABLES:
+    os.environ[_name] = "1"
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
@@ -78,8 +89,9 @@ def throwaway_database(backend: str, prefix: str = "fh_bench") -> Iterator[tuple
 def load_line() -> str:
     """The load average and the thread settings, for the first line of a bench's output."""
     a, b, c = os.getloadavg()
-    return (f"load average {a:.2f} {b:.2f} {c:.2f}; {os.cpu_count()} cores; OMP/BLAS threads "
-            f"{os.environ.get('OMP_NUM_THREADS', 'unset')}")
+    threads = ", ".join(f"{k}={os.environ.get(k, 'unset')}" for k in THREAD_VARIABLES)
+    late = " (NOT in effect here: numpy was loaded before bench/_common.py)" if PINNED_LATE else ""
+    return f"load average {a:.2f} {b:.2f} {c:.2f}; {os.cpu_count()} cores; {threads}{late}"
 
 
 def cpu_seconds(pid: int) -> float:

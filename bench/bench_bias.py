@@ -36,6 +36,7 @@ CASES = {"sea level (A)": (0.0, 0.0, 70.0), "cruise (B)": (35000.0, 0.8, 75.0)}
 
 
 def main() -> None:
+    print(_common.load_line())
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--learn", type=int, default=3, help="healthy learning flights")
     ap.add_argument("--score", type=int, default=3, help="scoring flights per case")

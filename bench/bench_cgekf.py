@@ -60,6 +60,7 @@ import time
 from pathlib import Path
 from typing import NamedTuple
 
+import _common  # noqa: F401  (pins BLAS threads)
 import numpy as np
 from _common import ROOT
 

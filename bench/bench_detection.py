@@ -28,6 +28,7 @@ from tests.support import detection_replay
 
 
 def main() -> None:
+    print(_common.load_line())
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     default = fleet.DemoSize()
     ap.add_argument("--aircraft", type=int, default=default.aircraft)

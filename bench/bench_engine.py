@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+import _common  # noqa: F401  (pins BLAS threads)
 import numpy as np
 from scipy.optimize import root
 
@@ -61,6 +62,7 @@ def scipy_steady(env: np.ndarray, power: float) -> np.ndarray:
 
 
 def main() -> None:
+    print(_common.load_line())
     steady_state(np.zeros(3), power=100.0)  # builds the cached guess line once
     cruise = np.array([35000.0, 0.8, 0.0])
     print("engine model benchmark (best of 5)")

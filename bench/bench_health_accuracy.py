@@ -82,6 +82,7 @@ def fleet_average(est: SnapshotEstimator, tracks, flights: int) -> str:
 
 
 def main() -> None:
+    print(_common.load_line())
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     default = fleet.DemoSize()
     ap.add_argument("--aircraft", type=int, default=default.aircraft)

@@ -52,7 +52,6 @@ import numpy as np  # noqa: E402
 import pyarrow as pa  # noqa: E402
 import pyarrow.compute as pc  # noqa: E402
 import pyarrow.csv as pacsv  # noqa: E402
-from bench_ingest import wait_for_jobs  # noqa: E402
 from sqlalchemy import create_engine, text  # noqa: E402
 from sqlalchemy.engine import make_url  # noqa: E402
 
@@ -113,20 +112,25 @@ def csv_bodies(table: pa.Table, chunk: int) -> list[bytes]:
     return bodies
 
 
-def raw_binary_copy(url: str, operator_id: int) -> tuple[float, int]:
-    """Seconds for a binary COPY of the operator's stored snapshots (a century later) into
-    the snapshots table and its commit; the payload is read back before the clock starts."""
+def raw_binary_copy(url: str, operator_id: int, fmt: str = "binary", upload_id: int | None = None,
+                    years: int = 100) -> tuple[float, int]:
+    """Seconds for a COPY (``fmt``: binary or csv) of the operator's stored snapshots (of one
+    upload if ``upload_id``; not the copies of earlier calls), ``years`` later, into the
+    snapshots table and its commit; the payload is read back before the clock starts.
+    Returns (seconds, payload bytes)."""
     import psycopg
 
     conninfo = make_url(url).set(drivername="postgresql").render_as_string(hide_password=False)
     columns = ", ".join(SNAPSHOT_COLUMNS)
-    shifted = ", ".join("recorded_at + interval '100 years'" if c == "recorded_at" else c
-                        for c in SNAPSHOT_COLUMNS)
+    shifted = ", ".join(f"recorded_at + interval '{int(years)} years'" if c == "recorded_at"
+                        else c for c in SNAPSHOT_COLUMNS)
+    # The rows as stored (copies made before are a century or more later).
+    which = f"operator_id = {int(operator_id)} AND recorded_at < '2100-01-01'" + (
+        "" if upload_id is None else f" AND upload_id = {int(upload_id)}")
     with psycopg.connect(conninfo) as connection:
         sink = io.BytesIO()
         with connection.cursor().copy(
-            f"COPY (SELECT {shifted} FROM snapshots WHERE operator_id = {int(operator_id)}) "
-            "TO STDOUT WITH (FORMAT binary)"
+            f"COPY (SELECT {shifted} FROM snapshots WHERE {which}) TO STDOUT WITH (FORMAT {fmt})"
         ) as copy:
             for block in copy:
                 sink.write(block)
@@ -134,11 +138,26 @@ def raw_binary_copy(url: str, operator_id: int) -> tuple[float, int]:
         connection.commit()
         started = time.perf_counter()
         with connection.cursor() as cursor:
-            with cursor.copy(f"COPY snapshots ({columns}) FROM STDIN WITH (FORMAT binary)") as copy:
+            with cursor.copy(f"COPY snapshots ({columns}) FROM STDIN WITH (FORMAT {fmt})") as copy:
                 for offset in range(0, len(body), 1 << 20):
                     copy.write(body[offset: offset + (1 << 20)])
         connection.commit()
         return time.perf_counter() - started, len(body)
+
+
+def wait_for_jobs(engine: Any, operator_id: int, started: float) -> None:
+    """Until the operator has no queued or running job (polled every 5 ms; the upload's job
+    was queued in its transaction, so it is there once the response is)."""
+    while True:
+        with engine.connect() as connection:
+            busy = connection.execute(text(
+                "SELECT count(*) FROM jobs WHERE operator_id = :o AND status IN "
+                "('queued', 'running')"), {"o": operator_id}).scalar_one()
+        if not busy:
+            return
+        if time.perf_counter() - started > 600:
+            raise SystemExit("the estimation job did not end")
+        time.sleep(0.005)
 
 
 def post_all(client: httpx.Client, bodies: list[bytes]) -> None:

@@ -54,19 +54,16 @@ import argparse
 import os
 import time
 
-for _threads in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_threads, "1")  # pinned before numpy loads its BLAS
+import _common  # noqa: F401  (import path)
+import numpy as np
 
-import _common  # noqa: E402  (import path)
-import numpy as np  # noqa: E402
-
-from estimation import evaluate_engine as ee  # noqa: E402
-from estimation import isolation, tuners  # noqa: E402
-from estimation.engine.errors import EngineConvergenceError  # noqa: E402
-from estimation.engine.health import HEALTH_NAMES  # noqa: E402
-from estimation.engine.linearize import linearize  # noqa: E402
-from estimation.engine.schedule import build_schedule  # noqa: E402
-from estimation.engine.sensors import SENSOR_NAMES  # noqa: E402
+from estimation import evaluate_engine as ee
+from estimation import isolation, tuners
+from estimation.engine.errors import EngineConvergenceError
+from estimation.engine.health import HEALTH_NAMES
+from estimation.engine.linearize import linearize
+from estimation.engine.schedule import build_schedule
+from estimation.engine.sensors import SENSOR_NAMES
 
 TARGET, AIM = 90.0, 95.0
 VISIBLE_SIGMAS = 3.0  # event signature (root sum of squares over its records) to be visible

@@ -31,6 +31,7 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
+import _common  # noqa: F401  (pins BLAS threads)
 import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv

@@ -5,13 +5,13 @@ pool and in Celery worker processes, on PostgreSQL.
 The data are ``fleethealth simulate --mode snapshot``'s fleet (``bench_ingest_fleet.simulate``:
 the demo's fleet, take-off and cruise records) on the demo's engine type and designs. Per run,
 on a throw-away database: ``fleethealth serve`` (and for Celery, ``fleethealth worker`` with
-``--concurrency`` 1 or 2 on Redis database ``--redis-db``) estimates two first uploads of
-``--warm`` records in all (its job and worker processes make what they keep between jobs), then the
-bench holds the job claims' advisory lock (``app.jobs.claim.SERIAL_CLAIM_LOCK``) while the
-records go up as CSV over HTTP, so that they are all stored and marked before any estimation
-starts. The clock runs from the lock's release to the end of the last estimation job: the
-job spreads the backlog over engine groups (``app.services.snapshots.groups``), estimates
-its own share and waits for the rest.
+``--concurrency`` 1 or 2 on Redis database ``--redis-db``, flushed: one of this run's own)
+estimates two first uploads of ``--warm`` records in all (its job and worker processes make
+what they keep between jobs), then the bench holds the job claims' advisory lock
+(``app.jobs.claim.SERIAL_CLAIM_LOCK``) while the records go up as CSV over HTTP, so that they
+are all stored and marked before any estimation starts. The clock runs from the lock's release
+to the end of the last estimation job: the job spreads the backlog over engine groups
+(``app.services.snapshots.groups``), estimates its own share and waits for the rest.
 
 Workers: the pool runs with ``FLEETHEALTH_ESTIMATION_WORKERS`` 1 (the job alone) and 2 (the job
 and one pool process); Celery with ``FLEETHEALTH_ESTIMATION_WORKERS=2`` and 1 or 2 worker
@@ -22,9 +22,11 @@ machine caps what any second process can buy (Linux shares CPU time between sess
 processes, when the cores are busy): ``headroom`` measures that cap with a pure-Python control
 before and after each mode's runs, to read the speed-up against.
 
-    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 \\
-        .venv/bin/python bench/bench_scale_out.py [--rows 100000] [--modes pool,celery]
-    ... bench/bench_scale_out.py --large      # 2,000,000 records
+BLAS and OpenMP run one thread (bench/_common.py) in every process.
+
+    .venv/bin/python bench/bench_scale_out.py --redis-db N [--rows 100000] [--modes pool,celery]
+        [--port N]
+    ... bench/bench_scale_out.py --redis-db N --large      # 2,000,000 records
 """
 
 from __future__ import annotations
@@ -44,7 +46,6 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 import httpx  # noqa: E402
 import pyarrow as pa  # noqa: E402
-from bench_ingest import wait_for_jobs  # noqa: E402
 from bench_ingest_fleet import (  # noqa: E402
     build_operator,
     csv_bodies,
@@ -52,6 +53,7 @@ from bench_ingest_fleet import (  # noqa: E402
     raw_binary_copy,
     simulate,
     threads_line,
+    wait_for_jobs,
 )
 from sqlalchemy import create_engine, text  # noqa: E402
 
@@ -205,10 +207,14 @@ def main() -> None:
     ap.add_argument("--modes", default="pool,celery")
     ap.add_argument("--workers", default="1,2")
     ap.add_argument("--port", type=int, default=None, help="the server's (default: a free one)")
-    ap.add_argument("--redis-db", type=int, default=13)
+    ap.add_argument("--redis-db", type=int, default=None,
+                    help="a Redis database of this run's own (flushed before and after); "
+                         "needed for the celery mode")
     ap.add_argument("--data-dir", default="/tmp/fh-bench-fleet",
                     help="the server's data directory (its engine caches are kept)")
     args = ap.parse_args()
+    if "celery" in args.modes.split(",") and args.redis_db is None:
+        ap.error("--redis-db: the celery mode flushes it, give a database of this run's own")
     n = 2_000_000 if args.large else args.rows
     os.environ["FLEETHEALTH_DATA_DIR"] = args.data_dir
     print(f"{load_line()}; {threads_line()} (servers and workers: 1 thread)")

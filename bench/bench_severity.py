@@ -1,32 +1,37 @@
 """Severity on the demo fleet: the state distribution, why each red engine is red, and the
 status's EGT and thrust figures against the simulator's truth.
 
-Reads a database holding the demo fleet (``fleethealth serve`` seeds it on first start; point
-FLEETHEALTH_DATA_DIR at its data directory), regenerates the demo's fleet plan from its seed
-(cheap: no snapshots), and compares each engine's status with its true health after the last
-round: the take-off dEGT on an ISA+15 K day (corrected, over theta2 there, like the status's)
-and the thrust change at take-off power, both from the steady-state solver. Engines removed
-before the end (their last data is older) are compared against a health they no longer had
-when last reported.
+The demo fleet is seeded as ``fleethealth serve`` seeds it on first start
+(``demo.ensure_demo_fleet``: simulated, uploaded and estimated through the product, the active
+design calibrated) on a throw-away database (``--backend``, dropped after; the built-in engine's
+schedule read from ``--cache``), or read from a database that holds it (``--url``). The bench
+regenerates the demo's fleet plan from its seed (cheap: no snapshots) and compares each engine's
+status with its true health after the last round: the take-off dEGT on an ISA+15 K day
+(corrected, over theta2 there, like the status's) and the thrust change at take-off power, both
+from the steady-state solver. Engines removed before the end (their last data is older) are
+compared against a health they no longer had when last reported. BLAS threads pinned (one).
 
-    FLEETHEALTH_DATA_DIR=data .venv/bin/python bench/bench_severity.py
+    .venv/bin/python bench/bench_severity.py [--backend sqlite] [--url URL]
 """
 
 from __future__ import annotations
 
+import argparse
 import collections
+import tempfile
 import time
 from dataclasses import replace
+from pathlib import Path
 
-import _common  # noqa: F401  (import path)
+import _common
 import numpy as np
 from sqlalchemy import select
 
-from app.config import get_settings
-from app.db import make_engine, make_sessionmaker
+from app.db import make_engine, make_sessionmaker, transaction
+from app.migrate import upgrade
 from app.models import Operator
 from app.services.demo import fleet as demo
-from app.services.demo.operator import DEMO_OPERATOR
+from app.services.demo.operator import DEMO_OPERATOR, ensure_demo_operator
 from app.services.fleet import performance, status
 from app.services.snapshots.estimator import builtin_schedule
 from estimation.engine.fleet import plan_fleet
@@ -34,8 +39,32 @@ from estimation.engine.steady import steady_state
 
 
 def main() -> None:
-    settings = get_settings()
-    factory = make_sessionmaker(make_engine(settings.resolved_database_url))
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--backend", default="sqlite", help="the throw-away database's")
+    ap.add_argument("--url", default=None, help="a database holding the demo fleet")
+    ap.add_argument("--cache", type=Path, default=Path("/tmp/fh/cache"),
+                    help="the built-in engine's schedule cache")
+    args = ap.parse_args()
+    print(_common.load_line())
+    with _common.schedule_cache(args.cache):
+        if args.url:
+            report(args.url)
+            return
+        with _common.throwaway_database(args.backend) as (url, label), \
+                tempfile.TemporaryDirectory(prefix="fh-severity-") as keys:
+            upgrade(url)
+            factory = make_sessionmaker(make_engine(url))
+            with transaction(factory) as session:
+                ensure_demo_operator(session, Path(keys))
+            t0 = time.perf_counter()
+            demo.ensure_demo_fleet(factory, echo=lambda _m: None)
+            print(f"demo fleet seeded on {label} in {time.perf_counter() - t0:.0f} s")
+            report(url)
+    print(_common.load_line())
+
+
+def report(url: str) -> None:
+    factory = make_sessionmaker(make_engine(url))
     with factory() as session:
         operator_id = session.scalar(select(Operator.id).where(Operator.name == DEMO_OPERATOR))
         if operator_id is None:

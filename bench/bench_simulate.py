@@ -79,6 +79,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import _common  # noqa: F401  (pins BLAS threads)
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -170,6 +171,7 @@ def _fmt(label: str, wall: float, cpu: float, extra: str = "") -> str:
 
 
 def main() -> None:
+    print(_common.load_line())
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--full", action="store_true", help="simulate the whole 2500 s flight")
     ap.add_argument("--seconds", type=float, default=300.0, help="slice length [s]")

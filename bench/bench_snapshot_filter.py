@@ -20,7 +20,7 @@ The bound, in the same run on the same arrays: the minimal numpy loop of the sam
 tuner-space sensor matrix H = G_y V*^+ formed per snapshot), and the matrix-form update with
 ``numpy.linalg.solve``. All three give the same estimates (the largest difference is printed).
 
-BLAS and OpenMP run one thread (set here before numpy loads); the load average is printed
+BLAS and OpenMP run one thread (``bench/_common.py``, before numpy loads); the load is printed
 first and last. Engines 10 / 1,000 / 10,000 / 100,000, with fewer snapshots each as the fleet
 grows (about 0.4M records at 100,000 engines).
 
@@ -29,25 +29,21 @@ grows (about 0.4M records at 100,000 engines).
 
 from __future__ import annotations
 
+import argparse
 import os
+import time
+from pathlib import Path
 
-for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ[_name] = "1"
+import _common
+import numpy as np
 
-import argparse  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-import _common  # noqa: E402
-import numpy as np  # noqa: E402
-
-from app.engine_cache import engine_schedule, engine_trim_table  # noqa: E402
-from app.services.demo import fleet as demo  # noqa: E402
-from app.services.snapshots import estimator  # noqa: E402
-from estimation.engine.fleet import fleet_snapshots, plan_fleet  # noqa: E402
-from estimation.engine.sensors import SENSOR_NAMES  # noqa: E402
-from estimation.engine.turbofan import INPUT_NAMES  # noqa: E402
-from estimation.snapshot import SnapshotState, snapshot_deviation, snapshot_filter  # noqa: E402
+from app.engine_cache import engine_schedule, engine_trim_table
+from app.services.demo import fleet as demo
+from app.services.snapshots import estimator
+from estimation.engine.fleet import fleet_snapshots, plan_fleet
+from estimation.engine.sensors import SENSOR_NAMES
+from estimation.engine.turbofan import INPUT_NAMES
+from estimation.snapshot import SnapshotState, snapshot_deviation, snapshot_filter
 
 SIZES = "10x2000,1000x200,10000x40,100000x4"
 TARGET = 1e6  # engine-snapshots per second through the filter

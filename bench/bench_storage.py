@@ -13,15 +13,17 @@ binary COPY and the deterioration periods), one copy after the other; the load d
 through HTTP (``bench_ingest_fleet.py`` times that path).
 
 Then: each table's size per row (table + indexes + TOAST), and through ``fleethealth serve``
-(its own process, port ``--port``): the fleet status and fleet deterioration (week, month) p95
-over ``--repeat`` requests each, and the server's resident memory before and at its peak
-during those reads (sampled every 5 ms from /proc).
+(its own process, on a free port or ``--port``): the fleet status and fleet deterioration
+(week, month) p95 over ``--repeat`` requests each, and the server's resident memory before and
+at its peak during those reads (sampled every 5 ms from /proc).
 
 Targets (issue 17): estimates <= 150 bytes per record; fleet status and deterioration p95 <=
 300 ms; server memory at most +200 MB during any read.
 
-    OMP_NUM_THREADS=1 .venv/bin/python bench/bench_storage.py [--records 2000000]
-    OMP_NUM_THREADS=1 .venv/bin/python bench/bench_storage.py --records 10000000
+BLAS and OpenMP run one thread in this process and the server's.
+
+    .venv/bin/python bench/bench_storage.py [--records 2000000]
+    .venv/bin/python bench/bench_storage.py --records 10000000
 """
 
 from __future__ import annotations
@@ -39,22 +41,22 @@ from _common import ROOT, load_line, throwaway_database
 
 sys.path.insert(0, str(ROOT / "bench"))
 
-import httpx  # noqa: E402
-import numpy as np  # noqa: E402
-import pyarrow as pa  # noqa: E402
-import pyarrow.compute as pc  # noqa: E402
-import pyarrow.parquet as pq  # noqa: E402
-from bench_ingest_fleet import simulate, threads_line  # noqa: E402
-from sqlalchemy import func, select, text  # noqa: E402
+import httpx
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+from bench_ingest_fleet import simulate, threads_line
+from sqlalchemy import func, select, text
 
-from app.db import make_engine, make_sessionmaker, transaction  # noqa: E402
-from app.migrate import upgrade  # noqa: E402
-from app.models import Operator, Snapshot  # noqa: E402
-from app.services.demo import fleet as demo  # noqa: E402
-from app.services.snapshots import store  # noqa: E402
-from app.services.tenancy import service as tenancy  # noqa: E402
-from app.services.uploads.store import ingest_snapshots  # noqa: E402
-from tests.support import server  # noqa: E402
+from app.db import make_engine, make_sessionmaker, transaction
+from app.migrate import upgrade
+from app.models import Operator, Snapshot
+from app.services.demo import fleet as demo
+from app.services.snapshots import store
+from app.services.tenancy import service as tenancy
+from app.services.uploads.store import ingest_snapshots
+from tests.support import server
 
 TABLES = ("estimates", "snapshots", "deterioration_buckets", "filter_checkpoints", "events")
 
@@ -77,6 +79,40 @@ def parquet(table: pa.Table) -> bytes:
     sink = io.BytesIO()
     pq.write_table(table, sink)
     return sink.getvalue()
+
+
+def load_copies(factory: Any, operator_id: int, type_id: int, plan: Any, base: pa.Table,
+                copies: int) -> int:
+    """``copies`` copies of the simulated fleet (``renamed``) on the operator, each through the
+    product's bulk path in-process: its installations (the demo's ``_fleet``), the records'
+    upload (``ingest_snapshots``), then the estimation it queues (``store.catch_up``); prints
+    each copy's times; returns the records loaded."""
+    load_s = estimate_s = 0.0
+    t_all = time.perf_counter()
+    for k in range(copies):
+        plan_k, table_k = renamed(plan, base, k)
+        body = parquet(table_k)
+        with transaction(factory) as session:
+            demo._fleet(session, operator_id, type_id, plan_k)
+        t0 = time.perf_counter()
+        with transaction(factory) as session:
+            result = ingest_snapshots(session, operator_id=operator_id, api_key_id=None,
+                                      body=body, content_format="parquet")
+            assert not result.replayed
+        t1 = time.perf_counter()
+        with transaction(factory) as session:
+            store.catch_up(session, operator_id, commit=session.commit)
+        t2 = time.perf_counter()
+        load_s += t1 - t0
+        estimate_s += t2 - t1
+        done = (k + 1) * base.num_rows
+        print(f"  copy {k + 1}/{copies}: stored {base.num_rows:,} in {t1 - t0:.1f} s, "
+              f"estimated in {t2 - t1:.1f} s; {done:,} records after "
+              f"{time.perf_counter() - t_all:.0f} s ({load_line()})", flush=True)
+    n = copies * base.num_rows
+    print(f"loaded {n:,} records: store {load_s:.1f} s ({n / load_s:,.0f}/s), "
+          f"estimation {estimate_s:.1f} s ({n / estimate_s:,.0f}/s)")
+    return n
 
 
 def rss_kb(pid: int) -> int:
@@ -191,7 +227,7 @@ def main() -> None:
     ap.add_argument("--base", type=int, default=200_000, help="records simulated")
     ap.add_argument("--aircraft", type=int, default=25, help="aircraft simulated")
     ap.add_argument("--repeat", type=int, default=20)
-    ap.add_argument("--port", type=int, default=8740)
+    ap.add_argument("--port", type=int, default=None, help="the server's (default: a free one)")
     ap.add_argument("--seed", type=int, default=20260101)
     ap.add_argument("--data-dir", default="/tmp/fh-bench-storage",
                     help="the server's data directory (its engine caches are kept)")
@@ -224,32 +260,8 @@ def main() -> None:
                                               name="b")
             operator_id = operator.id
         with transaction(factory) as session:
-            type_id, design_id = demo._designs(session, operator_id, lambda _m: None)
-        load_s = estimate_s = 0.0
-        t_all = time.perf_counter()
-        for k in range(copies):
-            plan_k, table_k = renamed(plan, base, k)
-            body = parquet(table_k)
-            with transaction(factory) as session:
-                demo._fleet(session, operator_id, type_id, plan_k)
-            t0 = time.perf_counter()
-            with transaction(factory) as session:
-                result = ingest_snapshots(session, operator_id=operator_id, api_key_id=None,
-                                          body=body, content_format="parquet")
-                assert not result.replayed
-            t1 = time.perf_counter()
-            with transaction(factory) as session:
-                store.catch_up(session, operator_id, commit=session.commit)
-            t2 = time.perf_counter()
-            load_s += t1 - t0
-            estimate_s += t2 - t1
-            done = (k + 1) * base.num_rows
-            print(f"  copy {k + 1}/{copies}: stored {base.num_rows:,} in {t1 - t0:.1f} s, "
-                  f"estimated in {t2 - t1:.1f} s; {done:,} records after "
-                  f"{time.perf_counter() - t_all:.0f} s ({load_line()})", flush=True)
-        n = copies * base.num_rows
-        print(f"loaded {n:,} records: store {load_s:.0f} s ({n / load_s:,.0f}/s), "
-              f"estimation {estimate_s:.0f} s ({n / estimate_s:,.0f}/s)")
+            type_id, _design = demo._designs(session, operator_id, lambda _m: None)
+        n = load_copies(factory, operator_id, type_id, plan, base, copies)
         measure(url, key, n, args)
         print(f"done ({load_line()})")
 

@@ -29,7 +29,7 @@ would give: the same recursion time-major over all engines at once, every engine
 own gain at every sample (the products grouped by gain, the recursion through a gather of
 Phi). All three give the same rows (the largest difference is printed).
 
-BLAS and OpenMP run one thread (set here before numpy loads); the load average is printed
+BLAS and OpenMP run one thread (``bench/_common.py``, before numpy loads); the load is printed
 first and last. Engines 10 / 1,000 / 10,000 / 100,000, with fewer samples each as the fleet
 grows (9e4, 1e6, 1e6 and 1e6 samples).
 
@@ -38,27 +38,23 @@ grows (9e4, 1e6, 1e6 and 1e6 samples).
 
 from __future__ import annotations
 
+import argparse
 import os
+import time
+from pathlib import Path
+from typing import NamedTuple
 
-for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ[_name] = "1"
+import _common
+import numpy as np
 
-import argparse  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
-from typing import NamedTuple  # noqa: E402
-
-import _common  # noqa: E402
-import numpy as np  # noqa: E402
-
-from app.db import make_engine, make_sessionmaker  # noqa: E402
-from app.migrate import upgrade  # noqa: E402
-from app.services.demo import fleet as demo  # noqa: E402
-from app.services.streams.estimator import StreamEstimator, estimator_for  # noqa: E402
-from app.services.streams.run import Carry, _first_outside, filter_inputs, filter_piece  # noqa: E402
-from app.services.tenancy.service import create_operator  # noqa: E402
-from app.services.uploads.parse import parse_body  # noqa: E402
-from estimation.stream_filter import SegmentGain  # noqa: E402
+from app.db import make_engine, make_sessionmaker
+from app.migrate import upgrade
+from app.services.demo import fleet as demo
+from app.services.streams.estimator import StreamEstimator, estimator_for
+from app.services.streams.run import Carry, _first_outside, filter_inputs, filter_piece
+from app.services.tenancy.service import create_operator
+from app.services.uploads.parse import parse_body
+from estimation.stream_filter import SegmentGain
 
 SIZES = "10x9000,1000x1000,10000x100,100000x10"
 TARGET = 1.5  # the product's filter within 1.5x of the minimal loop (issue 17)

@@ -2,7 +2,7 @@
 as CSV and estimated by the server's job, and the same flight as live chunks.
 
 The server runs in its own process as deployed (uvicorn, its job runner) on its own port
-(``--port``, 8750 by default) and a throw-away database (SQLite file, PostgreSQL database,
+(a free one, or ``--port``) and a throw-away database (SQLite file, PostgreSQL database,
 dropped after). The operator's engine type is the demo's built-in engine with the demo's active
 design (made by the product's design service, as the demo makes it); the built-in engine's
 schedule is read from the cache (``--cache``), so neither process builds it.
@@ -29,39 +29,34 @@ live rows are compared with the whole file's (the same stored windows).
 
 BLAS and OpenMP run one thread in both processes; the load average is printed first and last.
 
-    .venv/bin/python bench/bench_stream_service.py [--backends sqlite,postgresql] [--port 8750]
+    .venv/bin/python bench/bench_stream_service.py [--backends sqlite,postgresql] [--port N]
         [--seconds 600] [--chunk-s 30]
 """
 
 from __future__ import annotations
 
-import os
+import argparse
+import io
+import time
+from datetime import UTC, datetime
+from pathlib import Path
 
-for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ[_name] = "1"
+import _common
+import httpx
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+from bench_stream_filter import filterable
+from sqlalchemy import select
 
-import argparse  # noqa: E402
-import io  # noqa: E402
-import time  # noqa: E402
-from datetime import UTC, datetime  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-import _common  # noqa: E402
-import httpx  # noqa: E402
-import numpy as np  # noqa: E402
-import pyarrow as pa  # noqa: E402
-import pyarrow.csv as pacsv  # noqa: E402
-from bench_stream_filter import filterable  # noqa: E402
-from sqlalchemy import select  # noqa: E402
-
-from app.db import make_engine, make_sessionmaker  # noqa: E402
-from app.migrate import upgrade  # noqa: E402
-from app.models import Job  # noqa: E402
-from app.services.fleet import service as fleet  # noqa: E402
-from app.services.streams.estimator import StreamEstimator, estimator_for  # noqa: E402
-from app.services.streams.run import Carry, filter_inputs, filter_piece  # noqa: E402
-from app.services.tenancy.service import create_operator, issue_api_key  # noqa: E402
-from app.services.uploads.parse import parse_body  # noqa: E402
+from app.db import make_engine, make_sessionmaker
+from app.migrate import upgrade
+from app.models import Job
+from app.services.fleet import service as fleet
+from app.services.streams.estimator import StreamEstimator, estimator_for
+from app.services.streams.run import Carry, filter_inputs, filter_piece
+from app.services.tenancy.service import create_operator, issue_api_key
+from app.services.uploads.parse import ParsedTable, parse_body
 
 TAILS = ("N0", "N1", "N2", "N3")  # as simulated; warm-up; whole flight; live
 
@@ -123,19 +118,25 @@ def csv_of(table: pa.Table) -> bytes:
     return sink.getvalue()
 
 
+def after_idle(est: StreamEstimator, raw: bytes,
+               parsed: ParsedTable) -> tuple[pa.Table, float, int]:
+    """The flight file as simulated, its rows from the first filterable sample (ground idle
+    cut: ``bench_stream_filter.filterable``), time from zero; (rows, dt, samples cut)."""
+    dt = float(np.median(np.diff(parsed.table["time_s"].to_numpy())))
+    cond, _dy, _du = filter_inputs(est, parsed.table)
+    cut = filterable(est, cond, dt)
+    sent = pacsv.read_csv(io.BytesIO(raw)).slice(cut)
+    t_col = sent.schema.get_field_index("time_s")
+    return sent.set_column(t_col, "time_s", pa.array(np.arange(sent.num_rows) * dt)), dt, cut
+
+
 def run(url: str, label: str, args: argparse.Namespace) -> bool:
     upgrade(url)
     path, entry = _common.simulated_streams(args.aircraft, args.seconds, args.seed)[0]
     raw = path.read_bytes()
     parsed = parse_body(raw, "csv", kind="stream")
     operator_id, key, est = setup(url, sorted(parsed.signals))
-    dt = float(np.median(np.diff(parsed.table["time_s"].to_numpy())))
-    cond, _dy, _du = filter_inputs(est, parsed.table)
-    cut = filterable(est, cond, dt)
-    # The file as simulated, its rows from the first filterable sample, time from zero.
-    sent = pacsv.read_csv(io.BytesIO(raw)).slice(cut)
-    t_col = sent.schema.get_field_index("time_s")
-    sent = sent.set_column(t_col, "time_s", pa.array(np.arange(sent.num_rows) * dt))
+    sent, dt, cut = after_idle(est, raw, parsed)
     body = csv_of(sent)
     n = sent.num_rows
     started = datetime.fromisoformat(str(entry["started_at"]).replace("Z", "+00:00"))
@@ -155,9 +156,10 @@ def run(url: str, label: str, args: argparse.Namespace) -> bool:
         rid_raw, _ = upload(client, TAILS[0], raw)
         ok_raw = wait_estimated(client, rid_raw, parsed.num_rows, url, operator_id)
         jobs = job_runs(url, operator_id, rid_raw)
+        error = (jobs[-1].error or "").strip().splitlines() if jobs else []
         print(f"as simulated (ground idle included): estimated {ok_raw}; job "
-              f"{jobs[-1].status if jobs else 'none'}: "
-              f"{(jobs[-1].error or '').strip().splitlines()[-1][:160] if jobs else ''}")
+              f"{jobs[-1].status if jobs else 'none'}"
+              f"{': ' + error[-1][:160] if error else ''}")
 
         t0 = time.perf_counter()
         rid_warm, _ = upload(client, TAILS[1], body)
@@ -227,7 +229,7 @@ def run(url: str, label: str, args: argparse.Namespace) -> bool:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--backends", default="sqlite,postgresql")
-    ap.add_argument("--port", type=int, default=8750)
+    ap.add_argument("--port", type=int, default=None, help="the server's (default: a free one)")
     ap.add_argument("--seconds", type=float, default=600.0, help="simulated seconds of flight")
     ap.add_argument("--aircraft", type=int, default=8,
                     help="aircraft of the simulated pool (bench_stream_filter's; the first flight)")

@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import time
 
+import _common  # noqa: F401  (pins BLAS threads)
 import numpy as np
 from _common import load_line
 

@@ -26,6 +26,7 @@ import argparse
 import itertools
 import time
 
+import _common  # noqa: F401  (pins BLAS threads)
 import numpy as np
 import scipy.optimize
 from _common import ROOT  # noqa: F401  (puts the repository on sys.path)
@@ -71,6 +72,7 @@ def scipy_peer(model, noise, V0: np.ndarray, max_seconds: float) -> tuple[float,
 
 
 def main() -> None:
+    print(_common.load_line())
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--peer-seconds", type=float, default=60.0)
     ap.add_argument("--no-cruise-peer", action="store_true", help="skip the per-suite peer")

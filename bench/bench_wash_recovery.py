@@ -1,8 +1,9 @@
 """The recovery measured after a water wash against the simulator's truth.
 
 A small simulated fleet of the built-in engine (no faults, no removals, a wash every ~WASH
-cycles) goes through the product: its snapshots uploaded, its washes recorded as maintenance
-actions, the estimation pipeline run, and each wash's recovery read from the service
+cycles) goes through the product on a throw-away SQLite database (BLAS threads pinned, one):
+its snapshots uploaded, its washes recorded as maintenance actions, the estimation pipeline
+run, and each wash's recovery read from the service
 (``app.services.trends.recovery``: the mean of the settled records after the wash minus the mean
 of the records before). The truth is the health each wash restored in the simulator
 (``WashEvent.recovered``, % per turbomachinery parameter). Figures: per parameter the mean true
@@ -19,12 +20,10 @@ from __future__ import annotations
 import argparse
 import io
 import sys
-import tempfile
 import time
 from datetime import UTC, datetime
-from pathlib import Path
 
-import _common  # noqa: F401  (import path)
+import _common
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -50,14 +49,19 @@ TARGET_RMS = 0.3
 
 
 def main() -> int:
+    print(_common.load_line())
     parser = argparse.ArgumentParser()
     parser.add_argument("--wash", type=float, default=600.0, help="cycles between washes")
     parser.add_argument("--aircraft", type=int, default=6)
     parser.add_argument("--flights", type=int, default=800, help="flights per aircraft")
     parser.add_argument("--records", type=int, default=20, help="records averaged each side")
     args = parser.parse_args()
-    tmp = Path(tempfile.mkdtemp(prefix="wash-recovery-"))
-    url = f"sqlite:///{tmp / 'bench.sqlite3'}"
+    with _common.throwaway_database("sqlite") as (url, _label):
+        return measure(url, args)
+
+
+def measure(url: str, args: argparse.Namespace) -> int:
+    """The fleet through the product on the empty database ``url``; 0 if the target is met."""
     upgrade(url)
     factory = make_sessionmaker(make_engine(url))
     t0 = time.perf_counter()
