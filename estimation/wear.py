@@ -167,6 +167,7 @@ import numpy as np
 LIMIT = "limit"
 RATE = "rate"
 DIRECTIONAL = "directional"
+FLEET = "fleet"
 
 
 @dataclass(frozen=True)
@@ -228,6 +229,12 @@ class WearSettings:
     confidence: float = 1.3
     hold: int = 1
     rate_with_bank: bool = False
+    # The fleet CUSUM (``fleet_direction``): its share of the false-alert budget where it
+    # runs (the bank keeps the rest), and the latest records whose mean is an engine's drift.
+    # The split 0.1 / 0.9 and the tail of 20 records as measured on the bench before the
+    # fleet CUSUM entered the product (bench/README.md); not tuned on FD001's leads since.
+    fleet_share: float = 0.9
+    drift_tail: int = 20
 
 
 @dataclass(frozen=True)
@@ -703,7 +710,11 @@ class WearState:
     bank's latch and its largest CUSUM at the crossing), bank_h (the bank's threshold for the
     record rate measured over the baseline; None in states stored before it was: the
     nominal rate's), recent (best fault, confident) of the
-    last hold - 1 records; alerted: the stretch has had its alert."""
+    last hold - 1 records; alerted: the stretch has had its alert (x0 kept). direction: the
+    fleet direction [n] the stretch adopted at its first record (``fleet_direction``; None:
+    no fleet CUSUM this stretch), its CUSUM the bank's last column (z_rows, mu, sd,
+    bank_sum, bank_min then have n + 1 entries), fleet_h its threshold; drift: the engine's
+    latest change in fault magnitudes (``latest_drift``), what the fleet learns from."""
 
     cycle: float = 0.0
     k: int = 0
@@ -724,6 +735,9 @@ class WearState:
     recent: tuple[tuple[int, bool], ...] = ()
     alerted: bool = False
     bank_h: float | None = None
+    direction: tuple[float, ...] | None = None
+    fleet_h: float | None = None
+    drift: tuple[float, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -800,15 +814,31 @@ def _complete(det: WearDetector, st: WearState) -> WearState:
     if lag:
         best, ok = _confident_rows(det, wssr[-lag:], f[-lag:])
         recent = tuple(zip(best.tolist(), ok.tolist(), strict=True))
-    n = det.H.shape[1]
+    n = det.H.shape[1] + (st.direction is not None)
     rate = record_rate(np.asarray(st.t_rows, float)) if len(st.t_rows) else None
-    h = bank_design(cfg, int(np.sum(det.candidates)), rate).threshold
+    bank_cfg, fleet_cfg = _budgets(cfg, st.direction is not None)
+    h = bank_design(bank_cfg, int(np.sum(det.candidates)), rate).threshold
+    fleet_h = None if fleet_cfg is None else bank_design(fleet_cfg, 1, rate).threshold
     return WearState(
         cycle=st.cycle, k=st.k, x0=tuple(x0.tolist()), delta=tuple(delta.tolist()),
         c_min=tuple(c_last.tolist()), c_b=st.cycle, mu=tuple(mu.tolist()),
         sd=tuple(sd.tolist()), bank_sum=(0,) * n, bank_min=(0,) * n, recent=recent,
-        bank_h=h,
+        bank_h=h, direction=st.direction, fleet_h=fleet_h,
     )
+
+
+def _budgets(cfg: WearSettings, fleet: bool) -> tuple[WearSettings, WearSettings | None]:
+    """The bank's settings and the fleet CUSUM's (None without it): with the fleet CUSUM the
+    false-alert budget is split, ``fleet_share`` of it to the fleet CUSUM, the rest to the
+    bank (the two together within the budget at every horizon, a union bound)."""
+    if not fleet:
+        return cfg, None
+
+    def part(share: float) -> WearSettings:
+        return replace(cfg, false_alerts_per_year=cfg.false_alerts_per_year * share,
+                       bank_arl=None if cfg.bank_arl is None else cfg.bank_arl / share)
+
+    return part(1.0 - cfg.fleet_share), part(cfg.fleet_share)
 
 
 def _confident_rows(
@@ -852,6 +882,8 @@ def _active(
     if use_bank and not cfg.rate_with_bank:
         rate_hit[:] = False
     bank_hit = np.zeros(len(x), bool)
+    fleet_hit = np.zeros(len(x), bool)
+    fleet_stat = np.zeros(len(x))
     crossed = np.full(len(x), st.crossed)
     bank_sum = np.asarray(st.bank_sum, np.int64)
     bank_min = np.asarray(st.bank_min, np.int64)
@@ -869,8 +901,16 @@ def _active(
         cmin = np.minimum(np.minimum.accumulate(csum, axis=0), bank_min[None, :])
         G = (csum - cmin) * BANK_QUANTUM
         bank_sum, bank_min = csum[-1], cmin[-1]
-        crossed = st.crossed | np.logical_or.accumulate(
-            np.any((G > design.threshold) & cand, axis=1))
+        over = np.any((G[:, : len(cand)] > design.threshold) & cand, axis=1)
+        if st.direction is not None and st.fleet_h is not None:
+            fleet_stat = G[:, len(cand)]
+            fleet_over = fleet_stat > st.fleet_h
+            over |= fleet_over
+            # Named by the fleet direction's own attribution: an alert at its crossing.
+            if fleet_fault(det, np.asarray(st.direction)) >= 0:
+                fleet_hit = np.logical_or.accumulate(fleet_over)
+        G = G[:, : len(cand)]
+        crossed = st.crossed | np.logical_or.accumulate(over)
         lag = max(cfg.hold, 1) - 1
         named, ok = _confident_rows(det, wssr, f, best)
         prev_best = np.array([b for b, _ in st.recent], dtype=np.int64)
@@ -883,7 +923,7 @@ def _active(
             held[j:] &= all_ok[:-j] & (all_best[:-j] == all_best[j:])
             held[:j] = False
         bank_hit = crossed & held[P:]
-    hit = limit_hit | rate_hit | bank_hit
+    hit = limit_hit | rate_hit | bank_hit | fleet_hit
     if not hit.any():
         new_cross = crossed[-1] and not st.crossed
         kc = int(np.argmax(crossed)) if new_cross else -1
@@ -892,8 +932,16 @@ def _active(
     k = int(np.argmax(hit))
     kinds = [kind for kind, h in ((DIRECTIONAL, bank_hit), (LIMIT, limit_hit), (RATE, rate_hit))
              if h[k]]
-    kind = min(kinds)
-    if kind == DIRECTIONAL:
+    kind = FLEET if fleet_hit[k] else min(kinds)
+    if kind == FLEET:
+        assert st.direction is not None and st.fleet_h is not None
+        fault = fleet_fault(det, np.asarray(st.direction))
+        alert = WearAlert(
+            index=offset + k, kind=kind, fault=fault, wssr=wssr[k], f=f[k],
+            magnitude=float(f[k, fault]), statistic=float(fleet_stat[k]), threshold=st.fleet_h,
+            baseline_start=b0, change=d[k],
+        )
+    elif kind == DIRECTIONAL:
         if st.crossed:
             stat = st.bank_stat
             top_fault = st.bank_top
@@ -916,7 +964,7 @@ def _active(
             wssr=wssr[k], f=f[k], magnitude=float(mag[k]), statistic=float(gk[i]),
             threshold=float(delta[i]), baseline_start=b0, change=d[k],
         )
-    return WearState(cycle=float(cycles[-1]), k=st.k + len(x), alerted=True), alert
+    return WearState(cycle=float(cycles[-1]), k=st.k + len(x), alerted=True, x0=st.x0), alert
 
 
 def _bank_threshold(det: WearDetector, st: WearState) -> float:
@@ -945,6 +993,7 @@ def _carry(
         c_min=tuple(c_min.tolist()), c_b=st.c_b, mu=st.mu, sd=st.sd,
         bank_sum=tuple(int(v) for v in bank_sum), bank_min=tuple(int(v) for v in bank_min),
         crossed=bool(crossed), bank_stat=stat, bank_top=top, recent=recent, bank_h=st.bank_h,
+        direction=st.direction, fleet_h=st.fleet_h,
     )
 
 
@@ -974,10 +1023,10 @@ def _stretch_steps(
         done = np.flatnonzero(kk == b1 - 1)
         if not len(done):
             return WearState(cycle=float(cycles[-1]), k=st.k + n, x_rows=x_rows,
-                             z_rows=z_rows, t_rows=t_rows), None
+                             z_rows=z_rows, t_rows=t_rows, direction=st.direction), None
         j = int(done[0])
         st = _complete(det, WearState(cycle=float(cycles[j]), k=st.k + j + 1, x_rows=x_rows,
-                                      z_rows=z_rows, t_rows=t_rows))
+                                      z_rows=z_rows, t_rows=t_rows, direction=st.direction))
         x, cycles = x[j + 1 :], cycles[j + 1 :]
         z = None if z is None else z[j + 1 :]
         offset += j + 1
@@ -993,7 +1042,8 @@ def replace_state(st: WearState, **changes: object) -> WearState:
 def wear_steps(
     det: WearDetector, state: WearState, x: np.ndarray, new_cycle: np.ndarray,
     resets: np.ndarray, z: np.ndarray | None = None, keep: Sequence[int] = (),
-    epoch: np.ndarray | None = None,
+    epoch: np.ndarray | None = None, direction: np.ndarray | None = None,
+    zf: np.ndarray | None = None,
 ) -> WearRun:
     """Continue one engine's wear detector over a run of records.
 
@@ -1005,7 +1055,16 @@ def wear_steps(
     designed for the record rate over each stretch's baseline; None: the nominal rate).
     Alerts are ``wear_scan``'s for the same records when the
     first record is the engine's first (cycles as counted here; tests/estimation/test_wear.py).
+    With a fleet ``direction`` [n] (``fleet_direction``) and the records' projections zf [S]
+    on its signature (``along``), a stretch that starts in this run (a reset, or an engine's
+    first record) adopts it and runs the fleet CUSUM as the bank's last column, the budget
+    split (``_budgets``); a stretch under way keeps what it adopted at its start.
     """
+    if direction is not None and zf is not None and z is not None:
+        fleet = tuple(np.asarray(direction, float).tolist())
+        z_f: np.ndarray | None = np.column_stack([np.asarray(z, float), np.asarray(zf, float)])
+    else:
+        fleet, z_f = None, None
     x = np.asarray(x, float)
     cycles = state.cycle + np.cumsum(np.asarray(new_cycle, bool)).astype(float)
     resets = np.asarray(resets, bool)
@@ -1018,16 +1077,132 @@ def wear_steps(
     states: list[tuple[int, WearState]] = []
     want = set(keep)
     st = state
+    if st == WearState(cycle=st.cycle, drift=st.drift):  # an engine's first record
+        st = replace(st, direction=fleet)
     for a, b in zip(cuts[:-1], cuts[1:], strict=True):
         if b <= a:
             continue
         if resets[a]:
-            st = WearState(cycle=st.cycle)
+            st = WearState(cycle=st.cycle, direction=fleet)
+        if st.direction is not None and st.direction != fleet and z is not None:
+            raise ValueError("a stretch under way keeps its fleet direction: give it, with zf")
+        zs = z if st.direction is None else z_f
         st, alert = _stretch_steps(det, st, x[a:b], cycles[a:b],
-                                   None if z is None else z[a:b], a,
+                                   None if zs is None else zs[a:b], a,
                                    None if epoch is None else np.asarray(epoch, float)[a:b])
         if alert is not None:
             alerts.append(alert)
         if b - 1 in want:
             states.append((b - 1, st))
     return WearRun(tuple(alerts), tuple(states), st)
+
+
+# --- The fleet direction: what the engines of a design have worn along, learnt from the
+# other engines' own estimates (docs/math.md, wear: the fleet CUSUM).
+
+
+def fault_drift(det: WearDetector, change: np.ndarray) -> np.ndarray:
+    """A tuner change [m] as candidate-fault magnitudes [n] (zero for the others): the
+    weighted least-squares fit theta = (H_c^T W H_c)^-1 H_c^T W d on the candidates'
+    directions together (the change split over the modules, not one fault at a time)."""
+    Hc = det.H[:, det.candidates]
+    theta = np.linalg.lstsq(Hc.T @ det.W @ Hc, Hc.T @ det.W @ np.asarray(change, float),
+                            rcond=None)[0]
+    out = np.zeros(det.H.shape[1])
+    out[det.candidates] = theta
+    return out
+
+
+def latest_drift(
+    det: WearDetector, state: WearState, x: np.ndarray, resets: np.ndarray
+) -> tuple[float, ...] | None:
+    """An engine's drift after a run of records x [S, m] from ``state`` (resets [S]): the
+    change of its latest stretch in fault magnitudes (``fault_drift``), the mean of its last
+    ``drift_tail`` armed records less the stretch's baseline x_0. Fewer armed records in
+    the run: the state's drift if the stretch goes on (else None)."""
+    cfg = det.settings
+    b1 = cfg.settle + cfg.n_base
+    x = np.asarray(x, float)
+    cut = np.flatnonzero(np.asarray(resets, bool))
+    kept = state.drift
+    if len(cut):
+        state, x, kept = WearState(), x[cut[-1] :], None
+    k = state.k + np.arange(len(x))
+    if state.x0 is not None:
+        x0 = np.asarray(state.x0, float)
+    else:
+        rows = [*state.x_rows, *x[(k >= cfg.settle) & (k < b1)]]
+        if len(rows) < cfg.n_base:
+            return kept
+        x0 = np.mean(rows, axis=0)
+    armed = x[k >= b1]
+    if len(armed) < cfg.drift_tail:
+        return kept
+    return tuple(fault_drift(det, armed[-cfg.drift_tail :].mean(axis=0) - x0).tolist())
+
+
+def fleet_direction(drifts: Sequence[np.ndarray | tuple[float, ...]]) -> np.ndarray | None:
+    """The fleet's wear direction [n] from other engines' drifts: the mean of their unit
+    drifts (each engine counted alike, however far it has worn), itself of unit length; None
+    without a drift (or with drifts that cancel)."""
+    units = [d / np.linalg.norm(d) for d in (np.asarray(v, float) for v in drifts)
+             if np.linalg.norm(d) > 0]
+    if not units:
+        return None
+    v = np.mean(units, axis=0)
+    size = float(np.linalg.norm(v))
+    return v / size if size > 0 else None
+
+
+def fleet_fault(det: WearDetector, direction: np.ndarray) -> int:
+    """The fault the fleet direction is attributed to: the WSSR attribution (``attribute``)
+    of its tuner change H v against the library, if confident (the runner-up's WSSR at least
+    ``confidence`` times the best's); -1 otherwise (its crossing then waits, as the bank's,
+    for the engine's own change to be attributed)."""
+    wssr, f = attribute(det.H @ np.asarray(direction, float), det.W, det.H)
+    best, ok = _confident_rows(det, wssr, f)
+    return int(best[0]) if ok[0] else -1
+
+
+@dataclass(frozen=True)
+class MatchedParts:
+    """A run's records' matched-filter sums on the candidate faults, from which the projection
+    along any direction of them follows (``along``): num [S, c] = G_c^T R^-1 dy and gram
+    [S, c, c] = G_c^T R^-1 G_c (present sensors only)."""
+
+    num: np.ndarray
+    gram: np.ndarray
+
+
+def matched_parts(
+    dy: np.ndarray, var: np.ndarray, signatures: np.ndarray, candidates: np.ndarray
+) -> MatchedParts:
+    """``MatchedParts`` of dy [S, ny] (NaN = missing), var [S, ny] and the signatures [ny, n]
+    or [S, ny, n], each record's sums independent of the others (as ``matched_rows``)."""
+    dy = np.asarray(dy, float)
+    sig = np.asarray(signatures, float)[..., candidates]
+    w = np.broadcast_to(1.0 / np.asarray(var, float), dy.shape)
+    present = np.isfinite(dy)
+    wd = np.where(present, w * np.where(present, dy, 0.0), 0.0)
+    wp = np.where(present, w, 0.0)
+    c = sig.shape[-1]
+    num = np.zeros((len(dy), c))
+    gram = np.zeros((len(dy), c, c))
+    for j in range(dy.shape[1]):
+        s_j = sig[..., j, :]
+        num += wd[:, j, None] * s_j
+        gram += wp[:, j, None, None] * (s_j[..., :, None] * s_j[..., None, :])
+    return MatchedParts(num, gram)
+
+
+def along(parts: MatchedParts, direction: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """The matched filter along a direction of fault magnitudes v [n] (signature G v):
+    z_k = v^T G^T R^-1 dy_k / sqrt(v^T G^T R^-1 G v) [S]."""
+    v = np.asarray(direction, float)[candidates]
+    num = np.zeros(len(parts.num))
+    den = np.zeros(len(parts.num))
+    for i in range(len(v)):
+        num += v[i] * parts.num[:, i]
+        for j in range(len(v)):
+            den += v[i] * v[j] * parts.gram[:, i, j]
+    return num / np.sqrt(np.maximum(den, 1e-300))

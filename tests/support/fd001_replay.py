@@ -114,11 +114,17 @@ class FilterTrack:
 def filter_tracks(
     est: estimator.SnapshotEstimator, runs: Sequence[snapshots_run.EngineRun], batch: int = 64
 ) -> list[FilterTrack]:
-    """``pipeline.run_filters`` over the runs, in batches, unpacked per engine."""
+    """``pipeline.run_filters`` over the runs, in batches, unpacked per engine; each batch's
+    fleet direction also learns from the earlier batches' drifts (as a job's batches read
+    the stored states of the engines estimated before them)."""
     s = est.layout.slices()
     out: list[FilterTrack] = []
+    fleet: list[tuple[float, ...]] = []  # the earlier batches' drifts, as a job reads them
     for start in range(0, len(runs), batch):
-        for res in snapshots_run.run_filters(est, list(runs[start : start + batch])):
+        results = snapshots_run.run_filters(est, list(runs[start : start + batch]),
+                                            fleet=list(fleet))
+        fleet += [r.state.wear.drift for r in results if r.state.wear.drift is not None]
+        for res in results:
             values = res.packed.astype(np.float64)
             P = np.asarray(res.state.filter.P, float).reshape(-1, est.m, est.m)[-1]
             out.append(FilterTrack(values[:, s["q"]], P, values[:, s["h"]], tuple(res.events)))

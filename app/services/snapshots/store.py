@@ -244,9 +244,11 @@ def estimate_engines(
                         affected if marks is None else {e: m.earliest for e, m in marks.items()},
                         marks or {},
                     )
+                    fleet = fleet_drifts(session, est.design_id, ids)
                     if apart:  # computed now, written once the lock is taken
                         computed = []
-                        outputs = run_filters(est, runs, sink=periods.passing_to(computed.append))
+                        outputs = run_filters(est, runs, sink=periods.passing_to(computed.append),
+                                              fleet=fleet)
                 for engine_id, seq0 in redone:
                     _delete_from(session, engine_id, est.design_id, seq0)
                 with rows.EstimateWriter(
@@ -254,7 +256,8 @@ def estimate_engines(
                     layout=est.layout,
                 ) as writer:
                     if computed is None:  # computed while the writer sends (PostgreSQL's COPY)
-                        outputs = run_filters(est, runs, sink=periods.passing_to(writer.add))
+                        outputs = run_filters(est, runs, sink=periods.passing_to(writer.add),
+                                              fleet=fleet)
                     for block in computed or ():
                         writer.add(block)
                 _store_batch(session, est, runs, states, outputs)
@@ -274,6 +277,24 @@ def estimate_engines(
             if progress is not None:
                 progress(done / total, f"estimated {done} of {total} engines")
     return summary
+
+
+def fleet_drifts(
+    session: Session, design_id: int, exclude: Sequence[int]
+) -> list[tuple[float, ...]]:
+    """The wear drifts (``estimation.wear.latest_drift``) stored in the states of the design's
+    engines other than ``exclude``: what the fleet direction of the engines estimated now
+    learns from besides their own run's others (``run.run_filters``)."""
+    docs = session.scalars(
+        select(FilterState.state).where(FilterState.design_id == design_id,
+                                        FilterState.engine_id.not_in(list(exclude)))
+    )
+    out = []
+    for doc in docs:
+        drift = (doc.get("wear") or {}).get("drift")
+        if drift is not None:
+            out.append(tuple(float(v) for v in drift))
+    return out
 
 
 def _prepare_runs(
