@@ -235,6 +235,10 @@ class WearSettings:
     # fleet CUSUM entered the product (bench/README.md); not tuned on FD001's leads since.
     fleet_share: float = 0.9
     drift_tail: int = 20
+    # Fewer other engines with a drift: no fleet direction (a direction of one or two engines
+    # is theirs, not the fleet's; on the bench ten FD001 units gave the whole fleet's within
+    # cos 0.97).
+    fleet_min: int = 5
 
 
 @dataclass(frozen=True)
@@ -713,7 +717,8 @@ class WearState:
     last hold - 1 records; alerted: the stretch has had its alert (x0 kept). direction: the
     fleet direction [n] the stretch adopted at its first record (``fleet_direction``; None:
     no fleet CUSUM this stretch), its CUSUM the bank's last column (z_rows, mu, sd,
-    bank_sum, bank_min then have n + 1 entries), fleet_h its threshold; drift: the engine's
+    bank_sum, bank_min then have n + 1 entries), fleet_h its threshold, fleet_crossed its
+    latch; drift: the engine's
     latest change in fault magnitudes (``latest_drift``), what the fleet learns from."""
 
     cycle: float = 0.0
@@ -737,6 +742,7 @@ class WearState:
     bank_h: float | None = None
     direction: tuple[float, ...] | None = None
     fleet_h: float | None = None
+    fleet_crossed: bool = False
     drift: tuple[float, ...] | None = None
 
 
@@ -884,6 +890,7 @@ def _active(
     bank_hit = np.zeros(len(x), bool)
     fleet_hit = np.zeros(len(x), bool)
     fleet_stat = np.zeros(len(x))
+    fleet_over = np.full(len(x), st.fleet_crossed)
     crossed = np.full(len(x), st.crossed)
     bank_sum = np.asarray(st.bank_sum, np.int64)
     bank_min = np.asarray(st.bank_min, np.int64)
@@ -904,11 +911,10 @@ def _active(
         over = np.any((G[:, : len(cand)] > design.threshold) & cand, axis=1)
         if st.direction is not None and st.fleet_h is not None:
             fleet_stat = G[:, len(cand)]
-            fleet_over = fleet_stat > st.fleet_h
-            over |= fleet_over
-            # Named by the fleet direction's own attribution: an alert at its crossing.
-            if fleet_fault(det, np.asarray(st.direction)) >= 0:
-                fleet_hit = np.logical_or.accumulate(fleet_over)
+            fleet_over = st.fleet_crossed | np.logical_or.accumulate(fleet_stat > st.fleet_h)
+            named_fleet = fleet_fault(det, np.asarray(st.direction))
+            fleet_hit = fleet_over & _fleet_like(det, st.direction, d, wssr, f, best,
+                                                 named_fleet) & (named_fleet >= 0)
         G = G[:, : len(cand)]
         crossed = st.crossed | np.logical_or.accumulate(over)
         lag = max(cfg.hold, 1) - 1
@@ -927,8 +933,9 @@ def _active(
     if not hit.any():
         new_cross = crossed[-1] and not st.crossed
         kc = int(np.argmax(crossed)) if new_cross else -1
-        return _carry(det, st, cycles[-1], len(x), c_min[-1], bank_sum, bank_min,
-                      crossed[-1], G, kc, named, ok if z is not None else None), None
+        return replace(_carry(det, st, cycles[-1], len(x), c_min[-1], bank_sum, bank_min,
+                              crossed[-1], G, kc, named, ok if z is not None else None),
+                       fleet_crossed=bool(fleet_over[-1])), None
     k = int(np.argmax(hit))
     kinds = [kind for kind, h in ((DIRECTIONAL, bank_hit), (LIMIT, limit_hit), (RATE, rate_hit))
              if h[k]]
@@ -965,6 +972,19 @@ def _active(
             threshold=float(delta[i]), baseline_start=b0, change=d[k],
         )
     return WearState(cycle=float(cycles[-1]), k=st.k + len(x), alerted=True, x0=st.x0), alert
+
+
+def _fleet_like(
+    det: WearDetector, direction: tuple[float, ...], d: np.ndarray, wssr: np.ndarray,
+    f: np.ndarray, best: np.ndarray, named: int,
+) -> np.ndarray:
+    """Per record: whether the engine's own change d [K, m] is the fleet's kind of wear: it
+    is attributed to the fleet's fault, or the fleet direction's tuner change H v fits it
+    (f > 0) at least as well as every candidate fault that fits it with f > 0 (WSSR)."""
+    w_v, f_v = attribute(d, det.W, (det.H @ np.asarray(direction, float))[:, None])
+    allowed = det.candidates[None, :] & (f > 0)
+    w_best = np.where(allowed, wssr, np.inf).min(axis=1)
+    return (best == named) | ((f_v[:, 0] > 0) & (w_v[:, 0] <= det.settings.confidence * w_best))
 
 
 def _bank_threshold(det: WearDetector, st: WearState) -> float:
@@ -1141,13 +1161,15 @@ def latest_drift(
     return tuple(fault_drift(det, armed[-cfg.drift_tail :].mean(axis=0) - x0).tolist())
 
 
-def fleet_direction(drifts: Sequence[np.ndarray | tuple[float, ...]]) -> np.ndarray | None:
+def fleet_direction(
+    drifts: Sequence[np.ndarray | tuple[float, ...]], least: int = 1
+) -> np.ndarray | None:
     """The fleet's wear direction [n] from other engines' drifts: the mean of their unit
     drifts (each engine counted alike, however far it has worn), itself of unit length; None
-    without a drift (or with drifts that cancel)."""
+    with fewer than ``least`` drifts (``WearSettings.fleet_min``) or drifts that cancel."""
     units = [d / np.linalg.norm(d) for d in (np.asarray(v, float) for v in drifts)
              if np.linalg.norm(d) > 0]
-    if not units:
+    if not units or len(units) < least:
         return None
     v = np.mean(units, axis=0)
     size = float(np.linalg.norm(v))

@@ -151,7 +151,7 @@ def wear_document(state: WearState) -> dict[str, Any]:
         "recent": [[b, ok] for b, ok in state.recent], "alerted": state.alerted,
         "bank_h": state.bank_h,
         "direction": None if state.direction is None else list(state.direction),
-        "fleet_h": state.fleet_h,
+        "fleet_h": state.fleet_h, "fleet_crossed": state.fleet_crossed,
         "drift": None if state.drift is None else list(state.drift),
     }
 
@@ -186,6 +186,7 @@ def wear_from_document(d: Mapping[str, Any] | None) -> WearState:
         recent=tuple((int(b), bool(ok)) for b, ok in d["recent"]), alerted=bool(d["alerted"]),
         bank_h=None if bank_h is None else float(bank_h), direction=optional("direction"),
         fleet_h=None if d.get("fleet_h") is None else float(d["fleet_h"]),
+        fleet_crossed=bool(d.get("fleet_crossed", False)),
         drift=optional("drift"),
     )
 

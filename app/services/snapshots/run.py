@@ -312,7 +312,8 @@ def _wear_runs(
         direction = r.state.wear.direction
         if direction is None:
             learnt = fleet_direction([*fleet, *(d for i, d in enumerate(drifts)
-                                                if i != e and d is not None)])
+                                                if i != e and d is not None)],
+                                     det.settings.fleet_min)
             direction = None if learnt is None else tuple(learnt.tolist())
         zf = None if direction is None else along(j.parts, np.asarray(direction),
                                                    det.candidates)

@@ -99,11 +99,6 @@ def test_fd001_import_alerts_every_unit_before_failure_and_names_hpc(
 
 
 @pytest.mark.skipif(not FD001.exists(), reason=f"no C-MAPSS file at {FD001}")
-@pytest.mark.xfail(strict=True, reason=(
-    "target missed: the bank's threshold calibrated by Monte Carlo to the issue's budget (1 "
-    "false alert per engine-year from a stretch's start; one record a day as imported) "
-    "crosses a median 119.5 cycles before failure, the naive CUSUM 121.5, and the "
-    "attribution's wait for a confident fault leaves 112.5 (bench/bench_wear.py)"))
 def test_fd001_import_median_lead_at_least_the_naive_signature_cusum(
     fd001_product: dict[str, list[int]],
 ) -> None:
