@@ -971,7 +971,8 @@ def _active(
             wssr=wssr[k], f=f[k], magnitude=float(mag[k]), statistic=float(gk[i]),
             threshold=float(delta[i]), baseline_start=b0, change=d[k],
         )
-    return WearState(cycle=float(cycles[-1]), k=st.k + len(x), alerted=True, x0=st.x0), alert
+    return WearState(cycle=float(cycles[-1]), k=st.k + len(x), alerted=True, x0=st.x0,
+                     direction=st.direction), alert
 
 
 def _fleet_like(

@@ -367,11 +367,12 @@ def _joined(pieces: Sequence[WearInput]) -> WearInput | None:
     """An engine's chunks of wear input as one (None without a record)."""
     if len(pieces) <= 1:
         return pieces[0] if pieces else None
-    return WearInput(
-        *(np.concatenate([getattr(p, f) for p in pieces]) for f in ("q", "new_flight",
-                                                                      "resets", "z")),
-        MatchedParts(np.concatenate([p.parts.num for p in pieces]),
-                     np.concatenate([p.parts.gram for p in pieces])))
+    def joined(name: str) -> np.ndarray:
+        return np.concatenate([getattr(p, name) for p in pieces])
+
+    return WearInput(joined("q"), joined("new_flight"), joined("resets"), joined("z"),
+                     MatchedParts(np.concatenate([p.parts.num for p in pieces]),
+                                  np.concatenate([p.parts.gram for p in pieces])))
 
 
 def _wear_watched(

@@ -211,3 +211,20 @@ def test_wear_states_stored_before_the_record_rate_read_with_the_nominal_thresho
     read = detector.wear_from_document(old)
     assert read.t_rows == () and read.bank_h is None
     assert read == wear.replace_state(st, t_rows=(), bank_h=None)
+
+
+def test_wear_states_with_a_fleet_direction_round_trip_and_older_ones_read_without() -> None:
+    """The fleet CUSUM's part of a wear state (its direction, threshold, latch and the
+    engine's drift) round-trips through the stored document; a state stored before it reads
+    without one (no fleet CUSUM until the engine's next stretch)."""
+    st = wear.WearState(cycle=40.0, k=60, x0=(0.1, -0.2), mu=(0.0, 0.5, 0.25),
+                        sd=(1.0, 1.5, 0.75), bank_sum=(3, -2, 7), bank_min=(0, -4, 0),
+                        bank_h=6.9, direction=(0.0, 0.6, 0.8), fleet_h=2.83,
+                        fleet_crossed=True, drift=(0.01, 0.2, -0.05))
+    assert detector.wear_from_document(detector.wear_document(st)) == st
+    old = detector.wear_document(st)
+    for key in ("direction", "fleet_h", "fleet_crossed", "drift"):
+        del old[key]
+    read = detector.wear_from_document(old)
+    assert read == wear.replace_state(st, direction=None, fleet_h=None, fleet_crossed=False,
+                                      drift=None)
