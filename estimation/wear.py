@@ -239,6 +239,12 @@ class WearSettings:
     # is theirs, not the fleet's; on the bench ten FD001 units gave the whole fleet's within
     # cos 0.97).
     fleet_min: int = 5
+    # The fleet alert needs the engine's own change to be the fleet's kind of wear: attributed
+    # to the fleet's fault, or the fleet direction fitting it within this WSSR ratio of the
+    # best candidate (``_fleet_like``; <= 0: no condition). Without it an abrupt fault of
+    # another module crossed the fleet CUSUM first and was named as the fleet's fault
+    # (tests/support/test_detection_replay.py); the attribution's own ratio.
+    fleet_fit: float = 1.3
 
 
 @dataclass(frozen=True)
@@ -981,11 +987,14 @@ def _fleet_like(
 ) -> np.ndarray:
     """Per record: whether the engine's own change d [K, m] is the fleet's kind of wear: it
     is attributed to the fleet's fault, or the fleet direction's tuner change H v fits it
-    (f > 0) at least as well as every candidate fault that fits it with f > 0 (WSSR)."""
+    (f > 0) with a WSSR within ``fleet_fit`` times the best candidate's (f > 0)."""
     w_v, f_v = attribute(d, det.W, (det.H @ np.asarray(direction, float))[:, None])
+    ratio = det.settings.fleet_fit
+    if ratio <= 0:
+        return np.ones(len(d), bool)
     allowed = det.candidates[None, :] & (f > 0)
     w_best = np.where(allowed, wssr, np.inf).min(axis=1)
-    return (best == named) | ((f_v[:, 0] > 0) & (w_v[:, 0] <= det.settings.confidence * w_best))
+    return (best == named) | ((f_v[:, 0] > 0) & (w_v[:, 0] <= ratio * w_best))
 
 
 def _bank_threshold(det: WearDetector, st: WearState) -> float:

@@ -40,6 +40,7 @@ from estimation.snapshot import SnapshotState, snapshot_deviation, snapshot_filt
 from estimation.wear import (
     MatchedParts,
     WearDetector,
+    WearSettings,
     WearState,
     along,
     fleet_direction,
@@ -164,6 +165,7 @@ def run_filters(
     est: SnapshotEstimator, runs: Sequence[EngineRun],
     sink: Callable[[rows.Block], None] | None = None,
     fleet: Sequence[tuple[float, ...]] = (),
+    wear_settings: WearSettings | None = None,
 ) -> list[EngineOutput]:
     """Filter, detect and pack every engine's records; engines are batched in the filter.
 
@@ -176,11 +178,14 @@ def run_filters(
     The wear detector runs once the run's filters are done (``_wear_watched``): its fleet
     CUSUM's direction for an engine is learnt from the drifts of the design's other engines,
     those outside the run (``fleet``: their stored states' drifts) and the run's others.
+    ``wear_settings``: the wear detector's (None: the product's, ``WearSettings()``).
     """
     outputs = [EngineOutput([], [], [], r.state, est.layout.width) for r in runs]
     filt = [r.state.filter for r in runs]
     dets = [r.state.detector for r in runs]
     wear_det = wear_detector(est)
+    if wear_settings is not None:
+        wear_det = dataclasses.replace(wear_det, settings=wear_settings)
     wear_in: list[list[WearInput]] = [[] for _ in runs]
     last = [r.state.last_epoch for r in runs]
     longest = max((len(r.epoch) for r in runs), default=0)
