@@ -100,55 +100,52 @@ Alerts (the first of a stretch; one alert per stretch, the next after a reset):
   below one standard deviation (a faster drift is crossed a few records later than with
   0.5; abrupt shifts are the shift detector's).
 
-What the design gives (bench/bench_wear.py). FD001 train as imported (one cycle a day:
-R = 365, ARL 365 records, h = 4.35): the bank crosses a median 119.5 cycles before failure
-and alerts, once the attribution is confident (ratio 1.3 on one record), 112.5 cycles before
-on 100/100 engines, 91 % HPC, against 121.5 for a naive signature CUSUM (HPC direction,
-reference 0.5, threshold 5, its 30-record baseline taken as exact: a false alarm on 43 % of
-white-noise engines within 350 armed records where the bank crosses on 28 %). The demo
-fleet (R about 1485, h = 6.10): 0.04 false wear alerts per engine-year. The lead target is
-missed twice over: the crossing itself, at the budget met from a stretch's start, trails the
-naive CUSUM by 2 cycles, and the attribution waits 7 more: at the crossing the tuner change
-names LPC on about a quarter of the engines (LPC and HPC deterioration look alike in the
-tuners). At h = 4.35 ratio 1.2 on one record gives 115.5 cycles at 88 % HPC, 1.3 on two
-records 108.5 at 92 %, 1.5 on one 106.0 at 94 %. Explored on the threshold met at one
-engine-year only (h = 3.22, crossing 125.5 cycles ahead; ratio 1.5 on one record 114.5 at
-91 %, 1.3 120.0 at 86 %) and no better at 90 % HPC or more: attributing the mean tuner
-change of the last 5-20 records; the WSSR summed over the records since the crossing; the
-sensor-space WSSR of the mean sensor deviation since the baseline (53 % HPC: the design's
-noise variances are far from FD001's); the tuner change that fits that mean deviation by
-least squares (70 % at 1.5); the filter covariance's inverse as the weight (76 %); the
-tuner trend over the last 30 records (a slope with an intercept, free
-of the baseline's error: 97 % HPC at ratio 1.5 but 110 cycles; either it or the record's
-change at 1.5: 121.0 at 90 %; at h = 4.35, either at 1.3: 116.0 at 91 %); other bank
-references and allowances (kappa 0.1-0.5, alpha 0-0.2, each with its threshold met at one
-engine-year: crossings 123-127 cycles ahead, alerts 109-115 at ratio 1.5).
-The fleet's wear direction learnt from the data (bench/bench_wear.py --learnt; bench only):
-for engine i, each other engine's accumulated change in the candidate faults' magnitudes
-(the weighted least-squares fit of each record's sensor deviations on the signatures, its
-mean over the last 20 records less its mean over the bank's baseline), the mean of their
-unit changes v, and ONE matched-filter CUSUM along it (signature G_k v) beside the bank,
-standardised as the bank is, its threshold calibrated for a single CUSUM; its alert names,
-at the crossing, the fault the fleet's mean tuner change is attributed to (HPC on FD001,
-WSSR ratio 2.4). Learnt from the 99 others, v is HPC 0.85, LPC 0.43, HPT -0.23, LPT -0.15,
-Fan 0.10. With the full budget for each (h = 4.35 and 2.75): 123.0 cycles at 93 % HPC, but
-the two together then cross white noise at about twice the rate (0.106 of engines within 24
-armed records where 1 per engine-year allows 0.064). With the budget split so the two
-together meet 1 per engine-year at every horizon (the bank 0.1, h = 6.95; the learnt CUSUM
-0.9, h = 2.83): 121.0 cycles before failure, 100/100 engines, 97 % HPC (the learnt CUSUM
-alone 120.5 at 100 %), against the naive's 121.5: missed by half a cycle; splits 0.5/0.5
-and 0.25/0.75: 120.5 and 121.0; the changes as units of sensor-signature size instead of
-fault magnitude: 121.0; the last 10 or 40 records instead of 20: 121.0. Learnt from the
-first 20 or 10 units only (a fleet starting out; v within cos 0.97-0.98 of the whole
-fleet's, still HPC-led): 122.0 at 97 % (122.5 in signature units). The library's HPC
-signature itself as the direction: 117.0, so the learnt direction fits FD001's wear better
-than the library's HPC fault, and the naive's 121.5 comes from its allowances (its baseline
-taken as exact: 43 % of white engines alarmed within 350 records). Naming the alert by the
-signature nearest G v names LPC (WSSR ratio 1.2-1.5; 0-20 % HPC): LPC and HPC deterioration
-look alike in the sensors, the tuner change tells them apart. The demo fleet (its direction
-learnt from its own other engines' stretches): no false alert from the learnt CUSUM, 0.04 per
-engine-year with the detector's. Parity with the naive, not a margin over it: not in the
-product.
+What the bank alone gives (bench/bench_wear.py; with the fleet CUSUM below, the product's
+figures differ). FD001 train as imported (one cycle a day: R = 365, ARL 365 records, h =
+4.35): the bank crosses a median 119.5 cycles before failure and alerts, once the
+attribution is confident (ratio 1.3 on one record), 112.5 cycles before on 100/100 engines,
+91 % HPC, against 121.5 for a naive signature CUSUM (HPC direction, reference 0.5, threshold
+5, its 30-record baseline taken as exact: a false alarm on 43 % of white-noise engines
+within 350 armed records where the bank crosses on 28 %). The demo fleet (R about 1485, h =
+6.10): 0.04 false wear alerts per engine-year. Alone, the bank misses the lead target twice
+over: the crossing itself, at the budget met from a stretch's start, trails the naive CUSUM
+by 2 cycles, and the attribution waits 7 more: at the crossing the tuner change names LPC on
+about a quarter of the engines (LPC and HPC deterioration look alike in the tuners). At h =
+4.35 ratio 1.2 on one record gives 115.5 cycles at 88 % HPC, 1.3 on two records 108.5 at 92
+%, 1.5 on one 106.0 at 94 %. Explored on the threshold met at one engine-year only (h =
+3.22, crossing 125.5 cycles ahead; ratio 1.5 on one record 114.5 at 91 %, 1.3 120.0 at 86 %)
+and no better at 90 % HPC or more: attributing the mean tuner change of the last 5-20
+records; the WSSR summed over the records since the crossing; the sensor-space WSSR of the
+mean sensor deviation since the baseline (53 % HPC: the design's noise variances are far
+from FD001's); the tuner change that fits that mean deviation by least squares (70 % at
+1.5); the filter covariance's inverse as the weight (76 %); the tuner trend over the last 30
+records (a slope with an intercept, free of the baseline's error: 97 % HPC at ratio 1.5 but
+110 cycles; either it or the record's change at 1.5: 121.0 at 90 %; at h = 4.35, either at
+1.3: 116.0 at 91 %); other bank references and allowances (kappa 0.1-0.5, alpha 0-0.2, each
+with its threshold met at one engine-year: crossings 123-127 cycles ahead, alerts 109-115 at
+ratio 1.5).
+The fleet CUSUM (``fleet``; docs/math.md section 13): a design's engines wear along their
+own mix of the library's faults, learnt from the other engines, never the one scored. An
+engine's drift theta (``latest_drift``) is its latest stretch's change, the mean of its last
+``drift_tail`` armed tuner estimates less x_0, as candidate magnitudes by the weighted
+least-squares fit on the candidates together (``fault_drift``); the fleet direction for an
+engine is v = mean of the other engines' unit drifts, normalised (``fleet_direction``; at
+least ``fleet_min`` of them). A stretch adopts v at its first record and keeps it; its
+matched filter along the signature G_k v (``along``) is the bank's last column, standardised
+as the bank's candidates are. The budget is split (``_budgets``): ``fleet_share`` = 0.9 to the
+fleet CUSUM (calibrated as a bank of one: h = 2.83 on FD001), 0.1 to the bank (h = 6.95). Its
+alert names the fault v's tuner change H v is attributed to (``fleet_fault``, confident at
+``confidence``; else no fleet alert), at the first record after its crossing whose own change
+is of the fleet's kind (``_fleet_like``: attributed to that fault, or fitted by H v within
+``fleet_fit`` times the best candidate's WSSR): an abrupt fault of another module is left to
+the shift detector. FD001 through the product (bench/bench_wear.py): 100/100 engines, median
+121.5 cycles before failure, 99 % HPC, against the naive's 121.5 (parity); without the
+change-kind condition 122.0, fleet_fit 1.0 121.0, fleet_share 0.75 120.0; v for unit 1 from
+the other 99: HPC 0.87, LPC 0.43, HPT -0.18, Fan 0.12, LPT -0.03, attributed to HPC. Before
+it entered the product the bench measured the same idea with the drift fitted on the
+sensor deviations (121.0, its alert at the crossing) and the library's HPC signature as the
+direction (117.0): the learnt direction fits FD001's wear better than the library's fault.
+``wear_scan`` (this module's batch form) has no fleet CUSUM: the bank alone.
 Tried on an earlier design (Siegmund's threshold, ARL 2000 records) and no better by more
 than a cycle or two at the same false alerts: a GLR for a ramp or step onset (level unknown,
 or known up to the baseline's error), a shorter settle or baseline, a longer bank baseline, a
