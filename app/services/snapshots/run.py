@@ -61,6 +61,10 @@ CHECKPOINT_EVERY = 1024
 # design of the reference model, about 29,000 records a call; larger calls measured no faster).
 CHUNK_BYTES = 64 * 2**20
 SIGNATURE_BLOCK = 2048  # records per block of ``_fault_signatures`` (its terms stay in cache)
+# Bytes of wear input kept per call until its filters are done (``WearInput``, about 400 a
+# record for the demo's design: some 330,000 records); a larger run goes in parts of whole
+# engines, each part's fleet directions learning from the earlier parts' drifts too.
+WEAR_BYTES = 128 * 2**20
 
 
 @dataclass(frozen=True, eq=False)
@@ -178,8 +182,42 @@ def run_filters(
     The wear detector runs once the run's filters are done (``_wear_watched``): its fleet
     CUSUM's direction for an engine is learnt from the drifts of the design's other engines,
     those outside the run (``fleet``: their stored states' drifts) and the run's others.
-    ``wear_settings``: the wear detector's (None: the product's, ``WearSettings()``).
+    ``wear_settings``: the wear detector's (None: the product's, ``WearSettings()``). The
+    wear input kept for that is bounded (``WEAR_BYTES``): a larger run goes in parts of whole
+    engines, each part also learning from the earlier parts' drifts.
     """
+    per_record = _wear_record_bytes(est)
+    outputs: list[EngineOutput] = []
+    learnt = list(fleet)
+    part: list[EngineRun] = []
+    size = 0
+    for r in [*runs, None]:
+        if r is None or (part and size + len(r.epoch) * per_record > WEAR_BYTES):
+            done = _run_part(est, part, sink, learnt, wear_settings)
+            learnt += [o.state.wear.drift for o in done if o.state.wear.drift is not None]
+            outputs += done
+            part, size = [], 0
+        if r is not None:
+            part.append(r)
+            size += len(r.epoch) * per_record
+    return outputs
+
+
+def _wear_record_bytes(est: SnapshotEstimator) -> int:
+    """Bytes of one record's ``WearInput``: q, z, the matched-filter sums and two flags."""
+    n = est.S_full.shape[1]
+    c = int(np.sum(health_candidates(est.S_full, len(est.layout.health))))
+    return 8 * (est.m + n + c + c * c) + 2
+
+
+def _run_part(
+    est: SnapshotEstimator, runs: Sequence[EngineRun],
+    sink: Callable[[rows.Block], None] | None, fleet: Sequence[tuple[float, ...]],
+    wear_settings: WearSettings | None,
+) -> list[EngineOutput]:
+    """``run_filters`` on engines whose wear input fits ``WEAR_BYTES`` together."""
+    if not runs:
+        return []
     outputs = [EngineOutput([], [], [], r.state, est.layout.width) for r in runs]
     filt = [r.state.filter for r in runs]
     dets = [r.state.detector for r in runs]

@@ -228,3 +228,27 @@ def test_wear_states_with_a_fleet_direction_round_trip_and_older_ones_read_witho
     read = detector.wear_from_document(old)
     assert read == wear.replace_state(st, direction=None, fleet_h=None, fleet_crossed=False,
                                       drift=None)
+
+
+@pytest.mark.skipif(not FD001.exists(), reason=f"no C-MAPSS file at {FD001}")
+def test_a_run_past_the_wear_budget_goes_in_parts_that_learn_from_the_earlier_ones(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """With the wear input bounded to less than an engine (``run.WEAR_BYTES``), a run goes
+    engine by engine: the same estimates, events and states as calling ``run_filters`` on
+    each engine in turn with the drifts of those before it; the sixth engine on adopts a
+    fleet direction."""
+    est = fd001_replay.fd001_estimator(fd001_replay.fd001_schedule())
+    engines = fd001_replay.fd001_runs(FD001, est, 8)
+    monkeypatch.setattr(run, "WEAR_BYTES", 1)
+    parts = run.run_filters(est, [e.run for e in engines])
+    monkeypatch.undo()
+    drifts: list[tuple[float, ...]] = []
+    for i, (e, out) in enumerate(zip(engines, parts, strict=True)):
+        (alone,) = run.run_filters(est, [e.run], fleet=list(drifts))
+        assert np.array_equal(out.packed, alone.packed, equal_nan=True)
+        assert out.events == alone.events
+        assert out.state.wear == alone.state.wear
+        assert (out.state.wear.direction is None) == (i < wear.WearSettings().fleet_min)
+        assert out.state.wear.drift is not None
+        drifts.append(out.state.wear.drift)
