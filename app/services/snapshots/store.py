@@ -285,16 +285,12 @@ def fleet_drifts(
     """The wear drifts (``estimation.wear.latest_drift``) stored in the states of the design's
     engines other than ``exclude``: what the fleet direction of the engines estimated now
     learns from besides their own run's others (``run.run_filters``)."""
-    docs = session.scalars(
-        select(FilterState.state).where(FilterState.design_id == design_id,
-                                        FilterState.engine_id.not_in(list(exclude)))
+    drifts = session.scalars(
+        select(FilterState.state["wear"]["drift"])  # the drift alone, not the whole state
+        .where(FilterState.design_id == design_id, FilterState.engine_id.not_in(list(exclude)))
+        .order_by(FilterState.engine_id)
     )
-    out = []
-    for doc in docs:
-        drift = (doc.get("wear") or {}).get("drift")
-        if drift is not None:
-            out.append(tuple(float(v) for v in drift))
-    return out
+    return [tuple(float(v) for v in drift) for drift in drifts if drift is not None]
 
 
 def _prepare_runs(
