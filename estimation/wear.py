@@ -130,12 +130,13 @@ engine's drift theta (``latest_drift``) is its latest stretch's change, the mean
 ``drift_tail`` armed tuner estimates less x_0, as candidate magnitudes by the weighted
 least-squares fit on the candidates together (``fault_drift``); the fleet direction for an
 engine is v = mean of the other engines' unit drifts, normalised (``fleet_direction``; at
-least ``fleet_min`` of them). A stretch adopts v at its first record and keeps it; its
+least ``fleet_min`` of them, and v attributed to a fault: ``learnt_direction``). A stretch
+adopts v at its first record and keeps it; its
 matched filter along the signature G_k v (``along``) is the bank's last column, standardised
 as the bank's candidates are. The budget is split (``_budgets``): ``fleet_share`` = 0.9 to the
 fleet CUSUM (calibrated as a bank of one: h = 2.83 on FD001), 0.1 to the bank (h = 6.95). Its
 alert names the fault v's tuner change H v is attributed to (``fleet_fault``, confident at
-``confidence``; else no fleet alert), at the first record after its crossing whose own change
+``confidence``), at the first record after its crossing whose own change
 is of the fleet's kind (``_fleet_like``: attributed to that fault, or fitted by H v within
 ``fleet_fit`` times the best candidate's WSSR): an abrupt fault of another module is left to
 the shift detector. FD001 through the product (bench/bench_wear.py): 100/100 engines, median
@@ -1181,6 +1182,18 @@ def fleet_direction(
     v = np.mean(units, axis=0)
     size = float(np.linalg.norm(v))
     return v / size if size > 0 else None
+
+
+def learnt_direction(
+    det: WearDetector, drifts: Sequence[np.ndarray | tuple[float, ...]]
+) -> tuple[float, ...] | None:
+    """The fleet direction a stretch adopts from the other engines' drifts: the
+    ``fleet_direction`` of at least ``fleet_min`` of them, if it is attributed to a fault
+    (``fleet_fault``); None otherwise (the bank then keeps the whole budget)."""
+    v = fleet_direction(drifts, det.settings.fleet_min)
+    if v is None or fleet_fault(det, v) < 0:
+        return None
+    return tuple(v.tolist())
 
 
 def fleet_fault(det: WearDetector, direction: np.ndarray) -> int:

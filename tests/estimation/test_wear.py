@@ -627,3 +627,18 @@ def test_fleet_alert_waits_for_a_change_of_the_fleets_kind() -> None:
     run = wear.wear_steps(det, wear.WearState(), x, new_cycle, resets, z, direction=v, zf=zf)
     assert all(a.kind != wear.FLEET for a in run.alerts)
     assert run.state.direction is not None
+
+
+def test_a_direction_adopted_only_when_attributed_to_a_fault() -> None:
+    """The learnt direction a stretch adopts: enough drifts and a confident attribution of
+    its tuner change (along one fault: that fault; halfway between two: none, and the bank
+    keeps the whole budget)."""
+    H, W = np.eye(5)[:, :4], np.eye(5)
+    det = wear.WearDetector(H, W, np.array([True, True, True, False]), wear.WearSettings())
+    one = [np.array([0.0, 1.0 + 0.01 * k, 0.0, 0.0]) for k in range(5)]
+    assert wear.learnt_direction(det, one) == (0.0, 1.0, 0.0, 0.0)
+    assert wear.fleet_fault(det, np.array([0.0, 1.0, 0.0, 0.0])) == 1
+    assert wear.learnt_direction(det, one[:4]) is None  # fewer than fleet_min
+    two = [np.array([1.0, 1.0, 0.0, 0.0])] * 5
+    assert wear.fleet_fault(det, np.array([1.0, 1.0, 0.0, 0.0]) / np.sqrt(2.0)) == -1
+    assert wear.learnt_direction(det, two) is None

@@ -43,10 +43,10 @@ from estimation.wear import (
     WearSettings,
     WearState,
     along,
-    fleet_direction,
     health_candidates,
     health_weight,
     latest_drift,
+    learnt_direction,
     matched_parts,
     matched_rows,
     wear_steps,
@@ -354,10 +354,8 @@ def _wear_runs(
             continue
         direction = r.state.wear.direction
         if direction is None:
-            learnt = fleet_direction([*fleet, *(d for i, d in enumerate(drifts)
-                                                if i != e and d is not None)],
-                                     det.settings.fleet_min)
-            direction = None if learnt is None else tuple(learnt.tolist())
+            direction = learnt_direction(det, [*fleet, *(d for i, d in enumerate(drifts)
+                                                         if i != e and d is not None)])
         zf = None if direction is None else along(j.parts, np.asarray(direction),
                                                    det.candidates)
         state = _wear_watched(det, r.state.wear, r, j.q, j.new_flight, j.resets, j.z, out,
