@@ -3,7 +3,8 @@ its recursion, a drift along a known fault alerted and attributed, the false-ala
 drift CUSUM against Siegmund's approximation (seeded Monte Carlo), the directional bank on
 sensor deviations (a drift alerted sooner and named, its family-wise false-alarm rate against
 the same approximation) and the FD001 train set (all 100 engines) against the naive signature
-CUSUM computed in the same test."""
+CUSUM computed in the same test; the fleet CUSUM's pieces (an engine's drift, the fleet
+direction, the matched filter along it, its alerts however the records are split)."""
 
 from __future__ import annotations
 
