@@ -131,22 +131,22 @@ engine's drift theta (``latest_drift``) is its latest stretch's change, the mean
 least-squares fit on the candidates together (``fault_drift``); the fleet direction for an
 engine is v = mean of the other engines' unit drifts, normalised (``fleet_direction``; at
 least ``fleet_min`` of them, and v attributed to a fault: ``learnt_direction``). A stretch
-adopts v at its first record and keeps it; its
-matched filter along the signature G_k v (``along``) is the bank's last column, standardised
-as the bank's candidates are. The budget is split (``_budgets``): ``fleet_share`` = 0.9 to the
-fleet CUSUM (calibrated as a bank of one: h = 2.83 on FD001), 0.1 to the bank (h = 6.95). Its
-alert names the fault v's tuner change H v is attributed to (``fleet_fault``, confident at
-``confidence``), at the first record after its crossing whose own change
-is of the fleet's kind (``_fleet_like``: attributed to that fault, or fitted by H v within
-``fleet_fit`` times the best candidate's WSSR): an abrupt fault of another module is left to
-the shift detector. FD001 through the product (bench/bench_wear.py): 100/100 engines, median
-121.5 cycles before failure, 99 % HPC, against the naive's 121.5 (parity); without the
-change-kind condition 122.0, fleet_fit 1.0 121.0, fleet_share 0.75 120.0; v for unit 1 from
-the other 99: HPC 0.87, LPC 0.43, HPT -0.18, Fan 0.12, LPT -0.03, attributed to HPC. Before
-it entered the product the bench measured the same idea with the drift fitted on the
-sensor deviations (121.0, its alert at the crossing) and the library's HPC signature as the
-direction (117.0): the learnt direction fits FD001's wear better than the library's fault.
-``wear_scan`` (this module's batch form) has no fleet CUSUM: the bank alone.
+adopts v at its first record and keeps it; its matched filter along the signature G_k v
+(``along``) is the bank's last column, standardised as the bank's candidates are. The budget
+is split (``_budgets``): ``fleet_share`` = 0.9 to the fleet CUSUM (calibrated as a bank of
+one: h = 2.83 on FD001), 0.1 to the bank (h = 6.95). Its alert names the fault v's tuner
+change H v is attributed to (``fleet_fault``, confident at ``confidence``), at the first
+record after its crossing whose own change is of the fleet's kind (``_fleet_like``:
+attributed to that fault, or fitted by H v within ``fleet_fit`` times the best candidate's
+WSSR): an abrupt fault of another module is left to the shift detector. FD001 through the
+product (bench/bench_wear.py): 100/100 engines, median 121.5 cycles before failure, 99 %
+HPC, against the naive's 121.5 (parity); without the change-kind condition 122.0, fleet_fit
+1.0 121.0, fleet_share 0.75 120.0; v for unit 1 from the other 99: HPC 0.87, LPC 0.43, HPT
+-0.18, Fan 0.12, LPT -0.03, attributed to HPC. Before it entered the product the bench
+measured the same idea with the drift fitted on the sensor deviations (121.0, its alert at
+the crossing) and the library's HPC signature as the direction (117.0): the learnt direction
+fits FD001's wear better than the library's fault. ``wear_scan`` (this module's batch form)
+has no fleet CUSUM: the bank alone.
 Tried on an earlier design (Siegmund's threshold, ARL 2000 records) and no better by more
 than a cycle or two at the same false alerts: a GLR for a ramp or step onset (level unknown,
 or known up to the baseline's error), a shorter settle or baseline, a longer bank baseline, a
@@ -229,8 +229,9 @@ class WearSettings:
     rate_with_bank: bool = False
     # The fleet CUSUM (``fleet_direction``): its share of the false-alert budget where it
     # runs (the bank keeps the rest), and the latest records whose mean is an engine's drift.
-    # The split 0.1 / 0.9 and the tail of 20 records as measured on the bench before the
-    # fleet CUSUM entered the product (bench/README.md); not tuned on FD001's leads since.
+    # The split 0.9 / 0.1 and the tail of 20 records as chosen on the bench's FD001 leads
+    # before the fleet CUSUM entered the product (bench/README.md: shares 0.75 and 0.5 and
+    # tails of 10 and 40 records gave no more lead).
     fleet_share: float = 0.9
     drift_tail: int = 20
     # Fewer other engines with a drift: no fleet direction (a direction of one or two engines
@@ -241,7 +242,8 @@ class WearSettings:
     # to the fleet's fault, or the fleet direction fitting it within this WSSR ratio of the
     # best candidate (``_fleet_like``; <= 0: no condition). Without it an abrupt fault of
     # another module crossed the fleet CUSUM first and was named as the fleet's fault
-    # (tests/support/test_detection_replay.py); the attribution's own ratio.
+    # (tests/support/test_detection_replay.py). The attribution's own ratio (``confidence``);
+    # 1.0 measured half a cycle less FD001 lead (bench/README.md).
     fleet_fit: float = 1.3
 
 
@@ -719,11 +721,11 @@ class WearState:
     record rate measured over the baseline; None in states stored before it was: the
     nominal rate's), recent (best fault, confident) of the
     last hold - 1 records; alerted: the stretch has had its alert (x0 kept). direction: the
-    fleet direction [n] the stretch adopted at its first record (``fleet_direction``; None:
+    fleet direction [n] the stretch adopted at its first record (``learnt_direction``; None:
     no fleet CUSUM this stretch), its CUSUM the bank's last column (z_rows, mu, sd,
     bank_sum, bank_min then have n + 1 entries), fleet_h its threshold, fleet_crossed its
-    latch; drift: the engine's
-    latest change in fault magnitudes (``latest_drift``), what the fleet learns from."""
+    latch; drift: the engine's latest change in fault magnitudes (``latest_drift``), what
+    the fleet learns from."""
 
     cycle: float = 0.0
     k: int = 0
@@ -986,10 +988,10 @@ def _fleet_like(
     """Per record: whether the engine's own change d [K, m] is the fleet's kind of wear: it
     is attributed to the fleet's fault, or the fleet direction's tuner change H v fits it
     (f > 0) with a WSSR within ``fleet_fit`` times the best candidate's (f > 0)."""
-    w_v, f_v = attribute(d, det.W, (det.H @ np.asarray(direction, float))[:, None])
     ratio = det.settings.fleet_fit
     if ratio <= 0:
         return np.ones(len(d), bool)
+    w_v, f_v = attribute(d, det.W, (det.H @ np.asarray(direction, float))[:, None])
     allowed = det.candidates[None, :] & (f > 0)
     w_best = np.where(allowed, wssr, np.inf).min(axis=1)
     return (best == named) | ((f_v[:, 0] > 0) & (w_v[:, 0] <= ratio * w_best))
