@@ -9,30 +9,21 @@ before failure), share of alerts attributed to HPC; the product's own shift dete
 Demo fleet (``app.services.demo.fleet``, simulated, built-in engine): wear alerts outside the
 injected faults' windows per engine-year.
 
-Next to the detector's own figures (``wear_scan`` on the filter's estimates, cycles as C-MAPSS
-counts them, default settings unless given), the product path's: the ``wear`` events
+Next to the bank alone (``wear_scan`` on the filter's estimates, cycles as C-MAPSS counts them,
+default settings unless given: no fleet direction), the product path's: the ``wear`` events
 ``run_filters`` raises itself (``estimation.wear.wear_steps`` record by record, cycles counted
-in flights, default settings), on FD001 with the design ``fleethealth import-cmapss`` creates
-(the built-in engine's default schedule grid, as a server builds it).
+in flights, default settings: the bank and the fleet CUSUM), on FD001 with the design
+``fleethealth import-cmapss`` creates (the built-in engine's default schedule grid, as a
+server builds it), all units in one batch as a job estimates them after the import. The
+fleet CUSUM (``estimation.wear``: ``fleet_direction``) runs along the wear direction learnt
+from the other engines' drifts (each engine's own left out); the false-alert budget is split
+0.9 / 0.1 between it and the bank. Printed too: the fleet direction of unit 1, the false
+crossings of the bank, the fleet CUSUM and either on seeded white sensor noise at each
+horizon against the budget, and the product under other fleet-CUSUM settings
+(``fleet_variants``; ``--skip-variants``).
 
 The wear detector gets the records' sensor deviations too (its directional CUSUM bank);
 ``--no-bank`` scans the tuner estimates alone (limit and rate alerts).
-
-Experiment ``--learnt TAIL`` (bench only, not in the product): the fleet's wear direction
-learnt from the other engines (leave-one-out): each engine's accumulated change in the
-candidate faults' magnitudes (``wear_drift``: the weighted least-squares fit of each record's
-sensor deviation on the signatures, its mean over the last TAIL records less its mean over
-the bank's baseline), the mean of the engines' unit changes (``fleet_direction``), and ONE
-matched-filter CUSUM along it (signature G_k v) standardised as the bank is, its threshold
-calibrated for a single CUSUM at ``--learnt-per-year`` false alerts per engine-year (the
-bank's at ``--per-year``: give the two a split of the budget). Its alert names, at the
-crossing, the fault the fleet's mean tuner change is attributed to by the WSSR if that is
-confident ("tuner"; "sensor": the nearest signature to G v; "wssr": the usual wait), and is
-printed alone and as the earlier of it and the detector's own alert ("+bank"), with the
-direction learnt from all other engines and from the first 20 and 10 units only; white
-sensor noise gives the false crossings of the bank, the learnt CUSUM and either at each
-horizon, and the demo fleet (its direction learnt from its own other engines' stretches)
-the false alerts per engine-year.
 
 The acceptance block prints the product's wear events and the naive CUSUM side by side with
 PASS/FAIL. The frontier (``frontier``; ``--skip-frontier``) asks how early the bank could
@@ -47,8 +38,7 @@ CUSUM's own probability on the same noise.
         [--floor 0.03 --limit 1]
         [--kappa 0.25 --alpha 0.05 --per-year 1 | --arl 365 | --h 3] [--siegmund]
         [--bank-rate 1e-3] [--confidence 1.3 --hold 1] [--no-bank]
-        [--horizon 350 --runs 2000 | --skip-frontier]
-        [--learnt 20 --per-year 0.1 --learnt-per-year 0.9]
+        [--horizon 350 --runs 2000 | --skip-frontier] [--white 1000] [--skip-variants]
 
 (The bank's threshold is set from its designed false alerts per engine-year --per-year and
 each engine's record rate over its baseline, by the bank's Monte Carlo calibration
@@ -60,9 +50,9 @@ bank's baseline as exact.)
 from __future__ import annotations
 
 import argparse
-import itertools
 import os
 import time
+from collections import Counter
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -71,7 +61,7 @@ import numpy as np
 
 from app.engine_cache import engine_schedule
 from app.services.demo import fleet
-from app.services.snapshots import run
+from app.services.snapshots import estimator, run
 from estimation import wear
 from estimation.engine.fleet import fleet_snapshots, plan_fleet
 from tests.support import detection_replay, fd001_replay
@@ -86,9 +76,7 @@ def health_candidates(S_full: np.ndarray, p: int) -> np.ndarray:
 
 
 def fd001(path: Path, cfg: wear.WearSettings, units: int | None, use_sensors: bool,
-          cache: Path, learnt_tail: int | None = None,
-          learnt_cfg: wear.WearSettings | None = None,
-          learnt_metric: bool = False) -> Fd001Figures:
+          cache: Path, white_runs: int = 1000) -> Fd001Figures:
     t0 = time.perf_counter()
     est = fd001_replay.fd001_estimator(fd001_replay.fd001_schedule())
     engines = fd001_replay.fd001_runs(path, est, units)
@@ -100,7 +88,6 @@ def fd001(path: Path, cfg: wear.WearSettings, units: int | None, use_sensors: bo
     hpc_hits = 0
     zs: list[tuple[np.ndarray, np.ndarray]] = []
     rates = []
-    learnt: list[LearntEngine] = []
     for e, tr in zip(engines, tracks, strict=True):
         dy, var, sig = fd001_replay.sensor_deviations(est, e.run)
         zs.append((wear.matched_filter(dy, var, sig)[:, cand], e.cycle.astype(float)))
@@ -117,11 +104,6 @@ def fd001(path: Path, cfg: wear.WearSettings, units: int | None, use_sensors: bo
         k = wear.signature_cusum(dy, var, sig[0, :, hpc])
         if k is not None:
             naive.append(int(e.cycle[-1] - e.cycle[k]))
-        if learnt_tail is not None:
-            a0 = scan.alerts[0] if scan.alerts else None
-            learnt.append(LearntEngine(
-                dy, np.asarray(var), sig, e.cycle.astype(float), rates[-1], scan.wssr, scan.f,
-                (a0.index, -1 if a0.fault is None else a0.fault) if a0 else None, k, tr.q))
         shifts = [ev for ev in tr.events if ev.kind != "wear"]
         if shifts:
             product.append((shifts[0], int(e.cycle[-1]) - _cycle_at(e, shifts[0].epoch)))
@@ -130,8 +112,8 @@ def fd001(path: Path, cfg: wear.WearSettings, units: int | None, use_sensors: bo
     est_p = fd001_replay.fd001_estimator(engine_schedule(cache))
     engines_p = fd001_replay.fd001_runs(path, est_p, units)
     wear_events = []
-    for e, tr in zip(engines_p, fd001_replay.filter_tracks(est_p, [e.run for e in engines_p]),
-                     strict=True):
+    tracks_p = fd001_replay.filter_tracks(est_p, [e.run for e in engines_p], batch=256)
+    for e, tr in zip(engines_p, tracks_p, strict=True):
         first = next((ev for ev in tr.events if ev.kind == "wear"), None)
         if first is not None and _cycle_at(e, first.epoch) < int(e.cycle[-1]):
             wear_events.append((first, int(e.cycle[-1]) - _cycle_at(e, first.epoch)))
@@ -146,7 +128,7 @@ def fd001(path: Path, cfg: wear.WearSettings, units: int | None, use_sensors: bo
           f"(reference {design.reference:.3f}, scale {design.scale:.3f})")
     print(f"{'':34s}{'alerted':>10s}{'median lead':>13s}{'HPC share':>11s}")
     print(f"{'target':34s}{n:>7d}/{n:<3d}{'>= naive':>13s}{'>= 90 %':>11s}")
-    print(f"{'filter + wear detector':34s}{len(ours):>7d}/{n:<3d}"
+    print(f"{'bank alone (wear_scan)':34s}{len(ours):>7d}/{n:<3d}"
           f"{_median(ours):>13s}{_share(hpc_hits, len(ours)):>11s}")
     hpc_wear = sum(ev.fault == "HPC" for ev, _ in wear_events)
     print(f"{'product wear events':34s}{len(wear_events):>7d}/{n:<3d}"
@@ -157,7 +139,10 @@ def fd001(path: Path, cfg: wear.WearSettings, units: int | None, use_sensors: bo
     hpc_product = sum(ev.fault == "HPC" for ev, _ in product)
     print(f"{'product shift detector':34s}{len(product):>7d}/{n:<3d}"
           f"{_median([lead for _, lead in product]):>13s}{_share(hpc_product, len(product)):>11s}")
-    print(f"wear alert kinds: {dict(zip(*np.unique(kinds, return_counts=True), strict=True))}")
+    product_kinds = [ev.shift["wear"]["alert"] for ev, _ in wear_events]
+    print(f"bank-alone alert kinds: "
+          f"{dict(Counter(map(str, kinds)))}; product's: "
+          f"{dict(Counter(product_kinds))}")
     leads = [lead for _, lead in wear_events]
     print("\nacceptance, the product's wear events against the naive CUSUM (same records):")
     print(f"{'':34s}{'target':>12s}{'product':>10s}{'naive':>10s}   verdict")
@@ -171,15 +156,18 @@ def fd001(path: Path, cfg: wear.WearSettings, units: int | None, use_sensors: bo
     ]
     for name, target, ours_s, naive_s, ok in rows:
         print(f"{name:34s}{target:>12s}{ours_s:>10s}{naive_s:>10s}   {'PASS' if ok else 'FAIL'}")
-    if learnt_tail is not None:
-        cfg_l = learnt_cfg or cfg
-        fd001_learnt(learnt, cfg_l, cand, hpc, list(est.layout.faults), learnt_tail, W, est.H,
-                     learnt_metric)
-        M = (np.mean([signature_metric(e.sig, e.var, cand) for e in learnt], axis=0)
-             if learnt_metric else None)
-        v = fleet_direction([wear_drift(e.dy, e.var, e.sig, cand, cfg.n_base, learnt_tail)
-                             for e in learnt], M)
-        white_learnt(learnt[0], v, cfg, cfg_l, cand, 1000, 365)
+    # The fleet direction of the first engine (learnt from the 99 others' drifts) and the
+    # false crossings of the bank and the fleet CUSUM on white noise at its budget split.
+    det_p = run.wear_detector(est_p)
+    drifts = [tr.drift for tr in tracks_p]
+    v = wear.fleet_direction([d for d in drifts[1:] if d is not None])
+    if v is not None:
+        named = wear.fleet_fault(det_p, v)
+        print(f"fleet direction of unit 1 (learnt from the other {n - 1}): "
+              + " ".join(f"{f} {x:+.2f}" for f, x, c in zip(est_p.layout.faults, v,
+                                                           det_p.candidates, strict=True) if c)
+              + f"; attributed to {est_p.layout.faults[named] if named >= 0 else 'none'}")
+        white_fleet(est_p, engines_p[0].run, v, wear.WearSettings(), rate, white_runs, 365)
     return Fd001Figures(zs, naive, cfg, rate)
 
 
@@ -266,9 +254,7 @@ def _share(k: int, n: int) -> str:
     return f"{100.0 * k / n:.0f} %" if n else "-"
 
 
-def demo(cfg: wear.WearSettings, cache: Path, use_sensors: bool,
-         learnt_tail: int | None = None, learnt_cfg: wear.WearSettings | None = None,
-         learnt_metric: bool = False) -> None:
+def demo(cfg: wear.WearSettings, cache: Path, use_sensors: bool) -> None:
     t0 = time.perf_counter()
     est = fleet.design_estimator(engine_schedule(cache), *fleet.ACTIVE_DESIGN)
     size = fleet.DemoSize()
@@ -282,7 +268,6 @@ def demo(cfg: wear.WearSettings, cache: Path, use_sensors: bool,
     false, in_fault, years = [], 0, 0.0
     rates = []
     product_false, product_in_fault = 0, 0
-    demo_runs: list[DemoEngine] = []
     outs = run.run_filters(est, [e.run for e in engines])
     for data, out in zip(engines, outs, strict=True):
         q = out.packed.astype(np.float64)[:, s["q"]]
@@ -315,10 +300,6 @@ def demo(cfg: wear.WearSettings, cache: Path, use_sensors: bool,
                     product_false += 1
         rates.append(wear.record_rate(t[: cfg.settle + cfg.n_base]))
         scan = wear.wear_scan(q, est.H, W, cycles, resets, cand, cfg, epoch=t, **sensors)
-        if learnt_tail is not None and sensors:
-            demo_runs.append(DemoEngine(sensors["dy"], np.asarray(sensors["var"]),
-                                        sensors["signatures"], cycles, t, resets, faulty, q,
-                                        scan))
         for a in scan.alerts:
             if faulty[a.index]:
                 in_fault += 1
@@ -339,301 +320,87 @@ def demo(cfg: wear.WearSettings, cache: Path, use_sensors: bool,
           f"{'PASS' if product_rate <= 1.0 else 'FAIL'}); {product_in_fault} in fault windows")
     for item in false[:10]:
         print("  ", item)
-    if learnt_tail is not None:
-        demo_learnt(demo_runs, learnt_cfg or cfg, cand, W, est.H, learnt_tail, years,
-                    learnt_metric)
+    kinds = [ev.shift["wear"]["alert"] for out in outs for ev in out.events
+             if ev.kind == "wear"]
+    directions = sum(out.state.wear.direction is not None for out in outs)
+    print(f"  product wear events by kind: "
+          f"{dict(Counter(map(str, kinds)))}; engines whose "
+          f"latest stretch runs the fleet CUSUM: {directions} of {len(outs)}")
 
 
-# --- Experiment (``--learnt``): the fleet's wear direction learnt from other engines.
+# --- The product's fleet CUSUM (``estimation.wear``: ``fleet_direction``, ``FLEET`` alerts).
 
 
-def wear_drift(dy: np.ndarray, var: np.ndarray, sig: np.ndarray, cand: np.ndarray,
-               n_base: int, tail: int) -> np.ndarray:
-    """One stretch's accumulated change in candidate-fault magnitudes [n_cand]: the weighted
-    least-squares fit theta_k = (G_k^T R^-1 G_k)^-1 G_k^T R^-1 dy_k of each record's sensor
-    deviation on the candidates' signatures, its mean over the last ``tail`` records less its
-    mean over the first ``n_base`` (the bank's baseline)."""
-    G = sig[:, :, cand]
-    present = np.isfinite(dy)
-    w = np.where(present, 1.0 / var, 0.0)
-    A = np.einsum("sjn,sj,sjm->snm", G, w, G) + 1e-9 * np.eye(G.shape[2])
-    b = np.einsum("sjn,sj,sj->sn", G, w, np.where(present, dy, 0.0))
-    theta = np.linalg.solve(A, b[:, :, None])[:, :, 0]
-    return theta[-tail:].mean(axis=0) - theta[:n_base].mean(axis=0)
+def fleet_variants(path: Path, cache: Path, units: int | None, naive: list[int]) -> None:
+    """The product path (``run_filters`` on the design import-cmapss makes, the fleet
+    direction learnt from the other engines of the run and of earlier batches) under other
+    settings of the fleet CUSUM, beside the naive CUSUM's median on the same records."""
+    est = fd001_replay.fd001_estimator(engine_schedule(cache))
+    engines = fd001_replay.fd001_runs(path, est, units)
+    d = wear.WearSettings()
+    variants: list[tuple[str, wear.WearSettings, int]] = [
+        ("product (share 0.9, fit 1.3, min 5)", d, 256),
+        ("fleet alert without the change-kind condition", replace(d, fleet_fit=0.0), 256),
+        ("fleet fit 1.0 (at least as good as the best)", replace(d, fleet_fit=1.0), 256),
+        ("fleet share 0.75", replace(d, fleet_share=0.75), 256),
+        ("fleet share 0.5", replace(d, fleet_share=0.5), 256),
+        ("batches of 20 engines (earlier batches' drifts)", d, 20),
+        ("no fleet direction (the bank alone)", replace(d, fleet_min=10**9), 256),
+    ]
+    print(f"\nthe product's wear events under other fleet-CUSUM settings (naive "
+          f"{_median(naive)} cycles on the same records)")
+    print(f"{'':50s}{'alerted':>10s}{'median lead':>13s}{'HPC':>7s}  kinds")
+    for name, cfg, batch in variants:
+        tracks = fd001_replay.filter_tracks(est, [e.run for e in engines], batch, cfg)
+        leads, hpc, kinds = [], 0, []
+        for e, tr in zip(engines, tracks, strict=True):
+            first = next((ev for ev in tr.events if ev.kind == "wear"), None)
+            if first is not None and _cycle_at(e, first.epoch) < int(e.cycle[-1]):
+                leads.append(int(e.cycle[-1]) - _cycle_at(e, first.epoch))
+                hpc += first.fault == "HPC"
+                kinds.append(first.shift["wear"]["alert"])
+        counts = dict(Counter(map(str, kinds)))
+        print(f"{name:50s}{len(leads):>7d}/{len(engines):<3d}{_median(leads):>13s}"
+              f"{_share(hpc, len(leads)):>7s}  {counts}")
 
 
-def signature_metric(sig: np.ndarray, var: np.ndarray, cand: np.ndarray) -> np.ndarray:
-    """M = mean over records of G_k^T R_k^-1 G_k [n_cand, n_cand]: a change theta in fault
-    magnitudes measured by the size of its sensor signature (|G theta| in noise units)."""
-    G = sig[:, :, cand]
-    return np.einsum("sjn,sj,sjm->nm", G, 1.0 / var, G) / len(G)
-
-
-def fleet_direction(drifts: list[np.ndarray], M: np.ndarray | None = None) -> np.ndarray:
-    """The fleet's wear direction in candidate-fault magnitudes [n_cand]: the mean of the
-    engines' unit drifts (each engine counted alike, however far it has worn), unit in the
-    metric M (None: the magnitudes' own)."""
-    M = np.eye(len(drifts[0])) if M is None else M
-    units = [d / np.sqrt(d @ M @ d) for d in drifts if d @ M @ d > 0]
-    v = np.mean(units, axis=0)
-    return v / np.linalg.norm(v)
-
-
-def nearest_fault(v: np.ndarray, sig: np.ndarray, var: np.ndarray, cand: np.ndarray,
-                  ratio: float) -> tuple[int, bool, float]:
-    """The candidate (index into the candidates) whose signature best explains the learnt
-    direction's signature G v (WSSR in whitened sensor space at the mean condition), whether
-    the runner-up's WSSR is at least ``ratio`` times its, and that WSSR ratio."""
-    G = np.nanmean(sig[:, :, cand], axis=0)
-    w = 1.0 / np.nanmean(var, axis=0)
-    g = G @ v
-    num = (G * w[:, None]).T @ g
-    den = np.einsum("jn,j,jn->n", G, w, G)
-    wssr = np.where(num > 0, g @ (w * g) - num**2 / den, np.inf)
-    order = np.argsort(wssr)
-    r = float(wssr[order[1]] / max(wssr[order[0]], 1e-300))
-    return int(order[0]), r >= ratio, r
-
-
-def direction_alert(z: np.ndarray, cycles: np.ndarray, cfg: wear.WearSettings,
-                    rate: float | None, wssr: np.ndarray, f: np.ndarray, cand: np.ndarray,
-                    named: tuple[int, bool, float]) -> tuple[int, int, int] | None:
-    """One matched-filter CUSUM along the learnt direction on one stretch (z [S], the bank's
-    standardisation and allowances, its threshold calibrated for a single CUSUM at the same
-    budget): (crossing record, alert record, fault index among all faults) or None. The
-    alert names the learnt direction's nearest fault at the crossing if that is confident,
-    else waits for the usual WSSR attribution of the tuner change."""
-    d = wear.bank_design(cfg, 1, rate)
-    top = _bank_max(z[:, None], cycles, cfg, d.reference, d.scale)
-    hit = np.flatnonzero(top > d.threshold)
-    if not len(hit):
-        return None
-    kc = int(hit[0])
-    fault, sure, _ = named
-    if sure:
-        return kc, kc, int(np.flatnonzero(cand)[fault])
-    best, ok = wear.confident_fault(wssr, f, cand, cfg.confidence, cfg.hold)
-    later = np.flatnonzero(ok[kc:])
-    if not len(later):
-        return None
-    k = kc + int(later[0])
-    return kc, k, int(best[k])
-
-
-@dataclass(frozen=True)
-class LearntEngine:
-    """What the learnt-direction experiment needs of one FD001 engine."""
-
-    dy: np.ndarray
-    var: np.ndarray
-    sig: np.ndarray
-    cycles: np.ndarray
-    rate: float | None
-    wssr: np.ndarray
-    f: np.ndarray
-    bank: tuple[int, int] | None  # the product detector's first alert: (record, fault)
-    naive: int | None  # the naive CUSUM's alarm record
-    q: np.ndarray  # the filter's tuner estimates [S, m]
-
-
-def tuner_name(drifts: list[np.ndarray], W: np.ndarray, H: np.ndarray, cand: np.ndarray,
-               ratio: float) -> tuple[int, bool, float]:
-    """The fault the fleet's mean unit tuner change (W norm) is attributed to by the usual
-    WSSR (index among the candidates), whether confidently at ``ratio``, and the ratio."""
-    units = [d / np.sqrt(d @ W @ d) for d in drifts if d @ W @ d > 0]
-    wssr, f = wear.attribute(np.mean(units, axis=0), W, H)
-    best, _ = wear.confident_fault(wssr, f, cand, ratio, 1)
-    others = np.where(cand & (np.arange(len(cand)) != best[0]), wssr[0], np.inf)
-    r = float(others.min() / max(wssr[0, best[0]], 1e-300))
-    return int(np.flatnonzero(np.flatnonzero(cand) == best[0])[0]), r >= ratio, r
-
-
-def _learnt_leads(eng: list[LearntEngine], cfg: wear.WearSettings, cand: np.ndarray,
-                  drifts: list[np.ndarray], pool: list[int] | np.ndarray, naming: str,
-                  tuner_drifts: list[np.ndarray], W: np.ndarray, H: np.ndarray,
-                  M: np.ndarray | None = None) -> dict[str, object]:
-    """The learnt CUSUM's figures with the direction learnt from the engines ``pool`` (each
-    engine's own left out), or given (``pool`` an array: the direction itself)."""
-    full = fleet_direction(drifts, M)
-    given = isinstance(pool, np.ndarray)
-    cross, alert, faults, both, both_faults, cos, sure, ratios = [], [], [], [], [], [], 0, []
-    for i, e in enumerate(eng):
-        v = pool if given else fleet_direction([drifts[j] for j in pool if j != i], M)
-        cos.append(float(v @ full))
-        if naming == "sensor":
-            named = nearest_fault(v, e.sig, e.var, cand, cfg.confidence)
-        elif naming == "tuner":
-            named = tuner_name([tuner_drifts[j] for j in range(len(eng)) if j != i] if given
-                               else [tuner_drifts[j] for j in pool if j != i], W, H, cand,
-                               cfg.confidence)
-        else:
-            named = (0, False, 0.0)
-        sure += named[1]
-        ratios.append(named[2])
-        z = wear.matched_filter(e.dy, e.var, e.sig[:, :, cand] @ v[:, None])[:, 0]
-        res = direction_alert(z, e.cycles, cfg, e.rate, e.wssr, e.f, cand, named)
-        end = e.cycles[-1]
-        firsts = []
-        if res is not None:
-            cross.append(int(end - e.cycles[res[0]]))
-            alert.append(int(end - e.cycles[res[1]]))
-            faults.append(res[2])
-            firsts.append((res[1], res[2]))
-        if e.bank is not None:
-            firsts.append(e.bank)
-        if firsts:
-            k, fault = min(firsts)
-            both.append(int(end - e.cycles[k]))
-            both_faults.append(fault)
-    v = pool if given else fleet_direction([drifts[j] for j in pool], M)
-    return dict(v=v, cross=cross, alert=alert, faults=faults, both=both,
-                both_faults=both_faults, cos=cos, sure=sure, ratios=ratios)
-
-
-def fd001_learnt(eng: list[LearntEngine], cfg: wear.WearSettings, cand: np.ndarray, hpc: int,
-                 names: list[str], tail: int, W: np.ndarray, H: np.ndarray,
-                 metric: bool = False) -> None:
-    """The fleet-direction CUSUM on FD001, leave-one-out, learnt from the whole fleet and from
-    its first 20 and 10 units only (a fleet starting out), beside the product detector."""
-    n = len(eng)
-    drifts = [wear_drift(e.dy, e.var, e.sig, cand, cfg.n_base, tail) for e in eng]
-    M = np.mean([signature_metric(e.sig, e.var, cand) for e in eng], axis=0) if metric else None
-    b0 = cfg.settle
-    tuner_drifts = [e.q[-tail:].mean(axis=0) - e.q[b0 : b0 + cfg.n_base].mean(axis=0)
-                    for e in eng]
-    naive = [int(e.cycles[-1] - e.cycles[e.naive]) for e in eng if e.naive is not None]
-    d1 = wear.bank_design(cfg, 1, float(np.median([e.rate for e in eng if e.rate])))
-    print(f"\nlearnt fleet direction (leave-one-out; drift = fault-magnitude fit, last {tail} "
-          f"records less the first {cfg.n_base}); one CUSUM, h = {d1.threshold:.2f}; naive "
-          f"{_median(naive)} cycles")
-    cn = [names[j] for j in np.flatnonzero(cand)]
-    print("named: the learnt direction's fault named at the crossing (sensor: nearest signature;"
-          " tuner: the fleet's mean tuner change by the WSSR; wssr: never, the usual wait)")
-    print(f"{'learnt from':20s}{'direction (' + ' '.join(cn) + ')':>40s}{'cos min':>9s}"
-          f"{'named':>7s}{'crossing':>10s}{'alert':>8s}{'HPC':>6s}{'n':>5s}"
-          f"{'+bank':>8s}{'HPC':>6s}{'n':>5s}")
-    hpc_given = (np.flatnonzero(cand) == hpc).astype(float)
-    pools: tuple[tuple[str, list[int] | np.ndarray], ...] = (
-        ("all (n-1)", list(range(n))), ("first 20", list(range(min(20, n)))),
-        ("first 10", list(range(min(10, n)))), ("HPC given", hpc_given))
-    for (label, pool), naming in itertools.product(pools, ("sensor", "tuner", "wssr")):
-        r = _learnt_leads(eng, cfg, cand, drifts, pool, naming, tuner_drifts, W, H, M)
-        label = f"{label} {naming}"
-        v = r["v"]
-        print(f"{label:20s}{' '.join(f'{x:+.2f}' for x in v):>40s}{min(r['cos']):>9.3f}"
-              f"{r['sure']:>7d}{_median(r['cross']):>10s}{_median(r['alert']):>8s}"
-              f"{_share(sum(f == hpc for f in r['faults']), len(r['faults'])):>6s}"
-              f"{len(r['alert']):>5d}{_median(r['both']):>8s}"
-              f"{_share(sum(f == hpc for f in r['both_faults']), len(r['both_faults'])):>6s}"
-              f"{len(r['both']):>5d}")
-        print(f"{'':14s}naming WSSR ratio median {np.median(r['ratios']):.2f} "
-              f"(min {min(r['ratios']):.2f})")
-
-
-def white_learnt(eng: LearntEngine, v: np.ndarray, cfg: wear.WearSettings,
-                 cfg_l: wear.WearSettings, cand: np.ndarray, runs: int, horizon: int) -> None:
+def white_fleet(est: estimator.SnapshotEstimator, run0: run.EngineRun, v: np.ndarray,
+                cfg: wear.WearSettings, rate: float | None, runs: int, horizon: int) -> None:
     """White sensor noise at an FD001 engine's noise and signatures (seeded): the share of
-    healthy engines whose bank (the candidates), learnt-direction CUSUM, or either, crosses
-    within ``horizon`` armed records, against the design's 1 - exp(-horizon / ARL)."""
+    healthy engines whose bank, fleet CUSUM (along v, standardised as the bank), or either
+    crosses within T armed records, each at its share of the budget (``wear._budgets``),
+    against the design's 1 - exp(-T / ARL) for the whole budget."""
     rng = np.random.default_rng(20261125)
     b1 = cfg.settle + cfg.n_base
     S = b1 + horizon
-    sig = np.broadcast_to(eng.sig[:1], (S, *eng.sig.shape[1:]))
-    var = np.broadcast_to(eng.var[:1], (S, eng.var.shape[1]))
+    _dy, var0, sig0 = fd001_replay.sensor_deviations(est, run0)
+    cand = wear.health_candidates(est.S_full, len(est.layout.health))
+    sig = np.broadcast_to(sig0[:1], (S, *sig0.shape[1:]))
+    var = np.broadcast_to(var0[:1], (S, var0.shape[1]))
     cyc = np.arange(1.0, S + 1.0)
-    arl = wear.bank_arl(cfg, eng.rate)
-    db = wear.bank_design(cfg, int(cand.sum()), eng.rate)
-    d1 = wear.bank_design(cfg_l, 1, eng.rate)
-    g = sig[:, :, cand]
+    arl = wear.bank_arl(cfg, rate)
+    bank_cfg, fleet_cfg = wear._budgets(cfg, True)
+    assert fleet_cfg is not None
+    db = wear.bank_design(bank_cfg, int(cand.sum()), rate)
+    d1 = wear.bank_design(fleet_cfg, 1, rate)
     horizons = np.array([8, 16, 24, 50, 100, 200, horizon])
     hits = np.zeros((runs, 2, len(horizons)), bool)
     for r in range(runs):
         dy = rng.normal(size=var.shape) * np.sqrt(var)
-        zb = wear.matched_filter(dy, var, g)
-        zl = wear.matched_filter(dy, var, g @ v[:, None])
+        zb = wear.matched_filter(dy, var, sig[:, :, cand])
+        zl = wear.matched_filter(dy, var, sig @ v[:, None])
         at = b1 - 1 + horizons
         hits[r, 0] = _bank_max(zb, cyc, cfg, db.reference, db.scale)[at] > db.threshold
         hits[r, 1] = _bank_max(zl, cyc, cfg, d1.reference, d1.scale)[at] > d1.threshold
-    both = cfg.false_alerts_per_year + cfg_l.false_alerts_per_year
-    arl_both = arl * cfg.false_alerts_per_year / both
     print(f"white sensor noise ({runs} engines, seeded): share of healthy engines crossed within "
-          f"T armed records; design 1 - exp(-T / ARL): the bank's (ARL {arl:.0f}, h = "
-          f"{db.threshold:.2f}) and the two's together ({both:g} per engine-year, ARL "
-          f"{arl_both:.0f}); learnt CUSUM at {cfg_l.false_alerts_per_year:g} per engine-year, "
-          f"h = {d1.threshold:.2f}")
-    print(f"{'T':>6s}{'bank design':>13s}{'bank':>8s}{'learnt':>8s}{'both design':>13s}"
-          f"{'either':>8s}")
+          f"T armed records; design 1 - exp(-T / ARL), ARL {arl:.0f} records (the whole budget); "
+          f"the bank at {bank_cfg.false_alerts_per_year:g} per engine-year (h = "
+          f"{db.threshold:.2f}), the fleet CUSUM at {fleet_cfg.false_alerts_per_year:g} "
+          f"(h = {d1.threshold:.2f})")
+    print(f"{'T':>6s}{'design':>9s}{'bank':>8s}{'fleet':>8s}{'either':>8s}")
     for j, T in enumerate(horizons):
-        print(f"{T:>6d}{-np.expm1(-T / arl):>13.3f}{hits[:, 0, j].mean():>8.3f}"
-              f"{hits[:, 1, j].mean():>8.3f}{-np.expm1(-T / arl_both):>13.3f}"
-              f"{hits[:, :, j].any(axis=1).mean():>8.3f}")
-
-
-
-@dataclass(frozen=True)
-class DemoEngine:
-    """What the learnt-direction experiment needs of one demo engine."""
-
-    dy: np.ndarray
-    var: np.ndarray
-    sig: np.ndarray
-    cycles: np.ndarray
-    epoch: np.ndarray
-    resets: np.ndarray
-    faulty: np.ndarray
-    q: np.ndarray
-    scan: wear.WearScan
-
-
-def demo_learnt(eng: list[DemoEngine], cfg: wear.WearSettings, cand: np.ndarray,
-                W: np.ndarray, H: np.ndarray, tail: int, years: float,
-                metric: bool = False) -> None:
-    """The fleet-direction CUSUM on the demo fleet, its direction learnt from the fleet's own
-    other engines' stretches (leave-one-out, the tuner naming): false alerts in healthy
-    records, alone and with the product detector (the earlier alert of each stretch)."""
-    b1 = cfg.settle + cfg.n_base
-    sens: list[list[np.ndarray]] = []
-    tune: list[list[np.ndarray]] = []
-    for e in eng:
-        sd, td = [], []
-        for s0, s1 in wear._segments(len(e.q), e.resets):
-            if s1 - s0 >= b1 + tail:
-                sd.append(wear_drift(e.dy[s0:s1], e.var[s0:s1], e.sig[s0:s1], cand,
-                                     cfg.n_base, tail))
-                td.append(e.q[s1 - tail : s1].mean(axis=0)
-                          - e.q[s0 + cfg.settle : s0 + b1].mean(axis=0))
-        sens.append(sd)
-        tune.append(td)
-    M = (np.mean([signature_metric(e.sig, e.var, cand) for e in eng], axis=0)
-         if metric else None)
-    false_l, fault_l, false_u, fault_u = 0, 0, 0, 0
-    for i, e in enumerate(eng):
-        v = fleet_direction([d for j, ds in enumerate(sens) if j != i for d in ds], M)
-        named = tuner_name([d for j, ds in enumerate(tune) if j != i for d in ds], W, H, cand,
-                           cfg.confidence)
-        z = wear.matched_filter(e.dy, e.var, e.sig[:, :, cand] @ v[:, None])[:, 0]
-        bank = {a.baseline_start - cfg.settle: a.index for a in e.scan.alerts}
-        for s0, s1 in wear._segments(len(e.q), e.resets):
-            if s1 - s0 <= b1:
-                continue
-            rate = wear.record_rate(e.epoch[s0 : s0 + b1])
-            res = direction_alert(z[s0:s1], e.cycles[s0:s1], cfg, rate, e.scan.wssr[s0:s1],
-                                  e.scan.f[s0:s1], cand, named)
-            k_l = None if res is None else s0 + res[1]
-            if k_l is not None:
-                false_l += not e.faulty[k_l]
-                fault_l += bool(e.faulty[k_l])
-            ks = [k for k in (k_l, bank.get(s0)) if k is not None]
-            if ks:
-                false_u += not e.faulty[min(ks)]
-                fault_u += bool(e.faulty[min(ks)])
-        if i == 0:
-            print(f"demo learnt direction (engine 0's, leave-one-out): "
-                  f"{' '.join(f'{x:+.2f}' for x in v)}; named {named}")
-    print(f"demo learnt-direction CUSUM: {false_l} false = {false_l / years:.2f} per "
-          f"engine-year ({fault_l} in fault windows); with the product detector (the earlier "
-          f"of each stretch): {false_u} false = {false_u / years:.2f} per engine-year "
-          f"({fault_u} in fault windows; target <= 1)")
+        print(f"{T:>6d}{-np.expm1(-T / arl):>9.3f}{hits[:, 0, j].mean():>8.3f}"
+              f"{hits[:, 1, j].mean():>8.3f}{hits[:, :, j].any(axis=1).mean():>8.3f}")
 
 
 def main() -> None:
@@ -664,15 +431,10 @@ def main() -> None:
                     help="frontier: armed records over which the false-alarm rate is met")
     ap.add_argument("--runs", type=int, default=2000, help="frontier: white engines")
     ap.add_argument("--skip-frontier", action="store_true")
-    ap.add_argument("--learnt", type=int, default=None, metavar="TAIL",
-                    help="experiment: the fleet's wear direction learnt from the other engines "
-                    "(their drift over the last TAIL records), one CUSUM along it")
-    ap.add_argument("--learnt-per-year", type=float, default=None,
-                    help="the learnt CUSUM's designed false alerts per engine-year "
-                    "(default --per-year)")
-    ap.add_argument("--learnt-metric", action="store_true",
-                    help="each engine's change counted as a unit in its sensor signature's "
-                    "size (noise units), not in fault magnitudes")
+    ap.add_argument("--white", type=int, default=1000,
+                    help="white-noise engines of the bank and fleet CUSUM false-crossing check")
+    ap.add_argument("--skip-variants", action="store_true",
+                    help="no table of the product's fleet-CUSUM settings")
     args = ap.parse_args()
     cfg = wear.WearSettings(limit=args.limit, rate=args.rate, margin=args.margin,
                             margin_floor=args.floor, bank_reference=args.kappa,
@@ -682,13 +444,13 @@ def main() -> None:
                             bank_rate=args.bank_rate,
                             confidence=args.confidence, hold=args.hold)
     print(_common.load_line())
-    cfg_l = replace(cfg, false_alerts_per_year=args.learnt_per_year or args.per_year)
-    fig = fd001(args.fd001, cfg, args.units, not args.no_bank, args.cache, args.learnt, cfg_l,
-                args.learnt_metric)
+    fig = fd001(args.fd001, cfg, args.units, not args.no_bank, args.cache, args.white)
+    if not args.skip_variants:
+        fleet_variants(args.fd001, args.cache, args.units, fig.naive)
     if not args.skip_frontier:
         frontier(fig, args.horizon, args.runs)
     if not args.skip_demo:
-        demo(cfg, args.cache, not args.no_bank, args.learnt, cfg_l, args.learnt_metric)
+        demo(cfg, args.cache, not args.no_bank)
     print(f"load average at the end {os.getloadavg()[0]:.2f}")
 
 

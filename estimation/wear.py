@@ -100,55 +100,53 @@ Alerts (the first of a stretch; one alert per stretch, the next after a reset):
   below one standard deviation (a faster drift is crossed a few records later than with
   0.5; abrupt shifts are the shift detector's).
 
-What the design gives (bench/bench_wear.py). FD001 train as imported (one cycle a day:
-R = 365, ARL 365 records, h = 4.35): the bank crosses a median 119.5 cycles before failure
-and alerts, once the attribution is confident (ratio 1.3 on one record), 112.5 cycles before
-on 100/100 engines, 91 % HPC, against 121.5 for a naive signature CUSUM (HPC direction,
-reference 0.5, threshold 5, its 30-record baseline taken as exact: a false alarm on 43 % of
-white-noise engines within 350 armed records where the bank crosses on 28 %). The demo
-fleet (R about 1485, h = 6.10): 0.04 false wear alerts per engine-year. The lead target is
-missed twice over: the crossing itself, at the budget met from a stretch's start, trails the
-naive CUSUM by 2 cycles, and the attribution waits 7 more: at the crossing the tuner change
-names LPC on about a quarter of the engines (LPC and HPC deterioration look alike in the
-tuners). At h = 4.35 ratio 1.2 on one record gives 115.5 cycles at 88 % HPC, 1.3 on two
-records 108.5 at 92 %, 1.5 on one 106.0 at 94 %. Explored on the threshold met at one
-engine-year only (h = 3.22, crossing 125.5 cycles ahead; ratio 1.5 on one record 114.5 at
-91 %, 1.3 120.0 at 86 %) and no better at 90 % HPC or more: attributing the mean tuner
-change of the last 5-20 records; the WSSR summed over the records since the crossing; the
-sensor-space WSSR of the mean sensor deviation since the baseline (53 % HPC: the design's
-noise variances are far from FD001's); the tuner change that fits that mean deviation by
-least squares (70 % at 1.5); the filter covariance's inverse as the weight (76 %); the
-tuner trend over the last 30 records (a slope with an intercept, free
-of the baseline's error: 97 % HPC at ratio 1.5 but 110 cycles; either it or the record's
-change at 1.5: 121.0 at 90 %; at h = 4.35, either at 1.3: 116.0 at 91 %); other bank
-references and allowances (kappa 0.1-0.5, alpha 0-0.2, each with its threshold met at one
-engine-year: crossings 123-127 cycles ahead, alerts 109-115 at ratio 1.5).
-The fleet's wear direction learnt from the data (bench/bench_wear.py --learnt; bench only):
-for engine i, each other engine's accumulated change in the candidate faults' magnitudes
-(the weighted least-squares fit of each record's sensor deviations on the signatures, its
-mean over the last 20 records less its mean over the bank's baseline), the mean of their
-unit changes v, and ONE matched-filter CUSUM along it (signature G_k v) beside the bank,
-standardised as the bank is, its threshold calibrated for a single CUSUM; its alert names,
-at the crossing, the fault the fleet's mean tuner change is attributed to (HPC on FD001,
-WSSR ratio 2.4). Learnt from the 99 others, v is HPC 0.85, LPC 0.43, HPT -0.23, LPT -0.15,
-Fan 0.10. With the full budget for each (h = 4.35 and 2.75): 123.0 cycles at 93 % HPC, but
-the two together then cross white noise at about twice the rate (0.106 of engines within 24
-armed records where 1 per engine-year allows 0.064). With the budget split so the two
-together meet 1 per engine-year at every horizon (the bank 0.1, h = 6.95; the learnt CUSUM
-0.9, h = 2.83): 121.0 cycles before failure, 100/100 engines, 97 % HPC (the learnt CUSUM
-alone 120.5 at 100 %), against the naive's 121.5: missed by half a cycle; splits 0.5/0.5
-and 0.25/0.75: 120.5 and 121.0; the changes as units of sensor-signature size instead of
-fault magnitude: 121.0; the last 10 or 40 records instead of 20: 121.0. Learnt from the
-first 20 or 10 units only (a fleet starting out; v within cos 0.97-0.98 of the whole
-fleet's, still HPC-led): 122.0 at 97 % (122.5 in signature units). The library's HPC
-signature itself as the direction: 117.0, so the learnt direction fits FD001's wear better
-than the library's HPC fault, and the naive's 121.5 comes from its allowances (its baseline
-taken as exact: 43 % of white engines alarmed within 350 records). Naming the alert by the
-signature nearest G v names LPC (WSSR ratio 1.2-1.5; 0-20 % HPC): LPC and HPC deterioration
-look alike in the sensors, the tuner change tells them apart. The demo fleet (its direction
-learnt from its own other engines' stretches): no false alert from the learnt CUSUM, 0.04 per
-engine-year with the detector's. Parity with the naive, not a margin over it: not in the
-product.
+What the bank alone gives (bench/bench_wear.py; with the fleet CUSUM below, the product's
+figures differ). FD001 train as imported (one cycle a day: R = 365, ARL 365 records, h =
+4.35): the bank crosses a median 119.5 cycles before failure and alerts, once the
+attribution is confident (ratio 1.3 on one record), 112.5 cycles before on 100/100 engines,
+91 % HPC, against 121.5 for a naive signature CUSUM (HPC direction, reference 0.5, threshold
+5, its 30-record baseline taken as exact: a false alarm on 43 % of white-noise engines
+within 350 armed records where the bank crosses on 28 %). The demo fleet (R about 1485, h =
+6.10): 0.04 false wear alerts per engine-year. Alone, the bank misses the lead target twice
+over: the crossing itself, at the budget met from a stretch's start, trails the naive CUSUM
+by 2 cycles, and the attribution waits 7 more: at the crossing the tuner change names LPC on
+about a quarter of the engines (LPC and HPC deterioration look alike in the tuners). At h =
+4.35 ratio 1.2 on one record gives 115.5 cycles at 88 % HPC, 1.3 on two records 108.5 at 92
+%, 1.5 on one 106.0 at 94 %. Explored on the threshold met at one engine-year only (h =
+3.22, crossing 125.5 cycles ahead; ratio 1.5 on one record 114.5 at 91 %, 1.3 120.0 at 86 %)
+and no better at 90 % HPC or more: attributing the mean tuner change of the last 5-20
+records; the WSSR summed over the records since the crossing; the sensor-space WSSR of the
+mean sensor deviation since the baseline (53 % HPC: the design's noise variances are far
+from FD001's); the tuner change that fits that mean deviation by least squares (70 % at
+1.5); the filter covariance's inverse as the weight (76 %); the tuner trend over the last 30
+records (a slope with an intercept, free of the baseline's error: 97 % HPC at ratio 1.5 but
+110 cycles; either it or the record's change at 1.5: 121.0 at 90 %; at h = 4.35, either at
+1.3: 116.0 at 91 %); other bank references and allowances (kappa 0.1-0.5, alpha 0-0.2, each
+with its threshold met at one engine-year: crossings 123-127 cycles ahead, alerts 109-115 at
+ratio 1.5).
+The fleet CUSUM (``fleet``; docs/math.md section 13): a design's engines wear along their
+own mix of the library's faults, learnt from the other engines, never the one scored. An
+engine's drift theta (``latest_drift``) is its latest stretch's change, the mean of its last
+``drift_tail`` armed tuner estimates less x_0, as candidate magnitudes by the weighted
+least-squares fit on the candidates together (``fault_drift``); the fleet direction for an
+engine is v = mean of the other engines' unit drifts, normalised (``fleet_direction``; at
+least ``fleet_min`` of them, and v attributed to a fault: ``learnt_direction``). A stretch
+adopts v at its first record and keeps it; its matched filter along the signature G_k v
+(``along``) is the bank's last column, standardised as the bank's candidates are. The budget
+is split (``_budgets``): ``fleet_share`` = 0.9 to the fleet CUSUM (calibrated as a bank of
+one: h = 2.83 on FD001), 0.1 to the bank (h = 6.95). Its alert names the fault v's tuner
+change H v is attributed to (``fleet_fault``, confident at ``confidence``), at the first
+record after its crossing whose own change is of the fleet's kind (``_fleet_like``:
+attributed to that fault, or fitted by H v within ``fleet_fit`` times the best candidate's
+WSSR): an abrupt fault of another module is left to the shift detector. FD001 through the
+product (bench/bench_wear.py): 100/100 engines, median 121.5 cycles before failure, 99 %
+HPC, against the naive's 121.5 (parity); without the change-kind condition 122.0, fleet_fit
+1.0 121.0, fleet_share 0.75 120.0; v for unit 1 from the other 99: HPC 0.87, LPC 0.43, HPT
+-0.18, Fan 0.12, LPT -0.03, attributed to HPC. Before it entered the product the bench
+measured the same idea with the drift fitted on the sensor deviations (121.0, its alert at
+the crossing) and the library's HPC signature as the direction (117.0): the learnt direction
+fits FD001's wear better than the library's fault. ``wear_scan`` (this module's batch form)
+has no fleet CUSUM: the bank alone.
 Tried on an earlier design (Siegmund's threshold, ARL 2000 records) and no better by more
 than a cycle or two at the same false alerts: a GLR for a ramp or step onset (level unknown,
 or known up to the baseline's error), a shorter settle or baseline, a longer bank baseline, a
@@ -167,6 +165,7 @@ import numpy as np
 LIMIT = "limit"
 RATE = "rate"
 DIRECTIONAL = "directional"
+FLEET = "fleet"
 
 
 @dataclass(frozen=True)
@@ -228,6 +227,24 @@ class WearSettings:
     confidence: float = 1.3
     hold: int = 1
     rate_with_bank: bool = False
+    # The fleet CUSUM (``fleet_direction``): its share of the false-alert budget where it
+    # runs (the bank keeps the rest), and the latest records whose mean is an engine's drift.
+    # The split 0.9 / 0.1 and the tail of 20 records as chosen on the bench's FD001 leads
+    # before the fleet CUSUM entered the product (bench/README.md: shares 0.75 and 0.5 and
+    # tails of 10 and 40 records gave no more lead).
+    fleet_share: float = 0.9
+    drift_tail: int = 20
+    # Fewer other engines with a drift: no fleet direction (a direction of one or two engines
+    # is theirs, not the fleet's; on the bench ten FD001 units gave the whole fleet's within
+    # cos 0.97).
+    fleet_min: int = 5
+    # The fleet alert needs the engine's own change to be the fleet's kind of wear: attributed
+    # to the fleet's fault, or the fleet direction fitting it within this WSSR ratio of the
+    # best candidate (``_fleet_like``; <= 0: no condition). Without it an abrupt fault of
+    # another module crossed the fleet CUSUM first and was named as the fleet's fault
+    # (tests/support/test_detection_replay.py). The attribution's own ratio (``confidence``);
+    # 1.0 measured half a cycle less FD001 lead (bench/README.md).
+    fleet_fit: float = 1.3
 
 
 @dataclass(frozen=True)
@@ -703,7 +720,12 @@ class WearState:
     bank's latch and its largest CUSUM at the crossing), bank_h (the bank's threshold for the
     record rate measured over the baseline; None in states stored before it was: the
     nominal rate's), recent (best fault, confident) of the
-    last hold - 1 records; alerted: the stretch has had its alert."""
+    last hold - 1 records; alerted: the stretch has had its alert (x0 kept). direction: the
+    fleet direction [n] the stretch adopted at its first record (``learnt_direction``; None:
+    no fleet CUSUM this stretch), its CUSUM the bank's last column (z_rows, mu, sd,
+    bank_sum, bank_min then have n + 1 entries), fleet_h its threshold, fleet_crossed its
+    latch; drift: the engine's latest change in fault magnitudes (``latest_drift``), what
+    the fleet learns from."""
 
     cycle: float = 0.0
     k: int = 0
@@ -724,6 +746,10 @@ class WearState:
     recent: tuple[tuple[int, bool], ...] = ()
     alerted: bool = False
     bank_h: float | None = None
+    direction: tuple[float, ...] | None = None
+    fleet_h: float | None = None
+    fleet_crossed: bool = False
+    drift: tuple[float, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -800,15 +826,31 @@ def _complete(det: WearDetector, st: WearState) -> WearState:
     if lag:
         best, ok = _confident_rows(det, wssr[-lag:], f[-lag:])
         recent = tuple(zip(best.tolist(), ok.tolist(), strict=True))
-    n = det.H.shape[1]
+    n = det.H.shape[1] + (st.direction is not None)
     rate = record_rate(np.asarray(st.t_rows, float)) if len(st.t_rows) else None
-    h = bank_design(cfg, int(np.sum(det.candidates)), rate).threshold
+    bank_cfg, fleet_cfg = _budgets(cfg, st.direction is not None)
+    h = bank_design(bank_cfg, int(np.sum(det.candidates)), rate).threshold
+    fleet_h = None if fleet_cfg is None else bank_design(fleet_cfg, 1, rate).threshold
     return WearState(
         cycle=st.cycle, k=st.k, x0=tuple(x0.tolist()), delta=tuple(delta.tolist()),
         c_min=tuple(c_last.tolist()), c_b=st.cycle, mu=tuple(mu.tolist()),
         sd=tuple(sd.tolist()), bank_sum=(0,) * n, bank_min=(0,) * n, recent=recent,
-        bank_h=h,
+        bank_h=h, direction=st.direction, fleet_h=fleet_h,
     )
+
+
+def _budgets(cfg: WearSettings, fleet: bool) -> tuple[WearSettings, WearSettings | None]:
+    """The bank's settings and the fleet CUSUM's (None without it): with the fleet CUSUM the
+    false-alert budget is split, ``fleet_share`` of it to the fleet CUSUM, the rest to the
+    bank (the two together within the budget at every horizon, a union bound)."""
+    if not fleet:
+        return cfg, None
+
+    def part(share: float) -> WearSettings:
+        return replace(cfg, false_alerts_per_year=cfg.false_alerts_per_year * share,
+                       bank_arl=None if cfg.bank_arl is None else cfg.bank_arl / share)
+
+    return part(1.0 - cfg.fleet_share), part(cfg.fleet_share)
 
 
 def _confident_rows(
@@ -852,6 +894,9 @@ def _active(
     if use_bank and not cfg.rate_with_bank:
         rate_hit[:] = False
     bank_hit = np.zeros(len(x), bool)
+    fleet_hit = np.zeros(len(x), bool)
+    fleet_stat = np.zeros(len(x))
+    fleet_over = np.full(len(x), st.fleet_crossed)
     crossed = np.full(len(x), st.crossed)
     bank_sum = np.asarray(st.bank_sum, np.int64)
     bank_min = np.asarray(st.bank_min, np.int64)
@@ -869,8 +914,15 @@ def _active(
         cmin = np.minimum(np.minimum.accumulate(csum, axis=0), bank_min[None, :])
         G = (csum - cmin) * BANK_QUANTUM
         bank_sum, bank_min = csum[-1], cmin[-1]
-        crossed = st.crossed | np.logical_or.accumulate(
-            np.any((G > design.threshold) & cand, axis=1))
+        over = np.any((G[:, : len(cand)] > design.threshold) & cand, axis=1)
+        if st.direction is not None and st.fleet_h is not None:
+            fleet_stat = G[:, len(cand)]
+            fleet_over = st.fleet_crossed | np.logical_or.accumulate(fleet_stat > st.fleet_h)
+            named_fleet = fleet_fault(det, np.asarray(st.direction))
+            fleet_hit = fleet_over & _fleet_like(det, st.direction, d, wssr, f, best,
+                                                 named_fleet) & (named_fleet >= 0)
+        G = G[:, : len(cand)]
+        crossed = st.crossed | np.logical_or.accumulate(over)
         lag = max(cfg.hold, 1) - 1
         named, ok = _confident_rows(det, wssr, f, best)
         prev_best = np.array([b for b, _ in st.recent], dtype=np.int64)
@@ -883,17 +935,26 @@ def _active(
             held[j:] &= all_ok[:-j] & (all_best[:-j] == all_best[j:])
             held[:j] = False
         bank_hit = crossed & held[P:]
-    hit = limit_hit | rate_hit | bank_hit
+    hit = limit_hit | rate_hit | bank_hit | fleet_hit
     if not hit.any():
         new_cross = crossed[-1] and not st.crossed
         kc = int(np.argmax(crossed)) if new_cross else -1
-        return _carry(det, st, cycles[-1], len(x), c_min[-1], bank_sum, bank_min,
-                      crossed[-1], G, kc, named, ok if z is not None else None), None
+        return replace(_carry(det, st, cycles[-1], len(x), c_min[-1], bank_sum, bank_min,
+                              crossed[-1], G, kc, named, ok if z is not None else None),
+                       fleet_crossed=bool(fleet_over[-1])), None
     k = int(np.argmax(hit))
     kinds = [kind for kind, h in ((DIRECTIONAL, bank_hit), (LIMIT, limit_hit), (RATE, rate_hit))
              if h[k]]
-    kind = min(kinds)
-    if kind == DIRECTIONAL:
+    kind = FLEET if fleet_hit[k] else min(kinds)
+    if kind == FLEET:
+        assert st.direction is not None and st.fleet_h is not None
+        fault = fleet_fault(det, np.asarray(st.direction))
+        alert = WearAlert(
+            index=offset + k, kind=kind, fault=fault, wssr=wssr[k], f=f[k],
+            magnitude=float(f[k, fault]), statistic=float(fleet_stat[k]), threshold=st.fleet_h,
+            baseline_start=b0, change=d[k],
+        )
+    elif kind == DIRECTIONAL:
         if st.crossed:
             stat = st.bank_stat
             top_fault = st.bank_top
@@ -916,7 +977,24 @@ def _active(
             wssr=wssr[k], f=f[k], magnitude=float(mag[k]), statistic=float(gk[i]),
             threshold=float(delta[i]), baseline_start=b0, change=d[k],
         )
-    return WearState(cycle=float(cycles[-1]), k=st.k + len(x), alerted=True), alert
+    return WearState(cycle=float(cycles[-1]), k=st.k + len(x), alerted=True, x0=st.x0,
+                     direction=st.direction), alert
+
+
+def _fleet_like(
+    det: WearDetector, direction: tuple[float, ...], d: np.ndarray, wssr: np.ndarray,
+    f: np.ndarray, best: np.ndarray, named: int,
+) -> np.ndarray:
+    """Per record: whether the engine's own change d [K, m] is the fleet's kind of wear: it
+    is attributed to the fleet's fault, or the fleet direction's tuner change H v fits it
+    (f > 0) with a WSSR within ``fleet_fit`` times the best candidate's (f > 0)."""
+    ratio = det.settings.fleet_fit
+    if ratio <= 0:
+        return np.ones(len(d), bool)
+    w_v, f_v = attribute(d, det.W, (det.H @ np.asarray(direction, float))[:, None])
+    allowed = det.candidates[None, :] & (f > 0)
+    w_best = np.where(allowed, wssr, np.inf).min(axis=1)
+    return (best == named) | ((f_v[:, 0] > 0) & (w_v[:, 0] <= ratio * w_best))
 
 
 def _bank_threshold(det: WearDetector, st: WearState) -> float:
@@ -945,6 +1023,7 @@ def _carry(
         c_min=tuple(c_min.tolist()), c_b=st.c_b, mu=st.mu, sd=st.sd,
         bank_sum=tuple(int(v) for v in bank_sum), bank_min=tuple(int(v) for v in bank_min),
         crossed=bool(crossed), bank_stat=stat, bank_top=top, recent=recent, bank_h=st.bank_h,
+        direction=st.direction, fleet_h=st.fleet_h,
     )
 
 
@@ -974,10 +1053,10 @@ def _stretch_steps(
         done = np.flatnonzero(kk == b1 - 1)
         if not len(done):
             return WearState(cycle=float(cycles[-1]), k=st.k + n, x_rows=x_rows,
-                             z_rows=z_rows, t_rows=t_rows), None
+                             z_rows=z_rows, t_rows=t_rows, direction=st.direction), None
         j = int(done[0])
         st = _complete(det, WearState(cycle=float(cycles[j]), k=st.k + j + 1, x_rows=x_rows,
-                                      z_rows=z_rows, t_rows=t_rows))
+                                      z_rows=z_rows, t_rows=t_rows, direction=st.direction))
         x, cycles = x[j + 1 :], cycles[j + 1 :]
         z = None if z is None else z[j + 1 :]
         offset += j + 1
@@ -993,7 +1072,8 @@ def replace_state(st: WearState, **changes: object) -> WearState:
 def wear_steps(
     det: WearDetector, state: WearState, x: np.ndarray, new_cycle: np.ndarray,
     resets: np.ndarray, z: np.ndarray | None = None, keep: Sequence[int] = (),
-    epoch: np.ndarray | None = None,
+    epoch: np.ndarray | None = None, direction: np.ndarray | None = None,
+    zf: np.ndarray | None = None,
 ) -> WearRun:
     """Continue one engine's wear detector over a run of records.
 
@@ -1005,7 +1085,16 @@ def wear_steps(
     designed for the record rate over each stretch's baseline; None: the nominal rate).
     Alerts are ``wear_scan``'s for the same records when the
     first record is the engine's first (cycles as counted here; tests/estimation/test_wear.py).
+    With a fleet ``direction`` [n] (``fleet_direction``) and the records' projections zf [S]
+    on its signature (``along``), a stretch that starts in this run (a reset, or an engine's
+    first record) adopts it and runs the fleet CUSUM as the bank's last column, the budget
+    split (``_budgets``); a stretch under way keeps what it adopted at its start.
     """
+    if direction is not None and zf is not None and z is not None:
+        fleet = tuple(np.asarray(direction, float).tolist())
+        z_f: np.ndarray | None = np.column_stack([np.asarray(z, float), np.asarray(zf, float)])
+    else:
+        fleet, z_f = None, None
     x = np.asarray(x, float)
     cycles = state.cycle + np.cumsum(np.asarray(new_cycle, bool)).astype(float)
     resets = np.asarray(resets, bool)
@@ -1018,16 +1107,146 @@ def wear_steps(
     states: list[tuple[int, WearState]] = []
     want = set(keep)
     st = state
+    if st == WearState(cycle=st.cycle, drift=st.drift):  # an engine's first record
+        st = replace(st, direction=fleet)
     for a, b in zip(cuts[:-1], cuts[1:], strict=True):
         if b <= a:
             continue
         if resets[a]:
-            st = WearState(cycle=st.cycle)
+            st = WearState(cycle=st.cycle, direction=fleet)
+        if st.direction is not None and st.direction != fleet and z is not None:
+            raise ValueError("a stretch under way keeps its fleet direction: give it, with zf")
+        zs = z if st.direction is None else z_f
         st, alert = _stretch_steps(det, st, x[a:b], cycles[a:b],
-                                   None if z is None else z[a:b], a,
+                                   None if zs is None else zs[a:b], a,
                                    None if epoch is None else np.asarray(epoch, float)[a:b])
         if alert is not None:
             alerts.append(alert)
         if b - 1 in want:
             states.append((b - 1, st))
     return WearRun(tuple(alerts), tuple(states), st)
+
+
+# --- The fleet direction: what the engines of a design have worn along, learnt from the
+# other engines' own estimates (docs/math.md, wear: the fleet CUSUM).
+
+
+def fault_drift(det: WearDetector, change: np.ndarray) -> np.ndarray:
+    """A tuner change [m] as candidate-fault magnitudes [n] (zero for the others): the
+    weighted least-squares fit theta = (H_c^T W H_c)^-1 H_c^T W d on the candidates'
+    directions together (the change split over the modules, not one fault at a time)."""
+    Hc = det.H[:, det.candidates]
+    theta = np.linalg.lstsq(Hc.T @ det.W @ Hc, Hc.T @ det.W @ np.asarray(change, float),
+                            rcond=None)[0]
+    out = np.zeros(det.H.shape[1])
+    out[det.candidates] = theta
+    return out
+
+
+def latest_drift(
+    det: WearDetector, state: WearState, x: np.ndarray, resets: np.ndarray
+) -> tuple[float, ...] | None:
+    """An engine's drift after a run of records x [S, m] from ``state`` (resets [S]): the
+    change of its latest stretch in fault magnitudes (``fault_drift``), the mean of its last
+    ``drift_tail`` armed records less the stretch's baseline x_0. Fewer armed records in
+    the run: the state's drift if the stretch goes on (else None)."""
+    cfg = det.settings
+    b1 = cfg.settle + cfg.n_base
+    x = np.asarray(x, float)
+    cut = np.flatnonzero(np.asarray(resets, bool))
+    kept = state.drift
+    if len(cut):
+        state, x, kept = WearState(), x[cut[-1] :], None
+    k = state.k + np.arange(len(x))
+    if state.x0 is not None:
+        x0 = np.asarray(state.x0, float)
+    else:
+        rows = [*state.x_rows, *x[(k >= cfg.settle) & (k < b1)]]
+        if len(rows) < cfg.n_base:
+            return kept
+        x0 = np.mean(rows, axis=0)
+    armed = x[k >= b1]
+    if len(armed) < cfg.drift_tail:
+        return kept
+    return tuple(fault_drift(det, armed[-cfg.drift_tail :].mean(axis=0) - x0).tolist())
+
+
+def fleet_direction(
+    drifts: Sequence[np.ndarray | tuple[float, ...]], least: int = 1
+) -> np.ndarray | None:
+    """The fleet's wear direction [n] from other engines' drifts: the mean of their unit
+    drifts (each engine counted alike, however far it has worn), itself of unit length; None
+    with fewer than ``least`` drifts (``WearSettings.fleet_min``) or drifts that cancel."""
+    units = [d / np.linalg.norm(d) for d in (np.asarray(v, float) for v in drifts)
+             if np.linalg.norm(d) > 0]
+    if not units or len(units) < least:
+        return None
+    v = np.mean(units, axis=0)
+    size = float(np.linalg.norm(v))
+    return v / size if size > 0 else None
+
+
+def learnt_direction(
+    det: WearDetector, drifts: Sequence[np.ndarray | tuple[float, ...]]
+) -> tuple[float, ...] | None:
+    """The fleet direction a stretch adopts from the other engines' drifts: the
+    ``fleet_direction`` of at least ``fleet_min`` of them, if it is attributed to a fault
+    (``fleet_fault``); None otherwise (the bank then keeps the whole budget)."""
+    v = fleet_direction(drifts, det.settings.fleet_min)
+    if v is None or fleet_fault(det, v) < 0:
+        return None
+    return tuple(v.tolist())
+
+
+def fleet_fault(det: WearDetector, direction: np.ndarray) -> int:
+    """The fault the fleet direction is attributed to: the WSSR attribution (``attribute``)
+    of its tuner change H v against the library, if confident (the runner-up's WSSR at least
+    ``confidence`` times the best's); -1 otherwise (its crossing then waits, as the bank's,
+    for the engine's own change to be attributed)."""
+    wssr, f = attribute(det.H @ np.asarray(direction, float), det.W, det.H)
+    best, ok = _confident_rows(det, wssr, f)
+    return int(best[0]) if ok[0] else -1
+
+
+@dataclass(frozen=True)
+class MatchedParts:
+    """A run's records' matched-filter sums on the candidate faults, from which the projection
+    along any direction of them follows (``along``): num [S, c] = G_c^T R^-1 dy and gram
+    [S, c, c] = G_c^T R^-1 G_c (present sensors only)."""
+
+    num: np.ndarray
+    gram: np.ndarray
+
+
+def matched_parts(
+    dy: np.ndarray, var: np.ndarray, signatures: np.ndarray, candidates: np.ndarray
+) -> MatchedParts:
+    """``MatchedParts`` of dy [S, ny] (NaN = missing), var [S, ny] and the signatures [ny, n]
+    or [S, ny, n], each record's sums independent of the others (as ``matched_rows``)."""
+    dy = np.asarray(dy, float)
+    sig = np.asarray(signatures, float)[..., candidates]
+    w = np.broadcast_to(1.0 / np.asarray(var, float), dy.shape)
+    present = np.isfinite(dy)
+    wd = np.where(present, w * np.where(present, dy, 0.0), 0.0)
+    wp = np.where(present, w, 0.0)
+    c = sig.shape[-1]
+    num = np.zeros((len(dy), c))
+    gram = np.zeros((len(dy), c, c))
+    for j in range(dy.shape[1]):
+        s_j = sig[..., j, :]
+        num += wd[:, j, None] * s_j
+        gram += wp[:, j, None, None] * (s_j[..., :, None] * s_j[..., None, :])
+    return MatchedParts(num, gram)
+
+
+def along(parts: MatchedParts, direction: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """The matched filter along a direction of fault magnitudes v [n] (signature G v):
+    z_k = v^T G^T R^-1 dy_k / sqrt(v^T G^T R^-1 G v) [S]."""
+    v = np.asarray(direction, float)[candidates]
+    num = np.zeros(len(parts.num))
+    den = np.zeros(len(parts.num))
+    for i in range(len(v)):
+        num += v[i] * parts.num[:, i]
+        for j in range(len(v)):
+            den += v[i] * v[j] * parts.gram[:, i, j]
+    return num / np.sqrt(np.maximum(den, 1e-300))

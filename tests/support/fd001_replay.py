@@ -25,6 +25,7 @@ from app.services.snapshots import run as snapshots_run
 from estimation.engine.schedule import EngineSchedule, build_schedule
 from estimation.model import LinearModel
 from estimation.snapshot import snapshot_deviation
+from estimation.wear import WearSettings
 
 # FD001 flies one condition (sea level static, TRA 100): a small grid around it.
 FD001_AXES = {"alt": (0.0, 2000.0), "mach": (0.0, 0.1), "power": (90.0, 100.0)}
@@ -109,19 +110,29 @@ class FilterTrack:
     P: np.ndarray
     h: np.ndarray
     events: tuple[detector.EventDraft, ...]
+    drift: tuple[float, ...] | None = None  # the wear drift after the run (``latest_drift``)
 
 
 def filter_tracks(
-    est: estimator.SnapshotEstimator, runs: Sequence[snapshots_run.EngineRun], batch: int = 64
+    est: estimator.SnapshotEstimator, runs: Sequence[snapshots_run.EngineRun], batch: int = 64,
+    wear_settings: WearSettings | None = None,
 ) -> list[FilterTrack]:
-    """``pipeline.run_filters`` over the runs, in batches, unpacked per engine."""
+    """``pipeline.run_filters`` over the runs, in batches, unpacked per engine; each batch's
+    fleet direction also learns from the earlier batches' drifts (as a job's batches read
+    the stored states of the engines estimated before them); ``wear_settings`` the wear
+    detector's (None: the product's)."""
     s = est.layout.slices()
     out: list[FilterTrack] = []
+    fleet: list[tuple[float, ...]] = []  # the earlier batches' drifts, as a job reads them
     for start in range(0, len(runs), batch):
-        for res in snapshots_run.run_filters(est, list(runs[start : start + batch])):
+        results = snapshots_run.run_filters(est, list(runs[start : start + batch]),
+                                            fleet=list(fleet), wear_settings=wear_settings)
+        fleet += [r.state.wear.drift for r in results if r.state.wear.drift is not None]
+        for res in results:
             values = res.packed.astype(np.float64)
             P = np.asarray(res.state.filter.P, float).reshape(-1, est.m, est.m)[-1]
-            out.append(FilterTrack(values[:, s["q"]], P, values[:, s["h"]], tuple(res.events)))
+            out.append(FilterTrack(values[:, s["q"]], P, values[:, s["h"]], tuple(res.events),
+                                   res.state.wear.drift))
     return out
 
 

@@ -150,6 +150,9 @@ def wear_document(state: WearState) -> dict[str, Any]:
         "bank_stat": state.bank_stat, "bank_top": state.bank_top,
         "recent": [[b, ok] for b, ok in state.recent], "alerted": state.alerted,
         "bank_h": state.bank_h,
+        "direction": None if state.direction is None else list(state.direction),
+        "fleet_h": state.fleet_h, "fleet_crossed": state.fleet_crossed,
+        "drift": None if state.drift is None else list(state.drift),
     }
 
 
@@ -157,7 +160,8 @@ def wear_from_document(d: Mapping[str, Any] | None) -> WearState:
     """A stored wear state (``wear_document``); none (states written before the wear detector
     ran) is a fresh one: the engine's next records start its baseline. States stored before
     the record rate was measured (no ``t_rows``, ``bank_h``) read with none: the bank's
-    threshold is then the nominal rate's."""
+    threshold is then the nominal rate's; those stored before the fleet CUSUM (no
+    ``direction``, ``fleet_h``, ``drift``) read without it until the engine's next stretch."""
     if d is None:
         return WearState()
 
@@ -166,6 +170,11 @@ def wear_from_document(d: Mapping[str, Any] | None) -> WearState:
 
     x0 = d.get("x0")
     bank_h = d.get("bank_h")
+
+    def optional(key: str) -> tuple[float, ...] | None:
+        v = d.get(key)
+        return None if v is None else tuple(float(x) for x in v)
+
     return WearState(
         cycle=float(d["cycle"]), k=int(d["k"]), x_rows=_rows(d["x_rows"]),
         z_rows=_rows(d["z_rows"]), t_rows=tuple(float(v) for v in d.get("t_rows", ())),
@@ -175,7 +184,10 @@ def wear_from_document(d: Mapping[str, Any] | None) -> WearState:
         bank_min=tuple(int(v) for v in d["bank_min"]), crossed=bool(d["crossed"]),
         bank_stat=float(d["bank_stat"]), bank_top=int(d["bank_top"]),
         recent=tuple((int(b), bool(ok)) for b, ok in d["recent"]), alerted=bool(d["alerted"]),
-        bank_h=None if bank_h is None else float(bank_h),
+        bank_h=None if bank_h is None else float(bank_h), direction=optional("direction"),
+        fleet_h=None if d.get("fleet_h") is None else float(d["fleet_h"]),
+        fleet_crossed=bool(d.get("fleet_crossed", False)),
+        drift=optional("drift"),
     )
 
 
@@ -185,8 +197,8 @@ def wear_event(
     """The ``wear`` event of a wear alert: the attributed fault and its magnitude (times the
     library's nominal shift), the accumulated change since the baseline in tuners and health
     parameters (docs/math.md, wear), the WSSR of every fault for that change, and under
-    ``wear`` the alert's kind (``limit``, ``rate``, ``directional``), its CUSUM against its
-    threshold and the baseline's first record."""
+    ``wear`` the alert's kind (``limit``, ``rate``, ``directional``, ``fleet``), its CUSUM
+    against its threshold and the baseline's first record."""
     names = est.layout.faults
     change = np.zeros(est.m) if alert.change is None else np.asarray(alert.change, float)
     fault_shift = {}

@@ -38,10 +38,16 @@ from estimation.shift_detector import (
 )
 from estimation.snapshot import SnapshotState, snapshot_deviation, snapshot_filter
 from estimation.wear import (
+    MatchedParts,
     WearDetector,
+    WearSettings,
     WearState,
+    along,
     health_candidates,
     health_weight,
+    latest_drift,
+    learnt_direction,
+    matched_parts,
     matched_rows,
     wear_steps,
 )
@@ -55,6 +61,10 @@ CHECKPOINT_EVERY = 1024
 # design of the reference model, about 29,000 records a call; larger calls measured no faster).
 CHUNK_BYTES = 64 * 2**20
 SIGNATURE_BLOCK = 2048  # records per block of ``_fault_signatures`` (its terms stay in cache)
+# Bytes of wear input kept per call until its filters are done (``WearInput``, about 400 a
+# record for the demo's design: some 330,000 records); a larger run goes in parts of whole
+# engines, each part's fleet directions learning from the earlier parts' drifts too.
+WEAR_BYTES = 128 * 2**20
 
 
 @dataclass(frozen=True, eq=False)
@@ -143,9 +153,23 @@ class ChunkRecords(NamedTuple):
         return RecordObservation(self.dy[j], self.G_y[j], signatures, self.var[j])
 
 
+class WearInput(NamedTuple):
+    """One engine's records of a chunk as the wear detector takes them: tuner estimates q,
+    new flight and reset flags, the bank's matched-filter projections z and the sums for the
+    fleet direction's (``estimation.wear.matched_parts``)."""
+
+    q: np.ndarray
+    new_flight: np.ndarray
+    resets: np.ndarray
+    z: np.ndarray
+    parts: MatchedParts
+
+
 def run_filters(
     est: SnapshotEstimator, runs: Sequence[EngineRun],
     sink: Callable[[rows.Block], None] | None = None,
+    fleet: Sequence[tuple[float, ...]] = (),
+    wear_settings: WearSettings | None = None,
 ) -> list[EngineOutput]:
     """Filter, detect and pack every engine's records; engines are batched in the filter.
 
@@ -154,12 +178,53 @@ def run_filters(
     only the detector goes engine by engine. With a ``sink`` (an ``EstimateWriter``'s
     ``add``) each engine's estimates of a chunk go there as soon as they are computed instead
     of into ``EngineOutput.values``.
+
+    The wear detector runs once the run's filters are done (``_wear_watched``): its fleet
+    CUSUM's direction for an engine is learnt from the drifts of the design's other engines,
+    those outside the run (``fleet``: their stored states' drifts) and the run's others.
+    ``wear_settings``: the wear detector's (None: the product's, ``WearSettings()``). The
+    wear input kept for that is bounded (``WEAR_BYTES``): a larger run goes in parts of whole
+    engines, each part also learning from the earlier parts' drifts.
     """
+    per_record = _wear_record_bytes(est)
+    outputs: list[EngineOutput] = []
+    learnt = list(fleet)
+    part: list[EngineRun] = []
+    size = 0
+    for r in [*runs, None]:
+        if r is None or (part and size + len(r.epoch) * per_record > WEAR_BYTES):
+            done = _run_part(est, part, sink, learnt, wear_settings)
+            learnt += [o.state.wear.drift for o in done if o.state.wear.drift is not None]
+            outputs += done
+            part, size = [], 0
+        if r is not None:
+            part.append(r)
+            size += len(r.epoch) * per_record
+    return outputs
+
+
+def _wear_record_bytes(est: SnapshotEstimator) -> int:
+    """Bytes of one record's ``WearInput``: q, z, the matched-filter sums and two flags."""
+    n = est.S_full.shape[1]
+    c = int(np.sum(health_candidates(est.S_full, len(est.layout.health))))
+    return 8 * (est.m + n + c + c * c) + 2
+
+
+def _run_part(
+    est: SnapshotEstimator, runs: Sequence[EngineRun],
+    sink: Callable[[rows.Block], None] | None, fleet: Sequence[tuple[float, ...]],
+    wear_settings: WearSettings | None,
+) -> list[EngineOutput]:
+    """``run_filters`` on engines whose wear input fits ``WEAR_BYTES`` together."""
+    if not runs:
+        return []
     outputs = [EngineOutput([], [], [], r.state, est.layout.width) for r in runs]
     filt = [r.state.filter for r in runs]
     dets = [r.state.detector for r in runs]
-    wears = [r.state.wear for r in runs]
     wear_det = wear_detector(est)
+    if wear_settings is not None:
+        wear_det = dataclasses.replace(wear_det, settings=wear_settings)
+    wear_in: list[list[WearInput]] = [[] for _ in runs]
     last = [r.state.last_epoch for r in runs]
     longest = max((len(r.epoch) for r in runs), default=0)
     s = est.layout.slices()
@@ -252,11 +317,12 @@ def run_filters(
             values = values_all[e, :n]
             out = outputs[e]
             records = ChunkRecords(dy[e, :n], G_y[e, :n], G_u[e, :n], noise[e, :n] ** 2)
-            first_checkpoint = len(out.checkpoints)
             dets[e] = _wssr_filled(est, dets[e], r, c0, q, P, resets[e, :n], values, out,
                                    records)
-            wears[e] = _wear_watched(wear_det, wears[e], r, c0, q, flights[e, :n],
-                                     resets[e, :n], z_all[e, :n], out, first_checkpoint, est)
+            sig_e = signatures if g.constant else signatures[e, :n]
+            wear_in[e].append(WearInput(
+                q, flights[e, :n], resets[e, :n], z_all[e, :n],
+                matched_parts(dy[e, :n], noise[e, :n] ** 2, sig_e, wear_det.candidates)))
             packed = values.astype(VALUE_DTYPE)
             out.n_records += n
             if sink is None:
@@ -265,8 +331,37 @@ def run_filters(
                 sink((r.engine_id, r.seq0 + c0, r.epoch[c0 : c0 + n], r.phase[c0 : c0 + n],
                       packed))
             filt[e] = SnapshotState(q[-1:], P[-1:])
-            out.state = PipelineState(filt[e], dets[e], last[e], wears[e])
+            out.state = PipelineState(filt[e], dets[e], last[e], r.state.wear)
+    _wear_runs(est, wear_det, runs, outputs, wear_in, fleet)
     return outputs
+
+
+def _wear_runs(
+    est: SnapshotEstimator, det: WearDetector, runs: Sequence[EngineRun],
+    outputs: Sequence[EngineOutput], wear_in: Sequence[Sequence[WearInput]],
+    fleet: Sequence[tuple[float, ...]],
+) -> None:
+    """Every engine's wear detector over its records of the run. First each engine's drift
+    after the run (``latest_drift``); an engine's fleet direction is then its stretch's own
+    (one under way keeps it) or learnt from the others' drifts, its own left out
+    (``fleet_direction``: the design's engines outside the run and the run's others)."""
+    joined = [_joined(w) for w in wear_in]
+    drifts = [r.state.wear.drift if j is None
+              else latest_drift(det, r.state.wear, j.q, j.resets)
+              for r, j in zip(runs, joined, strict=True)]
+    for e, (r, out, j) in enumerate(zip(runs, outputs, joined, strict=True)):
+        if j is None:
+            continue
+        direction = r.state.wear.direction
+        if direction is None:
+            direction = learnt_direction(det, [*fleet, *(d for i, d in enumerate(drifts)
+                                                         if i != e and d is not None)])
+        zf = None if direction is None else along(j.parts, np.asarray(direction),
+                                                   det.candidates)
+        state = _wear_watched(det, r.state.wear, r, j.q, j.new_flight, j.resets, j.z, out,
+                              est, direction, zf)
+        out.state = dataclasses.replace(
+            out.state, wear=dataclasses.replace(state, drift=drifts[e]))
 
 
 @functools.lru_cache(maxsize=16)
@@ -309,22 +404,36 @@ def _fault_signatures(est: SnapshotEstimator, G_y: np.ndarray, G_u: np.ndarray) 
     return out
 
 
+def _joined(pieces: Sequence[WearInput]) -> WearInput | None:
+    """An engine's chunks of wear input as one (None without a record)."""
+    if len(pieces) <= 1:
+        return pieces[0] if pieces else None
+    def joined(name: str) -> np.ndarray:
+        return np.concatenate([getattr(p, name) for p in pieces])
+
+    return WearInput(joined("q"), joined("new_flight"), joined("resets"), joined("z"),
+                     MatchedParts(np.concatenate([p.parts.num for p in pieces]),
+                                  np.concatenate([p.parts.gram for p in pieces])))
+
+
 def _wear_watched(
-    det: WearDetector, state: WearState, r: EngineRun, c0: int, q: np.ndarray,
+    det: WearDetector, state: WearState, r: EngineRun, q: np.ndarray,
     new_flight: np.ndarray, resets: np.ndarray, z: np.ndarray, out: EngineOutput,
-    first_checkpoint: int, est: SnapshotEstimator,
+    est: SnapshotEstimator, direction: tuple[float, ...] | None, zf: np.ndarray | None,
 ) -> WearState:
-    """Continue the engine's wear detector over its records of the chunk (tuner estimates q,
-    and the directional bank on the matched-filter projections z of the sensor deviations):
-    its alerts become events, and its state goes into the checkpoints the shift detector
-    wrote from ``first_checkpoint`` on. Cycles are counted in flights (``NEW_FLIGHT_S``)."""
-    base = r.seq0 + c0
-    marks = out.checkpoints[first_checkpoint:]
+    """Continue the engine's wear detector over its records of the run (tuner estimates q,
+    the directional bank on the matched-filter projections z of the sensor deviations, and
+    the fleet CUSUM on zf along ``direction``): its alerts become events, and its state goes
+    into the checkpoints the shift detector wrote. Cycles are counted in flights
+    (``NEW_FLIGHT_S``)."""
+    base = r.seq0
+    marks = out.checkpoints
     keep = [cp.seq - base - 1 for cp in marks]
-    epoch = r.epoch[c0 : c0 + len(q)]
-    run = wear_steps(det, state, q, new_flight, resets, z, keep, epoch)
+    epoch = r.epoch[: len(q)]
+    run = wear_steps(det, state, q, new_flight, resets, z, keep, epoch,
+                     None if direction is None else np.asarray(direction), zf)
     kept = dict(run.states)
-    for i, cp in enumerate(marks, start=first_checkpoint):
+    for i, cp in enumerate(marks):
         out.checkpoints[i] = cp._replace(
             state=dataclasses.replace(cp.state, wear=kept[cp.seq - base - 1]))
     for alert in run.alerts:

@@ -244,9 +244,10 @@ def estimate_engines(
                         affected if marks is None else {e: m.earliest for e, m in marks.items()},
                         marks or {},
                     )
+                    fleet = fleet_drifts(session, est.design_id, ids)
                     if apart:  # computed now, written once the lock is taken
                         computed = []
-                        outputs = run_filters(est, runs, sink=computed.append)
+                        outputs = run_filters(est, runs, sink=computed.append, fleet=fleet)
                 for engine_id, seq0 in redone:
                     _delete_from(session, engine_id, est.design_id, seq0)
                 with rows.EstimateWriter(
@@ -254,7 +255,7 @@ def estimate_engines(
                     layout=est.layout, stored=periods.stored,
                 ) as writer:
                     if computed is None:  # computed while the writer sends (PostgreSQL's COPY)
-                        outputs = run_filters(est, runs, sink=writer.add)
+                        outputs = run_filters(est, runs, sink=writer.add, fleet=fleet)
                     for block in computed or ():
                         writer.add(block)
                 _store_batch(session, est, runs, states, outputs)
@@ -274,6 +275,20 @@ def estimate_engines(
             if progress is not None:
                 progress(done / total, f"estimated {done} of {total} engines")
     return summary
+
+
+def fleet_drifts(
+    session: Session, design_id: int, exclude: Sequence[int]
+) -> list[tuple[float, ...]]:
+    """The wear drifts (``estimation.wear.latest_drift``) stored in the states of the design's
+    engines other than ``exclude``: what the fleet direction of the engines estimated now
+    learns from besides their own run's others (``run.run_filters``)."""
+    drifts = session.scalars(
+        select(FilterState.state["wear"]["drift"])  # the drift alone, not the whole state
+        .where(FilterState.design_id == design_id, FilterState.engine_id.not_in(list(exclude)))
+        .order_by(FilterState.engine_id)
+    )
+    return [tuple(float(v) for v in drift) for drift in drifts if drift is not None]
 
 
 def _prepare_runs(

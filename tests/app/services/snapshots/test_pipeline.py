@@ -21,7 +21,7 @@ from app.models.estimates import (
     FleetPeriod,
 )
 from app.services.snapshots import backlog, estimator, run, store
-from estimation import isolation
+from estimation import isolation, wear
 from estimation.model import LinearModel
 from estimation.tuners import svd_vstar
 from tests.app.services.trends.test_trends import Fleet, add_aircraft, add_engine, make_fleet
@@ -373,3 +373,52 @@ def test_rerun_keeps_what_people_did_with_an_event(session: Session) -> None:
     assert [c.body for c in kept.comments] == ["borescope booked"]
     assert _events(session, engine.id) == _events(session, reference.id)
     assert _rows(session, engine.id) == _rows(session, reference.id)
+
+
+def test_fleet_direction_is_learnt_from_the_designs_other_engines_stored_drifts(
+    session: Session, monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Engines of one design estimated one job after another: each stores its wear drift;
+    once five others have one, the next engine's stretch adopts the fleet direction of their
+    stored drifts (its own left out), and keeps it when a late record re-runs it from a
+    checkpoint (one every 256 records) while the others' drifts have moved on."""
+    monkeypatch.setattr(run, "CHECKPOINT_EVERY", 256)
+    fleet = _fleet_with_design(session)
+    aircraft = add_aircraft(session, fleet, "F-FLEET")
+    det = run.wear_detector(estimator.estimator_for_design(session, fleet.design))
+    engines = [add_engine(session, fleet, f"FD{i}") for i in range(7)]
+    records = {}
+
+    def wear_state(engine_id: int) -> dict:
+        fs = session.scalars(select(FilterState).where(FilterState.engine_id == engine_id)).one()
+        return fs.state["wear"]
+
+    for i, engine in enumerate(engines):
+        times, y = records[engine.id] = _records(seed=40 + i)
+        idx = range(N) if i < 6 else [k for k in range(N) if k != 800]
+        start = _store(session, fleet, engine.id, aircraft.id, times, y, idx)
+        store.estimate_engines(session, fleet.operator_id, {engine.id: start})
+        state = wear_state(engine.id)
+        assert state["drift"] is not None and len(state["drift"]) == det.H.shape[1]
+        assert (state["direction"] is None) == (i < det.settings.fleet_min)
+    others = store.fleet_drifts(session, fleet.design.id, [engines[6].id])
+    assert len(others) == 6
+    assert others == [tuple(wear_state(e.id)["drift"]) for e in engines[:6]]
+    learnt = wear.fleet_direction(others, det.settings.fleet_min)
+    assert learnt is not None
+    assert wear_state(engines[6].id)["direction"] == learnt.tolist()
+    assert wear_state(engines[5].id)["direction"] == wear.fleet_direction(
+        others[:5]).tolist()
+    # A late record re-runs the engine from a checkpoint: its stretch keeps its direction,
+    # though the fleet's drifts changed meanwhile (one more engine).
+    extra = add_engine(session, fleet, "FD7")
+    times, y = _records(seed=47, fault="LPT", at=300)
+    start = _store(session, fleet, extra.id, aircraft.id, times, y, range(N))
+    store.estimate_engines(session, fleet.operator_id, {extra.id: start})
+    moved = wear.fleet_direction(store.fleet_drifts(session, fleet.design.id, [engines[6].id]))
+    assert moved is not None and not np.allclose(moved, learnt)
+    times, y = records[engines[6].id]
+    start = _store(session, fleet, engines[6].id, aircraft.id, times, y, [800])
+    summary = store.estimate_engines(session, fleet.operator_id, {engines[6].id: start})
+    assert summary["reruns"] == 1 and summary["records"] == N - 768
+    assert wear_state(engines[6].id)["direction"] == learnt.tolist()
