@@ -157,8 +157,9 @@ attribution.
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -445,6 +446,26 @@ class BankCalibration:
     maxima: np.ndarray
 
 
+class CalibrationStore(Protocol):
+    """Where computed calibration tables are kept between processes: the arrays ``build``
+    returns for ``key``, kept or built."""
+
+    def __call__(self, key: Mapping[str, Any], build: Callable[[], Mapping[str, np.ndarray]]
+                 ) -> Mapping[str, np.ndarray]: ...
+
+
+_store: CalibrationStore | None = None
+
+
+def keep_calibrations(store: CalibrationStore | None) -> None:
+    """Keep the bank's calibrations in ``store`` (None: in this process only). Each table is
+    a pure function of its arguments, so a kept one is the one this process would compute."""
+    global _store
+    if store is not _store:
+        _store = store
+        bank_calibration.cache_clear()
+
+
 @functools.lru_cache(maxsize=16)
 def bank_calibration(
     n: int, reference: float, scale: float, n_base: int, drift: float,
@@ -455,7 +476,25 @@ def bank_calibration(
     standardised as the bank is: mean and standard deviation from n_base records, u =
     (z - mu) / (scale s) - reference - drift t (t armed records, one a cycle), Page's CUSUM
     from the first armed record. A table computed once per design (about a second), not per
-    engine."""
+    engine; read from the ``keep_calibrations`` store when one is set."""
+    args = (n, reference, scale, n_base, drift, engines, records, seed)
+    if _store is None:
+        return _simulated_calibration(*args)
+    key = dict(zip(("n", "reference", "scale", "n_base", "drift", "engines", "records",
+                    "seed"), args, strict=True))
+
+    def build() -> dict[str, np.ndarray]:
+        cal = _simulated_calibration(*args)
+        return {"horizons": cal.horizons, "maxima": cal.maxima}
+
+    kept = _store(key, build)
+    return BankCalibration(np.asarray(kept["horizons"]), np.asarray(kept["maxima"]))
+
+
+def _simulated_calibration(
+    n: int, reference: float, scale: float, n_base: int, drift: float, engines: int,
+    records: int, seed: int,
+) -> BankCalibration:
     rng = np.random.default_rng(seed)
     horizons = np.unique(np.geomspace(8, records, 64).astype(int))
     maxima = np.empty((len(horizons), engines))

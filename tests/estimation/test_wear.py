@@ -643,3 +643,23 @@ def test_a_direction_adopted_only_when_attributed_to_a_fault() -> None:
     two = [np.array([1.0, 1.0, 0.0, 0.0])] * 5
     assert wear.fleet_fault(det, np.array([1.0, 1.0, 0.0, 0.0]) / np.sqrt(2.0)) == -1
     assert wear.learnt_direction(det, two) is None
+
+
+def test_kept_calibrations_give_the_thresholds_computed_here(tmp_path):
+    from functools import partial
+
+    from app.engine_cache import arrays
+
+    args = (4, 0.5, 1.1, 30, 0.0)
+    wear.keep_calibrations(None)
+    here = wear.calibrated_threshold(*args, arl=365.0, horizon=365.0)
+    store = partial(arrays, tmp_path, "wear-bank")
+    try:
+        wear.keep_calibrations(store)
+        built = wear.calibrated_threshold(*args, arl=365.0, horizon=365.0)
+        assert len(list(tmp_path.glob("wear-bank-*.npz"))) == 1
+        wear.bank_calibration.cache_clear()  # another process: reads the kept table
+        read = wear.calibrated_threshold(*args, arl=365.0, horizon=365.0)
+    finally:
+        wear.keep_calibrations(None)
+    assert here is not None and built == here and read == here

@@ -34,6 +34,7 @@ from app.models import EngineModel, EstimatorDesign
 from app.models.estimates import EstimateLayout
 from app.services import units
 from app.signals import ACTUATORS, SENSORS, SignalSpec, stored_at
+from estimation import wear
 from estimation.detection import CusumDesign, design_cusum
 from estimation.engine.power_setting import held_speed_aux_gains
 from estimation.engine.schedule import EngineSchedule
@@ -272,7 +273,6 @@ class SnapshotEstimator:
 def cusum_for(m: int) -> CusumDesign:
     """The CUSUM for m tuners at the pipeline's false-alarm rate. Its design takes a fraction
     of a second; it is kept in the data directory's cache, so each process reads it."""
-    from app.config import get_settings
     from app.engine_cache import arrays
 
     reference = CUSUM_REFERENCE * m
@@ -281,7 +281,7 @@ def cusum_for(m: int) -> CusumDesign:
         d = design_cusum(m, arl0=ARL0, reference=reference)
         return {"threshold": d.threshold, "arl0": d.arl0}
 
-    table = arrays(get_settings().data_dir.resolve() / "cache", "cusum",
+    table = arrays(Path(cache_dir()), "cusum",
                    {"m": m, "arl0": ARL0, "reference": reference}, build)
     return CusumDesign(m, reference, float(table["threshold"]), float(table["arl0"]))
 
@@ -353,9 +353,26 @@ def build_estimator(
     )
 
 
+def cache_dir() -> str:
+    """The data directory's cache of what estimation computes once: engine schedule and trim
+    table, detector designs and calibrations (``app.engine_cache``)."""
+    from app.config import get_settings
+
+    return str(get_settings().data_dir.resolve() / "cache")
+
+
+@functools.lru_cache(maxsize=4)
+def _calibration_store(directory: str) -> wear.CalibrationStore:
+    from app.engine_cache import arrays
+
+    return functools.partial(arrays, Path(directory), "wear-bank")
+
+
 def estimator_for_design(session: Session, design: EstimatorDesign) -> SnapshotEstimator:
     """The estimator of a stored design: the design's model (sensors and health selected) and,
-    for the built-in engine or a model schedule, its operating-condition schedule."""
+    for the built-in engine or a model schedule, its operating-condition schedule. The wear
+    bank's calibrations are kept in the data directory's cache from here on."""
+    wear.keep_calibrations(_calibration_store(cache_dir()))
     if design.status != "ready" or design.result is None:
         raise PipelineError(f"design {design.id} is not ready")
     row = session.get(EngineModel, design.engine_model_id)
@@ -373,33 +390,29 @@ def estimator_for_design(session: Session, design: EstimatorDesign) -> SnapshotE
 
 def builtin_schedule() -> EngineSchedule:
     """The built-in engine's schedule from the data directory's cache (built on first use)."""
-    from app.config import get_settings
-
-    return _cached_schedule(str(get_settings().data_dir.resolve() / "cache"))
+    return _cached_schedule(cache_dir())
 
 
 @functools.lru_cache(maxsize=2)
-def _cached_schedule(cache_dir: str) -> EngineSchedule:
+def _cached_schedule(directory: str) -> EngineSchedule:
     from app.engine_cache import engine_schedule
 
-    return engine_schedule(Path(cache_dir))
+    return engine_schedule(Path(directory))
 
 
 def builtin_trim_table() -> TrimTable | None:
     """The built-in engine's nominal trim table from the data directory's cache (solved on
     first use); None if it cannot be solved (the trims are then solved per record)."""
-    from app.config import get_settings
-
-    return _cached_trim_table(str(get_settings().data_dir.resolve() / "cache"))
+    return _cached_trim_table(cache_dir())
 
 
 @functools.lru_cache(maxsize=2)
-def _cached_trim_table(cache_dir: str) -> TrimTable | None:
+def _cached_trim_table(directory: str) -> TrimTable | None:
     from app.engine_cache import engine_trim_table
     from estimation.engine.errors import EngineConvergenceError
 
     try:
-        return engine_trim_table(Path(cache_dir))
+        return engine_trim_table(Path(directory))
     except EngineConvergenceError as exc:
         log.warning("the nominal trim table could not be solved (%s); solving per record", exc)
         return None
