@@ -55,10 +55,10 @@ slope the same way (slope * dg / g): the 1-sigma holds it in quadrature,
 with u_k the gain's jackknife standard error over the calibration fleets (the gains g_(-j)
 of the K leave-one-fleet-out pools: u^2 = (K - 1) / K sum_j (g_(-j) - mean g_(-j))^2,
 ``fit_fleet_slope``). c_k (cross-validated: each fleet corrected with the gain of the others)
-holds a K-1-fleet gain error in expectation, but from K = 6 fleets, clipped at 0, it is too
-noisy to carry it: without u the 1-sigma held the truth on 57 % of 58 simulated fleets and
-1 of 4 of the bench's (docs/math.md). One calibration fleet cannot be cross-validated: its
-slopes are unobservable.
+holds a K-1-fleet gain error in expectation too, but averaged over K = 6 fleets and clipped at
+0 it often does not; u is the gain's error on its own (its jackknife matches the spread of the
+gain over independent draws of calibration fleets, bench_uncertainty). One calibration fleet
+cannot be cross-validated: its slopes are unobservable.
 
 A parameter is shown as unobservable (no number) when the design cannot tell it apart from the
 fleet prior: its honest sigma (bias, filter and model error at steady state) is more than
