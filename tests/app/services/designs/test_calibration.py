@@ -67,6 +67,10 @@ def test_a_builtin_design_is_calibrated_and_the_trend_reads_it(
     assert back.names == tuple(design.spec["health"])
     assert back.source["seeds"] == [5] and back.source["records"] > 0
     assert np.all(back.level_std >= 0.0)
+    # The slopes' gain and its standard error are stored; one fleet cannot cross-validate
+    # them: no slope is shown, and nothing asks to recalibrate.
+    assert len(stored["slope_gain_std"]) == len(back.names)
+    assert np.isnan(np.asarray(back.slope_gain)).all() and back.slope_sigma_known
     # The design document keeps its other keys.
     refreshed = session.get(EstimatorDesign, design.id)
     assert refreshed is not None and refreshed.result is not None
