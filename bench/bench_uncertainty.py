@@ -11,8 +11,19 @@ weekly means split at baseline resets, inverse-variance mean, calibrated gain; p
 year) against the simulator's truth, next to the issue's targets. A slope the calibration
 finds unobservable is printed as such and left out of the worst slope error.
 
+The slopes' 1-sigma (the pieces' noise, the error common to a fleet and the calibrated gain's
+own standard error, ``estimation.uncertainty.fleet_slope``) is scored over the seeds: the
+fraction of the scoring fleets whose true slope lies within +-1 sigma and +-2 sigma of the
+product's, per shown slope and pooled, and the fraction within 30 %. That coverage is
+conditional on the one draw of calibration fleets the product uses; ``--rotations R`` (slow)
+also draws R other sets of as many calibration fleets from all the fleets of the run (the
+calibration and scoring fleets' trend pieces), fits the slope calibration on each
+(``uncertainty.fit_fleet_slope``) and scores it on the fleets it did not see: the coverage
+over calibration draws as well.
+
     .venv/bin/python bench/bench_uncertainty.py                       # 8 aircraft, a year
     .venv/bin/python bench/bench_uncertainty.py --aircraft 12 --designs svd:8+bias
+    .venv/bin/python bench/bench_uncertainty.py --designs subset:10 --rotations 200
 """
 
 from __future__ import annotations
@@ -28,11 +39,83 @@ import numpy as np
 from app.engine_cache import engine_schedule
 from app.services.demo import fleet as demo_fleet
 from app.services.designs import calibration
+from estimation import uncertainty
 from tests.support import health_uncertainty
 
 DESIGNS = ("subset:10", "svd:8+bias", "svd:6")
 TARGETS = ("targets: shown parameters 1-sigma coverage 55-85 %, 2-sigma >= 85 %; change RMS "
-           "<= 0.5 %; fleet-average slopes within 30 % of the truth (observable ones)")
+           "<= 0.5 %; fleet-average slopes within 30 % of the truth (observable ones), the true "
+           "slope within +-1 sigma on 55-85 % of the fleets and +-2 sigma on >= 85 %")
+# Scoring seeds: the demo fleet's and every seventh after it (none a calibration seed).
+SCORING_SEEDS = tuple(demo_fleet.SEED + 7 * k for k in range(16))
+
+
+def slope_coverage(names: tuple[str, ...], rows: list[tuple[np.ndarray, ...]]) -> str:
+    """Coverage of the slopes' 1-sigma over fleets: rows of (error, sigma, true[, peer sigma])
+    [p] per fleet (NaN where not shown); per shown slope and pooled, with the targets' verdict
+    and, given, the coverage of the peer sigma (without the gain's standard error)."""
+    err, sigma, true, *peer = (np.array(x) for x in zip(*rows, strict=True))
+    shown = np.isfinite(err) & np.isfinite(sigma)
+    z = np.abs(err) / sigma
+    rel = np.abs(err) / np.maximum(np.abs(true), calibration.YEAR_SLOPE_FLOOR)
+
+    def peer_text(ok: np.ndarray) -> str:
+        if not peer:
+            return ""
+        zp = np.abs(err[ok]) / peer[0][ok]
+        return (f"; without the gain's error {np.mean(zp <= 1):.0%} / {np.mean(zp <= 2):.0%}")
+
+    lines = []
+    for k in np.flatnonzero(shown.any(axis=0)):
+        ok = shown[:, k]
+        lines.append(f"  {names[k]}: {int(ok.sum())} fleet slopes, within 1 sigma "
+                     f"{np.mean(z[ok, k] <= 1):.0%}, 2 sigma {np.mean(z[ok, k] <= 2):.0%}, "
+                     f"within 30 % {np.mean(rel[ok, k] <= 0.3):.0%} (worst {rel[ok, k].max():.0%}),"
+                     f" sigma {sigma[ok, k].min():.3f}-{sigma[ok, k].max():.3f} %/year"
+                     + peer_text(np.where(np.arange(shown.shape[1]) == k, ok[:, None], False)))
+    if not shown.any():
+        return "  no slope shown"
+    c1, c2 = float(np.mean(z[shown] <= 1)), float(np.mean(z[shown] <= 2))
+    verdict = "met" if 0.55 <= c1 <= 0.85 and c2 >= 0.85 else "missed"
+    lines.append(f"  pooled: {int(shown.sum())} fleet slopes, within 1 sigma {c1:.0%} "
+                 f"(55-85 %), 2 sigma {c2:.0%} (>= 85 %): {verdict}; within 30 % "
+                 f"{np.mean(rel[shown] <= 0.3):.0%}" + peer_text(shown))
+    return "\n".join(lines)
+
+
+def rotations(pieces: list[uncertainty.TrendPieces], observable: np.ndarray, k: int,
+              draws: int, names: tuple[str, ...]) -> str:
+    """Coverage over ``draws`` random sets of ``k`` calibration fleets from ``pieces``, each
+    scored on the others (slopes shown where the level is ``observable`` and the draw has a
+    gain), beside the sigma without the gain's standard error."""
+    rng = np.random.default_rng(0)
+    rows, cover1, gains, gain_stds = [], [], [], []
+    for _ in range(draws):
+        pick = rng.choice(len(pieces), k, replace=False)
+        fit = uncertainty.fit_fleet_slope([pieces[i] for i in pick],
+                                          calibration.YEAR_SLOPE_FLOOR,
+                                          calibration.SLOPE_TOLERANCE)
+        shown = observable & np.isfinite(fit.gain)
+        gains.append(fit.gain)
+        gain_stds.append(fit.gain_std)
+        z = []
+        for i in sorted(set(range(len(pieces))) - set(pick.tolist())):
+            slope, sigma, true = pieces[i].fleet(fit.gain, fit.noise, fit.common, fit.gain_std)
+            peer = pieces[i].fleet(fit.gain, fit.noise, fit.common)[1]
+            nan = np.where(shown, 0.0, np.nan)
+            rows.append((slope - true + nan, sigma + nan, true, peer + nan))
+            z.append(np.abs(slope - true)[shown] / sigma[shown])
+        if shown.any():
+            cover1.append(np.mean(np.concatenate(z) <= 1))
+    c1 = np.array(cover1)
+    g, u = np.array(gains), np.array(gain_stds)
+    spread = " ".join(f"{n} {np.nanstd(g[:, j]):.3f} against {np.nanmean(u[:, j]):.3f}"
+                      for j, n in enumerate(names) if np.isfinite(g[:, j]).sum() > 2)
+    return (f"  {draws} draws of {k} calibration fleets from {len(pieces)}, each scored on the "
+            f"other {len(pieces) - k} (per draw, the 1-sigma coverage ranges "
+            f"{np.percentile(c1, 10):.0%}-{np.percentile(c1, 90):.0%}, 10-90 %); the gain's "
+            f"spread over the draws against its mean jackknife standard error: {spread}\n"
+            + slope_coverage(names, rows))
 
 
 def main() -> None:
@@ -40,7 +123,9 @@ def main() -> None:
     ap.add_argument("--aircraft", type=int, default=calibration.CALIBRATION_AIRCRAFT)
     ap.add_argument("--flights", type=int, default=730)
     ap.add_argument("--calibrate-seeds", default=",".join(map(str, calibration.CALIBRATION_SEEDS)))
-    ap.add_argument("--seeds", default=f"{demo_fleet.SEED},{demo_fleet.SEED + 7}")
+    ap.add_argument("--seeds", default=",".join(map(str, SCORING_SEEDS)))
+    ap.add_argument("--rotations", type=int, default=0,
+                    help="also score this many other draws of calibration fleets (slow)")
     ap.add_argument("--designs", default=",".join(DESIGNS))
     ap.add_argument("--cache", type=Path, default=Path("/tmp/fh/cache"))
     ap.add_argument("--json", type=Path, default=None, help="write the calibrations here")
@@ -79,8 +164,17 @@ def main() -> None:
         print("slope gain (nan: slope unobservable): " + " ".join(
             f"{n}={v:.2f}" for n, v in zip(calib.names, np.asarray(calib.slope_gain),
                                            strict=True)))
+        print("slope gain's relative standard error (jackknife): " + " ".join(
+            f"{n}={v:.1%}" for n, v in zip(calib.names, calib.source["slope_gain_relative_std"],
+                                           strict=True) if v is not None))
+        slope_rows = []
         for seed, test_fleet in zip(test_seeds, test_fleets, strict=True):
             sc = health_uncertainty.score(est, calib, *test_fleet)
+            peer = np.sqrt(np.maximum(sc.slope_sigma**2 - np.square(
+                sc.slope_hat * np.asarray(calib.slope_gain_std) / np.asarray(calib.slope_gain)),
+                0.0))
+            slope_rows.append((sc.slope_hat - sc.slope_true, sc.slope_sigma, sc.slope_true,
+                               peer))
             s = sc.summary()
             print(f"-- scored on seed {seed}: {sc.records} records, {sc.segments} segments, "
                   f"{sc.pieces} trend pieces")
@@ -93,6 +187,15 @@ def main() -> None:
                   f"{s['slope_err_max']:.0%} over {s['slopes_shown']} observable slopes "
                   f"(<= 30 %)")
             print(_common.load_line())
+        print(f"fleet-average slopes over the {len(test_seeds)} scoring fleets (1-sigma with the "
+              "gain's standard error; the peer: without it):")
+        print(slope_coverage(calib.names, slope_rows))
+        if args.rotations:
+            pieces = [calibration.trend_pieces(calibration.tracks(est, *f))
+                      for f in cal_fleets + test_fleets]
+            print(rotations(pieces, calib.observable, len(cal_fleets), args.rotations,
+                            calib.names))
+        print(_common.load_line())
     if args.json:
         args.json.write_text(json.dumps(stored, indent=1))
 

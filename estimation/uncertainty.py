@@ -45,7 +45,20 @@ engines: the calibration fleets' errors beyond their piece noise). The nonlinear
 engine moves an estimated trend by a gain g_k (the linear theory's I + B_h along the fleet's
 rates: other modules' wear read as this one's); the estimate is divided by g_k. a_k
 (``fit_slope_noise``), c_k and g_k (``fit_slope_gain``) are calibrated on the simulated fleets
-with s.
+with s (``fit_fleet_slope``, over K calibration fleets).
+
+The gain is itself an estimate from K fleets, and its error moves every fleet's corrected
+slope the same way (slope * dg / g): the 1-sigma holds it in quadrature,
+
+    sigma_k^2 = (a_k / sum T_e^2 + c_k) / g_k^2 + (slope_k * u_k / g_k)^2
+
+with u_k the gain's jackknife standard error over the calibration fleets (the gains g_(-j)
+of the K leave-one-fleet-out pools: u^2 = (K - 1) / K sum_j (g_(-j) - mean g_(-j))^2,
+``fit_fleet_slope``). c_k (cross-validated: each fleet corrected with the gain of the others)
+holds a K-1-fleet gain error in expectation too, but averaged over K = 6 fleets and clipped at
+0 it often does not; u is the gain's error on its own (its jackknife matches the spread of the
+gain over independent draws of calibration fleets, bench_uncertainty). One calibration fleet
+cannot be cross-validated: its slopes are unobservable.
 
 A parameter is shown as unobservable (no number) when the design cannot tell it apart from the
 fleet prior: its honest sigma (bias, filter and model error at steady state) is more than
@@ -153,6 +166,9 @@ class Calibration:
     slope_gain: np.ndarray | None = None
     slope_noise: np.ndarray | None = None
     slope_common: np.ndarray | None = None
+    # The gain's standard error u_k (module docstring); None: not calibrated (a calibration
+    # stored before the slope's sigma held it: the slope's sigma is unknown, recalibrate).
+    slope_gain_std: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         p = len(self.names)
@@ -164,8 +180,11 @@ class Calibration:
             object.__setattr__(self, "slope_noise", np.full(p, np.nan))
         if self.slope_common is None:
             object.__setattr__(self, "slope_common", np.zeros(p))
+        if self.slope_gain_std is None:
+            object.__setattr__(self, "slope_gain_std", np.full(p, np.nan))
         for name in ("bias_scale", "level_std", "change_std", "slope_error", "bias2", "drift",
-                     "observable", "slope_gain", "slope_noise", "slope_common"):
+                     "observable", "slope_gain", "slope_noise", "slope_common",
+                     "slope_gain_std"):
             value = np.asarray(getattr(self, name), bool if name == "observable" else float)
             if value.shape != (p,):
                 raise DimensionError(
@@ -183,8 +202,8 @@ class Calibration:
 
     def on(self, names: Sequence[str]) -> Calibration:
         """The calibration in the order of ``names``; a name it does not hold gets no model
-        error (s = 0, no bias, no drift), a slope gain of 1 with unknown noise, and counts as
-        observable."""
+        error (s = 0, no bias, no drift), a slope gain of 1 (exact: no gain error) with unknown
+        noise, and counts as observable."""
         where = {n: k for k, n in enumerate(self.names)}
         index = np.array([where.get(n, -1) for n in names], int)
         held = index >= 0
@@ -200,7 +219,8 @@ class Calibration:
             bias2=pick(self.bias2, 0.0), drift=pick(self.drift, 0.0),
             observable=pick(self.observable, True), bias_scale=pick(self.bias_scale, 1.0),
             slope_gain=pick(self.slope_gain, 1.0), slope_noise=pick(self.slope_noise, np.nan),
-            slope_common=pick(self.slope_common, 0.0))
+            slope_common=pick(self.slope_common, 0.0),
+            slope_gain_std=pick(self.slope_gain_std, 0.0))
 
     def aux_model_std(self, name: str) -> float | None:
         """s of one aux output (percent of trim); None when it was not calibrated."""
@@ -231,6 +251,7 @@ class Calibration:
             "slope_gain": listed(np.asarray(self.slope_gain)),
             "slope_noise": listed(np.asarray(self.slope_noise)),
             "slope_common": listed(np.asarray(self.slope_common)),
+            "slope_gain_std": listed(np.asarray(self.slope_gain_std)),
         }
 
     @classmethod
@@ -252,7 +273,15 @@ class Calibration:
             slope_gain=arr("slope_gain") if "slope_gain" in d else None,
             slope_noise=arr("slope_noise") if "slope_noise" in d else None,
             slope_common=arr("slope_common") if "slope_common" in d else None,
+            slope_gain_std=arr("slope_gain_std") if "slope_gain_std" in d else None,
         )
+
+    @property
+    def slope_sigma_known(self) -> bool:
+        """Whether the slopes' 1-sigma can be formed: the gain's standard error was calibrated
+        wherever a slope is shown (False: stored before it was, recalibrate)."""
+        shown = np.asarray(self.observable) & np.isfinite(np.asarray(self.slope_gain))
+        return bool(np.all(np.isfinite(np.asarray(self.slope_gain_std))[shown]))
 
 
 def level_sigma(
@@ -373,20 +402,24 @@ def piece_slope(x: np.ndarray, y: np.ndarray, w: np.ndarray | None = None) -> np
 def fleet_slope(
     slopes: np.ndarray, spans: np.ndarray, gain: np.ndarray | None = None,
     noise: np.ndarray | None = None, common: np.ndarray | None = None,
+    gain_std: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fleet-average slope [p] and its 1-sigma [p] from the pieces' slopes [S, p] over spans
     [S] (module docstring): the mean weighted by T_e^2, divided by the gain g [p] (None: 1);
-    sigma sqrt(a / sum T_e^2 + c) / |g| for the noise a [p] (None: NaN) and the error common
-    to a fleet's pieces c [p] (None: 0). No piece: NaN."""
+    sigma sqrt((a / sum T_e^2 + c) / g^2 + (slope u / g)^2) for the noise a [p] (None: NaN),
+    the error common to a fleet's pieces c [p] (None: 0) and the gain's standard error u [p]
+    (None: 0, an exact gain; NaN: unknown, NaN sigma). No piece: NaN."""
     slopes = np.asarray(slopes, float)
     w = np.square(np.asarray(spans, float))
     p = slopes.shape[1] if slopes.ndim == 2 else 0
     g = np.ones(p) if gain is None else np.asarray(gain, float)
     a = np.full(p, np.nan) if noise is None else np.asarray(noise, float)
     c = np.zeros(p) if common is None else np.asarray(common, float)
+    u = np.zeros(p) if gain_std is None else np.asarray(gain_std, float)
     if not w.size or w.sum() <= 0.0:
         return np.full(p, np.nan), np.full(p, np.nan)
-    return (w @ slopes) / w.sum() / g, np.sqrt(a / w.sum() + c) / np.abs(g)
+    slope = (w @ slopes) / w.sum() / g
+    return slope, np.sqrt((a / w.sum() + c) / g**2 + np.square(slope * u / g))
 
 
 def fit_slope_gain(hat: np.ndarray, true: np.ndarray, spans: np.ndarray,
@@ -411,6 +444,88 @@ def fit_slope_noise(hat: np.ndarray, true: np.ndarray, spans: np.ndarray,
         return np.full(np.asarray(hat).shape[1], np.nan)
     err = np.asarray(hat, float) / np.asarray(gain, float) - np.asarray(true, float)
     return np.mean(np.square(spans[:, None] * err), axis=0)
+
+
+
+@dataclass(frozen=True)
+class TrendPieces:
+    """The pieces of one fleet's trends (``period_pieces``): per piece the slope of the
+    estimate and of the true health [S, p] (percent per year) and its span [S] (years)."""
+
+    hat: np.ndarray
+    true: np.ndarray
+    spans: np.ndarray
+
+    def fleet(self, gain: np.ndarray | None = None, noise: np.ndarray | None = None,
+              common: np.ndarray | None = None, gain_std: np.ndarray | None = None,
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(estimated slope, its 1-sigma, true slope) [p] over the fleet (``fleet_slope``)."""
+        slope, sigma = fleet_slope(self.hat, self.spans, gain, noise, common, gain_std)
+        return slope, sigma, fleet_slope(self.true, self.spans)[0]
+
+    @staticmethod
+    def pooled(fleets: Sequence[TrendPieces]) -> TrendPieces:
+        """The pieces of several fleets as one."""
+        return TrendPieces(np.concatenate([f.hat for f in fleets]),
+                           np.concatenate([f.true for f in fleets]),
+                           np.concatenate([f.spans for f in fleets]))
+
+
+@dataclass(frozen=True)
+class SlopeFit:
+    """The fleet-average slope's calibration [p] each (``fit_fleet_slope``)."""
+
+    gain: np.ndarray  # g (NaN: the slope is unobservable)
+    gain_std: np.ndarray  # u, the gain's jackknife standard error
+    noise: np.ndarray  # a
+    common: np.ndarray  # c
+    error: np.ndarray  # pooled relative error of the uncorrected slope
+    sigma: np.ndarray  # its relative 1-sigma over the pooled pieces
+    cross: np.ndarray  # RMS relative error of a fleet's corrected slope (cross-validated)
+
+
+def fit_fleet_slope(fleets: Sequence[TrendPieces], floor: float = 0.0,
+                    tolerance: float = 0.3) -> SlopeFit:
+    """The fleet-average slope's calibration over the pooled pieces of the K ``fleets``
+    (module docstring): the gain g and the noise a (``fit_slope_gain``, ``fit_slope_noise``);
+    for each fleet j the gain g_(-j) of the other fleets, with which its corrected slope is
+    cross-validated: the common error c is the mean of its squared error beyond its piece
+    noise (clipped at 0), u the jackknife standard error of the gain over the g_(-j), and
+    ``cross`` the RMS relative error (relative to max(|true|, ``floor``)). Also the pooled
+    uncorrected slope's relative error and 1-sigma. The gain is NaN (the slope unobservable)
+    where that 1-sigma is over half of ``tolerance`` (the calibration fleets cannot tell the
+    trend from its noise), where the cross-validated RMS error is over ``tolerance`` (the
+    level's rule for its slope, here for a fleet's corrected slope on a fleet the gain did not
+    see), or with fewer than two fleets (nothing to cross-validate)."""
+    pooled = TrendPieces.pooled(fleets)
+    gain = fit_slope_gain(pooled.hat, pooled.true, pooled.spans, floor)
+    noise = fit_slope_noise(pooled.hat, pooled.true, pooled.spans, np.nan_to_num(gain, nan=1.0))
+    raw, raw_sigma, true = pooled.fleet(None, noise)
+    scale = np.maximum(np.abs(true), floor)
+    excess, relative, left_out = [], [], []
+    for j, f in enumerate(fleets):
+        if not len(f.spans) or len(fleets) < 2:
+            continue
+        others = TrendPieces.pooled([o for k, o in enumerate(fleets) if k != j])
+        g = fit_slope_gain(others.hat, others.true, others.spans, floor)
+        slope, _, true_f = f.fleet(np.where(np.isfinite(g), g, 1.0))
+        excess.append((slope - true_f) ** 2 - noise / np.sum(f.spans**2))
+        relative.append((slope - true_f) / np.maximum(np.abs(true_f), floor))
+        left_out.append(g)
+    p = noise.shape[0]
+    if len(left_out) < 2:
+        nan = np.full(p, np.nan)
+        return SlopeFit(nan, nan, noise, np.zeros(p), (raw - true) / scale, raw_sigma / scale,
+                        nan)
+    common = np.maximum(np.mean(excess, axis=0), 0.0)
+    cross = np.sqrt(np.mean(np.square(relative), axis=0))
+    k = len(left_out)
+    gain_std = np.sqrt((k - 1) / k * np.sum(np.square(left_out - np.mean(left_out, axis=0)),
+                                             axis=0))
+    sigma = raw_sigma / scale
+    # NaN sigma or cross-validation error: NaN gain.
+    gain = np.where((sigma <= 0.5 * tolerance) & (cross <= tolerance), gain, np.nan)
+    return SlopeFit(gain, gain_std, noise, common, (raw - true) / scale, sigma, cross)
 
 
 YEAR_S = 365.25 * 86400.0

@@ -214,14 +214,22 @@ class DeteriorationSeries(BaseModel):
 class DeteriorationSlope(BaseModel):
     name: str
     slope: float | None = Field(description="fleet-average slope; null: unobservable")
-    sigma: float | None = Field(description="its 1-sigma; null: uncalibrated or unobservable")
+    sigma: float | None = Field(
+        description="its 1-sigma, in the same unit: the pieces' noise, the error common to a "
+        "fleet and the calibrated gain's own standard error; null: uncalibrated, recalibrate "
+        "or unobservable")
 
 
 class DeteriorationSlopes(BaseModel):
     engine_type: str
     design_id: int
-    unit: Literal["%/year"]
-    uncertainty: Literal["calibrated", "uncalibrated"]
+    unit: Literal["%/year"] = Field(description="unit of each slope and its sigma")
+    uncertainty: Literal["calibrated", "uncalibrated", "recalibrate"] = Field(
+        description="calibrated: slopes corrected by the design's calibrated gain, with their "
+        "1-sigma; uncalibrated: the design has no calibration (plain mean, no sigma); "
+        "recalibrate: the calibration was stored before the slope's 1-sigma held the gain's "
+        "standard error: corrected slopes without a sigma until the design's calibrate_design "
+        "job runs again")
     pieces: int = Field(description="engine trends (between baseline resets) the slopes use")
     engines: int
     unobservable: list[str] = Field(

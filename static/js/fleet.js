@@ -127,8 +127,16 @@ async function loadStatus() {
   drawTable();
 }
 
-// Fleet-average deterioration slope per health parameter: a number ± 1σ, "unobservable" where
-// the design cannot observe it (listed by the API), or no trend yet (no engine trend long enough).
+// Fleet-average deterioration slope per health parameter: a number ± 1σ (both in the group's
+// unit, %/year), "unobservable" where the design cannot observe it (listed by the API), or no
+// trend yet (no engine trend long enough). A design calibrated before the 1σ held the gain's
+// standard error shows its slope with "1σ: recalibrate" instead of a sigma.
+function slopeText(g, p) {
+  if (p.sigma !== null) return `${fmtNum(p.slope)} ± ${fmtNum(p.sigma)} ${g.unit}`;
+  if (g.uncertainty === "recalibrate") return `${fmtNum(p.slope)} ${g.unit} (1σ: recalibrate the design)`;
+  return `${fmtNum(p.slope)} ${g.unit}`;
+}
+
 function drawSlopes(groups) {
   const rows = [];
   for (const g of groups) {
@@ -139,13 +147,14 @@ function drawSlopes(groups) {
         groups.length > 1 ? h("td", {}, g.engine_type) : null,
         p.slope === null
           ? h("td", { class: "muted" }, s.unobservable.includes(p.name) ? "unobservable" : "no trend yet (an engine needs about 3 months between baseline resets)")
-          : h("td", { class: "num" }, p.sigma === null ? fmtNum(p.slope) : `${fmtNum(p.slope)} ± ${fmtNum(p.sigma)}`)));
+          : h("td", { class: "num" }, slopeText(s, p))));
     }
   }
-  const note = groups.map((g) => `${g.engine_type}: ${g.pieces} engine trends over ${g.engines} engines (${g.uncertainty})`).join("; ");
+  const state = { calibrated: "calibrated: ±1σ", uncalibrated: "uncalibrated: no σ", recalibrate: "calibrated before the 1σ held the gain's own error: recalibrate the design for a σ" };
+  const note = groups.map((g) => `${g.engine_type}: ${g.pieces} engine trends over ${g.engines} engines (${state[g.uncertainty] ?? g.uncertainty})`).join("; ");
   $("#slopes").replaceChildren(
     h("table", { class: "compact" },
-      h("thead", {}, h("tr", {}, h("th", {}, "Health parameter"), groups.length > 1 ? h("th", {}, "Engine type") : null, h("th", {}, "Slope [%/year]"))),
+      h("thead", {}, h("tr", {}, h("th", {}, "Health parameter"), groups.length > 1 ? h("th", {}, "Engine type") : null, h("th", {}, "Slope ± 1σ [%/year]"))),
       h("tbody", {}, ...rows)),
     h("p", { class: "legend-note" }, note));
 }

@@ -2,11 +2,24 @@
 
 from __future__ import annotations
 
+from datetime import timedelta
 from typing import Any
 
 import httpx
+import numpy as np
 import pytest
 
+from app.db import transaction
+from app.models import EstimatorDesign
+from estimation.uncertainty import YEAR_S, Calibration
+from tests.app.services.trends.test_trends import (
+    LAYOUT,
+    T0,
+    add_aircraft,
+    add_engine,
+    add_estimates,
+    make_fleet,
+)
 from tests.browser.conftest import Console, Server, screenshot, sign_in, traces
 
 pytestmark = pytest.mark.browser
@@ -97,3 +110,74 @@ def test_a_key_revoked_mid_session_sends_the_user_back_to_sign_in(
     assert page.evaluate("localStorage.getItem('fleethealth.apiKey')") is None
     screenshot(page, "signin-after-revocation")
     assert console.unexpected("401") == []
+
+
+def test_fleet_slopes_show_the_sigma_with_units_and_ask_to_recalibrate(
+    page: Any, server: Server, console: Console
+) -> None:
+    """An operator of its own with a year of trends and a calibrated design: each shown slope
+    reads "slope ± sigma %/year" as the API gives them, the unobservable one says so; with a
+    calibration stored before the gain's standard error was, the slope stays and the cell asks
+    to recalibrate instead of showing a sigma."""
+    with transaction(server.factory) as session:
+        fleet = make_fleet(session, "Slope Page Air")
+        aircraft = add_aircraft(session, fleet, "F-SLOPE")
+        rng = np.random.default_rng(3)
+        h = LAYOUT.slices()["h"]
+        days = np.arange(365)
+        for i, rate in enumerate(([-1.0, -0.8, 0.4], [-1.2, -0.6, 0.5])):
+            engine = add_engine(session, fleet, f"SLOPE-{i}")
+            v = rng.normal(size=(len(days), LAYOUT.width)) * 0.01
+            v[:, h] = np.outer(days * 86400.0 / YEAR_S, rate)
+            add_estimates(session, fleet, engine, aircraft, v,
+                          [T0 + timedelta(days=int(d)) for d in days])
+        calib = Calibration(
+            names=("fan_eff", "hpc_eff", "hpc_flow"), level_std=np.zeros(3),
+            change_std=np.zeros(3), slope_error=np.zeros(3), bias2=np.zeros(3),
+            drift=np.zeros(3), observable=np.array([False, True, True]),
+            slope_gain=np.array([1.0, 1.1, 0.9]), slope_noise=np.full(3, 0.02),
+            slope_common=np.full(3, 0.001), slope_gain_std=np.array([0.1, 0.05, 0.04]),
+        )
+        design = session.get(EstimatorDesign, fleet.design.id)
+        assert design is not None
+        design.result = {"uncertainty": calib.to_dict()}
+        key, design_id = fleet.key, design.id
+
+    def api_slopes() -> dict[str, Any]:
+        return httpx.get(f"{server.base_url}/api/v1/fleet/deterioration/slopes",
+                         headers={"X-API-Key": key}).json()["groups"][0]
+
+    def cells() -> list[str]:
+        return page.locator("#slopes tbody tr td:last-child").all_inner_texts()
+
+    sign_in(page, key, "/")
+    slopes = api_slopes()
+    assert slopes["uncertainty"] == "calibrated" and slopes["unit"] == "%/year"
+    header = page.locator("#slopes thead th").all_inner_texts()[-1]
+    assert header == "Slope ± 1σ [%/year]"
+    shown = 0
+    for cell, item in zip(cells(), slopes["health"], strict=True):
+        if item["name"] in slopes["unobservable"]:
+            assert cell == "unobservable"
+            continue
+        assert item["sigma"] is not None and item["sigma"] > 0.0
+        assert cell == f"{item['slope']:.2f} ± {item['sigma']:.2f} %/year"
+        shown += 1
+    assert shown == 2
+    screenshot(page, "fleet-slopes")
+    with transaction(server.factory) as session:
+        design = session.get(EstimatorDesign, design_id)
+        assert design is not None
+        stale = {k: v for k, v in calib.to_dict().items() if k != "slope_gain_std"}
+        design.result = {"uncertainty": stale}
+    page.reload()
+    page.wait_for_selector("body[data-ready=true]")
+    page.wait_for_function("document.querySelector('#slopes tbody') !== null")
+    before = api_slopes()
+    assert before["uncertainty"] == "recalibrate"
+    for cell, item in zip(cells(), before["health"], strict=True):
+        if item["name"] not in before["unobservable"]:
+            assert item["sigma"] is None
+            assert cell == f"{item['slope']:.2f} %/year (1σ: recalibrate the design)"
+    assert "recalibrate the design for a σ" in page.locator("#slopes .legend-note").inner_text()
+    assert console.unexpected() == []

@@ -126,7 +126,7 @@ def score(
     pieces = calibration.trend_pieces(tr)
     slope_shown = calib.observable & np.isfinite(np.asarray(calib.slope_gain))
     slope_hat, slope_sigma, slope_true = pieces.fleet(calib.slope_gain, calib.slope_noise,
-                                                      calib.slope_common)
+                                                      calib.slope_common, calib.slope_gain_std)
     slope_hat = np.where(slope_shown, slope_hat, np.nan)
     ends = np.array([(s.h_hat[-1] - s.h_hat[0]) - (s.h_true[-1] - s.h_true[0]) for s in segs])
     cov = uncertainty.coverage

@@ -7,7 +7,10 @@ truth more often than the filter's own, the shown parameters' 1-sigma in at leas
 their 2-sigma in at least 85 % of the records, and the change since the baseline has an RMS error of
 at most 0.5 % over the shown parameters. The accuracy of the fleet-average slopes needs the
 bench's larger fleets; here, a slope is a number only where the calibration can vouch for it
-(an observable parameter with a gain) and is reported as unobservable elsewhere.
+(an observable parameter with a gain) and is reported as unobservable elsewhere. Its 1-sigma
+(with the gain's own standard error) is scored on the product's calibration fleets against 16
+other fleets in the slow form (bench_uncertainty.py scores it, and draws of calibration fleets,
+in full); the reduced form is tests/estimation/test_uncertainty.py's.
 """
 
 from __future__ import annotations
@@ -18,6 +21,8 @@ import numpy as np
 import pytest
 
 from app.services.demo import fleet
+from app.services.designs import calibration
+from estimation import uncertainty
 from estimation.engine.fleet import FleetPlan, Snapshots, fleet_snapshots, plan_fleet
 from estimation.engine.schedule import EngineSchedule, build_schedule
 from estimation.uncertainty import Calibration
@@ -57,3 +62,29 @@ def test_calibrated_uncertainty_on_an_independent_seed(schedule: EngineSchedule)
     assert not np.any(sc.slope_shown & ~shown), sc.report()
     assert np.all(np.isfinite(sc.slope_hat) == sc.slope_shown), sc.report()
     assert sc.report().count("unobservable") == int((~sc.slope_shown).sum())
+
+
+@pytest.mark.slow
+def test_fleet_slope_sigma_covers_the_truth_over_sixteen_fleets(schedule: EngineSchedule) -> None:
+    """The demo design's fleet-average slopes on the product's calibration fleets
+    (``calibration.CALIBRATION_SEEDS``, 8 aircraft, a year), scored on 16 fleets of other
+    seeds: the true slope within +-1 sigma on 55-85 % and +-2 sigma on >= 85 % of the shown
+    fleet slopes (every slope with a gain, pooled)."""
+    est = fleet.design_estimator(schedule, "subset", 10)
+
+    def pieces(seed: int) -> uncertainty.TrendPieces:
+        plan, snaps = calibration.simulate_fleet(seed)
+        return calibration.trend_pieces(calibration.tracks(est, plan, snaps))
+
+    fit = uncertainty.fit_fleet_slope([pieces(s) for s in calibration.CALIBRATION_SEEDS],
+                                      calibration.YEAR_SLOPE_FLOOR, calibration.SLOPE_TOLERANCE)
+    shown = np.isfinite(fit.gain)
+    assert shown.any() and np.all(fit.gain_std[shown] > 0.0)
+    z = []
+    for k in range(16):
+        slope, sigma, true = pieces(fleet.SEED + 7 * k).fleet(fit.gain, fit.noise, fit.common,
+                                                             fit.gain_std)
+        z.append(np.abs(slope - true)[shown] / sigma[shown])
+    z_all = np.concatenate(z)
+    cover1, cover2 = np.mean(z_all <= 1.0), np.mean(z_all <= 2.0)
+    assert 0.55 <= cover1 <= 0.85 and cover2 >= 0.85, (cover1, cover2)

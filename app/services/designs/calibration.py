@@ -327,24 +327,7 @@ def slopes(segs: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray]:
     return hat.mean(axis=0), true.mean(axis=0)
 
 
-@dataclass(frozen=True)
-class TrendPieces:
-    """The pieces of the fleet-average slope (``uncertainty.period_pieces``), as the product
-    forms them from the stored estimates (``app.services.fleet.slopes``): per piece the slope of
-    h_hat and of the true h [S, p] (percent per year) and its span [S] (years)."""
-
-    hat: np.ndarray
-    true: np.ndarray
-    spans: np.ndarray
-
-    def fleet(self, gain: np.ndarray | None = None, noise: np.ndarray | None = None,
-              common: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(estimated slope, its 1-sigma, true slope) [p] over the fleet."""
-        slope, sigma = uncertainty.fleet_slope(self.hat, self.spans, gain, noise, common)
-        return slope, sigma, uncertainty.fleet_slope(self.true, self.spans)[0]
-
-
-def trend_pieces(track_list: Sequence[HealthTrack]) -> TrendPieces:
+def trend_pieces(track_list: Sequence[HealthTrack]) -> uncertainty.TrendPieces:
     """Every engine's records in weekly means (``buckets.period_sums``: what the pipeline
     stores for the fleet deterioration), split at its baseline resets, h_hat and the true h
     alike."""
@@ -363,61 +346,9 @@ def trend_pieces(track_list: Sequence[HealthTrack]) -> TrendPieces:
         true.append(slope[:, p:])
         spans.append(span)
     p = track_list[0].h_hat.shape[1] if track_list else 0
-    return TrendPieces(np.concatenate(hat) if hat else np.empty((0, p)),
-                       np.concatenate(true) if true else np.empty((0, p)),
-                       np.concatenate(spans) if spans else np.empty(0))
-
-
-@dataclass(frozen=True)
-class SlopeCalibration:
-    """The fleet-average slope's calibration [p] each (``slope_check``)."""
-
-    gain: np.ndarray  # g (NaN: the slope is unobservable)
-    noise: np.ndarray  # a
-    common: np.ndarray  # c
-    error: np.ndarray  # pooled relative error of the uncorrected slope
-    sigma: np.ndarray  # its relative 1-sigma over the pooled pieces
-    cross: np.ndarray  # RMS relative error of a fleet's corrected slope (cross-validated)
-
-
-def slope_check(fleets: Sequence[TrendPieces], tolerance: float = SLOPE_TOLERANCE
-                ) -> SlopeCalibration:
-    """The fleet-average slope's calibration over the pooled pieces of ``fleets``: the gain g
-    and the noise a (``uncertainty.fit_slope_gain``, ``fit_slope_noise``), the common error
-    c (the mean over the fleets of the squared error of a fleet's slope, corrected with the
-    gain of the other fleets, beyond its piece noise: cross-validated; one fleet: 0), the
-    pooled uncorrected slope's relative error and 1-sigma, and the RMS relative error of the
-    cross-validated fleet slopes. The gain is NaN (the slope unobservable) where that 1-sigma
-    is over half of ``tolerance`` (the calibration fleets cannot tell the trend from its
-    noise) or that RMS error over ``tolerance`` (the level's rule for its slope, here for a
-    fleet's corrected slope on a fleet the gain did not see)."""
-    pooled = TrendPieces(np.concatenate([f.hat for f in fleets]),
-                         np.concatenate([f.true for f in fleets]),
-                         np.concatenate([f.spans for f in fleets]))
-    gain = uncertainty.fit_slope_gain(pooled.hat, pooled.true, pooled.spans, YEAR_SLOPE_FLOOR)
-    noise = uncertainty.fit_slope_noise(pooled.hat, pooled.true, pooled.spans,
-                                        np.nan_to_num(gain, nan=1.0))
-    raw, raw_sigma, true = pooled.fleet(None, noise)
-    scale = np.maximum(np.abs(true), YEAR_SLOPE_FLOOR)
-    excess, relative = [], []
-    for k, f in enumerate(fleets):
-        others = [o for j, o in enumerate(fleets) if j != k]
-        if not others or not len(f.spans):
-            continue
-        g = uncertainty.fit_slope_gain(np.concatenate([o.hat for o in others]),
-                                       np.concatenate([o.true for o in others]),
-                                       np.concatenate([o.spans for o in others]),
-                                       YEAR_SLOPE_FLOOR)
-        slope, _, true_f = f.fleet(np.where(np.isfinite(g), g, 1.0))
-        excess.append((slope - true_f) ** 2 - noise / np.sum(f.spans**2))
-        relative.append((slope - true_f) / np.maximum(np.abs(true_f), YEAR_SLOPE_FLOOR))
-    common = np.maximum(np.mean(excess, axis=0), 0.0) if excess else np.zeros_like(noise)
-    cross = (np.sqrt(np.mean(np.square(relative), axis=0)) if relative
-             else np.zeros_like(noise))
-    sigma = raw_sigma / scale
-    # NaN sigma or cross-validation error: NaN gain.
-    gain = np.where((sigma <= 0.5 * tolerance) & (cross <= tolerance), gain, np.nan)
-    return SlopeCalibration(gain, noise, common, (raw - true) / scale, sigma, cross)
+    return uncertainty.TrendPieces(np.concatenate(hat) if hat else np.empty((0, p)),
+                                   np.concatenate(true) if true else np.empty((0, p)),
+                                   np.concatenate(spans) if spans else np.empty(0))
 
 
 def fleet_prior(segs: Sequence[Segment]) -> np.ndarray:
@@ -444,10 +375,10 @@ def calibrate(
     is at most ``reduction`` times the design's prior sigma sqrt(prior_var) and its mean rate
     over the pooled segments (``slopes``) is within ``slope_tolerance`` of the truth
     (``uncertainty.observable``). Its fleet-average slope is shown too when the pooled pieces
-    measure it well enough to calibrate a gain (``slope_check``).
+    measure it well enough to calibrate a gain (``uncertainty.fit_fleet_slope``).
     """
     segs: list[Segment] = []
-    pieces: list[TrendPieces] = []
+    pieces: list[uncertainty.TrendPieces] = []
     fleet_of: list[int] = []  # the fleet of each segment
     B_hs = []
     aux = tuple(est.layout.aux)
@@ -481,7 +412,7 @@ def calibrate(
     shown = uncertainty.observable(
         np.full(p, prior_var), scale**2 * bias2, np.median(st["filter_var"], axis=0), level_std,
         slope_error=slope_error, reduction=reduction, slope_tolerance=slope_tolerance)
-    sc = slope_check(pieces, slope_tolerance)
+    sc = uncertainty.fit_fleet_slope(pieces, YEAR_SLOPE_FLOOR, slope_tolerance)
     # Coverage of the pooled sigma on each fleet alone (BAND_ONE_SIGMA, BAND_TWO_SIGMA).
     sigma = np.sqrt(scale**2 * bias2 + st["filter_var"] + level_std**2)
     rows = np.concatenate([np.full(len(s.kcycles), k) for s, k in zip(segs, fleet_of,
@@ -504,6 +435,7 @@ def calibrate(
         names=tuple(est.layout.health), level_std=level_std, change_std=change_std,
         slope_error=slope_error, bias2=bias2, drift=drift, observable=shown, bias_scale=scale,
         slope_gain=sc.gain, slope_noise=sc.noise, slope_common=sc.common,
+        slope_gain_std=sc.gain_std,
         source={"design": design, "seeds": None if seeds is None else list(seeds),
                 "engines": sum(len(plan.esns) for plan, _ in fleets),
                 "flights": fleets[0][0].config.n_flights if fleets else 0,
@@ -517,6 +449,8 @@ def calibrate(
                                 for x in sc.sigma],
                 "slope_cross_error": [round(float(x), 3) if np.isfinite(x) else None
                                       for x in sc.cross],
+                "slope_gain_relative_std": [round(float(x), 3) if np.isfinite(x) else None
+                                            for x in sc.gain_std / sc.gain],
                 "two_sigma": two_sigma,
                 "fleet_cover1_min": [round(float(x), 3) for x in cover1.min(axis=0)],
                 "fleet_cover1_max": [round(float(x), 3) for x in cover1.max(axis=0)],

@@ -6,11 +6,13 @@ shop visits, module changes; a water wash does not reset: its recovery is part o
 Each engine's weeks are split at its resets into pieces (a week holding a reset is left out,
 a piece starts ``BASELINE_SETTLE_RECORDS`` records on) and a piece spanning at least
 ``MIN_SLOPE_YEARS`` gives a least-squares slope; the fleet's slope is their inverse-variance
-mean divided by the design's calibrated gain, its 1-sigma from the calibrated noise
-(``estimation.uncertainty``, module docstring). A parameter whose level or slope the
-calibration finds unobservable has no number (null) and is listed in ``unobservable``; a design
-without a calibration (an imported model) shows the plain inverse-variance mean without a
-sigma (``"uncalibrated"``).
+mean divided by the design's calibrated gain, its 1-sigma from the calibrated noise and the
+gain's own standard error (``estimation.uncertainty``, module docstring). A parameter whose
+level or slope the calibration finds unobservable has no number (null) and is listed in
+``unobservable``; a design without a calibration (an imported model) shows the plain
+inverse-variance mean without a sigma (``"uncalibrated"``); a design calibrated before the
+gain's standard error was (``Calibration.slope_sigma_known``) shows its corrected slope without
+a sigma (``"recalibrate"``: run its ``calibrate_design`` job again).
 
 The bench (bench/bench_uncertainty.py) scores exactly this arithmetic against the fleet
 simulator's truth (``calibration.trend_pieces`` forms the same pieces from the same weekly
@@ -21,7 +23,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from sqlalchemy import select
@@ -48,9 +50,9 @@ class FleetSlopes:
 
     names: tuple[str, ...]
     slope: np.ndarray
-    sigma: np.ndarray  # NaN: uncalibrated or not shown
+    sigma: np.ndarray  # NaN: uncalibrated, to recalibrate or not shown
     unobservable: tuple[str, ...]
-    uncertainty: str  # "calibrated" | "uncalibrated"
+    uncertainty: Literal["calibrated", "uncalibrated", "recalibrate"]
     pieces: int  # engine trends the slopes are taken over
     engines: int
 
@@ -116,18 +118,21 @@ def fleet_slopes(
     piece_spans = np.concatenate(spans) if spans else np.empty(0)
     calib = design_calibration(session, design_id)
     gain, noise, common = np.ones(p), np.full(p, np.nan), np.zeros(p)
+    gain_std = np.zeros(p)
     hidden = np.zeros(p, bool)
+    state: Literal["calibrated", "uncalibrated", "recalibrate"] = "uncalibrated"
     if calib is not None:
         on = calib.on(names)
-        gain, noise, common = (np.asarray(v, float) for v in
-                               (on.slope_gain, on.slope_noise, on.slope_common))
+        gain, noise, common, gain_std = (
+            np.asarray(v, float)
+            for v in (on.slope_gain, on.slope_noise, on.slope_common, on.slope_gain_std))
         hidden = ~(on.observable & np.isfinite(gain))
+        state = "calibrated" if on.slope_sigma_known else "recalibrate"
     slope, sigma = uncertainty.fleet_slope(piece_slopes, piece_spans,
-                                           np.where(hidden, 1.0, gain), noise, common)
+                                           np.where(hidden, 1.0, gain), noise, common, gain_std)
     return FleetSlopes(
         names=names, slope=np.where(hidden, np.nan, slope),
         sigma=np.where(hidden, np.nan, sigma),
         unobservable=tuple(n for n, h in zip(names, hidden, strict=True) if h),
-        uncertainty="uncalibrated" if calib is None else "calibrated",
-        pieces=len(piece_spans), engines=len(per_engine),
+        uncertainty=state, pieces=len(piece_spans), engines=len(per_engine),
     )

@@ -67,6 +67,10 @@ def test_a_builtin_design_is_calibrated_and_the_trend_reads_it(
     assert back.names == tuple(design.spec["health"])
     assert back.source["seeds"] == [5] and back.source["records"] > 0
     assert np.all(back.level_std >= 0.0)
+    # The slopes' gain and its standard error are stored; one fleet cannot cross-validate
+    # them: no slope is shown, and nothing asks to recalibrate.
+    assert len(stored["slope_gain_std"]) == len(back.names)
+    assert np.isnan(np.asarray(back.slope_gain)).all() and back.slope_sigma_known
     # The design document keeps its other keys.
     refreshed = session.get(EstimatorDesign, design.id)
     assert refreshed is not None and refreshed.result is not None
@@ -107,23 +111,3 @@ def test_the_calibration_job_stores_it_with_the_design(
     back = calibration.design_calibration(session, design.id)
     assert back is not None and back.source["seeds"] == [5]
 
-
-def test_slope_check_calibrates_a_gain_and_hides_a_trend_it_cannot_carry() -> None:
-    """Three fleets whose first parameter reads 1.2 times the true slope with little noise and
-    whose second reads noise only: the first gets its gain back, the second no gain (its slope
-    unobservable); the cross-validated error of the first is small."""
-    rng = np.random.default_rng(4)
-    fleets = []
-    for _ in range(3):
-        spans = rng.uniform(0.3, 1.0, 20)
-        true = np.c_[rng.normal(-0.6, 0.2, 20), rng.normal(-0.5, 0.2, 20)]
-        hat = np.c_[1.2 * true[:, 0] + 0.02 * rng.normal(size=20) / spans,
-                    rng.normal(0.0, 0.5, 20) / spans]
-        fleets.append(calibration.TrendPieces(hat, true, spans))
-    sc = calibration.slope_check(fleets)
-    assert sc.gain[0] == pytest.approx(1.2, rel=0.03) and np.isnan(sc.gain[1])
-    assert sc.cross[0] < 0.05 and sc.cross[1] > calibration.SLOPE_TOLERANCE
-    assert sc.noise[0] == pytest.approx(0.02**2, rel=0.5)
-    # The corrected fleet slope of the first parameter is the true one within its sigma.
-    slope, sigma, true = fleets[0].fleet(sc.gain, sc.noise, sc.common)
-    assert abs(slope[0] - true[0]) <= 3.0 * sigma[0]

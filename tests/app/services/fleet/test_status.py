@@ -108,12 +108,13 @@ def test_deterioration_is_the_mean_over_engines_of_engine_means(session: Session
 
 
 def test_deterioration_slopes_split_at_shop_visits_calibrated_and_unobservable(
-    session: Session,
+    client: TestClient, session: Session,
 ) -> None:
     """Each engine's weekly means between baseline resets give its trends: a shop visit's
     step does not enter the slope, the fleet's is their T^2-weighted mean; with a stored
-    calibration it is divided by the gain, carries its 1-sigma, and an unobservable parameter
-    has no number."""
+    calibration it is divided by the gain, carries its 1-sigma (the gain's standard error
+    included) in %/year over HTTP, and an unobservable parameter has no number; a calibration
+    stored before the gain's standard error was gives the slope without a sigma, "recalibrate"."""
     fleet = make_fleet(session, "Fleet Slope Air")
     aircraft = add_aircraft(session, fleet, "F-SLP")
     rng = np.random.default_rng(8)
@@ -145,6 +146,7 @@ def test_deterioration_slopes_split_at_shop_visits_calibrated_and_unobservable(
         slope_error=np.zeros(3), bias2=np.zeros(3), drift=np.zeros(3),
         observable=np.array([False, True, True]), slope_gain=np.array([1.0, 1.25, np.nan]),
         slope_noise=np.array([0.01, 0.02, 0.02]), slope_common=np.array([0.0, 0.01, 0.0]),
+        slope_gain_std=np.array([0.1, 0.15, np.nan]),
     )
     fleet.design.result = {"uncertainty": calib.to_dict()}
     session.flush()
@@ -155,11 +157,27 @@ def test_deterioration_slopes_split_at_shop_visits_calibrated_and_unobservable(
     got = {s["name"]: s for s in out["health"]}
     assert got["fan_eff"]["slope"] is None and got["hpc_flow"]["sigma"] is None
     np.testing.assert_allclose(got["hpc_eff"]["slope"], plain.slope[0] / 1.25, atol=1e-4)
-    np.testing.assert_allclose(got["hpc_eff"]["sigma"], np.sqrt(0.02 / w.sum() + 0.01) / 1.25,
-                               rtol=1e-3)
-    # The fleet's slopes per active design are the same.
+    corrected = plain.slope[0] / 1.25
+    np.testing.assert_allclose(
+        got["hpc_eff"]["sigma"],
+        np.sqrt((0.02 / w.sum() + 0.01) / 1.25**2 + (corrected * 0.15 / 1.25) ** 2), rtol=1e-3)
+    # The fleet's slopes per active design are the same, and so is the API's answer.
     group = status.fleet_deterioration_slopes(session, fleet.operator_id)["groups"][0]
     assert group == {"engine_type": "generic", "design_id": fleet.design.id, **out}
+    response = client.get("/api/v1/fleet/deterioration/slopes",
+                          headers={"X-API-Key": fleet.key})
+    assert response.status_code == 200
+    assert response.json()["groups"] == [group]
+    # Stored before the gain's standard error was calibrated: the corrected slope, no sigma.
+    stale = {k: v for k, v in calib.to_dict().items() if k != "slope_gain_std"}
+    fleet.design.result = {"uncertainty": stale}
+    session.flush()
+    before = client.get("/api/v1/fleet/deterioration/slopes",
+                        headers={"X-API-Key": fleet.key}).json()["groups"][0]
+    assert before["uncertainty"] == "recalibrate" and before["unit"] == "%/year"
+    assert sorted(before["unobservable"]) == ["fan_eff", "hpc_flow"]
+    assert all(item["sigma"] is None for item in before["health"])
+    assert before["health"] == [{**item, "sigma": None} for item in out["health"]]
 
 
 def test_status_summaries_equal_the_one_engine_reference(
