@@ -37,6 +37,7 @@ back (files are written by ``app.services.simulate_io``). Three layers:
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -406,7 +407,12 @@ def engine_noise_std() -> np.ndarray:
 
     Percent of the sea-level static take-off trim (seed 001 Table 2).
     """
-    return noise_std(steady_state(np.zeros(3), power=100.0).sensors)
+    return _engine_noise_std().copy()
+
+
+@functools.lru_cache(maxsize=1)
+def _engine_noise_std() -> np.ndarray:
+    return noise_std(steady_state(np.zeros(3), power=100.0).sensors)  # a solve: kept
 
 
 def _round_conditions(plan: FleetPlan, j: int) -> FlightParameters:
