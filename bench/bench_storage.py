@@ -195,6 +195,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=20260101)
     ap.add_argument("--data-dir", default="/tmp/fh-bench-storage",
                     help="the server's data directory (its engine caches are kept)")
+    ap.add_argument("--keep", action="store_true",
+                    help="leave the database filled (its URL is printed) for --existing")
     ap.add_argument("--existing", default=None,
                     help="measure a database this bench filled (its URL; a run stopped early)")
     args = ap.parse_args()
@@ -215,7 +217,11 @@ def main() -> None:
     print(f"simulated {base.num_rows:,} records of {len(plan.esns)} engines in "
           f"{time.perf_counter() - started:.1f} s; {copies} copies: "
           f"{copies * base.num_rows:,} records")
-    with throwaway_database("postgresql", prefix="h_storage_bench") as (url, _label):
+    with throwaway_database("postgresql", prefix="h_storage_bench", keep=args.keep) as (
+        url, _label
+    ):
+        if args.keep:
+            print(f"database (kept): {url}")
         upgrade(url)
         factory = make_sessionmaker(make_engine(url))
         with transaction(factory) as session:

@@ -1,10 +1,12 @@
 """Fleet status (every engine with its latest state) and fleet-average deterioration.
 
-The status page reads a fixed number of queries whatever the fleet size: engines with their
-current installation, the active designs, each engine's filter state and the one estimate it
-points at (``seq = n_records - 1`` through the unique (engine, design, seq) index), the last
-``EGT_WINDOW`` estimates with their snapshots and the one ``RATE_WINDOW`` records back, and the
-active events.
+The status page reads a fixed number of queries whatever the fleet size, each one row per
+engine: engines with their current installation, the active designs, each engine's filter
+state with, by key, the estimate it points at (``seq = n_records - 1`` through the primary key
+(engine, design, seq)), the one ``RATE_WINDOW`` records back and its EGT window (the median
+dEGT of its last records, kept by the pipeline: ``app.services.snapshots.egt``), and the
+active events. An engine whose EGT window was not taken at its current filter state has its
+last records read instead (none after a pipeline run).
 
 An engine's severity (``app.services.fleet.severity``) is the worst of its engine type's limit
 checks (health change, EGT margin, thrust deficit, rate of change; amber and red) and its active
@@ -22,7 +24,7 @@ from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
-from sqlalchemy import and_, select, true
+from sqlalchemy import and_, select
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidInput
@@ -34,10 +36,10 @@ from app.models import (
     EstimatorDesign,
     Installation,
     Operator,
-    Snapshot,
 )
 from app.models.designs import effective_limits
 from app.models.estimates import (
+    EgtWindow,
     Estimate,
     EstimateLayout,
     Event,
@@ -47,14 +49,14 @@ from app.models.estimates import (
 from app.services.events.service import latest_open_events, open_event_counts
 from app.services.fleet import performance, slopes
 from app.services.fleet.severity import LEVELS, LimitValue, severity
-from estimation.engine.atmosphere import flight_condition
+from app.services.snapshots import egt, estimator
+from estimation.engine.schedule import EngineSchedule
 
 WATCH_PERCENT = 1.5
 WATCH_SIGMAS = 3.0
-# The EGT margin of the status is the median over an engine's last EGT_WINDOW records (one
-# record's scatter is ~6 K); the rate of change compares the latest health estimate with the
-# one RATE_WINDOW records back, per 100 records.
-EGT_WINDOW = 20
+# The EGT margin of the status is the median dEGT over an engine's last EGT_WINDOW records
+# (``app.services.snapshots.egt``); the rate of change compares the latest health estimate
+# with the one RATE_WINDOW records back, per 100 records.
 RATE_WINDOW = 50
 STATE_OF_LEVEL = {"red": "alert", "amber": "watch", "normal": "normal"}
 THRUST_NAMES = ("fn", "thrust", "f_n")
@@ -173,46 +175,12 @@ def _summaries(
     return out
 
 
-def _window_rows(session: Session, operator_id: int) -> list[Any]:
-    """Each filter state's last ``RATE_WINDOW + 1`` estimates (seq, packed) with their
-    snapshots' condition and T48: the rate-of-change and EGT windows of the limit check.
-
-    On PostgreSQL one LATERAL query per filter state reads them as an index range of
-    (engine_id, design_id, seq) and looks each snapshot up by its key: a join over whole tables
-    made the planner hash-join every estimate and snapshot (4.4-4.9 s for this query at 4.8M
-    estimates, 1,400 engines; 0.5-0.6 s now)."""
-    f, est, snap = FilterState.__table__, Estimate.__table__, Snapshot.__table__
-    columns = (est.c.engine_id, est.c.design_id, est.c.seq, est.c.packed, snap.c.alt_ft,
-               snap.c.mach, snap.c.dtamb_k, snap.c.power_pct, snap.c.t48)
-    in_window = and_(est.c.engine_id == f.c.engine_id, est.c.design_id == f.c.design_id,
-                     est.c.seq >= f.c.n_records - 1 - RATE_WINDOW)
-    with_snapshot = and_(snap.c.engine_id == est.c.engine_id,
-                         snap.c.recorded_at == est.c.recorded_at)
-    if session.get_bind().dialect.name == "postgresql":
-        # ORDER BY ... LIMIT keeps the planner from flattening the LATERAL into one hash join
-        # over whole tables (measured: 4.4-4.9 s against 0.5-0.6 s at 4.8M estimates).
-        recent = (select(*columns).select_from(est.outerjoin(snap, with_snapshot))
-                  .where(in_window).order_by(est.c.seq.desc()).limit(RATE_WINDOW + 1)
-                  .lateral("recent"))
-        query = (select(*recent.c).select_from(f.join(recent, true()))
-                 .where(f.c.operator_id == operator_id))
-    else:
-        query = (select(*columns)
-                 .select_from(f.join(est, in_window).outerjoin(snap, with_snapshot))
-                 .where(f.c.operator_id == operator_id))
-    return list(session.connection().execute(query).all())
-
-
 def _limit_values(
     session: Session, operator_id: int, rows: list[Any],
     summaries: list[tuple[dict[str, Any] | None, bool]], redlines: list[float],
 ) -> list[dict[str, LimitValue]]:
     """Per chosen filter-state row: the values its engine type's limits are checked against."""
     out: list[dict[str, LimitValue]] = [{} for _ in rows]
-    window = _window_rows(session, operator_id)
-    by_pair: dict[tuple[int, int], list[Any]] = defaultdict(list)
-    for w in window:
-        by_pair[(w.engine_id, w.design_id)].append(w)
     pairs = {(r.engine_id, r.design_id) for r in rows if r is not None}
     layouts = _layouts(session, operator_id, pairs) if pairs else {}
     builtin = set(session.scalars(
@@ -220,7 +188,7 @@ def _limit_values(
         .join(EngineModel, EngineModel.id == EstimatorDesign.engine_model_id)
         .where(EstimatorDesign.operator_id == operator_id, EngineModel.source == "builtin")
     ).all())
-    egt_rows: list[tuple[int, Any]] = []  # (row index, window row) of built-in designs
+    egt_rows: list[int] = []  # row indices of built-in designs
     for i, (row, (summary, _watch)) in enumerate(zip(rows, summaries, strict=True)):
         if row is None or summary is None:
             continue
@@ -231,55 +199,50 @@ def _limit_values(
         if summary["thrust_deficit"] is not None:
             values["thrust_deficit"] = LimitValue(summary["thrust_deficit"])
         layout = layouts.get((row.engine_id, row.design_id))
-        members = by_pair.get((row.engine_id, row.design_id), [])
-        old = [w for w in members if w.seq == row.seq - RATE_WINDOW]
-        if layout is not None and old and layout.health:
-            h_old = layout.decode_blobs([old[0].packed])[0, layout.slices()["h"]]
+        if layout is not None and row.old_packed is not None and layout.health:
+            h_old = layout.decode_blobs([row.old_packed])[0, layout.slices()["h"]]
             h_now = np.array([summary["health"][n] for n in layout.health])
             change = np.abs(h_now - h_old) * 100.0 / RATE_WINDOW
             k = int(np.argmax(change))
             values["rate_of_change"] = LimitValue(float(change[k]), layout.health[k])
         if row.design_id in builtin:
-            egt_rows += [(i, w) for w in members
-                         if w.seq > row.seq - EGT_WINDOW and w.t48 is not None]
+            egt_rows.append(i)
     if egt_rows:
-        schedule = performance.builtin_schedule_for_design(session, rows[egt_rows[0][0]].design_id)
+        schedule = estimator.builtin_schedule_for_design(session, rows[egt_rows[0]].design_id)
         if schedule is not None:
             ref = performance.type_reference(schedule)
-            for i, median in _median_degt(schedule, rows, egt_rows).items():
+            for i, median in _egt_medians(session, operator_id, rows, egt_rows,
+                                          schedule).items():
                 margin = redlines[i] - (ref.egt_reference_c + median * ref.theta_reference)
                 out[i]["egt_margin"] = LimitValue(margin)
     return out
 
 
-# (engine, design, n_records, last record's time, schedule) -> median dEGT of the last
-# EGT_WINDOW records. The baseline solve costs ~0.1 ms a record (80 ms for the demo fleet,
-# against 15 ms for the rest of the status), and an engine's window changes only when its
-# filter state does: a new record or a re-run changes n_records or the last record's time.
-_DEGT_CACHE: dict[tuple[Any, ...], float] = {}
-_DEGT_CACHE_SIZE = 100_000
-
-
-def _median_degt(
-    schedule: Any, rows: list[Any], egt_rows: list[tuple[int, Any]]
+def _egt_medians(
+    session: Session, operator_id: int, rows: list[Any], indices: list[int],
+    schedule: EngineSchedule,
 ) -> dict[int, float]:
-    """Row index -> median dEGT [K, corrected] over its window rows."""
-    keys = {i: (rows[i].engine_id, rows[i].design_id, rows[i].n_records,
-                rows[i].last_recorded_at, schedule.fingerprint) for i, _w in egt_rows}
-    out = {i: _DEGT_CACHE[key] for i, key in keys.items() if key in _DEGT_CACHE}
-    todo = [(i, w) for i, w in egt_rows if i not in out]
-    if not todo:
-        return out
-    cond = np.array([[w.alt_ft, w.mach, w.dtamb_k, w.power_pct] for _i, w in todo])
-    base = performance.baseline_trims(cond, schedule)["T48"]
-    theta = flight_condition(cond[:, 0], cond[:, 1], cond[:, 2]).theta
-    t48 = np.array([w.t48 for _i, w in todo], dtype=float)
-    d_egt = (t48 - base) / theta / performance.RANKINE_PER_KELVIN
-    index = np.array([i for i, _w in todo])
-    if len(_DEGT_CACHE) > _DEGT_CACHE_SIZE:
-        _DEGT_CACHE.clear()
-    for i in np.unique(index).tolist():
-        out[i] = _DEGT_CACHE[keys[i]] = float(np.median(d_egt[index == i]))
+    """Row index -> median dEGT [K, corrected] of its engine's last ``EGT_WINDOW`` records: the
+    window the pipeline keeps (``egt_windows``) when it was taken at the row's filter state and
+    schedule, else read from the records (one query for all such engines)."""
+    out: dict[int, float] = {}
+    stale = []
+    for i in indices:
+        row = rows[i]
+        if (row.egt_n_records == row.n_records and row.egt_fingerprint == schedule.fingerprint
+                and row.egt_last_recorded_at == row.last_recorded_at):
+            if row.egt_median is not None:
+                out[i] = row.egt_median
+        else:
+            stale.append(i)
+    if stale:
+        states = (FilterState.operator_id == operator_id) & FilterState.engine_id.in_(
+            sorted({rows[i].engine_id for i in stale}))
+        found = egt.medians(egt.recent_records(session, states), schedule)
+        for i in stale:
+            median = found.get((rows[i].engine_id, rows[i].design_id))
+            if median is not None:
+                out[i] = median
     return out
 
 
@@ -330,20 +293,23 @@ def fleet_status(
             )
         ).all()
     }
-    f, est = FilterState.__table__, Estimate.__table__
+    # Per filter state, by key: the estimate it points at, the one RATE_WINDOW records before
+    # it (the rate of change) and its EGT window (``egt_windows``).
+    f, est, w = FilterState.__table__, Estimate.__table__, EgtWindow.__table__
+    old = est.alias("old")
     latest = session.connection().execute(
         select(
             f.c.engine_id, f.c.design_id, f.c.n_records, f.c.last_recorded_at, est.c.recorded_at,
-            est.c.seq, est.c.packed,
+            est.c.seq, est.c.packed, old.c.packed.label("old_packed"),
+            w.c.n_records.label("egt_n_records"),
+            w.c.last_recorded_at.label("egt_last_recorded_at"),
+            w.c.fingerprint.label("egt_fingerprint"), w.c.median.label("egt_median"),
         )
-        .outerjoin(
-            est,
-            and_(
-                est.c.engine_id == f.c.engine_id,
-                est.c.design_id == f.c.design_id,
-                est.c.seq == f.c.n_records - 1,
-            ),
-        )
+        .outerjoin(est, and_(est.c.engine_id == f.c.engine_id, est.c.design_id == f.c.design_id,
+                             est.c.seq == f.c.n_records - 1))
+        .outerjoin(old, and_(old.c.engine_id == f.c.engine_id, old.c.design_id == f.c.design_id,
+                             old.c.seq == f.c.n_records - 1 - RATE_WINDOW))
+        .outerjoin(w, and_(w.c.engine_id == f.c.engine_id, w.c.design_id == f.c.design_id))
         .where(f.c.operator_id == operator_id)
     ).all()
     by_engine: dict[int, dict[int, Any]] = defaultdict(dict)

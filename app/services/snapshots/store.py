@@ -46,7 +46,7 @@ from app.models.estimates import Estimate, Event, FilterCheckpoint, FilterState
 from app.models.fleet import BASELINE_RESET_KINDS
 from app.services import fresh_records
 from app.services.notifications import outbox
-from app.services.snapshots import backlog, buckets, detector, groups, rows
+from app.services.snapshots import backlog, buckets, detector, egt, groups, rows
 from app.services.snapshots.estimator import SnapshotEstimator, estimator_for_design
 from app.services.snapshots.run import EngineOutput, EngineRun, PipelineState, run_filters
 from estimation.snapshot import SnapshotState
@@ -258,6 +258,7 @@ def estimate_engines(
                     for block in computed or ():
                         writer.add(block)
                 _store_batch(session, est, runs, states, outputs)
+                egt.refresh(session, est.design_id, [run.engine_id for run in runs])
                 if marks is not None:
                     backlog.settle(session, marks.values())
                 # Last: the fleet's periods are shared with the engine groups estimated in
