@@ -52,18 +52,23 @@ class Check:
                 "reason": self.reason}
 
 
+def grade(levels: Mapping[str, Any], value: float) -> tuple[str, float, float]:
+    """One value against one limit's levels: (level, the level's bound, exceedance)."""
+    amber, red = float(levels["amber"]), float(levels["red"])
+    sign = 1.0 if levels["worse"] == "above" else -1.0
+    exceedance = sign * (value - amber) / (sign * (red - amber))
+    if sign * (value - red) >= 0:
+        return "red", red, exceedance
+    if sign * (value - amber) >= 0:
+        return "amber", amber, exceedance
+    return "normal", amber, exceedance
+
+
 def check(limit: str, levels: Mapping[str, Any], value: LimitValue) -> Check:
     """One limit against one value."""
     unit, worse = levels["unit"], levels["worse"]
     amber, red = float(levels["amber"]), float(levels["red"])
-    sign = 1.0 if worse == "above" else -1.0
-    exceedance = sign * (value.value - amber) / (sign * (red - amber))
-    if sign * (value.value - red) >= 0:
-        level, bound = "red", red
-    elif sign * (value.value - amber) >= 0:
-        level, bound = "amber", amber
-    else:
-        level, bound = "normal", amber
+    level, bound, exceedance = grade(levels, value.value)
     u = UNIT_TEXT.get(unit, f" {unit}")
     name = LABELS.get(limit, limit) + (f" ({value.detail})" if value.detail else "")
     if level == "normal":
@@ -105,3 +110,20 @@ def severity(
             texts.append(text)
     score = max((c.exceedance for c in checks), default=float("-inf"))
     return Severity(level, score, "; ".join(texts) if texts else None, checks)
+
+
+def rank(
+    limits: Mapping[str, Any], values: Mapping[str, LimitValue],
+    events: Iterable[tuple[int, str, str, str | None]] = (),
+) -> tuple[str, float]:
+    """The level and score of ``severity`` without its checks' and events' texts (what ranks
+    a fleet's engines; the page shows ``severity`` of those it lists)."""
+    level, score = "normal", float("-inf")
+    for name, v in values.items():
+        if name in limits:
+            graded, _bound, exceedance = grade(limits[name], v.value)
+            level = max(level, graded, key=LEVELS.index)
+            score = max(score, exceedance)
+    for _event_id, kind, _status, _fault in events:
+        level = max(level, EVENT_LEVEL.get(kind, "amber"), key=LEVELS.index)
+    return level, score

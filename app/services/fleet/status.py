@@ -20,6 +20,7 @@ come ranked: red, amber, normal, then by how far past (or short of) their amber 
 from __future__ import annotations
 
 from collections import defaultdict
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
@@ -48,7 +49,7 @@ from app.models.estimates import (
 )
 from app.services.events.service import latest_open_events, open_event_counts
 from app.services.fleet import performance, slopes
-from app.services.fleet.severity import LEVELS, LimitValue, severity
+from app.services.fleet.severity import LEVELS, LimitValue, rank, severity
 from app.services.snapshots import egt, estimator
 from estimation.engine.schedule import EngineSchedule
 
@@ -124,23 +125,51 @@ def _layouts(
     return out
 
 
+@dataclass(frozen=True)
+class Summary:
+    """An engine's latest estimate as ``health_summary`` briefs it, kept as numbers (the dict
+    is made for the engines a page shows): the worst health parameter's index, value and
+    1-sigma and the thrust deficit rounded as shown, the health and auxiliary values rounded."""
+
+    layout: EstimateLayout
+    recorded_at: datetime
+    seq: int
+    worst: int | None
+    worst_value: float | None
+    worst_sigma: float | None
+    thrust_deficit: float | None
+    health: np.ndarray
+    aux: np.ndarray
+
+    @property
+    def worst_name(self) -> str | None:
+        return None if self.worst is None else self.layout.health[self.worst]
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "recorded_at": self.recorded_at,
+            "seq": self.seq,
+            "worst_health": self.worst_name,
+            "worst_health_value": self.worst_value,
+            "worst_health_sigma": self.worst_sigma,
+            "thrust_deficit": self.thrust_deficit,
+            "health": dict(zip(self.layout.health, self.health.tolist(), strict=True)),
+            "aux": dict(zip(self.layout.aux, self.aux.tolist(), strict=True)),
+        }
+
+
 def _summaries(
-    session: Session, operator_id: int, rows: list[Any]
-) -> list[tuple[dict[str, Any] | None, bool]]:
-    """Per chosen filter-state row (or None): the ``health_summary`` of its latest estimate
-    (None without one) and whether it is on watch. The blobs of each design are decoded with
-    one ``numpy.frombuffer`` and summarised with array operations."""
-    out: list[tuple[dict[str, Any] | None, bool]] = [(None, False)] * len(rows)
-    with_data = [i for i, row in enumerate(rows) if row is not None and row.packed is not None]
-    if not with_data:
-        return out
-    layouts = _layouts(
-        session, operator_id, {(rows[i].engine_id, rows[i].design_id) for i in with_data}
-    )
+    rows: list[Any], layouts: dict[tuple[int, int], EstimateLayout]
+) -> list[tuple[Summary | None, bool]]:
+    """Per chosen filter-state row (or None): the summary of its latest estimate (None without
+    one; ``health_summary``'s numbers) and whether it is on watch. The blobs of each design are
+    decoded with one ``numpy.frombuffer`` and summarised with array operations."""
+    out: list[tuple[Summary | None, bool]] = [(None, False)] * len(rows)
     by_layout: dict[int, tuple[EstimateLayout, list[int]]] = {}
-    for i in with_data:
-        layout = layouts[(rows[i].engine_id, rows[i].design_id)]
-        by_layout.setdefault(id(layout), (layout, []))[1].append(i)
+    for i, row in enumerate(rows):
+        if row is not None and row.packed is not None:
+            layout = layouts[(row.engine_id, row.design_id)]
+            by_layout.setdefault(id(layout), (layout, []))[1].append(i)
     for layout, members in by_layout.values():
         values = layout.decode_blobs([rows[i].packed for i in members])
         s = layout.slices()
@@ -151,8 +180,7 @@ def _summaries(
         watch = np.any((abs_h > WATCH_PERCENT) & (abs_h > WATCH_SIGMAS * h_sigma), axis=1)
         worst = np.argmax(abs_h, axis=1) if n_health else None
         k = thrust_index(layout.aux)
-        health_lists = np.round(h, 4).tolist()
-        aux_lists = np.round(z, 4).tolist()
+        health_rounded, aux_rounded = np.round(h, 4), np.round(z, 4)
         if worst is not None:
             picked = np.arange(len(members))
             worst_values = h[picked, worst].tolist()
@@ -161,48 +189,43 @@ def _summaries(
         thrust = None if k is None else (-z[:, k]).tolist()
         for r, i in enumerate(members):
             row = rows[i]
-            summary = {
-                "recorded_at": row.recorded_at,
-                "seq": row.seq,
-                "worst_health": None if worst is None else layout.health[worst_list[r]],
-                "worst_health_value": None if worst is None else round(worst_values[r], 4),
-                "worst_health_sigma": None if worst is None else round(worst_sigmas[r], 4),
-                "thrust_deficit": None if thrust is None else round(thrust[r], 4),
-                "health": dict(zip(layout.health, health_lists[r], strict=True)),
-                "aux": dict(zip(layout.aux, aux_lists[r], strict=True)),
-            }
+            summary = Summary(
+                layout, row.recorded_at, row.seq,
+                None if worst is None else worst_list[r],
+                None if worst is None else round(worst_values[r], 4),
+                None if worst is None else round(worst_sigmas[r], 4),
+                None if thrust is None else round(thrust[r], 4),
+                health_rounded[r], aux_rounded[r],
+            )
             out[i] = (summary, bool(watch[r]))
     return out
 
 
 def _limit_values(
     session: Session, operator_id: int, rows: list[Any],
-    summaries: list[tuple[dict[str, Any] | None, bool]], redlines: list[float],
+    summaries: list[tuple[Summary | None, bool]], redlines: list[float],
+    layouts: dict[tuple[int, int], EstimateLayout],
 ) -> list[dict[str, LimitValue]]:
     """Per chosen filter-state row: the values its engine type's limits are checked against."""
     out: list[dict[str, LimitValue]] = [{} for _ in rows]
-    pairs = {(r.engine_id, r.design_id) for r in rows if r is not None}
-    layouts = _layouts(session, operator_id, pairs) if pairs else {}
     builtin = set(session.scalars(
         select(EstimatorDesign.id)
         .join(EngineModel, EngineModel.id == EstimatorDesign.engine_model_id)
         .where(EstimatorDesign.operator_id == operator_id, EngineModel.source == "builtin")
     ).all())
     egt_rows: list[int] = []  # row indices of built-in designs
+    h_old = _old_health(rows, summaries, layouts)
     for i, (row, (summary, _watch)) in enumerate(zip(rows, summaries, strict=True)):
         if row is None or summary is None:
             continue
         values = out[i]
-        if summary["worst_health"] is not None:
-            values["health_change"] = LimitValue(abs(summary["worst_health_value"]),
-                                                 summary["worst_health"])
-        if summary["thrust_deficit"] is not None:
-            values["thrust_deficit"] = LimitValue(summary["thrust_deficit"])
+        if summary.worst_value is not None:
+            values["health_change"] = LimitValue(abs(summary.worst_value), summary.worst_name)
+        if summary.thrust_deficit is not None:
+            values["thrust_deficit"] = LimitValue(summary.thrust_deficit)
         layout = layouts.get((row.engine_id, row.design_id))
-        if layout is not None and row.old_packed is not None and layout.health:
-            h_old = layout.decode_blobs([row.old_packed])[0, layout.slices()["h"]]
-            h_now = np.array([summary["health"][n] for n in layout.health])
-            change = np.abs(h_now - h_old) * 100.0 / RATE_WINDOW
+        if layout is not None and i in h_old:
+            change = np.abs(summary.health - h_old[i]) * 100.0 / RATE_WINDOW
             k = int(np.argmax(change))
             values["rate_of_change"] = LimitValue(float(change[k]), layout.health[k])
         if row.design_id in builtin:
@@ -215,6 +238,26 @@ def _limit_values(
                                           schedule).items():
                 margin = redlines[i] - (ref.egt_reference_c + median * ref.theta_reference)
                 out[i]["egt_margin"] = LimitValue(margin)
+    return out
+
+
+def _old_health(
+    rows: list[Any], summaries: list[tuple[Summary | None, bool]],
+    layouts: dict[tuple[int, int], EstimateLayout],
+) -> dict[int, np.ndarray]:
+    """Row index -> the health values of the estimate ``RATE_WINDOW`` records before its
+    latest, for the rows with both; one decode per layout."""
+    by_layout: dict[int, tuple[EstimateLayout, list[int]]] = {}
+    for i, (row, (summary, _watch)) in enumerate(zip(rows, summaries, strict=True)):
+        if row is None or summary is None or row.old_packed is None:
+            continue
+        layout = layouts.get((row.engine_id, row.design_id))
+        if layout is not None and layout.health:
+            by_layout.setdefault(id(layout), (layout, []))[1].append(i)
+    out: dict[int, np.ndarray] = {}
+    for layout, members in by_layout.values():
+        h = layout.decode_blobs([rows[i].old_packed for i in members])[:, layout.slices()["h"]]
+        out.update(zip(members, h, strict=True))
     return out
 
 
@@ -276,7 +319,8 @@ def fleet_status(
         .order_by(Engine.esn)
     ).all()
     engines = [(r[0], r[1], r[2], r[3]) for r in engine_rows]
-    limits_of = {r[2]: effective_limits(r[4]) for r in engine_rows}
+    limits_of = {type_id: effective_limits(limits)
+                 for type_id, limits in {r[2]: r[4] for r in engine_rows}.items()}
     installed = {
         engine_id: (aircraft_id, tail, position)
         for engine_id, aircraft_id, tail, position in session.execute(
@@ -328,26 +372,44 @@ def fleet_status(
             row = max(states.values(), key=lambda r: (r.last_recorded_at is not None,
                                                       r.last_recorded_at, r.design_id))
         chosen.append(row)
-    summaries = _summaries(session, operator_id, chosen)
+    pairs = {(r.engine_id, r.design_id) for r in chosen if r is not None}
+    layouts = _layouts(session, operator_id, pairs) if pairs else {}
+    summaries = _summaries(chosen, layouts)
     limit_values = _limit_values(
         session, operator_id, chosen, summaries,
-        [limits_of[type_id]["egt_redline_c"] for _e, _s, type_id, _n in engines],
+        [limits_of[type_id]["egt_redline_c"] for _e, _s, type_id, _n in engines], layouts,
     )
     active_events = _active_events(session, operator_id)
 
-    out = []
-    for (engine_id, esn, type_id, type_name), row, (summary, _watch), values in zip(
-        engines, chosen, summaries, limit_values, strict=True
+    # Every engine's state and rank; the page's engines in full after.
+    ranked = []
+    for k, ((engine_id, esn, type_id, _type_name), (summary, _watch), values) in enumerate(
+        zip(engines, summaries, limit_values, strict=True)
     ):
+        level, score = rank(limits_of[type_id], values, active_events.get(engine_id, []))
+        state = ("no_data" if summary is None and not counts.get(engine_id, 0)
+                 else STATE_OF_LEVEL[level])
+        shown = None if score == float("-inf") else round(score, 3)
+        # Red, amber, normal, no data; within a level the furthest past its limits first.
+        key = (-(LEVELS.index(level) if state != "no_data" else -1),
+               -(shown if shown is not None else float("-inf")), esn)
+        ranked.append((key, state, k))
+    ranked.sort()
+    per_state = {name: 0 for name in (*STATE_OF_LEVEL.values(), "no_data")}
+    for _key, state, _k in ranked:
+        per_state[state] += 1
+    matching = [(rank_of, state, k) for rank_of, (_key, state, k) in enumerate(ranked, start=1)
+                if in_state is None or state == in_state]
+    end = None if limit is None else offset + limit
+    page = []
+    for rank_of, state, k in matching[offset:end]:
+        engine_id, esn, type_id, type_name = engines[k]
+        row, (summary, _watch), values = chosen[k], summaries[k], limit_values[k]
         n_open = counts.get(engine_id, 0)
         event = newest_events.get(engine_id)
         where = installed.get(engine_id)
         judged = severity(limits_of[type_id], values, active_events.get(engine_id, []))
-        if summary is None and not n_open:
-            state = "no_data"
-        else:
-            state = STATE_OF_LEVEL[judged.level]
-        out.append(
+        page.append(
             {
                 "engine_id": engine_id,
                 "esn": esn,
@@ -364,7 +426,7 @@ def fleet_status(
                 else round(judged.score, 3),
                 "reason": judged.reason,
                 "checks": [c.as_dict() for c in judged.checks],
-                "health": summary,
+                "health": None if summary is None else summary.as_dict(),
                 "open_events": n_open,
                 "latest_event": None
                 if event is None
@@ -376,30 +438,18 @@ def fleet_status(
                     "magnitude": event.magnitude,
                     "status": event.status,
                 },
+                "rank": rank_of,
             }
         )
-    # Ranked: red, amber, normal, no data; within a level the furthest past its limits first.
-    out.sort(key=lambda e: (
-        -(LEVELS.index(e["severity"]) if e["severity"] else -1),
-        -(e["severity_score"] if e["severity_score"] is not None else float("-inf")),
-        e["esn"],
-    ))
-    for rank, item in enumerate(out, start=1):
-        item["rank"] = rank
-    per_state = {name: 0 for name in (*STATE_OF_LEVEL.values(), "no_data")}
-    for item in out:
-        per_state[item["state"]] += 1
-    matching = out if in_state is None else [item for item in out if item["state"] == in_state]
-    end = None if limit is None else offset + limit
     return {
         "operator": "" if operator is None else operator.name,
-        "n_engines": len(out),
+        "n_engines": len(ranked),
         "n_open_events": sum(counts.values()),
         "states": per_state,
         "total": len(matching),
-        "limit": len(out) if limit is None else limit,
+        "limit": len(ranked) if limit is None else limit,
         "offset": offset,
-        "engines": matching[offset:end],
+        "engines": page,
     }
 
 
