@@ -311,7 +311,7 @@ def close(
 
 def open_event_counts(session: Session, operator_id: int) -> dict[int, int]:
     """engine id -> number of events not closed."""
-    rows = session.execute(
+    rows = session.connection().execute(
         select(Event.engine_id, func.count())
         .where(Event.operator_id == operator_id, Event.status != "closed")
         .group_by(Event.engine_id)
@@ -328,7 +328,7 @@ def latest_open_events(session: Session, operator_id: int) -> dict[int, Any]:
         .group_by(Event.engine_id)
         .subquery()
     )
-    rows = session.execute(
+    rows = session.connection().execute(
         select(Event.id, Event.engine_id, Event.detected_at, Event.kind, Event.fault,
                Event.magnitude, Event.status).join(
             newest,
