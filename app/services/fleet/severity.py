@@ -18,6 +18,7 @@ from typing import Any
 from app.models.estimates import EVENT_LEVEL
 
 LEVELS = ("normal", "amber", "red")
+LEVEL_INDEX = {level: k for k, level in enumerate(LEVELS)}
 LABELS = {
     "health_change": "health change",
     "egt_margin": "EGT margin",
@@ -118,12 +119,14 @@ def rank(
 ) -> tuple[str, float]:
     """The level and score of ``severity`` without its checks' and events' texts (what ranks
     a fleet's engines; the page shows ``severity`` of those it lists)."""
-    level, score = "normal", float("-inf")
+    worst, score = 0, float("-inf")
     for name, v in values.items():
-        if name in limits:
-            graded, _bound, exceedance = grade(limits[name], v.value)
-            level = max(level, graded, key=LEVELS.index)
-            score = max(score, exceedance)
+        levels = limits.get(name)
+        if levels is not None:
+            graded, _bound, exceedance = grade(levels, v.value)
+            worst = max(worst, LEVEL_INDEX[graded])
+            if exceedance > score:
+                score = exceedance
     for _event_id, kind, _status, _fault in events:
-        level = max(level, EVENT_LEVEL.get(kind, "amber"), key=LEVELS.index)
-    return level, score
+        worst = max(worst, LEVEL_INDEX[EVENT_LEVEL.get(kind, "amber")])
+    return LEVELS[worst], score

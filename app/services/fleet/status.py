@@ -277,8 +277,7 @@ def _egt_medians(
     stale = []
     for i in indices:
         row = rows[i]
-        if (row.egt_n_records == row.n_records and row.egt_fingerprint == schedule.fingerprint
-                and row.egt_last_recorded_at == row.last_recorded_at):
+        if row.egt_current and row.egt_fingerprint == schedule.fingerprint:
             if row.egt_median is not None:
                 out[i] = row.egt_median
         else:
@@ -358,8 +357,10 @@ def _fleet_status(
         select(
             f.c.engine_id, f.c.design_id, f.c.n_records, f.c.last_recorded_at, est.c.recorded_at,
             est.c.seq, est.c.packed, old.c.packed.label("old_packed"),
-            w.c.n_records.label("egt_n_records"),
-            w.c.last_recorded_at.label("egt_last_recorded_at"),
+            # The window's stamp is its filter state's (NULL without a window).
+            and_(w.c.n_records == f.c.n_records,
+                 w.c.last_recorded_at.is_not_distinct_from(f.c.last_recorded_at))
+            .label("egt_current"),
             w.c.fingerprint.label("egt_fingerprint"), w.c.median.label("egt_median"),
         )
         .outerjoin(est, and_(est.c.engine_id == f.c.engine_id, est.c.design_id == f.c.design_id,
