@@ -14,7 +14,7 @@ through HTTP (``bench_ingest_fleet.py`` times that path).
 
 Then: each table's size per row (table + indexes + TOAST), and through ``fleethealth serve``
 (its own process, port ``--port``): the fleet status (its first page, the API's default of up
-to 1,000 engines, and a page of 100) and fleet deterioration (week, month) p95 over
+to 1,000 engines, and the fleet page's page of 200) and fleet deterioration (week, month) p95 over
 ``--repeat`` requests each, and the server's resident memory before and at its peak
 during those reads (sampled every 5 ms from /proc).
 
@@ -143,7 +143,7 @@ def measure(url: str, key: str, n: int, args: argparse.Namespace) -> None:
         with httpx.Client(base_url=base_url, timeout=600,
                           headers={"X-API-Key": key}) as client:
             reads = [("fleet status", "/api/v1/fleet/status", {}),
-                     ("fleet status, 100 a page", "/api/v1/fleet/status", {"limit": 100}),
+                     ("fleet status, 200 a page", "/api/v1/fleet/status", {"limit": 200}),
                      ("deterioration, week", "/api/v1/fleet/deterioration",
                       {"bucket": "week"}),
                      ("deterioration, month", "/api/v1/fleet/deterioration",
