@@ -62,10 +62,12 @@ POSTGRES_ADMIN_URL = os.environ.get(
 
 
 @contextmanager
-def throwaway_database(backend: str, prefix: str = "fh_bench") -> Iterator[tuple[str, str]]:
+def throwaway_database(
+    backend: str, prefix: str = "fh_bench", keep: bool = False
+) -> Iterator[tuple[str, str]]:
     """(url, label) of an empty database of its own for one bench run, removed after: a SQLite
     file in a temporary folder, or a database made on the machine's PostgreSQL server (named
-    ``prefix`` and a random suffix)."""
+    ``prefix`` and a random suffix; left in place with ``keep``, for a later run to measure)."""
     from sqlalchemy import create_engine, text
     from sqlalchemy.engine import make_url
 
@@ -81,8 +83,9 @@ def throwaway_database(backend: str, prefix: str = "fh_bench") -> Iterator[tuple
         yield make_url(POSTGRES_ADMIN_URL).set(database=name).render_as_string(
             hide_password=False), "PostgreSQL"
     finally:
-        with admin.connect() as connection:
-            connection.execute(text(f'DROP DATABASE "{name}" WITH (FORCE)'))
+        if not keep:
+            with admin.connect() as connection:
+                connection.execute(text(f'DROP DATABASE "{name}" WITH (FORCE)'))
         admin.dispose()
 
 

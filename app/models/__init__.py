@@ -4,6 +4,7 @@ from app.models.base import Base
 from app.models.designs import EngineModel, EngineType, EstimatorDesign
 from app.models.estimates import (
     DeteriorationBucket,
+    EgtWindow,
     Estimate,
     EstimationBacklog,
     Event,
@@ -43,6 +44,7 @@ __all__ = [
     "EventHistory",
     "FilterCheckpoint",
     "FilterState",
+    "EgtWindow",
     "FleetPeriod",
     "Installation",
     "Job",

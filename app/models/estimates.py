@@ -149,6 +149,31 @@ class FleetPeriod(Base):
     squares: Mapped[bytes] = mapped_column(LargeBinary)
 
 
+class EgtWindow(Base):
+    """One engine's EGT window under one design: the median dEGT [K, corrected] of its last
+    ``EGT_WINDOW`` records with a T48 (None without any), what the fleet status checks the
+    EGT margin against, so that it reads one row per engine instead of the window's records.
+
+    Kept by the pipeline in the transaction that stores the engine's estimates
+    (``app.services.snapshots.egt``); ``n_records`` and ``last_recorded_at`` are those of the
+    filter state it was taken at and ``fingerprint`` the built-in schedule's: a window whose
+    stamp differs from its filter state's is not used (the status reads that engine's records).
+    """
+
+    __tablename__ = "egt_windows"
+
+    engine_id: Mapped[int] = mapped_column(
+        ForeignKey("engines.id", ondelete="CASCADE"), primary_key=True
+    )
+    design_id: Mapped[int] = mapped_column(
+        ForeignKey("estimator_designs.id", ondelete="CASCADE"), primary_key=True, index=True
+    )
+    n_records: Mapped[int] = mapped_column(Integer)
+    last_recorded_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), default=None)
+    fingerprint: Mapped[str] = mapped_column(String(64))
+    median: Mapped[float | None] = mapped_column(Float, default=None)
+
+
 class EstimationBacklog(Base):
     """A mark on an engine whose snapshots its estimates do not cover yet: the estimation job's
     to-do list.

@@ -14,7 +14,8 @@ from sqlalchemy import inspect, select, text
 
 from app.db import make_engine, make_sessionmaker, transaction
 from app.migrate import downgrade, upgrade
-from app.models import Base, DeteriorationBucket, Engine, FilterState, FleetPeriod
+from app.models import Base, DeteriorationBucket, EgtWindow, Engine, FilterState, FleetPeriod
+from app.services.snapshots import estimator
 from app.services.trends.service import load_trend_data
 from tests.app.services.trends.test_trends import (
     LAYOUT,
@@ -24,6 +25,7 @@ from tests.app.services.trends.test_trends import (
     make_fleet,
 )
 from tests.conftest import BACKENDS, fresh_database_url
+from tests.support.builtin_fleet import coarse_schedule, seed_fleet, upload
 from tests.support.periods import periods_from_estimates, stored_periods
 
 
@@ -298,6 +300,41 @@ def test_migration_0020_packs_the_stored_estimates_and_unpacks_them_again(
         np.testing.assert_allclose(float32_rows()[0], packed, rtol=1e-6, atol=1e-6)
         upgrade(url)
         np.testing.assert_allclose(decoded(), packed, rtol=1e-6, atol=1e-6)
+        engine.dispose()
+    finally:
+        urls.close()
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_migration_0021_takes_the_egt_windows_of_the_stored_estimates(
+    backend: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Down to 0020 the EGT windows are gone; up to 0021 they are taken from the stored
+    estimates and snapshots, equal to those the pipeline kept."""
+    monkeypatch.setattr(estimator, "builtin_schedule", coarse_schedule)
+    urls = fresh_database_url(backend, tmp_path)
+    url = next(urls)
+    try:
+        upgrade(url)
+        engine = make_engine(url)
+        factory = make_sessionmaker(engine)
+        with transaction(factory) as session:
+            operator_id, table = seed_fleet(session, "Window Migration Air")
+            upload(session, operator_id, table)
+
+        def windows() -> list[tuple]:
+            with factory() as session:
+                return sorted((w.engine_id, w.design_id, w.n_records, w.last_recorded_at,
+                               w.fingerprint, w.median)
+                              for w in session.scalars(select(EgtWindow)))
+
+        kept = windows()
+        assert kept and any(w[-1] is not None for w in kept)
+        downgrade(url, "0020")
+        with engine.connect() as connection:
+            assert "egt_windows" not in inspect(connection).get_table_names()
+        upgrade(url)
+        assert windows() == kept
         engine.dispose()
     finally:
         urls.close()

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from sqlalchemy import Connection, event
+from sqlalchemy import Connection, event, select
 
 from app.models import Event
 from tests.app.services.trends.test_trends import (
@@ -27,11 +27,12 @@ from tests.app.services.trends.test_trends import (
     add_estimates,
     make_fleet,
 )
+from tests.support.builtin_fleet import coarse_schedule, seed_fleet, upload
 from tests.support.fleet_fixture import csv_bytes
 
 # Tables whose rows grow with the records uploaded (not with the fleet's size).
 GROWING = ("snapshots", "estimates", "events", "filter_checkpoints", "deterioration_buckets",
-           "estimation_backlog", "uploads", "stream_chunks", "stream_estimates")
+           "estimation_backlog", "uploads", "stream_chunks", "stream_estimates", "egt_windows")
 T0 = datetime(2026, 3, 1, tzinfo=UTC)
 
 
@@ -148,6 +149,16 @@ def test_the_api_reads_growing_tables_through_indexes(
                            headers={**headers, "Content-Type": "text/csv"})
     assert response.status_code == 201, response.text
 
+    scans, explained = _explain_all(connection, statements)
+    assert explained > 10
+    assert not scans, "\n\n".join(f"{t}: {s}\n{p}" for t, s, p in scans)
+
+
+def _explain_all(
+    connection: Connection, statements: list[tuple[str, Any]]
+) -> tuple[list[tuple[str, str, str]], int]:
+    """(problem, statement, plan) of each recorded read of a growing table that no index
+    backs, and how many were explained."""
     leading = _leading_columns(connection)
     scans = []
     explained = 0
@@ -161,5 +172,37 @@ def test_the_api_reads_growing_tables_through_indexes(
         explained += 1
         for problem in _unbacked(plan, leading):
             scans.append((problem, statement.split("\n")[0][:200], plan))
-    assert explained > 10
+    return scans, explained
+
+
+@pytest.mark.parametrize("database_url", ["postgresql"], indirect=True)
+def test_egt_windows_are_kept_and_read_through_indexes(
+    connection: Connection, session: Any, statements: list[tuple[str, Any]],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The built-in engine's fleet status: its EGT windows as the pipeline takes them, read
+    from them, and read from the records when they are stale."""
+    from sqlalchemy import delete
+
+    from app.models.estimates import EgtWindow, FilterState
+    from app.services.fleet import status
+    from app.services.snapshots import egt, estimator
+
+    monkeypatch.setattr(estimator, "builtin_schedule", coarse_schedule)
+    operator_id, table = seed_fleet(session, "Plan Window Air")
+    upload(session, operator_id, table)
+    engines = list(session.scalars(select(FilterState.engine_id)).all())
+    design_id = session.scalars(select(FilterState.design_id)).first()
+    statements.clear()
+    egt.refresh(session, design_id, engines)
+    status.fleet_status(session, operator_id)
+    kept = len(statements)
+    session.execute(delete(EgtWindow))
+    del statements[kept:]  # the test's own
+    status.fleet_status(session, operator_id)
+    texts = [s for s, _p in statements]
+    assert any("egt_windows" in s for s in texts)
+    assert sum("LATERAL" in s and "snapshots" in s for s in texts) == 2  # kept, then stale
+    scans, explained = _explain_all(connection, statements)
+    assert explained >= 4
     assert not scans, "\n\n".join(f"{t}: {s}\n{p}" for t, s, p in scans)

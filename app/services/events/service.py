@@ -311,7 +311,7 @@ def close(
 
 def open_event_counts(session: Session, operator_id: int) -> dict[int, int]:
     """engine id -> number of events not closed."""
-    rows = session.execute(
+    rows = session.connection().execute(
         select(Event.engine_id, func.count())
         .where(Event.operator_id == operator_id, Event.status != "closed")
         .group_by(Event.engine_id)
@@ -319,16 +319,18 @@ def open_event_counts(session: Session, operator_id: int) -> dict[int, int]:
     return {engine_id: int(n) for engine_id, n in rows}
 
 
-def latest_open_events(session: Session, operator_id: int) -> dict[int, Event]:
-    """engine id -> its most recent event that is not closed."""
+def latest_open_events(session: Session, operator_id: int) -> dict[int, Any]:
+    """engine id -> its most recent event that is not closed: (id, engine_id, detected_at,
+    kind, fault, magnitude, status), not its detection documents."""
     newest = (
         select(Event.engine_id, func.max(Event.detected_at).label("at"))
         .where(Event.operator_id == operator_id, Event.status != "closed")
         .group_by(Event.engine_id)
         .subquery()
     )
-    rows = session.scalars(
-        select(Event).join(
+    rows = session.connection().execute(
+        select(Event.id, Event.engine_id, Event.detected_at, Event.kind, Event.fault,
+               Event.magnitude, Event.status).join(
             newest,
             and_(Event.engine_id == newest.c.engine_id, Event.detected_at == newest.c.at),
         ).where(or_(Event.status == "open", Event.status == "acknowledged"))

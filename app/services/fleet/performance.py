@@ -36,8 +36,10 @@ from scipy import signal
 from sqlalchemy import Float, cast, func, select
 from sqlalchemy.orm import Session
 
-from app.models import EngineModel, EstimatorDesign, Snapshot
+from app.models import Snapshot
 from app.models.estimates import EstimateLayout
+from app.services.snapshots import egt
+from app.services.snapshots.estimator import MEASURED_COLUMNS, schedule_trims
 from estimation.engine.atmosphere import flight_condition
 from estimation.engine.schedule import EngineSchedule
 
@@ -52,7 +54,6 @@ EGT_REFERENCE_CONDITION = (0.0, 0.0, 100.0, 15.0)
 SMOOTHING = 0.1  # weight of each new record in the exponential filter (~10 flights)
 RANKINE_PER_KELVIN = 1.8
 ZERO_C = 273.15
-MEASURED_COLUMNS = {"T48": "t48", "Wf": "wf", "Nc": "nc", "Nf": "nf"}
 
 
 @dataclass(frozen=True)
@@ -80,14 +81,6 @@ def _reference(_key: int, schedule: EngineSchedule) -> TypeReference:
         egt_reference_c=float(ref[EGT_SENSOR][0]) / RANKINE_PER_KELVIN - ZERO_C,
         theta_reference=theta,
     )
-
-
-def schedule_trims(schedule: EngineSchedule, conditions: np.ndarray) -> dict[str, np.ndarray]:
-    """The schedule's interpolated trims at records' conditions [n, 4] (snapshot order)."""
-    cond = np.asarray(conditions, float)
-    if cond.shape[0] == 0:
-        return {k: np.empty(0) for k in schedule.trim_names}
-    return schedule.trims_at(cond[:, [0, 1, 3, 2]])
 
 
 def smooth(values: np.ndarray, weight: float = SMOOTHING) -> np.ndarray:
@@ -175,7 +168,7 @@ def engineering_units(
             continue
         measured = np.asarray(measured, float)
         if sensor == EGT_SENSOR:
-            delta = (measured - base[sensor]) / theta / RANKINE_PER_KELVIN
+            delta = egt.egt_delta(measured, base[sensor], theta)
         else:
             delta = 100.0 * (measured / base[sensor] - 1.0)
         deltas.append((name, unit, delta))
@@ -223,47 +216,6 @@ def engineering_sigma(
 def nominal_margin_c(schedule: EngineSchedule, egt_redline_c: float) -> float:
     """EGT margin of the nominal engine (dEGT = 0)."""
     return egt_redline_c - type_reference(schedule).egt_reference_c
-
-
-def builtin_schedule_for_design(session: Session, design_id: int) -> EngineSchedule | None:
-    """The built-in engine's schedule when the design's engine model is the built-in one."""
-    source = session.scalar(
-        select(EngineModel.source)
-        .join(EstimatorDesign, EstimatorDesign.engine_model_id == EngineModel.id)
-        .where(EstimatorDesign.id == design_id)
-    )
-    if source != "builtin":
-        return None
-    from app.services.snapshots.estimator import builtin_schedule
-
-    return builtin_schedule()
-
-
-def baseline_trims(
-    conditions: np.ndarray, schedule: EngineSchedule,
-    trims: Mapping[str, np.ndarray] | None = None,
-) -> dict[str, np.ndarray]:
-    """Sensor trims of the nominal built-in engine at each record's condition [n, 4]
-    (snapshot order), as the estimation takes them: from the dense trim table (within 0.1
-    sigma of every sensor's noise of the steady-state solve, ``bench_trim_table.py``), solved
-    per record when the table cannot be had, and the schedule's interpolation (``trims``,
-    computed when not given) outside the engine's envelope."""
-    from app.services.snapshots.estimator import builtin_trim_table, exact_nominal_trims
-
-    cond = np.ascontiguousarray(conditions, dtype=float)
-    interpolated = trims if trims is not None else schedule_trims(schedule, cond)
-    out = {k: np.array(v, dtype=float, copy=True) for k, v in interpolated.items()
-           if k in MEASURED_COLUMNS}
-    table = builtin_trim_table()
-    if table is None:
-        return exact_nominal_trims(cond, out)
-    inside = table.inside(cond)
-    if inside.any():
-        solved = table.trims_at(cond[inside])
-        for i, name in enumerate(table.names):
-            if name in out:
-                out[name][inside] = solved[:, i]
-    return out
 
 
 def _snapshot_epoch(session: Session) -> Any:

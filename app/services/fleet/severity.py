@@ -18,6 +18,7 @@ from typing import Any
 from app.models.estimates import EVENT_LEVEL
 
 LEVELS = ("normal", "amber", "red")
+LEVEL_INDEX = {level: k for k, level in enumerate(LEVELS)}
 LABELS = {
     "health_change": "health change",
     "egt_margin": "EGT margin",
@@ -52,18 +53,23 @@ class Check:
                 "reason": self.reason}
 
 
+def grade(levels: Mapping[str, Any], value: float) -> tuple[str, float, float]:
+    """One value against one limit's levels: (level, the level's bound, exceedance)."""
+    amber, red = float(levels["amber"]), float(levels["red"])
+    sign = 1.0 if levels["worse"] == "above" else -1.0
+    exceedance = sign * (value - amber) / (sign * (red - amber))
+    if sign * (value - red) >= 0:
+        return "red", red, exceedance
+    if sign * (value - amber) >= 0:
+        return "amber", amber, exceedance
+    return "normal", amber, exceedance
+
+
 def check(limit: str, levels: Mapping[str, Any], value: LimitValue) -> Check:
     """One limit against one value."""
     unit, worse = levels["unit"], levels["worse"]
     amber, red = float(levels["amber"]), float(levels["red"])
-    sign = 1.0 if worse == "above" else -1.0
-    exceedance = sign * (value.value - amber) / (sign * (red - amber))
-    if sign * (value.value - red) >= 0:
-        level, bound = "red", red
-    elif sign * (value.value - amber) >= 0:
-        level, bound = "amber", amber
-    else:
-        level, bound = "normal", amber
+    level, bound, exceedance = grade(levels, value.value)
     u = UNIT_TEXT.get(unit, f" {unit}")
     name = LABELS.get(limit, limit) + (f" ({value.detail})" if value.detail else "")
     if level == "normal":
@@ -105,3 +111,22 @@ def severity(
             texts.append(text)
     score = max((c.exceedance for c in checks), default=float("-inf"))
     return Severity(level, score, "; ".join(texts) if texts else None, checks)
+
+
+def rank(
+    limits: Mapping[str, Any], values: Mapping[str, LimitValue],
+    events: Iterable[tuple[int, str, str, str | None]] = (),
+) -> tuple[str, float]:
+    """The level and score of ``severity`` without its checks' and events' texts (what ranks
+    a fleet's engines; the page shows ``severity`` of those it lists)."""
+    worst, score = 0, float("-inf")
+    for name, v in values.items():
+        levels = limits.get(name)
+        if levels is not None:
+            graded, _bound, exceedance = grade(levels, v.value)
+            worst = max(worst, LEVEL_INDEX[graded])
+            if exceedance > score:
+                score = exceedance
+    for _event_id, kind, _status, _fault in events:
+        worst = max(worst, LEVEL_INDEX[EVENT_LEVEL.get(kind, "amber")])
+    return LEVELS[worst], score

@@ -28,6 +28,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from scipy import stats
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.models import EngineModel, EstimatorDesign
@@ -62,6 +63,7 @@ START_STD = 5.0
 MODEL_ERROR = 0.2
 # The built-in engine's power setting: the controller holds this sensor (the fan speed) at its
 # demand by moving this input (the fuel flow).
+MEASURED_COLUMNS = {"T48": "t48", "Wf": "wf", "Nc": "nc", "Nf": "nf"}  # sensor -> column
 HELD_LOOP = ("Nf", "Wf")
 
 SNAPSHOT_SIGNALS: dict[str, SignalSpec] = {s.name: s for s in SENSORS + ACTUATORS}
@@ -455,6 +457,51 @@ def exact_nominal_trims(
     for i, name in enumerate(("Wf", "VSV", "VBV")):
         if name in out and name not in SENSOR_NAMES:
             out[name][inside] = ss.u[:, i]
+    return out
+
+
+def builtin_schedule_for_design(session: Session, design_id: int) -> EngineSchedule | None:
+    """The built-in engine's schedule when the design's engine model is the built-in one."""
+    source = session.scalar(
+        select(EngineModel.source)
+        .join(EstimatorDesign, EstimatorDesign.engine_model_id == EngineModel.id)
+        .where(EstimatorDesign.id == design_id)
+    )
+    if source != "builtin":
+        return None
+    return builtin_schedule()
+
+
+def schedule_trims(schedule: EngineSchedule, conditions: np.ndarray) -> dict[str, np.ndarray]:
+    """The schedule's interpolated trims at records' conditions [n, 4] (snapshot order)."""
+    cond = np.asarray(conditions, float)
+    if cond.shape[0] == 0:
+        return {k: np.empty(0) for k in schedule.trim_names}
+    return schedule.trims_at(cond[:, [0, 1, 3, 2]])
+
+
+def baseline_trims(
+    conditions: np.ndarray, schedule: EngineSchedule,
+    trims: Mapping[str, np.ndarray] | None = None,
+) -> dict[str, np.ndarray]:
+    """Sensor trims of the nominal built-in engine at each record's condition [n, 4]
+    (snapshot order), as the estimation takes them: from the dense trim table (within 0.1
+    sigma of every sensor's noise of the steady-state solve, ``bench_trim_table.py``), solved
+    per record when the table cannot be had, and the schedule's interpolation (``trims``,
+    computed when not given) outside the engine's envelope."""
+    cond = np.ascontiguousarray(conditions, dtype=float)
+    interpolated = trims if trims is not None else schedule_trims(schedule, cond)
+    out = {k: np.array(v, dtype=float, copy=True) for k, v in interpolated.items()
+           if k in MEASURED_COLUMNS}
+    table = builtin_trim_table()
+    if table is None:
+        return exact_nominal_trims(cond, out)
+    inside = table.inside(cond)
+    if inside.any():
+        solved = table.trims_at(cond[inside])
+        for i, name in enumerate(table.names):
+            if name in out:
+                out[name][inside] = solved[:, i]
     return out
 
 

@@ -27,9 +27,7 @@ parallel by other processes (``catch_up``, ``groups``; docs/jobs.md).
 
 from __future__ import annotations
 
-import gc
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Mapping, Sequence
 from datetime import UTC, datetime
 from typing import Any
 
@@ -45,8 +43,9 @@ from app.models.base import utcnow
 from app.models.estimates import Estimate, Event, FilterCheckpoint, FilterState
 from app.models.fleet import BASELINE_RESET_KINDS
 from app.services import fresh_records
+from app.services.common import no_gc_pauses
 from app.services.notifications import outbox
-from app.services.snapshots import backlog, buckets, detector, groups, rows
+from app.services.snapshots import backlog, buckets, detector, egt, groups, rows
 from app.services.snapshots.estimator import SnapshotEstimator, estimator_for_design
 from app.services.snapshots.run import EngineOutput, EngineRun, PipelineState, run_filters
 from estimation.snapshot import SnapshotState
@@ -174,20 +173,6 @@ def _active_designs(
 BATCH = 256  # engines filtered together (and committed together by a job)
 
 
-@contextmanager
-def _no_gc_pauses() -> Iterator[None]:
-    """The cyclic garbage collector off for a batch: a batch allocates many small lists (states,
-    histories) and creates no cycles worth finding, while each full collection walks every
-    object of the process (a third of a 1000-engine batch's time in a server process)."""
-    was_enabled = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if was_enabled:
-            gc.enable()
-
-
 COUNTS = ("engines", "records", "events", "reruns")
 
 
@@ -232,7 +217,7 @@ def estimate_engines(
             est = estimator_for_design(session, designs[d_id])
         for start in range(0, len(group), BATCH):
             batch = group[start : start + BATCH]
-            with _no_gc_pauses():
+            with no_gc_pauses():
                 periods = buckets.BucketCollector(est.layout)
                 computed: list[rows.Block] | None = None
                 with read_phase(session, phases) as apart:
@@ -259,6 +244,7 @@ def estimate_engines(
                     for block in computed or ():
                         writer.add(block)
                 _store_batch(session, est, runs, states, outputs)
+                egt.refresh(session, est.design_id, [run.engine_id for run in runs])
                 if marks is not None:
                     backlog.settle(session, marks.values())
                 # Last: the fleet's periods are shared with the engine groups estimated in

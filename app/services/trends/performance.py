@@ -17,6 +17,7 @@ from sqlalchemy.orm import Session
 from app.models import Engine, EngineType
 from app.models.estimates import EstimateLayout
 from app.services.fleet import performance
+from app.services.snapshots import estimator
 from estimation import uncertainty
 
 LABEL = "Engineering units: thrust, stall margins, EGT margin, deltas"
@@ -50,7 +51,7 @@ def performance_group(
     """The group for records (epoch [n], packed values [n, width]); None when the design's
     engine has no schedule. The thrust series' 1-sigma is the filter's, with the design's
     calibrated model error of the thrust estimate when ``calibration`` has one."""
-    schedule = performance.builtin_schedule_for_design(session, design_id)
+    schedule = estimator.builtin_schedule_for_design(session, design_id)
     if schedule is None or len(epoch) == 0:
         return None
     engine_type = session.scalar(
@@ -61,8 +62,8 @@ def performance_group(
               else EngineType().effective_limits)
     records = performance.record_conditions(session, engine_id, epoch)
     z = np.asarray(values[:, layout.slices()["z"]], dtype=float)
-    trims = performance.schedule_trims(schedule, records.conditions)
-    baseline = performance.baseline_trims(records.conditions, schedule, trims)
+    trims = estimator.schedule_trims(schedule, records.conditions)
+    baseline = estimator.baseline_trims(records.conditions, schedule, trims)
     series = performance.engineering_units(
         schedule, layout, z, records, limits["egt_redline_c"], baseline, trims
     )

@@ -55,7 +55,7 @@ from app.services.designs import calibration
 from app.services.encoding import json_numbers
 from app.services.encoding.json_numbers import RawJSON
 from app.services.encoding.pgcopy import PG_EPOCH_US
-from app.services.fleet import performance
+from app.services.snapshots import estimator
 from app.services.trends import health as health_view
 from app.services.trends.performance import performance_group
 
@@ -604,7 +604,7 @@ def engine_trend(
         )
         if extra is not None:
             groups.append(extra)
-        elif performance.builtin_schedule_for_design(session, target.design_id) is None:
+        elif estimator.builtin_schedule_for_design(session, target.design_id) is None:
             out["performance_note"] = PERFORMANCE_NOTE
         out.update(columns)
         out.update(

@@ -134,12 +134,12 @@ def test_baseline_trims_are_the_estimations_trims(schedule: EngineSchedule) -> N
     cond = np.array([[35000.0, 0.8, 0.0, 80.0], [0.0, 0.2, 10.0, 100.0],
                      [80000.0, 0.8, 0.0, 80.0]])
     interpolated = {k: v for k, v in schedule.trims_at(cond[:, [0, 1, 3, 2]]).items()
-                    if k in performance.MEASURED_COLUMNS}
-    got = performance.baseline_trims(cond, schedule)
+                    if k in estimator.MEASURED_COLUMNS}
+    got = estimator.baseline_trims(cond, schedule)
     table = estimator.builtin_trim_table()
     assert table is not None
     solved = estimator.exact_nominal_trims(cond, interpolated)
-    for name in performance.MEASURED_COLUMNS:
+    for name in estimator.MEASURED_COLUMNS:
         k = table.names.index(name)
         np.testing.assert_array_equal(got[name][:2], table.trims_at(cond[:2])[:, k])
         np.testing.assert_allclose(got[name][:2], solved[name][:2], rtol=1e-3)
