@@ -228,9 +228,11 @@ def main() -> None:
                     "SELECT count(*) FROM estimates e JOIN engines g ON g.id = e.engine_id "
                 "WHERE g.operator_id = :o"),
                     {"o": operator_id}).scalar_one() - args.warm
-                ran, jobs = connection.execute(text(
+                ran, jobs, own, parts = connection.execute(text(
                     "SELECT coalesce(sum(extract(epoch FROM finished_at - started_at)), 0), "
-                    "count(*) FROM jobs WHERE operator_id = :o AND id > :b"),
+                    "count(*), coalesce(sum((result->>'records')::int), 0), "
+                    "max((result->>'groups')::int) FROM jobs "
+                    "WHERE operator_id = :o AND id > :b"),
                     {"o": operator_id, "b": before}).one()
                 failed = connection.execute(text(
                     "SELECT count(*) FROM jobs WHERE operator_id = :o AND status <> 'succeeded'"),
@@ -247,7 +249,8 @@ def main() -> None:
         f"{'server' if p == process.pid else f'pid {p}'} {c:.2f} s" for p, c in roles.items())
         + f"; PostgreSQL backends {pg_cpu:.2f} s; machine CPU per 100,000 records "
         f"{(cpu + pg_cpu) * 1e5 / n:.2f} s")
-    print(f"  {estimated} estimates stored of {n} records; {failed} job(s) not succeeded")
+    print(f"  {estimated} estimates stored of {n} records, {own} by the job's own process "
+          f"({parts or 'no'} engine groups); {failed} job(s) not succeeded")
     print(f"  raw binary COPY of the same rows: {copy_s:.2f} s, {peer:,.0f} records/s, "
           f"{copy_bytes / 1e6:.1f} MB")
     ok = rate >= 50_000 and rate >= 0.3 * peer

@@ -101,7 +101,9 @@ def _exit_with_parent(parent: int) -> None:
 
 
 def _ready() -> None:
-    from app.services.snapshots import store  # noqa: F401  (the estimation's imports, now)
+    from app.services.snapshots import estimator, store  # noqa: F401  (its imports, now)
+
+    estimator.prepare()
 
 
 def _run_group(operator_id: int, engine_ids: list[int]) -> dict[str, Any]:

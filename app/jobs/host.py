@@ -113,8 +113,13 @@ def _serve_jobs(settings_doc: dict[str, Any], pipe: Connection) -> None:
         # children unless told this process is not one.
         multiprocessing.current_process().daemon = False
         pool = PoolLauncher(settings)
-        pool.start()
+        # Ready before the first job: a process still importing (seconds on a small machine)
+        # would take a core from the job and its groups would wait behind that.
+        pool.start(wait=True)
         groups.configure(pool)
+    from app.services.snapshots import estimator
+
+    estimator.prepare()  # the built-in engine's tables, before the first job rather than in it
     background = start_background_jobs(
         make_sessionmaker(engine), registry,
         heartbeat_seconds=settings.job_heartbeat_seconds, stale_after=settings.job_stale_after,

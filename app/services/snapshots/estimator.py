@@ -390,6 +390,22 @@ def estimator_for_design(session: Session, design: EstimatorDesign) -> SnapshotE
     return build_estimator(design.id, model, design.result, schedule)
 
 
+def prepare() -> None:
+    """What estimation in this process needs of the built-in engine, made now (a job or worker
+    process's start) rather than in its first job: the sensor noise (a steady-state solve),
+    and the schedule and trim table where the data directory's cache holds them (a missing one
+    is built by the first job that needs it, not here)."""
+    from app.engine_cache import cache_path, trim_table_path
+    from estimation.engine.fleet import engine_noise_std
+
+    engine_noise_std()
+    directory = Path(cache_dir())
+    if cache_path(directory).exists():
+        builtin_schedule()
+    if trim_table_path(directory).exists():
+        builtin_trim_table()
+
+
 def builtin_schedule() -> EngineSchedule:
     """The built-in engine's schedule from the data directory's cache (built on first use)."""
     return _cached_schedule(cache_dir())

@@ -670,10 +670,11 @@ def parse_csv(
 ) -> ParsedTable:
     """CSV with a header line (comma separated, UTF-8)."""
     log = ErrorLog()
-    if not body.strip():
+    if not body or body.isspace():  # neither copies the body
         raise UploadRejected([RowError(None, None, "the body is empty")])
+    end = body.find(b"\n")
     try:
-        first_line = body.split(b"\n", 1)[0].decode("utf-8-sig").rstrip("\r")
+        first_line = body[: end if end >= 0 else len(body)].decode("utf-8-sig").rstrip("\r")
     except UnicodeDecodeError:
         raise UploadRejected([RowError(None, None, "the CSV header is not UTF-8")]) from None
     headers = next(csv.reader([first_line]), [])
