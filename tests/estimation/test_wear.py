@@ -298,16 +298,7 @@ def test_record_by_record_steps_give_the_scans_alerts_however_split(
     whole = wear.wear_steps(det, wear.WearState(), x, new_cycle, resets, z, epoch=epoch)
     assert [_alert_key(a) for a in whole.alerts] == [_alert_key(a) for a in scan.alerts]
     cuts = np.sort(rng.choice(np.arange(1, S), size=25, replace=False))
-    st, alerts = wear.WearState(), []
-    for a, b in zip(np.r_[0, cuts], np.r_[cuts, S], strict=True):
-        part = wear.wear_steps(det, st, x[a:b], new_cycle[a:b], resets[a:b],
-                               None if z is None else z[a:b], epoch=epoch[a:b])
-        alerts += [(a + al.index, al.kind, al.fault, al.magnitude, al.statistic)
-                   for al in part.alerts]
-        st = part.state
-    assert alerts == [(al.index, al.kind, al.fault, al.magnitude, al.statistic)
-                      for al in whole.alerts]
-    assert st == whole.state
+    _assert_split_equals_whole(det, whole, cuts, x, new_cycle, resets, z, epoch=epoch)
 
 
 def test_bank_threshold_is_set_by_the_false_alerts_per_engine_year() -> None:
@@ -598,16 +589,7 @@ def test_fleet_cusum_alerts_the_fleets_wear_however_split(seed: int) -> None:
     assert split_h > wear.bank_design(cfg, n_cand).threshold
     rng = np.random.default_rng(seed)
     cuts = np.sort(rng.choice(np.arange(1, S), size=20, replace=False))
-    st, alerts = wear.WearState(), []
-    for a, b in zip(np.r_[0, cuts], np.r_[cuts, S], strict=True):
-        part = wear.wear_steps(det, st, x[a:b], new_cycle[a:b], resets[a:b], z[a:b],
-                               direction=v, zf=zf[a:b])
-        alerts += [(a + al.index, al.kind, al.fault, al.magnitude, al.statistic)
-                   for al in part.alerts]
-        st = part.state
-    assert alerts == [(al.index, al.kind, al.fault, al.magnitude, al.statistic)
-                      for al in whole.alerts]
-    assert st == whole.state
+    _assert_split_equals_whole(det, whole, cuts, x, new_cycle, resets, z, direction=v, zf=zf)
     mid = wear.wear_steps(det, wear.WearState(), x[:100], new_cycle[:100], resets[:100],
                           z[:100], direction=v, zf=zf[:100]).state
     with pytest.raises(ValueError, match="keeps its fleet direction"):
@@ -663,3 +645,23 @@ def test_kept_calibrations_give_the_thresholds_computed_here(tmp_path):
     finally:
         wear.keep_calibrations(None)
     assert here is not None and built == here and read == here
+
+
+def _assert_split_equals_whole(det, whole, cuts, x, new_cycle, resets, z, direction=None,
+                               **per_record):
+    """``wear_steps`` over the records cut at ``cuts``, each part continuing the state the
+    one before left, gives the whole run's alerts and final state (``per_record``: arrays
+    cut with the records, such as epoch or zf)."""
+    st, alerts = wear.WearState(), []
+    for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(x)], strict=True):
+        extra = {k: v[a:b] for k, v in per_record.items()}
+        if direction is not None:
+            extra["direction"] = direction
+        part = wear.wear_steps(det, st, x[a:b], new_cycle[a:b], resets[a:b],
+                               None if z is None else z[a:b], **extra)
+        alerts += [(a + al.index, al.kind, al.fault, al.magnitude, al.statistic)
+                   for al in part.alerts]
+        st = part.state
+    assert alerts == [(al.index, al.kind, al.fault, al.magnitude, al.statistic)
+                      for al in whole.alerts]
+    assert st == whole.state
