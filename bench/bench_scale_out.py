@@ -128,7 +128,8 @@ def one_run(args: argparse.Namespace, plan: object, warm: pa.Table, bodies: list
                 took = time.perf_counter() - t0
             with engine.connect() as connection:
                 estimated = connection.execute(text(
-                    "SELECT count(*) FROM estimates WHERE operator_id = :o"),
+                    "SELECT count(*) FROM estimates e JOIN engines g ON g.id = e.engine_id "
+                    "WHERE g.operator_id = :o"),
                     {"o": operator_id}).scalar_one()
                 waiting = connection.execute(text(
                     "SELECT count(*) FROM estimation_backlog WHERE operator_id = :o"),
