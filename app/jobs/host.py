@@ -115,7 +115,11 @@ def _serve_jobs(settings_doc: dict[str, Any], pipe: Connection) -> None:
         pool = PoolLauncher(settings)
         # Ready before the first job: a process still importing (seconds on a small machine)
         # would take a core from the job and its groups would wait behind that.
-        pool.start(wait=True)
+        try:
+            pool.start(wait=True)
+        except Exception as exc:  # a worker that died starting: the first launch starts anew
+            log.warning("engine-group workers did not start (%s); jobs go on without them "
+                        "until a launch starts them again", exc)
         groups.configure(pool)
     from app.services.snapshots import estimator
 
