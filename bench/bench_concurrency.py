@@ -39,6 +39,7 @@ import io
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import _common  # noqa: F401  (pins BLAS threads)
 import httpx
@@ -106,18 +107,23 @@ def uploads_by_tail(table: pa.Table, uploads: int,
     return out
 
 
+def scalar(url: str, sql: str, operator_id: int) -> Any:
+    """One value of a query on the operator (``:o``), on a connection of its own."""
+    engine = make_engine(url)
+    try:
+        with engine.connect() as connection:
+            return connection.execute(text(sql), {"o": operator_id}).scalar_one()
+    finally:
+        engine.dispose()
+
+
 def run(url: str, label: str, args: argparse.Namespace, plan: object,
         table: pa.Table) -> bool:
     upgrade(url)
     key, operator_id, _design_s = build_operator(url, plan)
     *tails, warm = uploads_by_tail(table, args.uploads, args.rows)
     bodies = tails[:args.writers]
-    engine = make_engine(url)
-    with engine.connect() as connection:
-        engine_id = connection.execute(text(
-            "SELECT min(id) FROM engines WHERE operator_id = :o"), {"o": operator_id}
-        ).scalar_one()
-    engine.dispose()
+    engine_id = scalar(url, "SELECT min(id) FROM engines WHERE operator_id = :o", operator_id)
     writes, reads = Latencies(), Latencies()
     done = threading.Event()
     started = [0.0]
@@ -184,12 +190,7 @@ def run(url: str, label: str, args: argparse.Namespace, plan: object,
         after = estimation_backlog(url, operator_id, wait_s=300.0)
         drained = time.perf_counter() - t_end
 
-    engine = make_engine(url)
-    with engine.connect() as connection:
-        stored = connection.execute(text(
-            "SELECT count(*) FROM snapshots WHERE operator_id = :o"), {"o": operator_id}
-        ).scalar_one()
-    engine.dispose()
+    stored = scalar(url, "SELECT count(*) FROM snapshots WHERE operator_id = :o", operator_id)
     ok_write = writes.p99() <= P99_WRITE_S and not writes.errors
     ok_read = reads.p99() <= P99_READ_S and not reads.errors
     print(f"\n== {label}: {args.writers} writers x {args.uploads} uploads x {args.rows} rows, "
