@@ -120,20 +120,29 @@ def score(
     tr = health_accuracy.tracks(est, plan, snaps)
     segs = segments(plan, tr)
     st = _stack(segs, calib.drift)
-    sigma = np.sqrt(np.asarray(calib.bias_scale) ** 2 * calib.bias2 + st["filter_var"]
-                    + calib.level_std**2)
-    d_sigma = np.sqrt(st["change_var"] + calib.change_std**2)
+    raw_err = st["level_err"]  # the filter's estimate against its own 1-sigma
+    # What the trend shows (``trends.health.apply``): the calibrated level and change.
+    levels = [calib.level(s.h_hat, s.h_sigma) for s in segs]
+    changes = [calib.change(s.h_hat - s.h_hat[0], s.h_sigma, s.h_sigma[0], s.kcycles)
+               for s in segs]
+    st["level_err"] = np.concatenate([h - s.h_true for (h, _), s in zip(levels, segs,
+                                                                        strict=True)])
+    sigma = np.concatenate([sg for _, sg in levels])
+    st["change_err"] = np.concatenate([dh - (s.h_true - s.h_true[0])
+                                       for (dh, _), s in zip(changes, segs, strict=True)])
+    d_sigma = np.concatenate([sg for _, sg in changes])
     pieces = calibration.trend_pieces(tr)
     slope_shown = calib.observable & np.isfinite(np.asarray(calib.slope_gain))
     slope_hat, slope_sigma, slope_true = pieces.fleet(calib.slope_gain, calib.slope_noise,
                                                       calib.slope_common, calib.slope_gain_std)
     slope_hat = np.where(slope_shown, slope_hat, np.nan)
-    ends = np.array([(s.h_hat[-1] - s.h_hat[0]) - (s.h_true[-1] - s.h_true[0]) for s in segs])
+    ends = np.array([dh[-1] - (s.h_true[-1] - s.h_true[0])
+                     for (dh, _), s in zip(changes, segs, strict=True)])
     cov = uncertainty.coverage
     return Score(
         names=calib.names, observable=calib.observable,
         cover1=cov(st["level_err"], sigma, 1.0), cover2=cov(st["level_err"], sigma, 2.0),
-        filter_cover1=cov(st["level_err"], np.sqrt(st["filter_var"]), 1.0),
+        filter_cover1=cov(raw_err, np.sqrt(st["filter_var"]), 1.0),
         level_rms=np.sqrt(np.mean(st["level_err"] ** 2, axis=0)), sigma=sigma.mean(axis=0),
         change_cover1=cov(st["change_err"], d_sigma, 1.0),
         change_cover2=cov(st["change_err"], d_sigma, 2.0),

@@ -17,7 +17,7 @@ class CalibrateDesign(BaseModel):
 
     design_id: int
     seeds: list[int] = Field(
-        default_factory=lambda: list(calibration.CALIBRATION_SEEDS), min_length=1, max_length=8,
+        default_factory=lambda: list(calibration.CALIBRATION_SEEDS), min_length=1, max_length=16,
         description="one simulated calibration fleet per seed",
     )
     aircraft: int = Field(calibration.CALIBRATION_AIRCRAFT, ge=1, le=50,

@@ -57,12 +57,12 @@ MIN_SLOPE_SPAN = 0.2
 REDUCTION = 0.6
 SLOPE_TOLERANCE = 0.3
 # The coverage a shown parameter's pooled sigma must hold on every calibration fleet alone:
-# 1-sigma within BAND_ONE_SIGMA, 2-sigma at least BAND_TWO_SIGMA. The issue's band (55-85 %,
-# >= 85 %) less about one sampling spread of a fleet of two dozen engines (most of a level
-# error is a constant of its engine): a parameter that leaves even this on a calibration fleet
-# swings too much from fleet to fleet to be shown (bench_uncertainty: e.g. svd:6 lpc_eff).
-BAND_ONE_SIGMA = (0.50, 0.90)
-BAND_TWO_SIGMA = 0.80
+# the issue's band, 1-sigma within BAND_ONE_SIGMA and 2-sigma at least BAND_TWO_SIGMA. A
+# parameter that leaves it on a calibration fleet swings too much from fleet to fleet to be
+# shown (bench_uncertainty: with a looser band, 50-90 % and 80 %, lpt_eff and lpt_flow were
+# shown and left the band on 4-5 of 48 scoring fleets).
+BAND_ONE_SIGMA = (0.55, 0.85)
+BAND_TWO_SIGMA = 0.85
 # Flights after a start or a shop visit before a record counts as settled (start-up transient).
 SETTLE_FLIGHTS = 30
 # Maintenance that moves the health baseline (a water wash does not), and the records after a
@@ -78,11 +78,15 @@ SLOPE_PERIOD = "week"
 MIN_SLOPE_YEARS = 0.25
 YEAR_SLOPE_FLOOR = 0.05
 # The calibration fleets: CALIBRATION_SEEDS fleets of CALIBRATION_AIRCRAFT aircraft (two
-# engines each plus spares) flying CALIBRATION_FLIGHTS rounds at two a day. Six, not three:
-# the fleet-average slope's gain is a ratio of fleet means whose error common to a fleet's
+# engines each plus spares) flying CALIBRATION_FLIGHTS rounds at two a day. Twelve: the
+# fleet-average slope's gain is a ratio of fleet means whose error common to a fleet's
 # engines is ~15 % of the slope per fleet (bench_uncertainty, subset:10 hpc_eff), so its
-# calibration needs the fleets, not more engines in one.
-CALIBRATION_SEEDS = (20260102, 20260103, 20260104, 20260105, 20260106, 20260107)
+# calibration needs the fleets, not more engines in one; and the level's correction, fitted
+# across fleets, holds on a fleet it did not see better with twelve than with six (per fleet
+# and parameter, 1-sigma and 2-sigma outside the issue's band on fewer scoring fleets). None
+# of them is a scoring seed of bench_uncertainty (the demo's seed and every seventh after it).
+CALIBRATION_SEEDS = (20260102, 20260103, 20260104, 20260105, 20260106, 20260107,
+                     20260109, 20260110, 20260111, 20260112, 20260113, 20260114)
 CALIBRATION_AIRCRAFT = 8
 CALIBRATION_FLIGHTS = 730
 # The aux outputs' model error is fitted on every AUX_EVERY-th settled record (each needs two
@@ -301,13 +305,16 @@ def bias_matrix(est: estimator.SnapshotEstimator, snaps: Snapshots, records: int
     return uncertainty.snapshot_bias_matrix(np.asarray(g.G_y), noise, est.Vp)
 
 
-def stack(segs: Sequence[Segment], drift: np.ndarray) -> dict[str, np.ndarray]:
+def stack(segs: Sequence[Segment], drift: np.ndarray,
+          filter_scale: np.ndarray | float = 1.0) -> dict[str, np.ndarray]:
     """Level and change errors and their filter variances over every segment's records
-    ([N, p] each; the change against the segment's first record, with the drift bias d)."""
+    ([N, p] each; the change against the segment's first record, with the drift bias d and
+    the filter's 1-sigma scaled by ``filter_scale`` f)."""
     level_err = np.concatenate([s.h_hat - s.h_true for s in segs])
     filt_var = np.concatenate([s.h_sigma**2 for s in segs])
     d_err = np.concatenate([(s.h_hat - s.h_hat[0]) - (s.h_true - s.h_true[0]) for s in segs])
-    d_var = np.concatenate([s.h_sigma**2 + s.h_sigma[0] ** 2
+    f2 = np.square(filter_scale)
+    d_var = np.concatenate([f2 * (s.h_sigma**2 + s.h_sigma[0] ** 2)
                             + np.square(drift * s.kcycles[:, None]) for s in segs])
     return {"level_err": level_err, "filter_var": filt_var, "change_err": d_err,
             "change_var": d_var}
@@ -359,6 +366,33 @@ def fleet_prior(segs: Sequence[Segment]) -> np.ndarray:
     return (h.T @ h) / h.shape[0]
 
 
+@dataclass(frozen=True)
+class CalibrationFleet:
+    """One simulated fleet filtered by a design (``calibration_fleet``): its settled
+    segments, its trend pieces, the design's bias matrix over its conditions and the errors
+    of its aux estimates with their filter variance (empty when not calibrated)."""
+
+    segments: list[Segment]
+    pieces: uncertainty.TrendPieces
+    bias_matrix: np.ndarray
+    aux_err: np.ndarray
+    aux_var: np.ndarray
+
+
+def calibration_fleet(
+    est: estimator.SnapshotEstimator, plan: FleetPlan, snaps: Snapshots,
+) -> CalibrationFleet:
+    """``est``'s filter over one simulated fleet, lined up with its truth."""
+    track_list = tracks(est, plan, snaps)
+    aux = tuple(est.layout.aux)
+    if aux and all(n in AUX_NAMES for n in aux):
+        aux_err, aux_var = aux_errors(plan, track_list, aux)
+    else:
+        aux_err = aux_var = np.empty((0, len(aux)))
+    return CalibrationFleet(segments(plan, track_list), trend_pieces(track_list),
+                            bias_matrix(est, snaps), aux_err, aux_var)
+
+
 def calibrate(
     est: estimator.SnapshotEstimator, fleets: Sequence[tuple[FleetPlan, Snapshots]],
     design: str = "", prior_var: float = PRIOR_VAR, seeds: Sequence[int] | None = None,
@@ -367,56 +401,92 @@ def calibrate(
     two_sigma: float = uncertainty.TWO_SIGMA_TARGET,
     progress: ProgressFn | None = None,
 ) -> uncertainty.Calibration:
-    """Fit the model-error term of ``est`` on the pooled segments of ``fleets``.
-
-    The analytic bias^2 is taken under the simulated fleets' own prior (``fleet_prior``); s is
-    the smallest holding ``one_sigma`` and ``two_sigma`` of the pooled errors
-    (``uncertainty.fit_model_std``); a parameter is shown when its honest steady-state sigma
-    is at most ``reduction`` times the design's prior sigma sqrt(prior_var) and its mean rate
-    over the pooled segments (``slopes``) is within ``slope_tolerance`` of the truth
-    (``uncertainty.observable``). Its fleet-average slope is shown too when the pooled pieces
-    measure it well enough to calibrate a gain (``uncertainty.fit_fleet_slope``).
-    """
-    segs: list[Segment] = []
-    pieces: list[uncertainty.TrendPieces] = []
-    fleet_of: list[int] = []  # the fleet of each segment
-    B_hs = []
-    aux = tuple(est.layout.aux)
-    aux_err, aux_var = [], []
+    """Fit the model-error term of ``est`` on the simulated ``fleets`` (``fit``)."""
+    filtered = []
     for k, (plan, snaps) in enumerate(fleets):
-        track_list = tracks(est, plan, snaps)
-        part = segments(plan, track_list)
-        if aux and all(n in AUX_NAMES for n in aux):
-            e, v = aux_errors(plan, track_list, aux)
-            aux_err.append(e)
-            aux_var.append(v)
-        segs.extend(part)
-        pieces.append(trend_pieces(track_list))
-        fleet_of.extend([k] * len(part))
-        B_hs.append(bias_matrix(est, snaps))
+        filtered.append(calibration_fleet(est, plan, snaps))
         if progress is not None:
             progress((k + 1) / len(fleets), f"filtered calibration fleet {k + 1}")
+    return fit(filtered, tuple(est.layout.health), tuple(est.layout.aux), design=design,
+               prior_var=prior_var, seeds=seeds, reduction=reduction,
+               slope_tolerance=slope_tolerance, one_sigma=one_sigma, two_sigma=two_sigma,
+               flights=fleets[0][0].config.n_flights if fleets else 0,
+               engines=sum(len(plan.esns) for plan, _ in fleets))
+
+
+def fit(
+    fleets: Sequence[CalibrationFleet], names: tuple[str, ...], aux: tuple[str, ...] = (),
+    design: str = "", prior_var: float = PRIOR_VAR, seeds: Sequence[int] | None = None,
+    reduction: float = REDUCTION, slope_tolerance: float = SLOPE_TOLERANCE,
+    one_sigma: float = uncertainty.ONE_SIGMA_TARGET,
+    two_sigma: float = uncertainty.TWO_SIGMA_TARGET, flights: int = 0, engines: int = 0,
+) -> uncertainty.Calibration:
+    """The model-error term of a design over its filtered calibration ``fleets``.
+
+    The analytic bias^2 is taken under the simulated fleets' own prior (``fleet_prior``).
+    The level is calibrated (``uncertainty.fit_level_correction``) where a correction fitted
+    on the other fleets cuts a fleet's error; every figure below is taken on the records so
+    corrected, each by the correction its own fleet did not feed. s and the spread kappa are
+    the tightest holding ``one_sigma`` and ``two_sigma`` of the pooled errors
+    (``uncertainty.fit_model_spread``); a parameter is shown when its honest steady-state sigma
+    is at most ``reduction`` times the design's prior sigma sqrt(prior_var), its mean rate
+    over the pooled segments (``slopes``) is within ``slope_tolerance`` of the truth
+    (``uncertainty.observable``) and its sigma's coverage holds on every calibration fleet
+    alone (``BAND_ONE_SIGMA``, ``BAND_TWO_SIGMA``). Its fleet-average slope is shown too when
+    the pooled pieces measure it well enough to calibrate a gain
+    (``uncertainty.fit_fleet_slope``).
+    """
+    segs = [s for f in fleets for s in f.segments]
+    fleet_of = [k for k, f in enumerate(fleets) for _ in f.segments]
+    pieces = [f.pieces for f in fleets]
+    B_hs = [f.bias_matrix for f in fleets]
+    aux_err = [f.aux_err for f in fleets if len(f.aux_err)]
+    aux_var = [f.aux_var for f in fleets if len(f.aux_err)]
     B_h = np.mean(B_hs, axis=0)
     p = B_h.shape[0]
     bias2 = uncertainty.analytic_bias2(B_h, fleet_prior(segs))
+    # The calibrated level: each calibration record corrected as a fleet the correction did
+    # not see (its fleet's left-out fit), so that every figure below is the correction's
+    # error out of sample.
+    rows = np.concatenate([np.full(len(s.kcycles), k) for s, k in zip(segs, fleet_of,
+                                                                       strict=True)])
+    h_hat = np.concatenate([s.h_hat for s in segs])
+    d = uncertainty.spread(h_hat)
+    fit = uncertainty.fit_level_correction(
+        h_hat, h_hat - np.concatenate([s.h_true for s in segs]), rows)
+    corrected = np.any(fit.matrix != 0.0, axis=1)
+    segs = [Segment(s.kcycles, uncertainty.correct_level(s.h_hat, fit.without(k)), s.h_sigma,
+                    s.h_true) for s, k in zip(segs, fleet_of, strict=True)]
     slope_hat, slope_true = slopes(segs)
-    # No trend long enough to measure the fleet's rate on: no drift term.
-    drift = uncertainty.drift_bias(B_h, np.nan_to_num(slope_true))
+    # The drift bias d = B_h r of a trend, through the correction where there is one
+    # (M (I + B_h) r - r, M = I - C[:, 1:]); no trend long enough to measure the fleet's rate
+    # on: no drift term.
+    rate = np.nan_to_num(slope_true)
+    M = np.eye(p) - fit.matrix[:, 1:]
+    drift = np.where(corrected, M @ (rate + uncertainty.drift_bias(B_h, rate)) - rate,
+                     uncertainty.drift_bias(B_h, rate))
     st = stack(segs, drift)
     scale = uncertainty.fit_bias_scale(st["level_err"], bias2, st["filter_var"], one_sigma)
-    level_std = uncertainty.fit_model_std(
-        st["level_err"], scale**2 * bias2 + st["filter_var"], one_sigma, two_sigma)
+    # Where the correction leaves less error than the filter's own variance claims (it
+    # regresses on every estimate, whose errors are correlated), that variance is scaled.
+    filter_scale = np.where(corrected & (scale == 0.0), uncertainty.fit_filter_scale(
+        st["level_err"], st["filter_var"], one_sigma), 1.0)
+    base_var = scale**2 * bias2 + filter_scale**2 * st["filter_var"]
+    level_std, level_spread = uncertainty.fit_model_spread(
+        st["level_err"], base_var, d, one_sigma, two_sigma)
+    change_scale = uncertainty.fit_filter_scale(st["change_err"], st["change_var"], one_sigma)
+    st = stack(segs, drift, change_scale)
     change_std = uncertainty.fit_model_std(st["change_err"], st["change_var"], one_sigma,
                                            two_sigma)
     slope_error = (slope_hat - slope_true) / np.maximum(np.abs(slope_true), SLOPE_FLOOR)
     shown = uncertainty.observable(
-        np.full(p, prior_var), scale**2 * bias2, np.median(st["filter_var"], axis=0), level_std,
+        np.full(p, prior_var), scale**2 * bias2,
+        filter_scale**2 * np.median(st["filter_var"], axis=0),
+        np.sqrt(level_std**2 + (level_spread * np.median(d)) ** 2),
         slope_error=slope_error, reduction=reduction, slope_tolerance=slope_tolerance)
     sc = uncertainty.fit_fleet_slope(pieces, YEAR_SLOPE_FLOOR, slope_tolerance)
     # Coverage of the pooled sigma on each fleet alone (BAND_ONE_SIGMA, BAND_TWO_SIGMA).
-    sigma = np.sqrt(scale**2 * bias2 + st["filter_var"] + level_std**2)
-    rows = np.concatenate([np.full(len(s.kcycles), k) for s, k in zip(segs, fleet_of,
-                                                                       strict=True)])
+    sigma = np.sqrt(base_var + level_std**2 + (level_spread * d[:, None]) ** 2)
     per_fleet = [(uncertainty.coverage(st["level_err"][rows == k], sigma[rows == k], 1.0),
                   uncertainty.coverage(st["level_err"][rows == k], sigma[rows == k], 2.0))
                  for k in np.unique(rows)]
@@ -427,18 +497,18 @@ def calibrate(
     if len(per_fleet) > 1:
         shown &= stable
     aux_std = None
-    if aux_err and sum(len(e) for e in aux_err):
+    if aux_err:
         aux_std = uncertainty.fit_model_std(np.concatenate(aux_err), np.concatenate(aux_var),
                                             one_sigma, two_sigma)
     return uncertainty.Calibration(
         aux_names=aux if aux_std is not None else (), aux_std=aux_std,
-        names=tuple(est.layout.health), level_std=level_std, change_std=change_std,
+        names=names, level_std=level_std, change_std=change_std,
         slope_error=slope_error, bias2=bias2, drift=drift, observable=shown, bias_scale=scale,
         slope_gain=sc.gain, slope_noise=sc.noise, slope_common=sc.common,
-        slope_gain_std=sc.gain_std,
+        slope_gain_std=sc.gain_std, level_correction=fit.matrix, level_spread=level_spread,
+        filter_scale=filter_scale, change_scale=change_scale,
         source={"design": design, "seeds": None if seeds is None else list(seeds),
-                "engines": sum(len(plan.esns) for plan, _ in fleets),
-                "flights": fleets[0][0].config.n_flights if fleets else 0,
+                "engines": engines, "flights": flights,
                 "records": int(st["level_err"].shape[0]), "segments": len(segs),
                 "prior_var": prior_var, "reduction": reduction,
                 "slope_tolerance": slope_tolerance, "one_sigma": one_sigma,
@@ -452,6 +522,7 @@ def calibrate(
                 "slope_gain_relative_std": [round(float(x), 3) if np.isfinite(x) else None
                                             for x in sc.gain_std / sc.gain],
                 "two_sigma": two_sigma,
+                "level_corrected": [n for n, c in zip(names, corrected, strict=True) if c],
                 "fleet_cover1_min": [round(float(x), 3) for x in cover1.min(axis=0)],
                 "fleet_cover1_max": [round(float(x), 3) for x in cover1.max(axis=0)],
                 "fleet_cover2_min": [round(float(x), 3) for x in cover2.min(axis=0)]},

@@ -87,25 +87,22 @@ def apply(
 ) -> tuple[np.ndarray, HealthMeta]:
     """The health columns of ``values`` [n, width] (a new float64 array) in ``view``.
 
-    Level: h_hat and the honest sigma sqrt(a^2 bias2 + sigma_f^2 + s^2) per record. Change:
-    h_hat - h_hat[b] and sqrt(sigma_f^2 + sigma_f[b]^2 + (d c)^2 + s_delta^2), c the take-off
-    records (cycles) since b, in thousands. Unobservable parameters: NaN (null in JSON).
+    Level: the calibrated level and its honest sigma per record (``Calibration.level``).
+    Change: the calibrated h_hat - h_hat[b] and its sigma (``Calibration.change``), c the
+    take-off records (cycles) since b, in thousands; uncalibrated, the raw difference and the
+    two filter sigmas in quadrature. Unobservable parameters: NaN (null in JSON).
     """
     out = np.array(values, dtype=np.float64)
     h_cols, s_cols = layout_slices["h"], layout_slices["h_sigma"]
     h, f = out[:, h_cols], out[:, s_cols]
     p = len(names)
-    bias2, level_std, change_std, drift = (np.zeros(p) for _ in range(4))
     hidden = np.zeros(p, bool)
-    if calib is not None:
-        on = calib.on(names)
-        bias2 = np.asarray(on.bias_scale) ** 2 * on.bias2
-        level_std, change_std, drift = on.level_std, on.change_std, on.drift
+    on = calib.on(names) if calib is not None else None
+    if on is not None:
         hidden = ~on.observable
     baselines: tuple[float, ...] = ()
     if view == "level":
-        new_h = h
-        new_s = uncertainty.level_sigma(f, bias2, level_std) if calib is not None else f
+        new_h, new_s = on.level(h, f) if on is not None else (h, f)
     else:
         epoch = np.asarray(epoch if epoch is not None else np.arange(len(out)), float)
         b = baseline_index(epoch, np.asarray(resets if resets is not None else []), settle)
@@ -115,9 +112,12 @@ def apply(
         if takeoff is None or not takeoff.size or takeoff[-1] == 0:
             takeoff = np.arange(len(out))  # no phases: one record a cycle
         kcycles = (takeoff - takeoff[bb]) / 1000.0
-        new_h = np.where(has[:, None], h - h[bb], np.nan)
-        new_s = np.where(has[:, None], uncertainty.change_sigma(f, f[bb], kcycles, drift,
-                                                                 change_std), np.nan)
+        if on is not None:
+            delta, sigma = on.change(h - h[bb], f, f[bb], kcycles)
+        else:
+            delta, sigma = h - h[bb], np.sqrt(np.square(f) + np.square(f[bb]))
+        new_h = np.where(has[:, None], delta, np.nan)
+        new_s = np.where(has[:, None], sigma, np.nan)
         baselines = tuple(float(t) for t in epoch[np.unique(b[has])])
     new_h = np.where(hidden, np.nan, new_h)
     new_s = np.where(hidden, np.nan, new_s)
