@@ -164,3 +164,61 @@ def test_baseline_index_by_hand() -> None:
     b = health_view.baseline_index(epoch, np.array([3.0, 8.5]), 2)
     assert b.tolist() == [-1, -1, 2, -1, -1, 5, 5, 5, 5, -1]
     assert health_view.baseline_index(epoch, np.array([]), 0).tolist() == [0] * 10
+
+
+# A calibrated level (``uncertainty.Calibration.level``), in another order than the layout's:
+# the correction's rows and columns follow the calibration's names.
+CORRECTED = Calibration(
+    names=("fan_eff", "hpc_eff", "hpc_flow"),
+    level_std=np.array([2.0, 0.1, 0.2]), change_std=np.array([1.0, 0.05, 0.0]),
+    slope_error=np.zeros(3), bias2=np.array([1.0, 0.04, 0.09]), drift=np.array([0.3, 0.02, 0.0]),
+    observable=np.array([False, True, True]), bias_scale=np.array([1.0, 1.0, 0.0]),
+    level_correction=np.array([[0.0, 0.0, 0.0, 0.0],
+                               [0.3, 0.1, -0.2, 0.05],
+                               [-0.1, 0.0, 0.4, 0.0]]),
+    level_spread=np.array([0.0, 0.05, 0.02]), filter_scale=np.array([1.0, 1.0, 0.5]),
+    change_scale=np.array([1.0, 0.7, 0.6]), source={"design": "test"},
+)
+
+
+def test_calibrated_level_and_change_are_the_corrected_estimates(
+    client: TestClient, session: Session
+) -> None:
+    fleet, engine, stored, _times = _setup(session, calibrated=False)
+    calibration.store_calibration(session, fleet.design, CORRECTED)
+    s = LAYOUT.slices()
+    h, f = stored[:, s["h"]], stored[:, s["h_sigma"]]  # layout: hpc_eff, hpc_flow, fan_eff
+    by_name = {n: h[:, j] for j, n in enumerate(LAYOUT.health)}
+    d = np.sqrt(np.mean(h**2, axis=1))
+    level = client.get(f"/api/v1/engines/{engine.id}/trend", params={"max_points": 0},
+                       headers={"X-API-Key": fleet.key})
+    change = client.get(f"/api/v1/engines/{engine.id}/trend",
+                        params={"max_points": 0, "health": "change"},
+                        headers={"X-API-Key": fleet.key})
+    assert level.status_code == 200 and change.status_code == 200, level.text + change.text
+    base = health_view.BASELINE_SETTLE_RECORDS  # the installation's piece
+    takeoffs = np.cumsum(np.arange(N) % 2 == 0)
+    c = (takeoffs[base:SHOP_AT] - takeoffs[base]) / 1000.0
+    for j, name in enumerate(LAYOUT.health[:2]):
+        k = CORRECTED.names.index(name)
+        row = CORRECTED.level_correction[k]
+        fitted = row[0] + sum(row[1 + i] * by_name[n] for i, n in enumerate(CORRECTED.names))
+        np.testing.assert_allclose(_column(_group(level.json()), name, "value"),
+                                   h[:, j] - fitted, atol=5e-4)
+        sigma = np.sqrt(CORRECTED.bias_scale[k] ** 2 * CORRECTED.bias2[k]
+                        + (CORRECTED.filter_scale[k] * f[:, j]) ** 2
+                        + CORRECTED.level_std[k] ** 2 + (CORRECTED.level_spread[k] * d) ** 2)
+        np.testing.assert_allclose(_column(_group(level.json()), name, "sigma"), sigma,
+                                   atol=5e-4)
+        # The change: the correction's constant cancels, its slopes stay.
+        delta = {n: v[base:SHOP_AT] - v[base] for n, v in by_name.items()}
+        expected = delta[name] - sum(row[1 + i] * delta[n]
+                                     for i, n in enumerate(CORRECTED.names))
+        np.testing.assert_allclose(_column(_group(change.json()), name, "value")[base:SHOP_AT],
+                                   expected, atol=5e-4)
+        g = CORRECTED.change_scale[k]
+        d_sigma = np.sqrt((g * f[base:SHOP_AT, j]) ** 2 + (g * f[base, j]) ** 2
+                          + (CORRECTED.drift[k] * c) ** 2 + CORRECTED.change_std[k] ** 2)
+        np.testing.assert_allclose(_column(_group(change.json()), name, "sigma")[base:SHOP_AT],
+                                   d_sigma, atol=5e-4)
+    assert np.all(np.isnan(_column(_group(level.json()), "fan_eff", "value")))
