@@ -83,6 +83,30 @@ def slope_coverage(names: tuple[str, ...], rows: list[tuple[np.ndarray, ...]]) -
     return "\n".join(lines)
 
 
+def per_fleet_band(calib: uncertainty.Calibration,
+                   covers: list[tuple[np.ndarray, ...]]) -> str:
+    """The issue's band fleet by fleet: per shown parameter, the scoring fleets whose level
+    (and change) 1-sigma coverage lies within 55-85 % and 2-sigma coverage is >= 85 %, with
+    the range over fleets; and the fleets where every shown parameter is in the band."""
+    c1, c2, d1, d2 = (np.array(x) for x in zip(*covers, strict=True))
+    shown = np.asarray(calib.observable)
+    level_ok = (c1 >= 0.55) & (c1 <= 0.85) & (c2 >= 0.85)
+    change_ok = (d1 >= 0.55) & (d1 <= 0.85) & (d2 >= 0.85)
+    n = len(covers)
+    lines = [f"the band per fleet (1-sigma 55-85 %, 2-sigma >= 85 %) over {n} scoring fleets:"]
+    for k in np.flatnonzero(shown):
+        lines.append(
+            f"  {calib.names[k]}: level in band on {int(level_ok[:, k].sum())}/{n} (1-sigma "
+            f"{c1[:, k].min():.2f}-{c1[:, k].max():.2f}, 2-sigma min {c2[:, k].min():.2f}); "
+            f"change on {int(change_ok[:, k].sum())}/{n} (1-sigma {d1[:, k].min():.2f}-"
+            f"{d1[:, k].max():.2f}, 2-sigma min {d2[:, k].min():.2f})")
+    every = int(np.all(level_ok[:, shown], axis=1).sum()) if shown.any() else n
+    every_change = int(np.all(change_ok[:, shown], axis=1).sum()) if shown.any() else n
+    lines.append(f"  fleets with every shown level in the band: {every}/{n}; every shown change: "
+                 f"{every_change}/{n}")
+    return "\n".join(lines)
+
+
 def rotations(pieces: list[uncertainty.TrendPieces], observable: np.ndarray, k: int,
               draws: int, names: tuple[str, ...]) -> str:
     """Coverage over ``draws`` random sets of ``k`` calibration fleets from ``pieces``, each
@@ -121,6 +145,9 @@ def rotations(pieces: list[uncertainty.TrendPieces], observable: np.ndarray, k: 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--aircraft", type=int, default=calibration.CALIBRATION_AIRCRAFT)
+    ap.add_argument("--score-aircraft", type=int, default=None,
+                    help="aircraft of each scoring fleet (default: --aircraft; the demo "
+                         f"fleet has {demo_fleet.DemoSize().aircraft})")
     ap.add_argument("--flights", type=int, default=730)
     ap.add_argument("--calibrate-seeds", default=",".join(map(str, calibration.CALIBRATION_SEEDS)))
     ap.add_argument("--seeds", default=",".join(map(str, SCORING_SEEDS)))
@@ -136,9 +163,11 @@ def main() -> None:
     cal_seeds = [int(s) for s in args.calibrate_seeds.split(",")]
     test_seeds = [int(s) for s in args.seeds.split(",")]
     cal_fleets = [calibration.simulate_fleet(s, args.aircraft, args.flights) for s in cal_seeds]
-    test_fleets = [calibration.simulate_fleet(s, args.aircraft, args.flights)
+    score_aircraft = args.score_aircraft or args.aircraft
+    test_fleets = [calibration.simulate_fleet(s, score_aircraft, args.flights)
                    for s in test_seeds]
-    print(f"fleets: {args.aircraft} aircraft, {args.flights} flights; calibration seeds "
+    print(f"fleets: {args.aircraft} aircraft ({score_aircraft} in each scoring fleet), "
+          f"{args.flights} flights; calibration seeds "
           f"{cal_seeds}, scoring seeds {test_seeds}; simulated in "
           f"{time.perf_counter() - t0:.0f} s")
     print(TARGETS)
@@ -167,9 +196,14 @@ def main() -> None:
         print("slope gain's relative standard error (jackknife): " + " ".join(
             f"{n}={v:.1%}" for n, v in zip(calib.names, calib.source["slope_gain_relative_std"],
                                            strict=True) if v is not None))
-        slope_rows = []
+        print("level correction (calibrated level) on: "
+              + (", ".join(calib.source["level_corrected"]) or "none"))
+        print("shown: " + ", ".join(n for n, o in zip(calib.names, calib.observable,
+                                                      strict=True) if o))
+        slope_rows, covers = [], []
         for seed, test_fleet in zip(test_seeds, test_fleets, strict=True):
             sc = health_uncertainty.score(est, calib, *test_fleet)
+            covers.append((sc.cover1, sc.cover2, sc.change_cover1, sc.change_cover2))
             peer = np.sqrt(np.maximum(sc.slope_sigma**2 - np.square(
                 sc.slope_hat * np.asarray(calib.slope_gain_std) / np.asarray(calib.slope_gain)),
                 0.0))
@@ -187,6 +221,7 @@ def main() -> None:
                   f"{s['slope_err_max']:.0%} over {s['slopes_shown']} observable slopes "
                   f"(<= 30 %)")
             print(_common.load_line())
+        print(per_fleet_band(calib, covers))
         print(f"fleet-average slopes over the {len(test_seeds)} scoring fleets (1-sigma with the "
               "gain's standard error; the peer: without it):")
         print(slope_coverage(calib.names, slope_rows))

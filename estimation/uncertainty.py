@@ -60,6 +60,30 @@ holds a K-1-fleet gain error in expectation too, but averaged over K = 6 fleets 
 gain over independent draws of calibration fleets, bench_uncertainty). One calibration fleet
 cannot be cross-validated: its slopes are unobservable.
 
+Calibrated level. On the nonlinear engine most of the level error is not noise but a
+function of the engine's state that a linear filter reads the same way on every fleet: an
+engine far from nominal (hpc_flow -17 %) has its hpc_eff read 4.6 % low. So the level shown
+is calibrated on the simulated fleets (docs/math.md section 15): the error of each parameter k
+is regressed on the record's estimates,
+
+    h_hat_k - h_k ~ C_k [1, h_hat],     h_cal = h_hat - [1, h_hat] C^T      (``correct_level``)
+
+(``fit_level_correction``), and C_k is kept where a C fitted on the other calibration fleets
+cuts the RMS error of the fleet left out by at least ``MIN_CORRECTION_GAIN``. Every
+calibration figure is then taken on the records corrected by their own fleet's left-out C:
+the correction's error out of sample. The change since a baseline is corrected alike; the
+constant cancels (``correct_change``). The model error s grows with the record's distance
+from the nominal engine d (``spread``: the RMS of its estimated deviations):
+
+    sigma_k^2 = a_k^2 bias2_k + (f_k sigma_f,k)^2 + s_k^2 + (kappa_k d)^2
+
+(``fit_model_spread``), where f_k <= 1 (``fit_filter_scale``) scales the filter variance where
+the corrected error is smaller than it claims (the correction regresses on every estimate,
+whose errors are correlated, so it cancels part of the filter noise too). The change's sigma
+scales the filter variances at both ends by its own f_delta,k <= 1: the two ends' errors are
+correlated (most of a level error is a constant of the engine), so their sum in quadrature
+overstates the change's.
+
 A parameter is shown as unobservable (no number) when the design cannot tell it apart from the
 fleet prior: its honest sigma (bias, filter and model error at steady state) is more than
 ``reduction`` of its prior sigma, or (for trends) the fleet-average slope the calibration run
