@@ -49,9 +49,11 @@ class TrendGroup(BaseModel):
     uncertainty: Literal["calibrated", "uncalibrated"] | None = Field(
         None,
         description=(
-            "health: calibrated: sigma is the honest one (bias, filter and the design's "
-            "calibrated model error); uncalibrated: the filter's own sigma (no calibration "
-            "stored with the design)"
+            "health: calibrated: values are the calibrated level or change (the estimate "
+            "corrected by the design's calibration on the simulated nonlinear engine) and "
+            "sigma is the honest one (bias, filter and the design's calibrated model error); "
+            "uncalibrated: the filter's estimate and its own sigma (no calibration stored with "
+            "the design)"
         ),
     )
     unobservable: list[str] | None = Field(

@@ -144,6 +144,7 @@ function draw() {
     if (group.key === "health") {
       if (hidden.size) notes.push(`Not observable with this design: ${[...hidden].map(label).join(", ")}.`);
       if (group.uncertainty === "uncalibrated") notes.push("Band: the filter's own 1-sigma (the design has no calibrated model error).");
+      if (group.uncertainty === "calibrated") notes.push("Calibrated on the built-in engine's simulator: the estimate corrected for how this design reads the engine; band: the honest 1-sigma (bias, filter and model error).");
       if (group.view === "change") notes.push("Change since the engine's baseline (first settled records after installation or shop visit).");
     }
     const titled = typeof TITLES[group.key] === "function" ? TITLES[group.key](group) : TITLES[group.key];
