@@ -11,6 +11,7 @@ import pytest
 
 from app.db import transaction
 from app.models import EstimatorDesign
+from app.services.designs.calibration import BASELINE_SETTLE_RECORDS
 from estimation.uncertainty import YEAR_S, Calibration
 from tests.app.services.trends.test_trends import (
     LAYOUT,
@@ -180,4 +181,64 @@ def test_fleet_slopes_show_the_sigma_with_units_and_ask_to_recalibrate(
             assert item["sigma"] is None
             assert cell == f"{item['slope']:.2f} %/year (1σ: recalibrate the design)"
     assert "recalibrate the design for a σ" in page.locator("#slopes .legend-note").inner_text()
+    assert console.unexpected() == []
+
+
+def test_engine_page_draws_the_calibrated_level_the_api_gives(
+    page: Any, server: Server, console: Console
+) -> None:
+    """A design calibrated with a level correction: the engine page's health plot draws the
+    corrected change the API gives (not the stored estimate's), says that the estimate is
+    calibrated, and names the unobservable parameter."""
+    with transaction(server.factory) as session:
+        fleet = make_fleet(session, "Calibrated Level Air")
+        aircraft = add_aircraft(session, fleet, "F-CALIB")
+        engine = add_engine(session, fleet, "CALIB-1")
+        rng = np.random.default_rng(4)
+        v = rng.normal(size=(200, LAYOUT.width)) * 0.05
+        v[:, LAYOUT.slices()["h"]] += np.linspace(0.0, -2.0, 200)[:, None]
+        add_estimates(session, fleet, engine, aircraft, v,
+                      [T0 + timedelta(hours=12 * i) for i in range(200)])
+        calib = Calibration(
+            names=("hpc_eff", "hpc_flow", "fan_eff"), level_std=np.full(3, 0.1),
+            change_std=np.full(3, 0.05), slope_error=np.zeros(3), bias2=np.zeros(3),
+            drift=np.zeros(3), observable=np.array([True, True, False]),
+            level_correction=np.array([[0.1, 0.5, 0.0, 0.0], [0.0, 0.0, -0.5, 0.0],
+                                       [0.0, 0.0, 0.0, 0.0]]),
+        )
+        design = session.get(EstimatorDesign, fleet.design.id)
+        assert design is not None
+        design.result = {"uncertainty": calib.to_dict()}
+        key, engine_id = fleet.key, engine.id
+    sign_in(page, key, f"/engine.html?id={engine_id}")
+    page.wait_for_function("document.querySelector('#plot-health') !== null "
+                           "&& (document.querySelector('#plot-health').data || []).length > 0")
+    api = httpx.get(f"{server.base_url}/api/v1/engines/{engine_id}/trend",
+                    params={"max_points": 1000, "health": "change"},
+                    headers={"X-API-Key": key}).json()
+    health = next(g for g in api["groups"] if g["key"] == "health")
+    assert health["uncertainty"] == "calibrated" and health["unobservable"] == ["fan_eff"]
+    drawn = page.evaluate(
+        "document.querySelector('#plot-health').data"
+        ".filter((t) => t.meta && t.meta.role === 'line')"
+        ".map((t) => ({code: t.meta.code, y: t.y}))")
+    by_code = {t["code"]: t["y"] for t in drawn}
+    for series in health["series"]:
+        if series["name"] == "fan_eff":
+            assert "fan_eff" not in by_code
+            continue
+        api_y = [y for y in series["value"] if y is not None]
+        plot_y = [y for y in by_code[series["name"]] if y is not None]
+        np.testing.assert_allclose(plot_y, api_y, atol=1e-9)
+    # hpc_eff's error is half its estimate (its row of the correction): the change shown is
+    # half the stored one, from the baseline record on.
+    hpc = next(s for s in health["series"] if s["name"] == "hpc_eff")["value"]
+    base = BASELINE_SETTLE_RECORDS
+    stored = v[:, LAYOUT.slices()["h"]][:, 0]
+    assert hpc[base - 1] is None
+    assert hpc[-1] == pytest.approx(0.5 * (stored[-1] - stored[base]), abs=1e-3)
+    notes = page.locator("#plots").inner_text() if page.locator("#plots").count() else \
+        page.inner_text("body")
+    assert "Calibrated on the built-in engine's simulator" in notes
+    assert "Not observable with this design" in notes
     assert console.unexpected() == []
