@@ -137,11 +137,16 @@ class HealthSummary(BaseModel):
 
     recorded_at: datetime
     seq: int
-    worst_health: str | None = Field(description="health parameter with the largest |h_hat|")
-    worst_health_value: float | None = Field(description="its h_hat, percent")
+    worst_health: str | None = Field(
+        description="health parameter with the largest level, of those the design observes")
+    worst_health_value: float | None = Field(
+        description="its level, percent: the calibrated level where the design has a "
+                    "calibration (as the engine trend's health group shows it), else h_hat")
     worst_health_sigma: float | None
     thrust_deficit: float | None = Field(description="-z_hat of thrust, percent")
-    health: dict[str, float]
+    health: dict[str, float | None] = Field(
+        description="each health parameter's level (as worst_health_value); null where the "
+                    "design's calibration finds it unobservable")
     aux: dict[str, float]
 
 

@@ -8,6 +8,11 @@ dEGT of its last records, kept by the pipeline: ``app.services.snapshots.egt``),
 active events. An engine whose EGT window was not taken at its current filter state has its
 last records read instead (none after a pipeline run).
 
+An engine's health is the level its engine page shows (``shown_level``): with the design's
+calibration, the calibrated level, and a parameter the design cannot observe null and left out
+of the worst and of the rate of change (its raw estimate can be far off: the demo design's
+lpc_eff reads tens of percent on engines whose true change is a few).
+
 An engine's severity (``app.services.fleet.severity``) is the worst of its engine type's limit
 checks (health change, EGT margin, thrust deficit, rate of change; amber and red) and its active
 events (open or acknowledged); its ``state`` says the same in the fleet page's words: red is
@@ -48,10 +53,12 @@ from app.models.estimates import (
     FleetPeriod,
 )
 from app.services.common import no_gc_pauses
+from app.services.designs.calibration import design_calibration
 from app.services.events.service import latest_open_events, open_event_counts
 from app.services.fleet import performance, slopes
 from app.services.fleet.severity import LEVELS, LimitValue, rank, severity
 from app.services.snapshots import egt, estimator
+from estimation import uncertainty
 from estimation.engine.schedule import EngineSchedule
 
 WATCH_PERCENT = 1.5
@@ -71,25 +78,56 @@ def thrust_index(aux: tuple[str, ...]) -> int | None:
     return None
 
 
+def shown_level(
+    layout: EstimateLayout, calib: uncertainty.Calibration | None, h: np.ndarray,
+    h_sigma: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The health level and 1-sigma [..., p] that the engine page shows for estimates h [...,
+    p] with the filter's h_sigma: with the design's calibration, the calibrated level and its
+    honest sigma (``Calibration.level``), a parameter it finds unobservable NaN; without, the
+    estimates as stored."""
+    if calib is None:
+        return h, h_sigma
+    on = calib.on(layout.health)
+    level, sigma = on.level(h, h_sigma)
+    hidden = ~np.asarray(on.observable)
+    return np.where(hidden, np.nan, level), np.where(hidden, np.nan, sigma)
+
+
+def _worst(h: np.ndarray) -> np.ndarray:
+    """Index [n] of the largest |h| of each row [n, p], unobservable (NaN) ones left out; -1
+    where every one is."""
+    magnitude = np.where(np.isnan(h), -1.0, np.abs(h))
+    return np.where(np.all(np.isnan(h), axis=1), -1, np.argmax(magnitude, axis=1))
+
+
+def _listed(values: np.ndarray) -> list[float | None]:
+    return [None if np.isnan(v) else v for v in np.round(values, 4).tolist()]
+
+
 def health_summary(
-    layout: EstimateLayout, values: np.ndarray, recorded_at: datetime, seq: int
+    layout: EstimateLayout, values: np.ndarray, recorded_at: datetime, seq: int,
+    calib: uncertainty.Calibration | None = None,
 ) -> dict[str, Any]:
-    """Brief of one estimate: the worst health parameter and the thrust deficit.
+    """Brief of one estimate: the worst health parameter (of the level the engine page shows:
+    ``shown_level``) and the thrust deficit.
 
     The one-engine statement of what ``_summaries`` computes for a whole fleet at once (the
     tests compare the two)."""
     s = layout.slices()
-    h, h_sigma, z = values[s["h"]], values[s["h_sigma"]], values[s["z"]]
-    worst = int(np.argmax(np.abs(h))) if len(h) else None
+    h, h_sigma = shown_level(layout, calib, values[s["h"]][None], values[s["h_sigma"]][None])
+    z = values[s["z"]]
+    found = int(_worst(h)[0]) if h.shape[1] else -1
+    worst = None if found < 0 else found
     k = thrust_index(layout.aux)
     return {
         "recorded_at": recorded_at,
         "seq": seq,
         "worst_health": None if worst is None else layout.health[worst],
-        "worst_health_value": None if worst is None else round(float(h[worst]), 4),
-        "worst_health_sigma": None if worst is None else round(float(h_sigma[worst]), 4),
+        "worst_health_value": None if worst is None else round(float(h[0, worst]), 4),
+        "worst_health_sigma": None if worst is None else round(float(h_sigma[0, worst]), 4),
         "thrust_deficit": None if k is None else round(float(-z[k]), 4),
-        "health": dict(zip(layout.health, np.round(h, 4).tolist(), strict=True)),
+        "health": dict(zip(layout.health, _listed(h[0]), strict=True)),
         "aux": dict(zip(layout.aux, np.round(z, 4).tolist(), strict=True)),
     }
 
@@ -154,32 +192,38 @@ class Summary:
             "worst_health_value": self.worst_value,
             "worst_health_sigma": self.worst_sigma,
             "thrust_deficit": self.thrust_deficit,
-            "health": dict(zip(self.layout.health, self.health.tolist(), strict=True)),
+            "health": dict(zip(self.layout.health, _listed(self.health), strict=True)),
             "aux": dict(zip(self.layout.aux, self.aux.tolist(), strict=True)),
         }
 
 
 def _summaries(
-    rows: list[Any], layouts: dict[tuple[int, int], EstimateLayout]
+    rows: list[Any], layouts: dict[tuple[int, int], EstimateLayout],
+    calibrations: dict[int, uncertainty.Calibration | None],
 ) -> list[tuple[Summary | None, bool]]:
     """Per chosen filter-state row (or None): the summary of its latest estimate (None without
-    one; ``health_summary``'s numbers) and whether it is on watch. The blobs of each design are
-    decoded with one ``numpy.frombuffer`` and summarised with array operations."""
+    one; ``health_summary``'s numbers, on the level the engine page shows with the design's
+    calibration ``calibrations[design_id]``) and whether it is on watch. The blobs of each
+    design are decoded with one ``numpy.frombuffer`` and summarised with array operations."""
     out: list[tuple[Summary | None, bool]] = [(None, False)] * len(rows)
-    by_layout: dict[int, tuple[EstimateLayout, list[int]]] = {}
+    by_layout: dict[tuple[int, int], tuple[EstimateLayout, int, list[int]]] = {}
     for i, row in enumerate(rows):
         if row is not None and row.packed is not None:
             layout = layouts[(row.engine_id, row.design_id)]
-            by_layout.setdefault(id(layout), (layout, []))[1].append(i)
-    for layout, members in by_layout.values():
+            key = (id(layout), row.design_id)
+            by_layout.setdefault(key, (layout, row.design_id, []))[2].append(i)
+    for layout, design_id, members in by_layout.values():
         values = layout.decode_blobs([rows[i].packed for i in members])
         s = layout.slices()
-        h, h_sigma, z = values[:, s["h"]], values[:, s["h_sigma"]], values[:, s["z"]]
+        h, h_sigma = shown_level(layout, calibrations.get(design_id), values[:, s["h"]],
+                                 values[:, s["h_sigma"]])
+        z = values[:, s["z"]]
         n_health = h.shape[1]
-        abs_h = np.abs(h)
+        abs_h = np.nan_to_num(np.abs(h))
         # The same tests as ``health_summary`` and the watch rule, row by row.
-        watch = np.any((abs_h > WATCH_PERCENT) & (abs_h > WATCH_SIGMAS * h_sigma), axis=1)
-        worst = np.argmax(abs_h, axis=1) if n_health else None
+        watch = np.any((abs_h > WATCH_PERCENT) & (abs_h > WATCH_SIGMAS * np.nan_to_num(h_sigma)),
+                       axis=1)
+        worst = _worst(h) if n_health else None
         k = thrust_index(layout.aux)
         health_rounded, aux_rounded = np.round(h, 4), np.round(z, 4)
         if worst is not None:
@@ -190,11 +234,12 @@ def _summaries(
         thrust = None if k is None else (-z[:, k]).tolist()
         for r, i in enumerate(members):
             row = rows[i]
+            found = worst is not None and worst_list[r] >= 0
             summary = Summary(
                 layout, row.recorded_at, row.seq,
-                None if worst is None else worst_list[r],
-                None if worst is None else round(worst_values[r], 4),
-                None if worst is None else round(worst_sigmas[r], 4),
+                worst_list[r] if found else None,
+                round(worst_values[r], 4) if found else None,
+                round(worst_sigmas[r], 4) if found else None,
                 None if thrust is None else round(thrust[r], 4),
                 health_rounded[r], aux_rounded[r],
             )
@@ -206,6 +251,7 @@ def _limit_values(
     session: Session, operator_id: int, rows: list[Any],
     summaries: list[tuple[Summary | None, bool]], redlines: list[float],
     layouts: dict[tuple[int, int], EstimateLayout],
+    calibrations: dict[int, uncertainty.Calibration | None],
 ) -> list[dict[str, LimitValue]]:
     """Per chosen filter-state row: the values its engine type's limits are checked against."""
     out: list[dict[str, LimitValue]] = [{} for _ in rows]
@@ -215,7 +261,7 @@ def _limit_values(
         .where(EstimatorDesign.operator_id == operator_id, EngineModel.source == "builtin")
     ).all())
     egt_rows: list[int] = []  # row indices of built-in designs
-    rates = _rates(rows, summaries, layouts)
+    rates = _rates(rows, summaries, layouts, calibrations)
     for i, (row, (summary, _watch)) in enumerate(zip(rows, summaries, strict=True)):
         if row is None or summary is None:
             continue
@@ -242,27 +288,32 @@ def _limit_values(
 def _rates(
     rows: list[Any], summaries: list[tuple[Summary | None, bool]],
     layouts: dict[tuple[int, int], EstimateLayout],
+    calibrations: dict[int, uncertainty.Calibration | None],
 ) -> dict[int, LimitValue]:
     """Row index -> its rate of change: the largest change of a health parameter since the
     estimate ``RATE_WINDOW`` records before the latest, per 100 records (for the rows with
     both); computed per layout on arrays."""
-    by_layout: dict[int, tuple[EstimateLayout, list[int]]] = {}
+    by_layout: dict[tuple[int, int], tuple[EstimateLayout, int, list[int]]] = {}
     for i, (row, (summary, _watch)) in enumerate(zip(rows, summaries, strict=True)):
         if row is None or summary is None or row.old_packed is None:
             continue
         layout = layouts.get((row.engine_id, row.design_id))
         if layout is not None and layout.health:
-            by_layout.setdefault(id(layout), (layout, []))[1].append(i)
+            key = (id(layout), row.design_id)
+            by_layout.setdefault(key, (layout, row.design_id, []))[2].append(i)
     out: dict[int, LimitValue] = {}
-    for layout, members in by_layout.values():
-        h_old = layout.decode_blobs([rows[i].old_packed for i in members])[:, layout.slices()["h"]]
+    for layout, design_id, members in by_layout.values():
+        old = layout.decode_blobs([rows[i].old_packed for i in members])
+        s = layout.slices()
+        h_old, _ = shown_level(layout, calibrations.get(design_id), old[:, s["h"]],
+                               old[:, s["h_sigma"]])
         h_now = np.stack([summary.health for i in members
                           if (summary := summaries[i][0]) is not None])
         change = np.abs(h_now - h_old) * 100.0 / RATE_WINDOW
-        worst = np.argmax(change, axis=1)
-        largest = change[np.arange(len(members)), worst].tolist()
+        worst = _worst(change)
         for r, i in enumerate(members):
-            out[i] = LimitValue(largest[r], layout.health[int(worst[r])])
+            if worst[r] >= 0:
+                out[i] = LimitValue(float(change[r, worst[r]]), layout.health[int(worst[r])])
     return out
 
 
@@ -388,10 +439,13 @@ def _fleet_status(
         chosen.append(row)
     pairs = {(r.engine_id, r.design_id) for r in chosen if r is not None}
     layouts = _layouts(session, operator_id, pairs) if pairs else {}
-    summaries = _summaries(chosen, layouts)
+    calibrations = {design_id: design_calibration(session, design_id)
+                    for design_id in {design_id for _engine_id, design_id in pairs}}
+    summaries = _summaries(chosen, layouts, calibrations)
     limit_values = _limit_values(
         session, operator_id, chosen, summaries,
         [limits_of[type_id]["egt_redline_c"] for _e, _s, type_id, _n in engines], layouts,
+        calibrations,
     )
     active_events = _active_events(session, operator_id)
 

@@ -223,3 +223,48 @@ def test_status_summaries_equal_the_one_engine_reference(
         })
         assert item["severity"] == judged.level
         assert item["severity_score"] == round(judged.score, 3)
+
+
+def test_status_reads_the_calibrated_level_the_engine_page_shows(
+    client: TestClient, session: Session
+) -> None:
+    """With a calibrated design, an engine's status health is the calibrated level its trend
+    shows at its latest record, an unobservable parameter is null and never the worst, and
+    the severity's health change is that level's largest."""
+    from app.services.designs import calibration
+
+    fleet = make_fleet(session, "Status Calibrated Air")
+    aircraft = add_aircraft(session, fleet, "F-CALS")
+    engine = add_engine(session, fleet, "CALS-1")
+    v = np.zeros((3, LAYOUT.width))
+    s = LAYOUT.slices()
+    v[:, s["h"]] = [-1.0, -2.0, -9.0]  # layout: hpc_eff, hpc_flow, fan_eff
+    v[:, s["h_sigma"]] = 0.2
+    add_estimates(session, fleet, engine, aircraft, v,
+                  [T0 + timedelta(days=k) for k in range(3)])
+    calib = Calibration(
+        names=("hpc_eff", "hpc_flow", "fan_eff"), level_std=np.full(3, 0.1),
+        change_std=np.zeros(3), slope_error=np.zeros(3), bias2=np.zeros(3),
+        drift=np.zeros(3), observable=np.array([True, True, False]),
+        level_correction=np.array([[0.0, 0.0, 0.0, 0.0], [-0.5, 0.0, 1.0, 0.0],
+                                   [0.0, 0.0, 0.0, 0.0]]),
+    )
+    fleet.design.result = {"format": "fleethealth.design/1"}
+    calibration.store_calibration(session, fleet.design, calib)
+    session.commit()
+    body = client.get("/api/v1/fleet/status", headers={"X-API-Key": fleet.key}).json()
+    health = body["engines"][0]["health"]
+    # hpc_flow's error is -0.5 + h_hpc_flow: its calibrated level is 0.5 %; fan_eff hidden;
+    # hpc_eff as stored (-1 % in the estimate's stored precision).
+    hpc_eff = round(float(as_stored(v)[-1, s["h"]][0]), 4)
+    assert health["health"] == {"hpc_eff": hpc_eff, "hpc_flow": 0.5, "fan_eff": None}
+    assert health["worst_health"] == "hpc_eff" and health["worst_health_value"] == hpc_eff
+    trend = client.get(f"/api/v1/engines/{engine.id}/trend", params={"max_points": 0},
+                       headers={"X-API-Key": fleet.key}).json()
+    group = next(g for g in trend["groups"] if g["key"] == "health")
+    last = {series["name"]: series["value"][-1] for series in group["series"]}
+    assert last == health["health"]
+    reference = status.health_summary(LAYOUT, as_stored(v)[-1], T0, 2, calib)
+    assert reference["health"] == health["health"]
+    checks = {c["limit"]: c["value"] for c in body["engines"][0]["checks"]}
+    assert checks["health_change"] == round(abs(hpc_eff), 3)  # not fan_eff's 9 %: hidden
