@@ -399,13 +399,15 @@ def bank_arl(cfg: WearSettings, records_per_year: float | None = None) -> float:
     return rate / cfg.false_alerts_per_year
 
 
+@functools.lru_cache(maxsize=4096)
 def bank_design(
     cfg: WearSettings, n: int, records_per_year: float | None = None
 ) -> BankDesign:
     """The bank of n candidate CUSUMs as the settings design it (module docstring), for an
     engine with ``records_per_year`` records a year (None: the nominal rate). With
     ``bank_calibrated`` the threshold is the Monte Carlo one (``calibrated_threshold``), else
-    (or where the calibration has too few crossings to tell) Siegmund's with Bonferroni."""
+    (or where the calibration has too few crossings to tell) Siegmund's with Bonferroni.
+    A function of its arguments alone, asked for on every armed run of records: kept."""
     ref, scale = _reference_scale(cfg.bank_reference, cfg.bank_alpha, cfg.n_base)
     if cfg.bank_threshold is not None:
         return BankDesign(ref, scale, cfg.bank_threshold)
