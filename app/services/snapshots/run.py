@@ -396,7 +396,11 @@ def _signatures_t(est: SnapshotEstimator, G_y: np.ndarray, G_u: np.ndarray) -> n
     """The fault signatures of records G_y [k, ny, p], G_u [k, ny, nu] laid out record-last,
     [ny, n_faults, k]: per record the sum over the health columns, then the actuator-bias
     columns, of G_y[:, j] S_full[j] (each term one product, added in that order to zero),
-    the same numbers whatever the other records; computed over contiguous runs of records."""
+    the same numbers whatever the other records; computed over contiguous runs of records.
+
+    A fault moves a few of the columns (S_full is mostly zeros): with finite gains a zero
+    coefficient's term is a zero, and adding a zero to a sum that started at +0 leaves it
+    as it is, so only the fault's own terms are summed (the same numbers bit for bit)."""
     k, ny, p = G_y.shape
     n = est.S_full.shape[1]
     out = np.zeros((ny, n, k))
@@ -404,13 +408,22 @@ def _signatures_t(est: SnapshotEstimator, G_y: np.ndarray, G_u: np.ndarray) -> n
         return out
     g_y = np.ascontiguousarray(G_y.reshape(k, ny * p).T).reshape(ny, p, k)
     g_u = np.ascontiguousarray(G_u.reshape(k, -1).T).reshape(ny, G_u.shape[-1], k)
-    columns = [(g_y, j, est.S_full[j, :, None]) for j in range(p)]
-    columns += [(g_u, b, est.S_full[p + i, :, None]) for i, b in enumerate(est.bias_inputs)]
-    term = np.empty((n, k))
+    columns = [(g_y, j, est.S_full[j]) for j in range(p)]
+    columns += [(g_u, b, est.S_full[p + i]) for i, b in enumerate(est.bias_inputs)]
+    if np.isfinite(g_y).all() and np.isfinite(g_u).all():
+        term = np.empty((ny, k))
+        for f in range(n):
+            acc = out[:, f]
+            for g, j, row in columns:
+                if row[f] != 0.0:
+                    acc += np.multiply(g[:, j], row[f], out=term)
+        return out
+    # A gain that is not finite makes its zero-coefficient terms NaN too: every term.
+    terms = np.empty((n, k))
     for i in range(ny):
         acc = out[i]
-        for g, j, column in columns:
-            acc += np.multiply(g[i, j], column, out=term)
+        for g, j, row in columns:
+            acc += np.multiply(g[i, j], row[:, None], out=terms)
     return out
 
 
