@@ -28,8 +28,8 @@ import numpy as np
 from estimation.engine.atmosphere import flight_condition
 from estimation.engine.schedule import CORRECTION
 from estimation.engine.sensors import SENSOR_NAMES
-from estimation.grid import corner_sums
 from estimation.engine.steady import ENVELOPE, steady_state
+from estimation.grid import corner_sums
 
 # Condition axes, in the order of a record's condition columns.
 TRIM_AXIS_NAMES = ("alt", "mach", "dtamb", "power")
