@@ -251,28 +251,37 @@ def snapshot_filter(
         q = state.q_hat[c0:c1].copy()  # [Bn, m]; always a copy: the state is not mutated
         P = state.P[c0:c1].copy()  # [Bn, m, m]
         sym = np.empty_like(P)
-        Qq_b = Qq[None]
         dy_b, var_b, scale_b = dy[c0:c1], var[c0:c1], scale[c0:c1]
-        # H V*^+ of every snapshot of the block at once when the gains are laid out per
-        # engine and snapshot (the same stacked product as one snapshot's).
-        HV_all = G_all[c0:c1] @ Vp if G_all is not None else None  # [Bn, S, ny, m]
+        # What does not depend on the recursion, for a window of the block's snapshots at
+        # once (elementwise, the same numbers as snapshot by snapshot; about 8 MB a window):
+        # the sensors present, the walk's covariance s_j Qq and, when the gains are laid out
+        # per engine and snapshot, H V*^+ (the same stacked product as one snapshot's) with a
+        # missing sensor's row zeroed.
+        window = max(1, (8 << 20) // (8 * Bn * (m * m + 2 * ny * m + ny)))
         q_blk = q_res[c0:c1]
         innov_blk = innov[c0:c1]
         P_blk = P_res[c0:c1] if P_res is not None else None
         for j in range(S):
-            if HV_all is not None:
-                HV = HV_all[:, j]
+            w = j % window
+            if w == 0:
+                w1 = min(S, j + window)
+                present_w = np.isfinite(dy_b[:, j:w1])  # [Bn, window, ny]
+                walk_w = scale_b[:, j:w1, None, None] * Qq  # [Bn, window, m, m]
+                if G_all is not None:
+                    HV_w = G_all[c0:c1, j:w1] @ Vp  # [Bn, window, ny, m]
+                    Hm_w = HV_w * present_w[..., None]
+            present = present_w[:, w]
+            if G_all is not None:
+                HV, Hm = HV_w[:, w], Hm_w[:, w]
             else:
                 G = G_steps[j]
                 if G.ndim == 3:
                     G = np.broadcast_to(G, (E, ny, p))[c0:c1]
                 HV = np.broadcast_to(G @ Vp, (Bn, ny, m))  # [Bn, ny, m]
-            P += scale_b[:, j, None, None] * Qq_b
-            y_j = dy_b[:, j]  # [Bn, ny]
-            innov_j = y_j - np.einsum("bim,bm->bi", HV, q)
-            innov_blk[:, j] = innov_j
-            present = np.isfinite(y_j)
-            Hm = HV * present[:, :, None]  # [Bn, ny, m]
+                Hm = HV * present[:, :, None]  # [Bn, ny, m]
+            P += walk_w[:, w]
+            innov_j = innov_blk[:, j]
+            np.subtract(dy_b[:, j], np.einsum("bim,bm->bi", HV, q), out=innov_j)
             PHt = P @ Hm.transpose(0, 2, 1)  # [Bn, m, ny]
             Sm = Hm @ PHt
             Sm.reshape(Bn, ny * ny)[:, :: ny + 1] += var_b[:, j]  # + R on the diagonal
