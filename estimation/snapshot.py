@@ -261,43 +261,46 @@ def snapshot_filter(
         q_blk = q_res[c0:c1]
         innov_blk = innov[c0:c1]
         P_blk = P_res[c0:c1] if P_res is not None else None
-        for j in range(S):
-            w = j % window
-            if w == 0:
-                w1 = min(S, j + window)
-                present_w = np.isfinite(dy_b[:, j:w1])  # [Bn, window, ny]
-                walk_w = scale_b[:, j:w1, None, None] * Qq  # [Bn, window, m, m]
+        # A singular H P H^T + R leaves NaN (raised below, as numpy's solve raises), not a
+        # warning per snapshot.
+        with np.errstate(invalid="ignore"):
+            for j in range(S):
+                w = j % window
+                if w == 0:
+                    w1 = min(S, j + window)
+                    present_w = np.isfinite(dy_b[:, j:w1])  # [Bn, window, ny]
+                    walk_w = scale_b[:, j:w1, None, None] * Qq  # [Bn, window, m, m]
+                    if G_all is not None:
+                        HV_w = G_all[c0:c1, j:w1] @ Vp  # [Bn, window, ny, m]
+                        Hm_w = HV_w * present_w[..., None]
+                present = present_w[:, w]
                 if G_all is not None:
-                    HV_w = G_all[c0:c1, j:w1] @ Vp  # [Bn, window, ny, m]
-                    Hm_w = HV_w * present_w[..., None]
-            present = present_w[:, w]
-            if G_all is not None:
-                HV, Hm = HV_w[:, w], Hm_w[:, w]
-            else:
-                G = G_steps[j]
-                if G.ndim == 3:
-                    G = np.broadcast_to(G, (E, ny, p))[c0:c1]
-                HV = np.broadcast_to(G @ Vp, (Bn, ny, m))  # [Bn, ny, m]
-                Hm = HV * present[:, :, None]  # [Bn, ny, m]
-            P += walk_w[:, w]
-            innov_j = innov_blk[:, j]
-            np.subtract(dy_b[:, j], np.einsum("bim,bm->bi", HV, q), out=innov_j)
-            PHt = P @ Hm.transpose(0, 2, 1)  # [Bn, m, ny]
-            Sm = Hm @ PHt
-            Sm.reshape(Bn, ny * ny)[:, :: ny + 1] += var_b[:, j]  # + R on the diagonal
-            Kt = _solve(Sm, PHt.transpose(0, 2, 1))  # K^T [Bn, ny, m]
-            resid = np.where(present, innov_j, 0.0)
-            q += np.einsum("bim,bi->bm", Kt, resid)
-            P -= PHt @ Kt
-            np.add(P, P.transpose(0, 2, 1), out=sym)
-            np.multiply(0.5, sym, out=P)
-            q_blk[:, j] = q
-            if P_blk is not None:
-                P_blk[:, j] = P
-            else:
-                # diag(V*^+ P V*^+T) = W vec(P), W[p, (a, b)] = Vp[p, a] Vp[p, b]: one GEMM
-                h_var = P.reshape(-1, m * m) @ W_diag.T
-                h_std[c0:c1, j] = np.sqrt(np.maximum(h_var, 0.0))
+                    HV, Hm = HV_w[:, w], Hm_w[:, w]
+                else:
+                    G = G_steps[j]
+                    if G.ndim == 3:
+                        G = np.broadcast_to(G, (E, ny, p))[c0:c1]
+                    HV = np.broadcast_to(G @ Vp, (Bn, ny, m))  # [Bn, ny, m]
+                    Hm = HV * present[:, :, None]  # [Bn, ny, m]
+                P += walk_w[:, w]
+                innov_j = innov_blk[:, j]
+                np.subtract(dy_b[:, j], np.einsum("bim,bm->bi", HV, q), out=innov_j)
+                PHt = P @ Hm.transpose(0, 2, 1)  # [Bn, m, ny]
+                Sm = Hm @ PHt
+                Sm.reshape(Bn, ny * ny)[:, :: ny + 1] += var_b[:, j]  # + R on the diagonal
+                Kt = _solve(Sm, PHt.transpose(0, 2, 1))  # K^T [Bn, ny, m]
+                resid = np.where(present, innov_j, 0.0)
+                q += np.einsum("bim,bi->bm", Kt, resid)
+                P -= PHt @ Kt
+                np.add(P, P.transpose(0, 2, 1), out=sym)
+                np.multiply(0.5, sym, out=P)
+                q_blk[:, j] = q
+                if P_blk is not None:
+                    P_blk[:, j] = P
+                else:
+                    # diag(V*^+ P V*^+T) = W vec(P), W[p, (a, b)] = Vp[p, a] Vp[p, b]: one GEMM
+                    h_var = P.reshape(-1, m * m) @ W_diag.T
+                    h_std[c0:c1, j] = np.sqrt(np.maximum(h_var, 0.0))
         if P_blk is not None and S:
             # The same GEMM rows for every snapshot of the block at once.
             h_var = (P_blk.reshape(-1, m * m) @ W_diag.T).reshape(Bn, S, p)
