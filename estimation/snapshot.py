@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
+from numpy.linalg import _umath_linalg
 
 from estimation.errors import DimensionError
 
@@ -184,6 +185,7 @@ def snapshot_filter(
         )
     var = np.broadcast_to(np.asarray(noise_std, float) ** 2, (E, S, ny))
     scale = np.broadcast_to(np.asarray(walk_scale, float), (E, S))
+    G_all: np.ndarray | None = None  # gains laid out per engine and snapshot
     if callable(gains):
         gain_at = gains
     else:
@@ -205,9 +207,10 @@ def snapshot_filter(
 
         else:
             G_all = np.broadcast_to(G_arr, (E, S, ny, p))
+            G_every = G_all
 
             def gain_at(j: int) -> np.ndarray:
-                return G_all[:, j]
+                return G_every[:, j]
 
     # Tuner-major working layout per block of engines (q [m, B], P [m, m, B]): every
     # operation is a contiguous elementwise sweep over engines, and a block stays in
@@ -219,14 +222,15 @@ def snapshot_filter(
     q_end = np.empty((E, m))
     P_end = np.empty((E, m, m))
     W_diag = (Vp[:, :, None] * Vp[:, None, :]).reshape(p, m * m)
-    G_steps = [np.asarray(gain_at(j), float) for j in range(S)]
+    # Gains laid out per engine and snapshot are read per block (``run_block``).
+    G_steps = [] if G_all is not None else [np.asarray(gain_at(j), float) for j in range(S)]
     for j, G in enumerate(G_steps):
         if G.shape[-2:] != (ny, p):
             raise DimensionError(
                 f"gains at snapshot {j}: expected (..., {ny}, {p}), found {G.shape}"
             )
 
-    shared_all = all(G.ndim == 2 for G in G_steps)
+    shared_all = G_all is None and all(G.ndim == 2 for G in G_steps)
     if shared_all:
         HV_steps = [G @ Vp for G in G_steps]  # [ny, m] per snapshot, fleet-wide
         packed = _PackedUpdate(m, Vp, Qq, HV_steps)
@@ -240,36 +244,69 @@ def snapshot_filter(
         # Per-engine gains: one joint update per snapshot, batched over the block's engines.
         # K = P H^T (H P H^T + R)^-1 with a missing sensor's row of H zeroed (its column of K
         # is then exactly zero): the same posterior as the scalar updates in turn, in a dozen
-        # array operations a snapshot instead of a dozen per sensor.
+        # array operations a snapshot instead of a dozen per sensor. Every product is taken
+        # per engine and snapshot as for that snapshot alone (stacked products, one LAPACK
+        # solve per matrix), so a record's numbers do not depend on its block or run.
+        Bn = c1 - c0
         q = state.q_hat[c0:c1].copy()  # [Bn, m]; always a copy: the state is not mutated
         P = state.P[c0:c1].copy()  # [Bn, m, m]
-        Qq_b = Qq[None]
-        eye = np.eye(ny, dtype=bool)
-        for j in range(S):
-            G = G_steps[j]
-            if G.ndim == 3:
-                G = np.broadcast_to(G, (E, ny, p))[c0:c1]
-            HV = np.broadcast_to(G @ Vp, (c1 - c0, ny, m))  # [Bn, ny, m]
-            P += scale[c0:c1, j, None, None] * Qq_b
-            y_j = dy[c0:c1, j]  # [Bn, ny]
-            innov_j = y_j - np.einsum("bim,bm->bi", HV, q)
-            innov[c0:c1, j] = innov_j
-            present = np.isfinite(y_j)
-            Hm = HV * present[:, :, None]  # [Bn, ny, m]
-            PHt = P @ Hm.transpose(0, 2, 1)  # [Bn, m, ny]
-            Sm = Hm @ PHt
-            Sm[:, eye] += var[c0:c1, j]
-            Kt = np.linalg.solve(Sm, PHt.transpose(0, 2, 1))  # K^T [Bn, ny, m]
-            resid = np.where(present, innov_j, 0.0)
-            q += np.einsum("bim,bi->bm", Kt, resid)
-            P -= PHt @ Kt
-            P = 0.5 * (P + P.transpose(0, 2, 1))
-            q_res[c0:c1, j] = q
-            if P_res is not None:
-                P_res[c0:c1, j] = P
-            # diag(V*^+ P V*^+T) = W vec(P), W[p, (a, b)] = Vp[p, a] Vp[p, b]: one GEMM
-            h_var = P.reshape(-1, m * m) @ W_diag.T
-            h_std[c0:c1, j] = np.sqrt(np.maximum(h_var, 0.0))
+        sym = np.empty_like(P)
+        dy_b, var_b, scale_b = dy[c0:c1], var[c0:c1], scale[c0:c1]
+        # What does not depend on the recursion, for a window of the block's snapshots at
+        # once (elementwise, the same numbers as snapshot by snapshot; about 8 MB a window):
+        # the sensors present, the walk's covariance s_j Qq and, when the gains are laid out
+        # per engine and snapshot, H V*^+ (the same stacked product as one snapshot's) with a
+        # missing sensor's row zeroed.
+        window = max(1, (8 << 20) // (8 * Bn * (m * m + 2 * ny * m + ny)))
+        q_blk = q_res[c0:c1]
+        innov_blk = innov[c0:c1]
+        P_blk = P_res[c0:c1] if P_res is not None else None
+        # A singular H P H^T + R leaves NaN (raised below, as numpy's solve raises), not a
+        # warning per snapshot.
+        with np.errstate(invalid="ignore"):
+            for j in range(S):
+                w = j % window
+                if w == 0:
+                    w1 = min(S, j + window)
+                    present_w = np.isfinite(dy_b[:, j:w1])  # [Bn, window, ny]
+                    walk_w = scale_b[:, j:w1, None, None] * Qq  # [Bn, window, m, m]
+                    if G_all is not None:
+                        HV_w = G_all[c0:c1, j:w1] @ Vp  # [Bn, window, ny, m]
+                        Hm_w = HV_w * present_w[..., None]
+                present = present_w[:, w]
+                if G_all is not None:
+                    HV, Hm = HV_w[:, w], Hm_w[:, w]
+                else:
+                    G = G_steps[j]
+                    if G.ndim == 3:
+                        G = np.broadcast_to(G, (E, ny, p))[c0:c1]
+                    HV = np.broadcast_to(G @ Vp, (Bn, ny, m))  # [Bn, ny, m]
+                    Hm = HV * present[:, :, None]  # [Bn, ny, m]
+                P += walk_w[:, w]
+                innov_j = innov_blk[:, j]
+                np.subtract(dy_b[:, j], np.einsum("bim,bm->bi", HV, q), out=innov_j)
+                PHt = P @ Hm.transpose(0, 2, 1)  # [Bn, m, ny]
+                Sm = Hm @ PHt
+                Sm.reshape(Bn, ny * ny)[:, :: ny + 1] += var_b[:, j]  # + R on the diagonal
+                Kt = _solve(Sm, PHt.transpose(0, 2, 1))  # K^T [Bn, ny, m]
+                resid = np.where(present, innov_j, 0.0)
+                q += np.einsum("bim,bi->bm", Kt, resid)
+                P -= PHt @ Kt
+                np.add(P, P.transpose(0, 2, 1), out=sym)
+                np.multiply(0.5, sym, out=P)
+                q_blk[:, j] = q
+                if P_blk is not None:
+                    P_blk[:, j] = P
+                else:
+                    # diag(V*^+ P V*^+T) = W vec(P), W[p, (a, b)] = Vp[p, a] Vp[p, b]: one GEMM
+                    h_var = P.reshape(-1, m * m) @ W_diag.T
+                    h_std[c0:c1, j] = np.sqrt(np.maximum(h_var, 0.0))
+        if P_blk is not None and S:
+            # The same GEMM rows for every snapshot of the block at once.
+            h_var = (P_blk.reshape(-1, m * m) @ W_diag.T).reshape(Bn, S, p)
+            h_std[c0:c1] = np.sqrt(np.maximum(h_var, 0.0))
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(P))):
+            raise np.linalg.LinAlgError("Singular matrix")
         q_end[c0:c1] = q
         P_end[c0:c1] = P
 
@@ -289,6 +326,15 @@ def snapshot_filter(
     return SnapshotResult(
         q_res, P_res, q_res @ Vp.T, h_std, innov, SnapshotState(q_end, P_end)
     )
+
+
+def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve`` of stacked matrices [..., n, n] and right-hand sides [..., n, k]:
+    the same LAPACK solve per matrix, without the wrapper's checks and error state per call
+    (thousands of calls on a dozen small matrices each); a singular matrix gives NaN (an
+    invalid-value warning unless the caller's error state ignores it), which the caller
+    checks once."""
+    return _umath_linalg.solve(a, b, signature="dd->d")
 
 
 class _PackedUpdate:

@@ -399,13 +399,15 @@ def bank_arl(cfg: WearSettings, records_per_year: float | None = None) -> float:
     return rate / cfg.false_alerts_per_year
 
 
+@functools.lru_cache(maxsize=4096)
 def bank_design(
     cfg: WearSettings, n: int, records_per_year: float | None = None
 ) -> BankDesign:
     """The bank of n candidate CUSUMs as the settings design it (module docstring), for an
     engine with ``records_per_year`` records a year (None: the nominal rate). With
     ``bank_calibrated`` the threshold is the Monte Carlo one (``calibrated_threshold``), else
-    (or where the calibration has too few crossings to tell) Siegmund's with Bonferroni."""
+    (or where the calibration has too few crossings to tell) Siegmund's with Bonferroni.
+    A function of its arguments alone, asked for on every armed run of records: kept."""
     ref, scale = _reference_scale(cfg.bank_reference, cfg.bank_alpha, cfg.n_base)
     if cfg.bank_threshold is not None:
         return BankDesign(ref, scale, cfg.bank_threshold)
@@ -1276,6 +1278,41 @@ def matched_parts(
         num += wd[:, j, None] * s_j
         gram += wp[:, j, None, None] * (s_j[..., :, None] * s_j[..., None, :])
     return MatchedParts(num, gram)
+
+
+def matched_sums(
+    dy: np.ndarray, var: np.ndarray, signatures_t: np.ndarray, candidates: np.ndarray
+) -> tuple[np.ndarray, MatchedParts]:
+    """``matched_rows`` and ``matched_parts`` of the same records in one pass, bit for bit,
+    from signatures laid out record-last: dy [S, ny] (NaN = missing), var [S, ny] and
+    signatures_t [ny, n, S] (each record's own) or [ny, n, 1] (one for all) -> (z [S, n],
+    parts). Every record's sums are taken with the same operations in the same order as
+    there, but sensor by sensor over contiguous runs of records rather than over a fault
+    axis of a few numbers per record; the gram's lower triangle is its upper's (the same
+    products)."""
+    dy_t = np.asarray(dy, float).T
+    w = 1.0 / np.asarray(var, float).T
+    present = np.isfinite(dy_t)
+    wd = np.where(present, w * np.where(present, dy_t, 0.0), 0.0)  # [ny, S]
+    wp = np.where(present, w, 0.0)
+    ny, n = signatures_t.shape[:2]
+    S = dy_t.shape[1]
+    cand = np.flatnonzero(candidates)
+    ia, ib = np.triu_indices(len(cand))
+    num, den = np.zeros((n, S)), np.zeros((n, S))
+    gram_u = np.zeros((len(ia), S))
+    term, pair = np.empty((n, S)), np.empty((len(ia), S))
+    for j in range(ny):
+        s_j = signatures_t[j]  # [n, S or 1]
+        num += np.multiply(wd[j], s_j, out=term)
+        den += np.multiply(wp[j], np.multiply(s_j, s_j, out=term), out=term)
+        s_c = s_j[cand]
+        gram_u += np.multiply(wp[j], np.multiply(s_c[ia], s_c[ib], out=pair), out=pair)
+    z = (num / np.sqrt(np.maximum(den, 1e-300))).T
+    gram = np.empty((S, len(cand), len(cand)))
+    gram[:, ia, ib] = gram_u.T
+    gram[:, ib, ia] = gram_u.T
+    return z, MatchedParts(num[cand].T, gram)
 
 
 def along(parts: MatchedParts, direction: np.ndarray, candidates: np.ndarray) -> np.ndarray:

@@ -29,6 +29,7 @@ from estimation.engine.atmosphere import flight_condition
 from estimation.engine.schedule import CORRECTION
 from estimation.engine.sensors import SENSOR_NAMES
 from estimation.engine.steady import ENVELOPE, steady_state
+from estimation.grid import corner_sums
 
 # Condition axes, in the order of a record's condition columns.
 TRIM_AXIS_NAMES = ("alt", "mach", "dtamb", "power")
@@ -82,12 +83,17 @@ class TrimTable:
             j = np.clip(np.searchsorted(ax, x, side="right") - 1, 0, len(ax) - 2)
             frac[i] = (x - ax[j]) / (ax[j + 1] - ax[j])
             base += j * strides[i]
-        out = np.zeros((k, flat.shape[1]))
+        # Each record's sum over its corners in order, as one sparse product (``corner_sums``:
+        # the same sums as corner by corner, in one pass over the table).
+        index, weight = [], []
         for corner in itertools.product((0, 1), repeat=len(shape)):
             w = np.ones(k)
             for i, bit in enumerate(corner):
                 w *= frac[i] if bit else 1.0 - frac[i]
-            out += w[:, None] * flat[base + int(np.dot(corner, strides))]
+            index.append(base + int(np.dot(corner, strides)))
+            weight.append(w)
+        out = corner_sums(np.stack(index), np.stack(weight), flat) if k else np.zeros(
+            (0, flat.shape[1]))
         cc = np.column_stack([np.clip(c[:, i], ax[0], ax[-1]) for i, ax in enumerate(self.axes)])
         return out * correction_factors(self.names, cc)
 

@@ -21,6 +21,7 @@ from sqlalchemy import Table, and_, delete, func, insert, or_, select
 from sqlalchemy.orm import Session
 
 from app.models.estimates import DeteriorationBucket, Estimate, EstimateLayout, FleetPeriod
+from app.services.encoding.pgcopy import HEADER, PG_EPOCH_US, TRAILER, fixed_copy_rows
 from app.services.snapshots.rows import Block
 
 PERIODS = ("week", "month")
@@ -153,19 +154,68 @@ def refresh(
             if mine.any():
                 epoch[e] = np.concatenate([kept_epoch[mine], epoch[e]])
                 values[e] = np.concatenate([unpacked[mine], values[e]])
-    rows: list[dict[str, object]] = []
+    written = PeriodRows(design_id, operator_id)
     for period in PERIODS:
         for e in engines:
             keep = epoch[e] >= float(period_starts(np.array([first[e]]), period)[0])
             starts, counts, sums = period_sums(epoch[e][keep], values[e][keep], period)
+            written.add(period, e, starts, counts, sums)
             for start, n, total in zip(starts, counts, sums, strict=True):
-                rows.append({"design_id": design_id, "period": period, "engine_id": e,
-                             "start": _time(start), "operator_id": operator_id, "n": int(n),
-                             "sums": np.ascontiguousarray(total, "<f8").tobytes()})
                 change.add(period, float(start), total / n, +1)
-    if rows:  # a Core insert: many rows in one statement, no ORM bookkeeping
-        session.execute(insert(cast(Table, DeteriorationBucket.__table__)), rows)
+    written.insert(session)
     change.apply(session, operator_id=operator_id, design_id=design_id)
+
+
+class PeriodRows:
+    """An engine group's new period rows (``DeteriorationBucket``), inserted at once: a binary
+    COPY on PostgreSQL (thousands of rows a batch: one statement instead of one INSERT each,
+    for the server as for the client), else one Core INSERT of many rows."""
+
+    def __init__(self, design_id: int, operator_id: int) -> None:
+        self.design_id = design_id
+        self.operator_id = operator_id
+        # period -> [(engine id, starts [k], counts [k], sums [k, width])]
+        self.parts: dict[str, list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]] = {}
+
+    def add(self, period: str, engine_id: int, starts: np.ndarray, counts: np.ndarray,
+            sums: np.ndarray) -> None:
+        if len(starts):
+            self.parts.setdefault(period, []).append((engine_id, starts, counts, sums))
+
+    def insert(self, session: Session) -> None:
+        if not self.parts:
+            return
+        connection = session.connection()
+        if connection.dialect.name != "postgresql":
+            rows = [{"design_id": self.design_id, "period": period, "engine_id": e,
+                     "start": _time(start), "operator_id": self.operator_id, "n": int(n),
+                     "sums": np.ascontiguousarray(total, "<f8").tobytes()}
+                    for period, parts in self.parts.items() for e, starts, counts, sums in parts
+                    for start, n, total in zip(starts, counts, sums, strict=True)]
+            session.execute(insert(cast(Table, DeteriorationBucket.__table__)), rows)
+            return
+        payload = [HEADER]
+        for period, parts in self.parts.items():  # one text width per period
+            engine = np.concatenate([np.full(len(p[1]), p[0], dtype=np.int64) for p in parts])
+            starts = np.concatenate([p[1] for p in parts])
+            payload.append(fixed_copy_rows([
+                ("design_id", np.full(len(engine), self.design_id, dtype=">i4")),
+                ("period", np.full(len(engine), period.encode(), dtype=f"S{len(period)}")),
+                ("engine_id", engine.astype(">i4")),
+                ("start", (np.rint(starts * 1e6).astype(np.int64) - PG_EPOCH_US).astype(">i8")),
+                ("operator_id", np.full(len(engine), self.operator_id, dtype=">i4")),
+                ("n", np.concatenate([p[2] for p in parts]).astype(">i4")),
+                ("sums", np.ascontiguousarray(np.concatenate([p[3] for p in parts]), "<f8")
+                 .view(np.uint8).reshape(len(engine), -1)),
+            ]))
+        payload.append(TRAILER)
+        driver = connection.connection.driver_connection
+        assert driver is not None
+        columns = "design_id, period, engine_id, start, operator_id, n, sums"
+        with driver.cursor() as cursor, cursor.copy(
+            f"COPY {DeteriorationBucket.__tablename__} ({columns}) FROM STDIN (FORMAT BINARY)"
+        ) as copy:
+            copy.write(b"".join(payload))
 
 
 class FleetChange:

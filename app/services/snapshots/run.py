@@ -47,8 +47,7 @@ from estimation.wear import (
     health_weight,
     latest_drift,
     learnt_direction,
-    matched_parts,
-    matched_rows,
+    matched_sums,
     wear_steps,
 )
 
@@ -247,7 +246,8 @@ def _run_part(
         u_dev = 100.0 * (u - g.u_trim) / g.u_trim
         u_dev = np.where(np.isfinite(u_dev), u_dev, 0.0)  # a missing actuator: at trim
         dy = np.full((E, S, ny), np.nan)
-        dy[slot_e, slot_j] = snapshot_deviation(y, g.y_trim, g.G_u, u_dev)
+        dy_rec = snapshot_deviation(y, g.y_trim, g.G_u, u_dev)
+        dy[slot_e, slot_j] = dy_rec
         G_y, G_u, G_z = (_per_slot(G, (E, S), slot_e, slot_j, g.constant)
                          for G in (g.G_y, g.G_u, g.G_z))
         noise = np.broadcast_to(est.noise_std, (E, S, ny)).copy()
@@ -300,14 +300,11 @@ def _run_part(
         z_var = ((Gz_Vp @ P_all) * Gz_Vp).sum(axis=-1)
         values_all[..., s["z_sigma"]] = np.sqrt(np.maximum(z_var, 0.0))
         values_all[..., s["residual"]] = result.innovation
-        # The wear detector's matched filter on every record of the chunk at once.
-        if g.constant:
-            signatures = _fault_signatures(est, G_y[0, 0], G_u[0, 0])
-        else:
-            signatures = _fault_signatures(est, G_y, G_u)
-        z_all = matched_rows(dy.reshape(E * S, ny), (noise**2).reshape(E * S, ny),
-                             signatures if g.constant else signatures.reshape(E * S, ny, -1)
-                             ).reshape(E, S, -1)
+        # The wear detector's matched filter on every record of the chunk at once (records
+        # engine by engine: each engine's rows are one stretch).
+        z_rec, parts_rec = _matched(est, dy_rec, noise[slot_e, slot_j] ** 2, g.G_y, g.G_u,
+                                    g.constant, wear_det.candidates)
+        first = np.cumsum(counts) - counts
         for e, r in enumerate(runs):
             n = int(counts[e])
             if n == 0:
@@ -319,10 +316,10 @@ def _run_part(
             records = ChunkRecords(dy[e, :n], G_y[e, :n], G_u[e, :n], noise[e, :n] ** 2)
             dets[e] = _wssr_filled(est, dets[e], r, c0, q, P, resets[e, :n], values, out,
                                    records)
-            sig_e = signatures if g.constant else signatures[e, :n]
+            rec = slice(int(first[e]), int(first[e]) + n)
             wear_in[e].append(WearInput(
-                q, flights[e, :n], resets[e, :n], z_all[e, :n],
-                matched_parts(dy[e, :n], noise[e, :n] ** 2, sig_e, wear_det.candidates)))
+                q, flights[e, :n], resets[e, :n], z_rec[rec],
+                MatchedParts(parts_rec.num[rec], parts_rec.gram[rec])))
             packed = values.astype(VALUE_DTYPE)
             out.n_records += n
             if sink is None:
@@ -383,25 +380,78 @@ def wear_detector(est: SnapshotEstimator) -> WearDetector:
 def _fault_signatures(est: SnapshotEstimator, G_y: np.ndarray, G_u: np.ndarray) -> np.ndarray:
     """``est.fault_signatures`` [..., ny, n_faults] summed term by term, so a record's
     signature does not depend on the other records of its call (a batched matrix product's
-    may)."""
-    p, ny = G_y.shape[-1], G_y.shape[-2]
-    out = np.zeros((*G_y.shape[:-1], est.S_full.shape[1]))
+    may): ``_signatures_t``'s, laid out record by record."""
+    lead, ny = G_y.shape[:-2], G_y.shape[-2]
+    flat_y, flat_u = G_y.reshape(-1, ny, G_y.shape[-1]), G_u.reshape(-1, ny, G_u.shape[-1])
+    n = len(flat_y)
+    out = np.empty((n, ny, est.S_full.shape[1]))
+    for a in range(0, n, SIGNATURE_BLOCK):
+        out[a : a + SIGNATURE_BLOCK] = _signatures_t(
+            est, flat_y[a : a + SIGNATURE_BLOCK], flat_u[a : a + SIGNATURE_BLOCK]
+        ).transpose(2, 0, 1)
+    return out.reshape(*lead, ny, est.S_full.shape[1])
+
+
+def _signatures_t(est: SnapshotEstimator, G_y: np.ndarray, G_u: np.ndarray) -> np.ndarray:
+    """The fault signatures of records G_y [k, ny, p], G_u [k, ny, nu] laid out record-last,
+    [ny, n_faults, k]: per record the sum over the health columns, then the actuator-bias
+    columns, of G_y[:, j] S_full[j] (each term one product, added in that order to zero),
+    the same numbers whatever the other records; computed over contiguous runs of records.
+
+    A fault moves a few of the columns (S_full is mostly zeros): with finite gains a zero
+    coefficient's term is a zero, and adding a zero to a sum that started at +0 leaves it
+    as it is, so only the fault's own terms are summed (the same numbers bit for bit)."""
+    k, ny, p = G_y.shape
+    n = est.S_full.shape[1]
+    out = np.zeros((ny, n, k))
     if out.size == 0:  # no record, or a design whose fault library keeps no fault
         return out
-    # Block by block of records, each term into one buffer: the same sums in the same order,
-    # without a temporary of the whole chunk per term (memory-bound otherwise).
-    flat, g_y, g_u = (out.reshape(-1, ny, out.shape[-1]), G_y.reshape(-1, ny, p),
-                      G_u.reshape(-1, ny, G_u.shape[-1]))
-    term = np.empty((min(SIGNATURE_BLOCK, len(flat)), ny, out.shape[-1]))
-    for a in range(0, len(flat), SIGNATURE_BLOCK):
-        block = flat[a : a + SIGNATURE_BLOCK]
-        t = term[: len(block)]
-        for j in range(p):
-            block += np.multiply(g_y[a : a + SIGNATURE_BLOCK, :, j, None], est.S_full[j], out=t)
-        for k, b in enumerate(est.bias_inputs):
-            block += np.multiply(g_u[a : a + SIGNATURE_BLOCK, :, b, None], est.S_full[p + k],
-                                 out=t)
+    g_y = np.ascontiguousarray(G_y.reshape(k, ny * p).T).reshape(ny, p, k)
+    g_u = np.ascontiguousarray(G_u.reshape(k, -1).T).reshape(ny, G_u.shape[-1], k)
+    columns = [(g_y, j, est.S_full[j]) for j in range(p)]
+    columns += [(g_u, b, est.S_full[p + i]) for i, b in enumerate(est.bias_inputs)]
+    if np.isfinite(g_y).all() and np.isfinite(g_u).all():
+        term = np.empty((ny, k))
+        for f in range(n):
+            acc = out[:, f]
+            for g, j, row in columns:
+                if row[f] != 0.0:
+                    acc += np.multiply(g[:, j], row[f], out=term)
+        return out
+    # A gain that is not finite makes its zero-coefficient terms NaN too: every term.
+    terms = np.empty((n, k))
+    for i in range(ny):
+        acc = out[i]
+        for g, j, row in columns:
+            acc += np.multiply(g[i, j], row[:, None], out=terms)
     return out
+
+
+def _matched(
+    est: SnapshotEstimator, dy: np.ndarray, var: np.ndarray, G_y: np.ndarray,
+    G_u: np.ndarray, constant: bool, candidates: np.ndarray,
+) -> tuple[np.ndarray, MatchedParts]:
+    """The wear detector's matched filter of a chunk's records (dy, var [k, ny]; gains G_y
+    [k, ny, p], G_u [k, ny, nu], or one record's when ``constant``): z [k, n_faults] and
+    the fleet direction's sums (``estimation.wear.matched_sums``), block by block of
+    records (the terms stay in cache)."""
+    if constant:
+        sig = _signatures_t(est, G_y[:1], G_u[:1])
+        return matched_sums(dy, var, sig, candidates)
+    z, num, gram = [], [], []
+    for a in range(0, len(dy), SIGNATURE_BLOCK):
+        b = a + SIGNATURE_BLOCK
+        z_b, parts = matched_sums(dy[a:b], var[a:b], _signatures_t(est, G_y[a:b], G_u[a:b]),
+                                  candidates)
+        z.append(z_b)
+        num.append(parts.num)
+        gram.append(parts.gram)
+    if len(z) == 1:
+        return z[0], MatchedParts(num[0], gram[0])
+    c = int(np.sum(candidates))
+    return (np.concatenate(z) if z else np.zeros((0, est.S_full.shape[1])),
+            MatchedParts(np.concatenate(num) if num else np.zeros((0, c)),
+                         np.concatenate(gram) if gram else np.zeros((0, c, c))))
 
 
 def _joined(pieces: Sequence[WearInput]) -> WearInput | None:
