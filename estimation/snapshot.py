@@ -28,9 +28,11 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
-from numpy.linalg import _umath_linalg
 
 from estimation.errors import DimensionError
+
+# numpy's own gufunc behind np.linalg.solve (numpy 1.26 and 2.x); None: the public solve.
+_GUFUNC_SOLVE: Any = getattr(getattr(np.linalg, "_umath_linalg", None), "solve", None)
 
 SNAPSHOT_STATE_FORMAT = "fleethealth.snapshot-state/1"
 
@@ -334,7 +336,13 @@ def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     (thousands of calls on a dozen small matrices each); a singular matrix gives NaN (an
     invalid-value warning unless the caller's error state ignores it), which the caller
     checks once."""
-    return _umath_linalg.solve(a, b, signature="dd->d")
+    if _GUFUNC_SOLVE is None:  # pragma: no cover - a numpy without the gufunc
+        try:
+            return np.linalg.solve(a, b)
+        except np.linalg.LinAlgError:
+            return np.full(np.broadcast_shapes(a.shape[:-2], b.shape[:-2]) + b.shape[-2:],
+                           np.nan)
+    return _GUFUNC_SOLVE(a, b, signature="dd->d")
 
 
 class _PackedUpdate:
