@@ -832,20 +832,17 @@ def _attribute_rows(d: np.ndarray, W: np.ndarray, H: np.ndarray) -> tuple[np.nda
 
 def matched_rows(dy: np.ndarray, var: np.ndarray, signatures: np.ndarray) -> np.ndarray:
     """``matched_filter`` with every record's sums independent of the other records: dy [S, ny]
-    (NaN = missing), var [S, ny], signatures [ny, n] or [S, ny, n] -> z [S, n]."""
-    dy = np.asarray(dy, float)
+    (NaN = missing), var [S, ny], signatures [ny, n] or [S, ny, n] -> z [S, n]
+    (``matched_sums``)."""
     sig = np.asarray(signatures, float)
-    w = np.broadcast_to(1.0 / np.asarray(var, float), dy.shape)
-    present = np.isfinite(dy)
-    wd = np.where(present, w * np.where(present, dy, 0.0), 0.0)
-    wp = np.where(present, w, 0.0)
-    num = np.zeros((dy.shape[0], sig.shape[-1]))
-    den = np.zeros_like(num)
-    for j in range(dy.shape[1]):
-        s_j = sig[..., j, :]
-        num += wd[:, j, None] * s_j
-        den += wp[:, j, None] * (s_j * s_j)
-    return num / np.sqrt(np.maximum(den, 1e-300))
+    return matched_sums(dy, var, _record_last(sig), np.zeros(sig.shape[-1], bool))[0]
+
+
+def _record_last(signatures: np.ndarray) -> np.ndarray:
+    """Signatures [ny, n] (one for all records) or [S, ny, n] laid out as ``matched_sums``
+    takes them: [ny, n, 1] or [ny, n, S]."""
+    sig = np.asarray(signatures, float)
+    return sig[..., None] if sig.ndim == 2 else np.ascontiguousarray(sig.transpose(1, 2, 0))
 
 
 def _complete(det: WearDetector, st: WearState) -> WearState:
@@ -1263,35 +1260,22 @@ def matched_parts(
     dy: np.ndarray, var: np.ndarray, signatures: np.ndarray, candidates: np.ndarray
 ) -> MatchedParts:
     """``MatchedParts`` of dy [S, ny] (NaN = missing), var [S, ny] and the signatures [ny, n]
-    or [S, ny, n], each record's sums independent of the others (as ``matched_rows``)."""
-    dy = np.asarray(dy, float)
-    sig = np.asarray(signatures, float)[..., candidates]
-    w = np.broadcast_to(1.0 / np.asarray(var, float), dy.shape)
-    present = np.isfinite(dy)
-    wd = np.where(present, w * np.where(present, dy, 0.0), 0.0)
-    wp = np.where(present, w, 0.0)
-    c = sig.shape[-1]
-    num = np.zeros((len(dy), c))
-    gram = np.zeros((len(dy), c, c))
-    for j in range(dy.shape[1]):
-        s_j = sig[..., j, :]
-        num += wd[:, j, None] * s_j
-        gram += wp[:, j, None, None] * (s_j[..., :, None] * s_j[..., None, :])
-    return MatchedParts(num, gram)
+    or [S, ny, n], each record's sums independent of the others (``matched_sums``)."""
+    return matched_sums(dy, var, _record_last(signatures), candidates)[1]
 
 
 def matched_sums(
     dy: np.ndarray, var: np.ndarray, signatures_t: np.ndarray, candidates: np.ndarray
 ) -> tuple[np.ndarray, MatchedParts]:
     """``matched_rows`` and ``matched_parts`` of the same records in one pass, bit for bit,
-    from signatures laid out record-last: dy [S, ny] (NaN = missing), var [S, ny] and
+    from signatures laid out record-last: dy [S, ny] (NaN = missing), var [S, ny] (or [ny]) and
     signatures_t [ny, n, S] (each record's own) or [ny, n, 1] (one for all) -> (z [S, n],
     parts). Every record's sums are taken with the same operations in the same order as
     there, but sensor by sensor over contiguous runs of records rather than over a fault
     axis of a few numbers per record; the gram's lower triangle is its upper's (the same
     products)."""
     dy_t = np.asarray(dy, float).T
-    w = 1.0 / np.asarray(var, float).T
+    w = 1.0 / np.broadcast_to(np.asarray(var, float), dy_t.T.shape).T
     present = np.isfinite(dy_t)
     wd = np.where(present, w * np.where(present, dy_t, 0.0), 0.0)  # [ny, S]
     wp = np.where(present, w, 0.0)

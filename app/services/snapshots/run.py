@@ -59,7 +59,7 @@ CHECKPOINT_EVERY = 1024
 # bytes per record)) records of each engine (``_record_bytes``: 2.3 kB a record for a six-tuner
 # design of the reference model, about 29,000 records a call; larger calls measured no faster).
 CHUNK_BYTES = 64 * 2**20
-SIGNATURE_BLOCK = 2048  # records per block of ``_fault_signatures`` (its terms stay in cache)
+SIGNATURE_BLOCK = 2048  # records per block of ``_matched`` (its terms stay in cache)
 # Bytes of wear input kept per call until its filters are done (``WearInput``, about 400 a
 # record for the demo's design: some 330,000 records); a larger run goes in parts of whole
 # engines, each part's fleet directions learning from the earlier parts' drifts too.
@@ -155,7 +155,7 @@ class ChunkRecords(NamedTuple):
 class WearInput(NamedTuple):
     """One engine's records of a chunk as the wear detector takes them: tuner estimates q,
     new flight and reset flags, the bank's matched-filter projections z and the sums for the
-    fleet direction's (``estimation.wear.matched_parts``)."""
+    fleet direction's (``estimation.wear.matched_sums``)."""
 
     q: np.ndarray
     new_flight: np.ndarray
@@ -375,21 +375,6 @@ def wear_detector(est: SnapshotEstimator) -> WearDetector:
     W = np.ascontiguousarray(health_weight(est.Vp))
     cand = np.ascontiguousarray(health_candidates(est.S_full, len(est.layout.health)))
     return _wear_detector(H.tobytes(), W.tobytes(), cand.tobytes(), *H.shape)
-
-
-def _fault_signatures(est: SnapshotEstimator, G_y: np.ndarray, G_u: np.ndarray) -> np.ndarray:
-    """``est.fault_signatures`` [..., ny, n_faults] summed term by term, so a record's
-    signature does not depend on the other records of its call (a batched matrix product's
-    may): ``_signatures_t``'s, laid out record by record."""
-    lead, ny = G_y.shape[:-2], G_y.shape[-2]
-    flat_y, flat_u = G_y.reshape(-1, ny, G_y.shape[-1]), G_u.reshape(-1, ny, G_u.shape[-1])
-    n = len(flat_y)
-    out = np.empty((n, ny, est.S_full.shape[1]))
-    for a in range(0, n, SIGNATURE_BLOCK):
-        out[a : a + SIGNATURE_BLOCK] = _signatures_t(
-            est, flat_y[a : a + SIGNATURE_BLOCK], flat_u[a : a + SIGNATURE_BLOCK]
-        ).transpose(2, 0, 1)
-    return out.reshape(*lead, ny, est.S_full.shape[1])
 
 
 def _signatures_t(est: SnapshotEstimator, G_y: np.ndarray, G_u: np.ndarray) -> np.ndarray:
