@@ -25,7 +25,7 @@ function columns() {
     // Severity rank from the API: red, amber, normal, then by how far past the type's limits.
     { key: "rank", label: "State", value: (e) => -(e.rank ?? 1e9), cell: (e) => badge(e.state) },
     { key: "reason", label: "Reason", value: (e) => e.reason || "", cell: (e) => e.reason || h("span", { class: "muted" }, "within limits") },
-    { key: "worst", label: "Largest health change [%]", value: (e) => (e.health ? Math.abs(e.health.worst_health_value ?? 0) : null),
+    { key: "worst", label: "Largest health level from nominal [%]", value: (e) => (e.health ? Math.abs(e.health.worst_health_value ?? 0) : null),
       cell: (e) => (e.health && e.health.worst_health ? `${e.health.worst_health} ${fmtNum(e.health.worst_health_value)} ± ${fmtNum(e.health.worst_health_sigma)}` : "–") },
     { key: "thrust", label: "Thrust deficit [%]", numeric: true, value: (e) => e.health?.thrust_deficit ?? null, cell: (e) => fmtNum(e.health?.thrust_deficit) },
     { key: "n_records", label: "Records", numeric: true },

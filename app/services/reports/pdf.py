@@ -154,7 +154,7 @@ def fleet_pdf(report: FleetReport, images: list[Image]) -> bytes:
         Paragraph("Fleet status, worst first", h2),
     ]
     story.append(_table(
-        ["#", "ESN", "Tail", "Type", "State", "Reason", "Largest health change [%]",
+        ["#", "ESN", "Tail", "Type", "State", "Reason", "Largest health level from nominal [%]",
          "Thrust deficit [%]", "Last data", "Active events"],
         [[str(e.rank), e.esn, "–" if e.tail is None else f"{e.tail} #{e.position}",
           e.engine_type, e.state, e.reason or "within limits",
