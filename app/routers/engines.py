@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from collections.abc import Sequence
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, status
 
@@ -38,7 +39,7 @@ def list_engines(
         esn=esn,
         engine_type_id=engine_type_id,
     )
-    return Page.of([EngineOut.model_validate(r) for r in rows], total, page)
+    return Page.of(_placed(session, principal.operator_id, rows), total, page)
 
 
 @router.post("", response_model=EngineOut, status_code=status.HTTP_201_CREATED)
@@ -50,7 +51,7 @@ def create_engine(body: EngineCreate, session: DbSession, principal: Analyst) ->
 @router.get("/{engine_id}", response_model=EngineOut)
 def get_engine(engine_id: int, session: DbSession, principal: CurrentPrincipal) -> EngineOut:
     row = fleet.get_engine(session, operator_id=principal.operator_id, engine_id=engine_id)
-    return EngineOut.model_validate(row)
+    return _placed(session, principal.operator_id, [row])[0]
 
 
 @router.patch("/{engine_id}", response_model=EngineOut)
@@ -69,7 +70,7 @@ def update_engine(
     )
     if row.engine_type_id != old_type:
         jobs.estimate(session, operator_id=principal.operator_id)
-    return EngineOut.model_validate(row)
+    return _placed(session, principal.operator_id, [row])[0]
 
 
 @router.delete("/{engine_id}", response_model=Deleted)
@@ -95,3 +96,17 @@ def engine_installations(
         offset=page.offset,
     )
     return Page.of([InstallationOut.of(r) for r in rows], total, page)
+
+
+def _placed(session: DbSession, operator_id: int, rows: Sequence[Any]) -> list[EngineOut]:
+    """The engines (the service's rows) as the API shows them, each with the tail and position
+    it is on now."""
+    where = fleet.current_placements(session, operator_id, [r.id for r in rows])
+    out = []
+    for row in rows:
+        engine = EngineOut.model_validate(row)
+        placed = where.get(row.id)
+        if placed is not None:
+            engine = engine.model_copy(update={"tail": placed.tail, "position": placed.position})
+        out.append(engine)
+    return out

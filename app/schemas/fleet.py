@@ -208,6 +208,8 @@ class EngineOut(Row):
     esn: str
     engine_type_id: int
     created_at: AwareDatetime
+    tail: str | None = Field(None, description="the tail it is installed on now (null: none)")
+    position: int | None = Field(None, description="its position on that tail")
 
 
 # ----------------------------------------------------------------------- installations

@@ -75,6 +75,16 @@ export async function api(path, options) {
   return response.status === 204 ? null : response.json();
 }
 
+// Every item of a paged list (``{items, total, limit, offset}``), a page of up to 1,000 at a time.
+export async function apiAll(path, options = {}) {
+  const items = [];
+  for (;;) {
+    const page = await api(path, { ...options, query: { ...(options.query || {}), limit: 1000, offset: items.length } });
+    items.push(...page.items);
+    if (!page.items.length || items.length >= page.total) return items;
+  }
+}
+
 export async function apiText(path, options) {
   const response = await request(path, { ...options, accept: "text/csv" });
   return response.text();

@@ -1,6 +1,6 @@
 // Engine trend: tuners, health parameters and thrust/margins with 1-sigma bands, residuals and
 // WSSR, against date or cycles, with installation, maintenance and event markers.
-import { api, apiText, download } from "./api.js";
+import { api, apiAll, apiText, download } from "./api.js";
 import { $, fmtTime, h, params, showError, startPage, tailLink } from "./ui.js";
 import { MARKER_COLOURS, axisTitle, layout, limitShapes, lineWithBand, markerAnnotations, markerScale, markerShapes, plot, syncZoom, trendMarkers, unitOf } from "./plots.js";
 import { faultLabel, label } from "./glossary.js";
@@ -355,16 +355,17 @@ function engineUrl(id) {
 async function main() {
   principal = await startPage("engine");
   const id = params().get("id");
-  let status;
+  // Every engine of the operator by ESN, with the tail and position it is on now.
+  let engines;
   try {
-    status = await api("/api/v1/fleet/status");
+    engines = await apiAll("/api/v1/engines");
   } catch (err) {
     showError($("#message"), err, "Engines");
     return;
   }
   const select = $("#engine");
-  select.replaceChildren(h("option", { value: "" }, "choose an engine…"), ...status.engines.map((e) =>
-    h("option", { value: e.engine_id, selected: String(e.engine_id) === id }, `${e.esn}${e.tail ? ` (${e.tail} #${e.position})` : ""}`)));
+  select.replaceChildren(h("option", { value: "" }, "choose an engine…"), ...engines.map((e) =>
+    h("option", { value: e.id, selected: String(e.id) === id }, `${e.esn}${e.tail ? ` (${e.tail} #${e.position})` : ""}`)));
   $("#controls").hidden = false;
   select.addEventListener("change", () => { if (select.value) location.assign(engineUrl(select.value)); });
   if (!id) {

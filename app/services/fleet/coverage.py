@@ -16,9 +16,10 @@ from datetime import datetime, timedelta
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from app.models import Aircraft, Engine, Installation, Snapshot
+from app.models import Aircraft, Engine, Snapshot
 from app.models.base import utcnow
 from app.models.fleet import MAX_POSITIONS
+from app.services.fleet.service import current_placements
 
 
 @dataclass(frozen=True)
@@ -61,28 +62,20 @@ def data_coverage(
         .where(Snapshot.engine_id == Engine.id)
         .scalar_subquery()
     )
-    installed = {
-        engine_id: (aircraft_id, tail, position, installed_at)
-        for engine_id, aircraft_id, tail, position, installed_at in session.execute(
-            select(Installation.engine_id, Aircraft.id, Aircraft.tail, Installation.position,
-                   Installation.installed_at)
-            .join(Aircraft, Aircraft.id == Installation.aircraft_id)
-            .where(Installation.operator_id == operator_id, Installation.removed_at.is_(None))
-        ).all()
-    }
+    installed = current_placements(session, operator_id)
     cutoff = now - overdue_after
     engines = []
     for engine_id, esn, last in session.execute(
         select(Engine.id, Engine.esn, last_of_engine).where(Engine.operator_id == operator_id)
     ).all():
         where = installed.get(engine_id)
-        seen = last if last is not None else (None if where is None else where[3])
+        seen = last if last is not None else (None if where is None else where.installed_at)
         engines.append(EngineCoverage(
             engine_id=engine_id, esn=esn,
-            aircraft_id=None if where is None else where[0],
-            tail=None if where is None else where[1],
-            position=None if where is None else where[2],
-            installed_at=None if where is None else where[3],
+            aircraft_id=None if where is None else where.aircraft_id,
+            tail=None if where is None else where.tail,
+            position=None if where is None else where.position,
+            installed_at=None if where is None else where.installed_at,
             last_data=last,
             overdue=where is not None and seen is not None and seen < cutoff,
         ))

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from datetime import UTC, datetime, timedelta
-from typing import Any, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 from sqlalchemy import and_, func, inspect, or_, select
@@ -201,6 +201,29 @@ def find_engine(session: Session, *, operator_id: int, esn: str) -> Engine | Non
     return session.scalar(
         select(Engine).where(Engine.operator_id == operator_id, Engine.esn == esn)
     )
+
+
+class Placement(NamedTuple):
+    """Where an engine is installed now: its aircraft, tail and position, since when."""
+
+    aircraft_id: int
+    tail: str
+    position: int
+    installed_at: datetime
+
+
+def current_placements(
+    session: Session, operator_id: int, engine_ids: Sequence[int] | None = None
+) -> dict[int, Placement]:
+    """The open installation (no removal recorded) of each of the operator's engines, or of
+    ``engine_ids`` only; an engine not installed has none."""
+    stmt = (select(Installation.engine_id, Aircraft.id, Aircraft.tail, Installation.position,
+                   Installation.installed_at)
+            .join(Aircraft, Aircraft.id == Installation.aircraft_id)
+            .where(Installation.operator_id == operator_id, Installation.removed_at.is_(None)))
+    if engine_ids is not None:
+        stmt = stmt.where(Installation.engine_id.in_(list(engine_ids)))
+    return {engine_id: Placement(*where) for engine_id, *where in session.execute(stmt)}
 
 
 def list_engines(

@@ -35,12 +35,10 @@ from sqlalchemy.orm import Session
 
 from app.errors import InvalidInput
 from app.models import (
-    Aircraft,
     Engine,
     EngineModel,
     EngineType,
     EstimatorDesign,
-    Installation,
     Operator,
 )
 from app.models.designs import effective_limits
@@ -56,6 +54,7 @@ from app.services.common import no_gc_pauses
 from app.services.designs.calibration import design_calibration
 from app.services.events.service import latest_open_events, open_event_counts
 from app.services.fleet import performance, slopes
+from app.services.fleet.service import current_placements
 from app.services.fleet.severity import LEVELS, LimitValue, rank, severity
 from app.services.snapshots import egt, estimator
 from estimation import uncertainty
@@ -384,14 +383,7 @@ def _fleet_status(
     limits_of = {type_id: effective_limits(limits) for type_id, limits in session.connection()
                  .execute(select(EngineType.id, EngineType.limits)
                           .where(EngineType.id.in_({e[2] for e in engines}))).all()}
-    installed = {
-        engine_id: (aircraft_id, tail, position)
-        for engine_id, aircraft_id, tail, position in session.connection().execute(
-            select(Installation.engine_id, Aircraft.id, Aircraft.tail, Installation.position)
-            .join(Aircraft, Aircraft.id == Installation.aircraft_id)
-            .where(Installation.operator_id == operator_id, Installation.removed_at.is_(None))
-        ).all()
-    }
+    installed = current_placements(session, operator_id)
     active: dict[int, int] = {
         type_id: design_id
         for type_id, design_id in session.connection().execute(
@@ -482,9 +474,9 @@ def _fleet_status(
                 "engine_id": engine_id,
                 "esn": esn,
                 "engine_type": type_name,
-                "aircraft_id": None if where is None else where[0],
-                "tail": None if where is None else where[1],
-                "position": None if where is None else where[2],
+                "aircraft_id": None if where is None else where.aircraft_id,
+                "tail": None if where is None else where.tail,
+                "position": None if where is None else where.position,
                 "design_id": None if row is None else row.design_id,
                 "last_data": None if row is None else row.last_recorded_at,
                 "n_records": 0 if row is None else row.n_records,

@@ -172,6 +172,16 @@ def test_engine_swap_keeps_history_and_resolves_by_time(
         slot = next(s for s in slots if s["position"] == position)
         assert (slot["engine"]["esn"] if slot["engine"] else None) == esn
 
+    # The engines list and each engine say where it is now: after the swap, E0 on N1FH #2,
+    # E1 on N0FH #1 and E2 (never installed) nowhere; the list is by ESN, a page at a time.
+    placed = [client.get(f"{API}/engines", params={"limit": 2, "offset": offset},
+                         headers=tenant.headers("viewer")).json() for offset in (0, 2)]
+    assert [p["total"] for p in placed] == [3, 3]
+    assert [(e["esn"], e["tail"], e["position"]) for p in placed for e in p["items"]] == [
+        ("E0", "N1FH", 2), ("E1", "N0FH", 1), ("E2", None, None)]
+    one = client.get(f"{API}/engines/{tenant.ids['E1']}", headers=tenant.headers("viewer"))
+    assert (one.json()["tail"], one.json()["position"]) == ("N0FH", 1)
+
     # Re-opening E0's first installation would overlap both E1 at N0FH/1 and E0 at N1FH/2.
     reopen = client.patch(
         f"{API}/installations/{on_t0['id']}", json={"removed_at": None}, headers=tenant.headers()
