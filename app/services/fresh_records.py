@@ -19,10 +19,11 @@ engine-group workers, ``app.jobs.host``), the rows go to them through a spool di
 server's (``configure(spool=...)``, emptied at start): each committed upload's rows as one
 Arrow file, written under a temporary name and renamed once the transaction has committed, so
 a file there is always a whole committed upload. Every process of the host reads the files
-(memory-mapped) for the engines it estimates, with the same completeness check; a file is
-deleted when a job has taken its engines' rows (``discard`` at the end of a job), when its
-engines' stored rows move to another engine (an installation change), or when the spool holds
-more than ``MAX_RECORDS``. A file deleted early only sends a job to the database.
+(memory-mapped) for the engines it estimates, with the same completeness check. A file is
+deleted once a job leaves none of its engines with work (``discard`` at the end of a job), as
+soon as the stored rows of one of them move to another engine (an installation change), or
+when the spool holds more than ``SPOOL_RECORDS`` rows. A file deleted early only sends a job to
+the database.
 """
 
 from __future__ import annotations
@@ -43,6 +44,9 @@ from sqlalchemy import event
 from sqlalchemy.orm import Session, SessionTransaction
 
 MAX_RECORDS = 500_000  # about 100 MB of snapshot columns at most
+# The spool's bound (files, about 200 MB): uploads arriving back to back while a job runs
+# wait there for its next pass.
+SPOOL_RECORDS = 1_000_000
 
 log = logging.getLogger("fleethealth.uploads")
 
@@ -172,19 +176,24 @@ def take(session: Session, engine_ids: Iterable[int]) -> pa.Table | None:
     ))
 
 
-def discard(session: Session, engine_ids: Iterable[int]) -> None:
+def discard(session: Session, engine_ids: Iterable[int], *, moved: bool = False) -> None:
     """Drop what is kept of these engines (the job found nothing to do with it: no active
-    design, or already estimated; or their stored rows moved), so it does not sit in memory
-    until evicted: in the spool, every file with a row of one of them."""
+    design, or already estimated; or their stored rows ``moved`` to other engines), so it does
+    not sit in memory until evicted. In the spool an upload's file goes once none of its
+    engines is left, or at once when rows of one of them moved (the file no longer holds
+    what is stored)."""
     engine_ids = set(engine_ids)
     _remove(session, engine_ids)
-    if _spool is not None:
-        wanted = pa.array(sorted(engine_ids), pa.int64())
-        for path in _spooled(_spool, _database(session)):
-            table = _open_spooled(path)
-            if table is not None and pc.any(pc.is_in(
-                    pc.cast(table["engine_id"], pa.int64()), value_set=wanted)).as_py():
-                path.unlink(missing_ok=True)
+    if _spool is None:
+        return
+    wanted = pa.array(sorted(engine_ids), pa.int64())
+    for path in _spooled(_spool, _database(session)):
+        table = _open_spooled(path)
+        if table is None:
+            continue
+        inside = pc.is_in(pc.cast(table["engine_id"], pa.int64()), value_set=wanted)
+        if (pc.any if moved else pc.all)(inside).as_py():
+            path.unlink(missing_ok=True)
 
 
 def _remove(session: Session, engine_ids: Iterable[int]) -> list[pa.Table]:
@@ -245,11 +254,11 @@ def _write_spooled(path: Path, rows: pa.Table) -> bool:
 
 
 def _bound_spool(spool: Path, database: str) -> None:
-    """Delete the oldest uploads' files beyond ``MAX_RECORDS`` rows."""
+    """Delete the oldest uploads' files beyond ``SPOOL_RECORDS`` rows."""
     paths = _spooled(spool, database)
     total = sum(_spooled_rows(p) for p in paths)
     for path in paths:
-        if total <= MAX_RECORDS:
+        if total <= SPOOL_RECORDS:
             break
         path.unlink(missing_ok=True)
         total -= _spooled_rows(path)

@@ -156,8 +156,13 @@ def test_spooled_records_equal_the_stored_ones_and_stay_until_discarded(
     for engine_id in engines:
         assert_same(from_spool[engine_id], from_database[engine_id])
     fresh_records.configure(enabled=True, spool=spool)
-    fresh_records.discard(session, engines[:1])  # an engine of both uploads: both files go
+    fresh_records.discard(session, engines[:1])  # the other engines' rows are still wanted
+    assert fresh_records.kept_rows(session) == 440
+    fresh_records.discard(session, engines[:1], moved=True)  # its rows moved: both files go
     assert fresh_records.kept_rows(session) == 0 and not list(spool.iterdir())
+    upload(client, fleet.analyst, snapshot_rows(40, seed=6, start=T0 + timedelta(days=9)))
+    fresh_records.discard(session, engines)  # none of its engines left
+    assert not list(spool.iterdir())
 
 
 def test_incomplete_spooled_records_fall_back_to_the_database(
@@ -183,7 +188,7 @@ def test_a_rolled_back_upload_spools_nothing_and_the_spool_is_bounded(
     session.rollback()
     session.commit()
     assert not list(spool.iterdir())
-    monkeypatch.setattr(fresh_records, "MAX_RECORDS", 12)
+    monkeypatch.setattr(fresh_records, "SPOOL_RECORDS", 12)
     for upload_id in (10**9, 10**9 + 1):
         fresh_records.keep_after_commit(session, upload_id, rows)
         session.commit()
