@@ -124,8 +124,14 @@ def create_app(
     app.state.sessionmaker = make_sessionmaker(engine)
     app.state.job_registry = load_kinds()
     dispatcher: Dispatcher = CeleryDispatch() if settings.job_runner == "celery" else NoDispatch()
-    # Uploads keep their records in memory for the estimation job only where it runs here.
-    fresh_records.configure(enabled=settings.job_runner != "celery" and not jobs_in_child)
+    # Uploads keep their records for the estimation job where it runs: in memory here, or in
+    # the spool of this server's job host.
+    spooled = jobs_in_child and settings.job_runner == "inprocess"
+    fresh_records.configure(
+        enabled=settings.job_runner != "celery" and (spooled or not jobs_in_child),
+        spool=fresh_records.spool_directory(settings.data_dir) if spooled else None,
+        empty=spooled,
+    )
     app.state.job_dispatcher = dispatcher
 
     # Not "404.html": StaticFiles(html=True) would send that for unknown API paths too.

@@ -84,10 +84,13 @@ def _start_worker(settings_doc: dict[str, Any]) -> None:
     global _factory
     from app.db import make_engine, make_sessionmaker
     from app.log import configure_logging
+    from app.services import fresh_records
 
     settings = Settings(**settings_doc)
     configure_logging(settings.log_level, settings.log_json)
     _factory = make_sessionmaker(make_engine(settings.resolved_database_url))
+    fresh_records.configure(enabled=True,
+                            spool=fresh_records.spool_directory(settings.data_dir))
     threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True,
                      name="fleethealth-pool-watch").start()
 

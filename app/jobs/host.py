@@ -95,6 +95,11 @@ def _serve_jobs(settings_doc: dict[str, Any], pipe: Connection) -> None:
     settings = Settings(**settings_doc)
     configure_logging(settings.log_level, settings.log_json)
     registry = load_kinds()
+    from app.services import fresh_records
+
+    # The server's uploads leave their rows for the estimation jobs in its spool.
+    fresh_records.configure(enabled=True,
+                            spool=fresh_records.spool_directory(settings.data_dir))
 
     def receive() -> bytes:
         try:

@@ -72,5 +72,5 @@ def follow_installations(session: Session, operator_id: int, windows: Iterable[W
                     earliest[e] = min(first, earliest.get(e, first))
     if earliest:
         backlog.mark(session, operator_id, {e: (t, None) for e, t in earliest.items()})
-        fresh_records.discard(session, earliest)  # kept rows name the engines they had
+        fresh_records.discard(session, earliest, moved=True)  # kept rows name the old engines
     return moved_total

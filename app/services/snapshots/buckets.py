@@ -58,29 +58,31 @@ class BucketCollector:
         self.columns = value_columns(layout)
         self.epoch: dict[int, list[np.ndarray]] = {}
         self.values: dict[int, list[np.ndarray]] = {}
+        self.first_seq: dict[int, int] = {}  # each engine's first (re)computed record
 
     def stored(self, blocks: Sequence[Block], rows: np.ndarray) -> None:
         """Blocks and their stored rows ((n, ``layout.stored_bytes``) uint8, block after
         block)."""
         values = self.layout.decode(rows).values[:, self.columns]
         at = 0
-        for engine_id, _seq, epoch, _phase, _packed in blocks:
+        for engine_id, seq, epoch, _phase, _packed in blocks:
             n = len(epoch)
             if n:
-                self._keep(engine_id, np.asarray(epoch, float), values[at : at + n])
+                self._keep(engine_id, seq, np.asarray(epoch, float), values[at : at + n])
             at += n
 
     def add(self, block: Block) -> None:
         """A block of numbers, taken as their stored form gives them back
         (``EstimateLayout.as_stored``)."""
-        engine_id, _seq, epoch, _phase, packed = block
+        engine_id, seq, epoch, _phase, packed = block
         if len(epoch):
-            self._keep(engine_id, np.asarray(epoch, float),
+            self._keep(engine_id, seq, np.asarray(epoch, float),
                        self.layout.as_stored(np.asarray(packed, np.float64))[:, self.columns])
 
-    def _keep(self, engine_id: int, epoch: np.ndarray, values: np.ndarray) -> None:
+    def _keep(self, engine_id: int, seq: int, epoch: np.ndarray, values: np.ndarray) -> None:
         # The numbers as stored: a period summed partly from stored rows and partly from a
         # run's new ones equals one summed from a single run.
+        self.first_seq[engine_id] = min(seq, self.first_seq.get(engine_id, seq))
         self.epoch.setdefault(engine_id, []).append(epoch)
         self.values.setdefault(engine_id, []).append(values)
 
@@ -138,10 +140,14 @@ def refresh(
         ).where(rewritten)):
             change.add(period, start.timestamp(), np.frombuffer(sums, "<f8") / n, -1)
         session.execute(delete(DeteriorationBucket).where(rewritten))
+    # The kept estimates precede the run's first record, hence its sequence number too (those
+    # from there on were deleted, or are the run's): bounding seq lets the key's index skip
+    # the rows just written instead of reading each one's time.
     kept = session.execute(
         select(Estimate.engine_id, Estimate.recorded_at, Estimate.packed).where(
             Estimate.design_id == design_id,
-            or_(*(and_(Estimate.engine_id == e, Estimate.recorded_at >= _time(b0[e]),
+            or_(*(and_(Estimate.engine_id == e, Estimate.seq < collected.first_seq[e],
+                       Estimate.recorded_at >= _time(b0[e]),
                        Estimate.recorded_at < _time(first[e])) for e in engines)),
         )
     ).all()

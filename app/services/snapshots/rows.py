@@ -205,9 +205,9 @@ def _aggregated(
     """PostgreSQL: every engine's records as one bytea of fixed-width binary rows.
 
     Each row's fields go through the type's binary send function (big-endian, as in a binary
-    COPY) and ``string_agg`` joins the rows in order on the server, so one value crosses the
-    wire and one ``numpy.frombuffer`` reads it (a binary COPY TO sends a message a row: 0.6 s
-    of Python for 100,000 rows).
+    COPY) and ``string_agg`` joins the rows on the server, so one value crosses the wire and
+    one ``numpy.frombuffer`` reads it, then one sort puts them in order (a binary COPY TO
+    sends a message a row: 0.6 s of Python for 100,000 rows).
     """
     phase = "CASE s.phase " + " ".join(
         f"WHEN '{name}' THEN {code}" for code, name in enumerate(PHASES)
@@ -227,9 +227,12 @@ def _aggregated(
             params[key] = name
             value = f"(s.other_signals ->> %({key})s)::float8"
         fields.append((c, f"float8send(COALESCE({value}, 'NaN'))", ">f8"))
+    # Unordered: the rows are put in order here (by engine and time, the table's key, so
+    # the order is the same), not by a sort on the server (100,000 rows: 0.3 s there, spilled
+    # to disk at the default work_mem; 10 ms here).
     query = (
-        f"SELECT string_agg({' || '.join(sql for _n, sql, _w in fields)}, ''::bytea "
-        "ORDER BY s.engine_id, s.recorded_at) FROM snapshots s "
+        f"SELECT string_agg({' || '.join(sql for _n, sql, _w in fields)}, ''::bytea) "
+        "FROM snapshots s "
         f"JOIN {_WINDOW} ON s.engine_id = w.engine_id "
         "WHERE w.after IS NULL OR s.recorded_at > w.after"
     )
@@ -243,6 +246,7 @@ def _aggregated(
     if len(payload) % dtype.itemsize:
         raise ValueError(f"rows of {dtype.itemsize} bytes expected, {len(payload)} bytes found")
     rows = np.frombuffer(payload, dtype=dtype)
+    rows = rows[np.lexsort((rows["micros"], rows["engine_id"]))]
     engines = rows["engine_id"].astype(np.int64)
     phases = np.array([*PHASES, ""], dtype=object)  # -1: ""
     out: dict[int, Columns] = {}

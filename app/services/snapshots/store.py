@@ -587,10 +587,13 @@ def catch_up(
             totals[key] += result[key]
         if not spread and result["records"] == 0:
             break  # nothing could be estimated (no ready design): stop rather than spin
-    # Marks and rows uploads kept in memory that no pass took (engines without an active
-    # design: an activation marks them again).
+    # Marks and rows uploads kept that no pass took, of engines with no work left (without
+    # an active design: an activation marks them again; or estimated already). An engine
+    # marked since the last pass keeps its rows for the job its upload queued.
     backlog.drop_undesigned(session, operator_id)
-    fresh_records.discard(
-        session, session.scalars(select(Engine.id).where(Engine.operator_id == operator_id))
-    )
+    waiting = backlog.pending(session, operator_id)
+    fresh_records.discard(session, [
+        e for e in session.scalars(select(Engine.id).where(Engine.operator_id == operator_id))
+        if e not in waiting
+    ])
     return totals

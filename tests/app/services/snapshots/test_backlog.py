@@ -193,6 +193,26 @@ def test_after_an_upload_the_job_takes_its_rows_without_counting_the_database(
     ]
 
 
+def test_rows_of_an_engine_marked_after_the_jobs_last_pass_stay_for_the_next_job(
+    session: Session,
+) -> None:
+    """A job leaves the kept rows of engines whose marks it did not settle (an upload that
+    committed after its last pass read the backlog: here no pass at all) for the job that
+    upload queued; the rows of engines it estimated go."""
+    fleet = pipeline_case._fleet_with_design(session)
+    aircraft = add_aircraft(session, fleet, "F-KC")
+    times, y = pipeline_case._records(seed=4)
+    engine = add_engine(session, fleet, "KC1")
+    fleet_service.install(session, operator_id=fleet.operator_id, engine_id=engine.id,
+                          aircraft_id=aircraft.id, position=1,
+                          installed_at=times[0] - timedelta(days=1))
+    _upload(session, fleet, aircraft.id, times, y, range(0, 40))
+    store.catch_up(session, fleet.operator_id, max_passes=0)
+    assert fresh_records.kept_rows(session) == 40
+    assert store.catch_up(session, fleet.operator_id)["records"] == 40
+    assert fresh_records.kept_rows(session) == 0
+
+
 def test_a_maintenance_action_recorded_later_redoes_the_estimates_from_it(
     session: Session,
 ) -> None:
