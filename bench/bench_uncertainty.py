@@ -197,9 +197,9 @@ def main() -> None:
         print("slope gain (nan: slope unobservable): " + " ".join(
             f"{n}={v:.2f}" for n, v in zip(calib.names, np.asarray(calib.slope_gain),
                                            strict=True)))
-        K = np.asarray(calib.slope_correction)
-        print("slope correction K (diagonal; largest off-diagonal of each row): " + " ".join(
-            f"{n}={K[k, k]:+.2f}/{np.delete(K[k], k)[np.argmax(np.abs(np.delete(K[k], k)))]:+.2f}"
+        A = np.asarray(calib.slope_correction)
+        print("slope correction A (diagonal; largest off-diagonal of each row): " + " ".join(
+            f"{n}={A[k, k]:+.2f}/{np.delete(A[k], k)[np.argmax(np.abs(np.delete(A[k], k)))]:+.2f}"
             for k, n in enumerate(calib.names)) + f"; 1-sigma scale {calib.slope_scale[0]:.2f}")
         print("slope gain's relative standard error (jackknife): " + " ".join(
             f"{n}={v:.1%}" for n, v in zip(calib.names, calib.source["slope_gain_relative_std"],

@@ -269,22 +269,22 @@ def _cross_read_pieces(rng: np.random.Generator, common: float, noise: float = 0
 
 
 def test_slope_correction_removes_another_parameters_slope_read_into_one() -> None:
-    """K fitted over pooled pieces whose first slope carries 0.4 of the second's: the
+    """A fitted over pooled pieces whose first slope carries 0.4 of the second's: the
     corrected slopes are the true ones (``correct_slopes``), which the gain alone cannot do
-    when the second's slope varies from piece to piece; with no pieces, K = 0."""
+    when the second's slope varies from piece to piece; with no pieces, A = 0."""
     rng = np.random.default_rng(11)
     fleets = [_cross_read_pieces(rng, 0.0, noise=1e-5) for _ in range(4)]
-    K = unc.fit_slope_correction(fleets)
+    A = unc.fit_slope_correction(fleets)
     pooled = unc.TrendPieces.pooled(fleets)
-    corrected = unc.correct_slopes(pooled.hat, K)
+    corrected = unc.correct_slopes(pooled.hat, A)
     err = np.abs(corrected[:, :2] - pooled.true[:, :2])
     plain = np.abs(pooled.hat[:, 0] / unc.fit_slope_gain(pooled.hat, pooled.true,
                                                          pooled.spans)[0] - pooled.true[:, 0])
     assert np.sqrt(np.mean(err[:, 0] ** 2)) < 0.3 * np.sqrt(np.mean(plain**2))
-    np.testing.assert_allclose(unc.correct_slopes(np.array([[1.0, 2.0, 3.0]]), K),
-                               np.array([[1.0, 2.0, 3.0]]) - np.array([[1.0, 2.0, 3.0]]) @ K.T)
+    np.testing.assert_allclose(unc.correct_slopes(np.array([[1.0, 2.0, 3.0]]), A),
+                               np.array([[1.0, 2.0, 3.0]]) - np.array([[1.0, 2.0, 3.0]]) @ A.T)
     # The fleet slope through the correction is that of the corrected pieces.
-    slope, _ = unc.fleet_slope(pooled.hat, pooled.spans, correction=K)
+    slope, _ = unc.fleet_slope(pooled.hat, pooled.spans, correction=A)
     np.testing.assert_allclose(slope, unc.fleet_slope(corrected, pooled.spans)[0])
     empty = unc.TrendPieces(np.empty((0, 3)), np.empty((0, 3)), np.empty(0))
     np.testing.assert_array_equal(unc.fit_slope_correction([empty]), np.zeros((3, 3)))
@@ -388,7 +388,7 @@ def test_calibration_json_round_trip() -> None:
                  "aux_std", "slope_gain", "slope_noise", "slope_gain_std", "slope_correction",
                  "slope_scale"):
         np.testing.assert_array_equal(getattr(back, name), getattr(cal, name))
-    # A document from before the slope correction: none (K = 0) and a scale of 1, so its
+    # A document from before the slope correction: none (A = 0) and a scale of 1, so its
     # slopes and their sigma are what they were.
     uncorrected = unc.Calibration.from_dict(
         {k: v for k, v in cal.to_dict().items() if k not in ("slope_correction", "slope_scale")})

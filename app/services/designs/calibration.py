@@ -434,8 +434,8 @@ def fit(
     (``uncertainty.observable``) and its sigma's coverage holds on every calibration fleet
     alone (``BAND_ONE_SIGMA``, ``BAND_TWO_SIGMA``). Its fleet-average slope is shown too when
     the pooled pieces measure it well enough to calibrate a gain, as estimated and with the
-    slope correction K the calibration fits across the fleets
-    (``uncertainty.fit_fleet_slope`` with ``correct``: K, the gain on the corrected slopes and
+    slope correction A the calibration fits across the fleets
+    (``uncertainty.fit_fleet_slope`` with ``correct``: A, the gain on the corrected slopes and
     the 1-sigma's scale).
     """
     segs = [s for f in fleets for s in f.segments]

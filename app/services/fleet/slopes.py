@@ -6,11 +6,11 @@ shop visits, module changes; a water wash does not reset: its recovery is part o
 Each engine's weeks are split at its resets into pieces (a week holding a reset is left out,
 a piece starts ``BASELINE_SETTLE_RECORDS`` records on) and a piece spanning at least
 ``MIN_SLOPE_YEARS`` gives a least-squares slope; the pieces' slopes are corrected by the
-design's calibrated slope correction K (each parameter's error as read from every parameter's
+design's calibrated slope correction A (each parameter's error as read from every parameter's
 estimated slope), the fleet's slope is their inverse-variance mean divided by the calibrated
 gain, its 1-sigma from the calibrated noise and the gain's own standard error, times the
 calibrated scale (``estimation.uncertainty``, module docstring). A calibration stored before
-the correction has none (K = 0, scale 1): its slopes are as they were. A parameter whose
+the correction has none (A = 0, scale 1): its slopes are as they were. A parameter whose
 level or slope the calibration finds unobservable has no number (null) and is listed in
 ``unobservable``; a design without a calibration (an imported model) shows the plain
 inverse-variance mean without a sigma (``"uncalibrated"``); a design calibrated before the

@@ -181,17 +181,17 @@ def test_deterioration_slopes_split_at_shop_visits_calibrated_and_unobservable(
     assert sorted(before["unobservable"]) == ["fan_eff", "hpc_flow"]
     assert all(item["sigma"] is None for item in before["health"])
     assert before["health"] == [{**item, "sigma": None} for item in out["health"]]
-    # With a slope correction K (in the calibration's order): each piece's slopes read as
-    # b - b K^T before the gain, so the fleet's as (I - K) of the plain fleet slope in the
-    # layout's order, hpc_eff from all three; its sigma scaled by lambda. Without K (above)
+    # With a slope correction A (in the calibration's order): each piece's slopes read as
+    # b - b A^T before the gain, so the fleet's as (I - A) of the plain fleet slope in the
+    # layout's order, hpc_eff from all three; its sigma scaled by lambda. Without A (above)
     # the slopes are as before.
-    K = np.array([[0.0, 0.0, 0.0], [0.3, 0.2, -0.4], [0.0, 0.1, 0.0]])
+    A = np.array([[0.0, 0.0, 0.0], [0.3, 0.2, -0.4], [0.0, 0.1, 0.0]])
     fleet.design.result = {"uncertainty": replace(
-        calib, slope_correction=K, slope_scale=np.full(3, 0.8)).to_dict()}
+        calib, slope_correction=A, slope_scale=np.full(3, 0.8)).to_dict()}
     session.flush()
     with_k = slopes.fleet_slopes(session, fleet.operator_id, fleet.design.id, layout)
     order = [1, 2, 0]  # the layout's hpc_eff, hpc_flow, fan_eff in the calibration
-    read = plain.slope - K[np.ix_(order, order)] @ plain.slope
+    read = plain.slope - A[np.ix_(order, order)] @ plain.slope
     assert abs(read[0] - plain.slope[0]) > 0.05  # the correction moves it
     np.testing.assert_allclose(with_k.slope[0], read[0] / 1.25, rtol=1e-9)
     np.testing.assert_allclose(
