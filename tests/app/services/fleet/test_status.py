@@ -181,6 +181,13 @@ def test_deterioration_slopes_split_at_shop_visits_calibrated_and_unobservable(
     assert sorted(before["unobservable"]) == ["fan_eff", "hpc_flow"]
     assert all(item["sigma"] is None for item in before["health"])
     assert before["health"] == [{**item, "sigma": None} for item in out["health"]]
+    # Stored before the slope correction (no A, no scale): the slopes and sigmas as above.
+    older = {k: v for k, v in calib.to_dict().items()
+             if k not in ("slope_correction", "slope_scale")}
+    fleet.design.result = {"uncertainty": older}
+    session.flush()
+    assert slopes.fleet_slopes(session, fleet.operator_id, fleet.design.id,
+                               layout).to_dict() == out
     # With a slope correction A (in the calibration's order): each piece's slopes read as
     # b - b A^T before the gain, so the fleet's as (I - A) of the plain fleet slope in the
     # layout's order, hpc_eff from all three; its sigma scaled by lambda. Without A (above)
