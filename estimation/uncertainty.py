@@ -572,11 +572,19 @@ def correct_slopes(slopes: np.ndarray, correction: np.ndarray) -> np.ndarray:
     return slopes - slopes @ np.asarray(correction, float).T
 
 
+# The slope correction's least squares leaves out the directions of the estimated slopes
+# below this fraction of the largest singular value: an SVD design's m tuners span all its
+# estimates, and beyond them the pieces' slopes hold only rounding (1e-8 of the largest on
+# svd:6), whose fit gave coefficients of 1e5-1e8 (bench_uncertainty).
+SLOPE_CORRECTION_RCOND = 1e-6
+
+
 def fit_slope_correction(fleets: Sequence[TrendPieces]) -> np.ndarray:
     """The slope correction A [p, p] over the pooled pieces of ``fleets`` (module docstring,
     "Slope correction"): row k the least-squares fit of the pieces' errors b_e,k - b_true,e,k
     on their estimated slopes b_e, each piece's row weighted by T_e^2, its weight in its
-    fleet's slope (so its squared residual by T_e^4); zeros without pieces."""
+    fleet's slope (so its squared residual by T_e^4), the least-norm one over the directions
+    the slopes span (``SLOPE_CORRECTION_RCOND``); zeros without pieces."""
     pooled = TrendPieces.pooled(fleets)
     p = pooled.hat.shape[1]
     w = np.square(pooled.spans)
@@ -586,7 +594,7 @@ def fit_slope_correction(fleets: Sequence[TrendPieces]) -> np.ndarray:
         return np.zeros((p, p))
     X = w[ok, None] * pooled.hat[ok]
     Y = w[ok, None] * (pooled.hat[ok] - pooled.true[ok])
-    return np.asarray(np.linalg.lstsq(X, Y, rcond=None)[0].T)
+    return np.asarray(np.linalg.lstsq(X, Y, rcond=SLOPE_CORRECTION_RCOND)[0].T)
 
 
 def fit_slope_gain(hat: np.ndarray, true: np.ndarray, spans: np.ndarray,

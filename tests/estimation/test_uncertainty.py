@@ -288,6 +288,16 @@ def test_slope_correction_removes_another_parameters_slope_read_into_one() -> No
     np.testing.assert_allclose(slope, unc.fleet_slope(corrected, pooled.spans)[0])
     empty = unc.TrendPieces(np.empty((0, 3)), np.empty((0, 3)), np.empty(0))
     np.testing.assert_array_equal(unc.fit_slope_correction([empty]), np.zeros((3, 3)))
+    # Estimates spanning two directions only (an SVD design's tuners), the third a sum of
+    # the others up to rounding: the rounding is not fitted, A stays of the size of the
+    # cross-read and corrects as well.
+    spanned = [unc.TrendPieces(
+        np.c_[f.hat[:, :2], f.hat[:, 0] + f.hat[:, 1] + 1e-9 * rng.normal(size=len(f.spans))],
+        f.true, f.spans) for f in fleets]
+    A2 = unc.fit_slope_correction(spanned)
+    assert np.abs(A2).max() < 2.0
+    both = unc.TrendPieces.pooled(spanned)
+    np.testing.assert_allclose(unc.correct_slopes(both.hat, A2)[:, 0], corrected[:, 0], atol=0.02)
 
 
 def test_fit_fleet_slope_corrected_shows_what_it_reads_and_scales_its_sigma() -> None:
