@@ -7,14 +7,16 @@ model-error term of ``estimation.uncertainty`` is fitted as the product fits it
 coverage of the honest 1-sigma and 2-sigma of the level (and of the
 filter's own 1-sigma), level RMS, change since the baseline (RMS over all settled records and
 at each segment's end) and the product's fleet-average slopes (``app.services.fleet.slopes``:
-weekly means split at baseline resets, inverse-variance mean, calibrated gain; percent per
-year) against the simulator's truth, next to the issue's targets. A slope the calibration
-finds unobservable is printed as such and left out of the worst slope error.
+weekly means split at baseline resets, the pieces' slopes corrected by the calibrated slope
+correction, inverse-variance mean, calibrated gain; percent per year) against the simulator's
+truth, next to the issue's targets. A slope the calibration finds unobservable is printed as
+such and left out of the worst slope error.
 
 The slopes' 1-sigma (the pieces' noise, the error common to a fleet and the calibrated gain's
-own standard error, ``estimation.uncertainty.fleet_slope``) is scored over the seeds: the
-fraction of the scoring fleets whose true slope lies within +-1 sigma and +-2 sigma of the
-product's, per shown slope and pooled, and the fraction within 30 %. That coverage is
+own standard error, times the calibrated scale, ``estimation.uncertainty.fleet_slope``) is
+scored over the seeds: the fraction of the scoring fleets whose true slope lies within +-1
+sigma and +-2 sigma of the product's, per shown slope and pooled, and the fraction within
+30 %. That coverage is
 conditional on the one draw of calibration fleets the product uses; ``--rotations R`` (slow)
 also draws R other sets of as many calibration fleets from all the fleets of the run (the
 calibration and scoring fleets' trend pieces), fits the slope calibration on each
@@ -118,14 +120,16 @@ def rotations(pieces: list[uncertainty.TrendPieces], observable: np.ndarray, k: 
         pick = rng.choice(len(pieces), k, replace=False)
         fit = uncertainty.fit_fleet_slope([pieces[i] for i in pick],
                                           calibration.YEAR_SLOPE_FLOOR,
-                                          calibration.SLOPE_TOLERANCE)
+                                          calibration.SLOPE_TOLERANCE, correct=True)
         shown = observable & np.isfinite(fit.gain)
         gains.append(fit.gain)
         gain_stds.append(fit.gain_std)
         z = []
         for i in sorted(set(range(len(pieces))) - set(pick.tolist())):
-            slope, sigma, true = pieces[i].fleet(fit.gain, fit.noise, fit.common, fit.gain_std)
-            peer = pieces[i].fleet(fit.gain, fit.noise, fit.common)[1]
+            slope, sigma, true = pieces[i].fleet(fit.gain, fit.noise, fit.common, fit.gain_std,
+                                                 fit.correction, fit.scale)
+            peer = pieces[i].fleet(fit.gain, fit.noise, fit.common, None, fit.correction,
+                                   fit.scale)[1]
             nan = np.where(shown, 0.0, np.nan)
             rows.append((slope - true + nan, sigma + nan, true, peer + nan))
             z.append(np.abs(slope - true)[shown] / sigma[shown])
@@ -193,6 +197,10 @@ def main() -> None:
         print("slope gain (nan: slope unobservable): " + " ".join(
             f"{n}={v:.2f}" for n, v in zip(calib.names, np.asarray(calib.slope_gain),
                                            strict=True)))
+        A = np.asarray(calib.slope_correction)
+        print("slope correction A (diagonal; largest off-diagonal of each row): " + " ".join(
+            f"{n}={A[k, k]:+.2f}/{np.delete(A[k], k)[np.argmax(np.abs(np.delete(A[k], k)))]:+.2f}"
+            for k, n in enumerate(calib.names)) + f"; 1-sigma scale {calib.slope_scale[0]:.2f}")
         print("slope gain's relative standard error (jackknife): " + " ".join(
             f"{n}={v:.1%}" for n, v in zip(calib.names, calib.source["slope_gain_relative_std"],
                                            strict=True) if v is not None))
@@ -205,8 +213,8 @@ def main() -> None:
             sc = health_uncertainty.score(est, calib, *test_fleet)
             covers.append((sc.cover1, sc.cover2, sc.change_cover1, sc.change_cover2))
             peer = np.sqrt(np.maximum(sc.slope_sigma**2 - np.square(
-                sc.slope_hat * np.asarray(calib.slope_gain_std) / np.asarray(calib.slope_gain)),
-                0.0))
+                np.asarray(calib.slope_scale) * sc.slope_hat
+                * np.asarray(calib.slope_gain_std) / np.asarray(calib.slope_gain)), 0.0))
             slope_rows.append((sc.slope_hat - sc.slope_true, sc.slope_sigma, sc.slope_true,
                                peer))
             s = sc.summary()

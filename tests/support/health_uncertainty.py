@@ -11,9 +11,10 @@ start-up transient) after the engine's first record or its last shop visit (a re
 a water wash does not move the baseline (its recovery is part of the trend).
 
 Fleet-average slopes (percent per year) are the product's (``app.services.fleet.slopes``):
-weekly means of every engine's estimates, split at its baseline resets, combined by inverse
-variance and divided by the calibrated gain; a parameter whose slope the calibration finds
-unobservable is reported as such (``slope_shown``), not scored.
+weekly means of every engine's estimates, split at its baseline resets, corrected by the
+calibrated slope correction, combined by inverse variance and divided by the calibrated gain;
+a parameter whose slope the calibration finds unobservable is reported as such
+(``slope_shown``), not scored.
 """
 
 from __future__ import annotations
@@ -133,8 +134,9 @@ def score(
     d_sigma = np.concatenate([sg for _, sg in changes])
     pieces = calibration.trend_pieces(tr)
     slope_shown = calib.observable & np.isfinite(np.asarray(calib.slope_gain))
-    slope_hat, slope_sigma, slope_true = pieces.fleet(calib.slope_gain, calib.slope_noise,
-                                                      calib.slope_common, calib.slope_gain_std)
+    slope_hat, slope_sigma, slope_true = pieces.fleet(
+        calib.slope_gain, calib.slope_noise, calib.slope_common, calib.slope_gain_std,
+        calib.slope_correction, calib.slope_scale)
     slope_hat = np.where(slope_shown, slope_hat, np.nan)
     ends = np.array([dh[-1] - (s.h_true[-1] - s.h_true[0])
                      for (dh, _), s in zip(changes, segs, strict=True)])

@@ -433,8 +433,10 @@ def fit(
     over the pooled segments (``slopes``) is within ``slope_tolerance`` of the truth
     (``uncertainty.observable``) and its sigma's coverage holds on every calibration fleet
     alone (``BAND_ONE_SIGMA``, ``BAND_TWO_SIGMA``). Its fleet-average slope is shown too when
-    the pooled pieces measure it well enough to calibrate a gain
-    (``uncertainty.fit_fleet_slope``).
+    the pooled pieces measure it well enough to calibrate a gain, as estimated and with the
+    slope correction A the calibration fits across the fleets
+    (``uncertainty.fit_fleet_slope`` with ``correct``: A, the gain on the corrected slopes and
+    the 1-sigma's scale).
     """
     segs = [s for f in fleets for s in f.segments]
     fleet_of = [k for k, f in enumerate(fleets) for _ in f.segments]
@@ -484,7 +486,7 @@ def fit(
         filter_scale**2 * np.median(st["filter_var"], axis=0),
         np.sqrt(level_std**2 + (level_spread * np.median(d)) ** 2),
         slope_error=slope_error, reduction=reduction, slope_tolerance=slope_tolerance)
-    sc = uncertainty.fit_fleet_slope(pieces, YEAR_SLOPE_FLOOR, slope_tolerance)
+    sc = uncertainty.fit_fleet_slope(pieces, YEAR_SLOPE_FLOOR, slope_tolerance, correct=True)
     # Coverage of the pooled sigma on each fleet alone (BAND_ONE_SIGMA, BAND_TWO_SIGMA).
     sigma = np.sqrt(base_var + level_std**2 + (level_spread * d[:, None]) ** 2)
     per_fleet = [(uncertainty.coverage(st["level_err"][rows == k], sigma[rows == k], 1.0),
@@ -507,6 +509,7 @@ def fit(
         slope_gain=sc.gain, slope_noise=sc.noise, slope_common=sc.common,
         slope_gain_std=sc.gain_std, level_correction=fit.matrix, level_spread=level_spread,
         filter_scale=filter_scale, change_scale=change_scale,
+        slope_correction=sc.correction, slope_scale=sc.scale,
         source={"design": design, "seeds": None if seeds is None else list(seeds),
                 "engines": engines, "flights": flights,
                 "records": int(st["level_err"].shape[0]), "segments": len(segs),
@@ -521,6 +524,7 @@ def fit(
                                       for x in sc.cross],
                 "slope_gain_relative_std": [round(float(x), 3) if np.isfinite(x) else None
                                             for x in sc.gain_std / sc.gain],
+                "slope_scale": None if sc.scale is None else round(float(sc.scale[0]), 3),
                 "two_sigma": two_sigma,
                 "level_corrected": [n for n, c in zip(names, corrected, strict=True) if c],
                 "fleet_cover1_min": [round(float(x), 3) for x in cover1.min(axis=0)],

@@ -5,9 +5,12 @@ week, ``app.services.snapshots.buckets``) and the engines' baseline resets (inst
 shop visits, module changes; a water wash does not reset: its recovery is part of the trend).
 Each engine's weeks are split at its resets into pieces (a week holding a reset is left out,
 a piece starts ``BASELINE_SETTLE_RECORDS`` records on) and a piece spanning at least
-``MIN_SLOPE_YEARS`` gives a least-squares slope; the fleet's slope is their inverse-variance
-mean divided by the design's calibrated gain, its 1-sigma from the calibrated noise and the
-gain's own standard error (``estimation.uncertainty``, module docstring). A parameter whose
+``MIN_SLOPE_YEARS`` gives a least-squares slope; the pieces' slopes are corrected by the
+design's calibrated slope correction A (each parameter's error as read from every parameter's
+estimated slope), the fleet's slope is their inverse-variance mean divided by the calibrated
+gain, its 1-sigma from the calibrated noise and the gain's own standard error, times the
+calibrated scale (``estimation.uncertainty``, module docstring). A calibration stored before
+the correction has none (A = 0, scale 1): its slopes are as they were. A parameter whose
 level or slope the calibration finds unobservable has no number (null) and is listed in
 ``unobservable``; a design without a calibration (an imported model) shows the plain
 inverse-variance mean without a sigma (``"uncalibrated"``); a design calibrated before the
@@ -119,6 +122,7 @@ def fleet_slopes(
     calib = design_calibration(session, design_id)
     gain, noise, common = np.ones(p), np.full(p, np.nan), np.zeros(p)
     gain_std = np.zeros(p)
+    correction, scale = np.zeros((p, p)), np.ones(p)
     hidden = np.zeros(p, bool)
     state: Literal["calibrated", "uncalibrated", "recalibrate"] = "uncalibrated"
     if calib is not None:
@@ -126,10 +130,12 @@ def fleet_slopes(
         gain, noise, common, gain_std = (
             np.asarray(v, float)
             for v in (on.slope_gain, on.slope_noise, on.slope_common, on.slope_gain_std))
+        correction, scale = np.asarray(on.slope_correction), np.asarray(on.slope_scale)
         hidden = ~(on.observable & np.isfinite(gain))
         state = "calibrated" if on.slope_sigma_known else "recalibrate"
     slope, sigma = uncertainty.fleet_slope(piece_slopes, piece_spans,
-                                           np.where(hidden, 1.0, gain), noise, common, gain_std)
+                                           np.where(hidden, 1.0, gain), noise, common, gain_std,
+                                           correction, scale)
     return FleetSlopes(
         names=names, slope=np.where(hidden, np.nan, slope),
         sigma=np.where(hidden, np.nan, sigma),

@@ -71,6 +71,9 @@ def test_a_builtin_design_is_calibrated_and_the_trend_reads_it(
     # them: no slope is shown, and nothing asks to recalibrate.
     assert len(stored["slope_gain_std"]) == len(back.names)
     assert np.isnan(np.asarray(back.slope_gain)).all() and back.slope_sigma_known
+    # Nor a slope correction: A = 0 and the sigma's scale 1 are stored.
+    p = len(back.names)
+    assert stored["slope_correction"] == [[0.0] * p] * p and stored["slope_scale"] == [1.0] * p
     # The design document keeps its other keys.
     refreshed = session.get(EstimatorDesign, design.id)
     assert refreshed is not None and refreshed.result is not None

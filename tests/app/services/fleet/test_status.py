@@ -3,6 +3,7 @@ estimate decoded, open events; fleet averages equal a direct per-engine-then-fle
 
 from __future__ import annotations
 
+from dataclasses import replace
 from datetime import UTC, datetime, timedelta
 
 import numpy as np
@@ -114,7 +115,9 @@ def test_deterioration_slopes_split_at_shop_visits_calibrated_and_unobservable(
     step does not enter the slope, the fleet's is their T^2-weighted mean; with a stored
     calibration it is divided by the gain, carries its 1-sigma (the gain's standard error
     included) in %/year over HTTP, and an unobservable parameter has no number; a calibration
-    stored before the gain's standard error was gives the slope without a sigma, "recalibrate"."""
+    stored before the gain's standard error was gives the slope without a sigma, "recalibrate";
+    a stored slope correction reads each parameter's slope from every parameter's and scales
+    the sigma."""
     fleet = make_fleet(session, "Fleet Slope Air")
     aircraft = add_aircraft(session, fleet, "F-SLP")
     rng = np.random.default_rng(8)
@@ -178,6 +181,31 @@ def test_deterioration_slopes_split_at_shop_visits_calibrated_and_unobservable(
     assert sorted(before["unobservable"]) == ["fan_eff", "hpc_flow"]
     assert all(item["sigma"] is None for item in before["health"])
     assert before["health"] == [{**item, "sigma": None} for item in out["health"]]
+    # Stored before the slope correction (no A, no scale): the slopes and sigmas as above.
+    older = {k: v for k, v in calib.to_dict().items()
+             if k not in ("slope_correction", "slope_scale")}
+    fleet.design.result = {"uncertainty": older}
+    session.flush()
+    assert slopes.fleet_slopes(session, fleet.operator_id, fleet.design.id,
+                               layout).to_dict() == out
+    # With a slope correction A (in the calibration's order): each piece's slopes read as
+    # b - b A^T before the gain, so the fleet's as (I - A) of the plain fleet slope in the
+    # layout's order, hpc_eff from all three; its sigma scaled by lambda. Without A (above)
+    # the slopes are as before.
+    A = np.array([[0.0, 0.0, 0.0], [0.3, 0.2, -0.4], [0.0, 0.1, 0.0]])
+    fleet.design.result = {"uncertainty": replace(
+        calib, slope_correction=A, slope_scale=np.full(3, 0.8)).to_dict()}
+    session.flush()
+    with_k = slopes.fleet_slopes(session, fleet.operator_id, fleet.design.id, layout)
+    order = [1, 2, 0]  # the layout's hpc_eff, hpc_flow, fan_eff in the calibration
+    read = plain.slope - A[np.ix_(order, order)] @ plain.slope
+    assert abs(read[0] - plain.slope[0]) > 0.05  # the correction moves it
+    np.testing.assert_allclose(with_k.slope[0], read[0] / 1.25, rtol=1e-9)
+    np.testing.assert_allclose(
+        with_k.sigma[0],
+        0.8 * np.sqrt((0.02 / w.sum() + 0.01) / 1.25**2 + (read[0] / 1.25 * 0.15 / 1.25) ** 2),
+        rtol=1e-9)
+    assert with_k.unobservable == ("hpc_flow", "fan_eff")
 
 
 def test_status_summaries_equal_the_one_engine_reference(
