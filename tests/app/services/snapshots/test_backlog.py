@@ -154,19 +154,22 @@ def _upload(session: Session, fleet: pipeline_case.Fleet, aircraft_id: int, time
     session.commit()
 
 
+def installed_engine(session: Session) -> Case:
+    """``one_engine`` installed on its aircraft a day before the first of its records."""
+    case = one_engine(session, "F-KC", seed=4)
+    fleet_service.install(session, operator_id=case.fleet.operator_id, engine_id=case.engine_id,
+                          aircraft_id=case.aircraft_id, position=1,
+                          installed_at=case.times[0] - timedelta(days=1))
+    return case
+
+
 def test_after_an_upload_the_job_takes_its_rows_without_counting_the_database(
     session: Session, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """The rows an upload kept are complete by its backlog count, so no count query runs; a
     mark of unknown count (an activation) makes the job count again."""
-    fleet = pipeline_case._fleet_with_design(session)
-    aircraft = add_aircraft(session, fleet, "F-KC")
-    times, y = pipeline_case._records(seed=4)
-    engine = add_engine(session, fleet, "KC1")
-    fleet_service.install(session, operator_id=fleet.operator_id, engine_id=engine.id,
-                          aircraft_id=aircraft.id, position=1,
-                          installed_at=times[0] - timedelta(days=1))
-    _upload(session, fleet, aircraft.id, times, y, range(0, 50))
+    fleet, aircraft_id, engine_id, times, y = installed_engine(session)
+    _upload(session, fleet, aircraft_id, times, y, range(0, 50))
     store.catch_up(session, fleet.operator_id)
     counted: list[object] = []
     count_after = snapshots_rows._count_after
@@ -176,19 +179,19 @@ def test_after_an_upload_the_job_takes_its_rows_without_counting_the_database(
         return count_after(session, wants)
 
     monkeypatch.setattr(snapshots_rows, "_count_after", counting)
-    _upload(session, fleet, aircraft.id, times, y, range(50, 80))
+    _upload(session, fleet, aircraft_id, times, y, range(50, 80))
     assert fresh_records.kept_rows(session) == 30
     assert store.catch_up(session, fleet.operator_id)["records"] == 30
     assert counted == [] and fresh_records.kept_rows(session) == 0
 
-    _upload(session, fleet, aircraft.id, times, y, range(80, 90))
-    backlog.mark_from_start(session, fleet.operator_id, [engine.id])
+    _upload(session, fleet, aircraft_id, times, y, range(80, 90))
+    backlog.mark_from_start(session, fleet.operator_id, [engine_id])
     assert store.catch_up(session, fleet.operator_id)["records"] == 10
     assert len(counted) == 1
     reference = add_engine(session, fleet, "KC0")
-    pipeline_case._store(session, fleet, reference.id, aircraft.id, times, y, range(0, 90))
+    pipeline_case._store(session, fleet, reference.id, aircraft_id, times, y, range(0, 90))
     store.catch_up(session, fleet.operator_id)
-    assert [r[2] for r in pipeline_case._rows(session, engine.id)] == [
+    assert [r[2] for r in pipeline_case._rows(session, engine_id)] == [
         r[2] for r in pipeline_case._rows(session, reference.id)
     ]
 
@@ -199,14 +202,8 @@ def test_rows_of_an_engine_marked_after_the_jobs_last_pass_stay_for_the_next_job
     """A job leaves the kept rows of engines whose marks it did not settle (an upload that
     committed after its last pass read the backlog: here no pass at all) for the job that
     upload queued; the rows of engines it estimated go."""
-    fleet = pipeline_case._fleet_with_design(session)
-    aircraft = add_aircraft(session, fleet, "F-KC")
-    times, y = pipeline_case._records(seed=4)
-    engine = add_engine(session, fleet, "KC1")
-    fleet_service.install(session, operator_id=fleet.operator_id, engine_id=engine.id,
-                          aircraft_id=aircraft.id, position=1,
-                          installed_at=times[0] - timedelta(days=1))
-    _upload(session, fleet, aircraft.id, times, y, range(0, 40))
+    fleet, aircraft_id, engine_id, times, y = installed_engine(session)
+    _upload(session, fleet, aircraft_id, times, y, range(0, 40))
     store.catch_up(session, fleet.operator_id, max_passes=0)
     assert fresh_records.kept_rows(session) == 40
     assert store.catch_up(session, fleet.operator_id)["records"] == 40
