@@ -181,7 +181,7 @@ def _busy(n: int = 3_000_000) -> int:
 def headroom() -> float:
     """What a second process buys on this machine now: the time of two units of pure-Python
     work in one process over one unit in each of two processes (2.0 on two idle cores; on a
-    shared machine the scheduler's share for this session caps it, whatever the code)."""
+    shared machine the scheduler's share for these processes caps it, whatever the code)."""
     import multiprocessing
 
     started = time.perf_counter()
