@@ -236,47 +236,27 @@ class Calibration:
 
     def __post_init__(self) -> None:
         p = len(self.names)
-        if self.level_correction is None:
-            object.__setattr__(self, "level_correction", np.zeros((p, p + 1)))
-        correction = np.asarray(self.level_correction, float)
-        if correction.shape != (p, p + 1):
-            raise DimensionError(f"Incompatible dimensions of level_correction; expected "
-                                 f"({p}, {p + 1}) but found {correction.shape}")
-        object.__setattr__(self, "level_correction", correction)
-        if self.slope_correction is None:
-            object.__setattr__(self, "slope_correction", np.zeros((p, p)))
-        slope_correction = np.asarray(self.slope_correction, float)
-        if slope_correction.shape != (p, p):
-            raise DimensionError(f"Incompatible dimensions of slope_correction; expected "
-                                 f"({p}, {p}) but found {slope_correction.shape}")
-        object.__setattr__(self, "slope_correction", slope_correction)
-        if self.slope_scale is None:
-            object.__setattr__(self, "slope_scale", np.ones(p))
-        if self.level_spread is None:
-            object.__setattr__(self, "level_spread", np.zeros(p))
-        if self.filter_scale is None:
-            object.__setattr__(self, "filter_scale", np.ones(p))
-        if self.change_scale is None:
-            object.__setattr__(self, "change_scale", np.ones(p))
-        if self.bias_scale is None:
-            object.__setattr__(self, "bias_scale", np.ones(p))
-        if self.slope_gain is None:
-            object.__setattr__(self, "slope_gain", np.ones(p))
-        if self.slope_noise is None:
-            object.__setattr__(self, "slope_noise", np.full(p, np.nan))
-        if self.slope_common is None:
-            object.__setattr__(self, "slope_common", np.zeros(p))
-        if self.slope_gain_std is None:
-            object.__setattr__(self, "slope_gain_std", np.full(p, np.nan))
-        for name in ("bias_scale", "level_std", "change_std", "slope_error", "bias2", "drift",
-                     "observable", "slope_gain", "slope_noise", "slope_common",
-                     "slope_gain_std", "level_spread", "filter_scale", "change_scale",
-                     "slope_scale"):
+        # What a field left out (None: a calibration stored before it) stands for, and the
+        # shape every field must have.
+        defaults = {"level_correction": np.zeros((p, p + 1)), "slope_correction": np.zeros((p, p)),
+                    "slope_scale": np.ones(p), "level_spread": np.zeros(p),
+                    "filter_scale": np.ones(p), "change_scale": np.ones(p),
+                    "bias_scale": np.ones(p), "slope_gain": np.ones(p),
+                    "slope_noise": np.full(p, np.nan), "slope_common": np.zeros(p),
+                    "slope_gain_std": np.full(p, np.nan)}
+        for name, default in defaults.items():
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, default)
+        shapes = {"level_correction": (p, p + 1), "slope_correction": (p, p)}
+        for name in ("level_correction", "slope_correction", "bias_scale", "level_std",
+                     "change_std", "slope_error", "bias2", "drift", "observable", "slope_gain",
+                     "slope_noise", "slope_common", "slope_gain_std", "level_spread",
+                     "filter_scale", "change_scale", "slope_scale"):
             value = np.asarray(getattr(self, name), bool if name == "observable" else float)
-            if value.shape != (p,):
-                raise DimensionError(
-                    f"Incompatible dimensions of {name}; expected ({p},) but found {value.shape}"
-                )
+            shape = shapes.get(name, (p,))
+            if value.shape != shape:
+                raise DimensionError(f"Incompatible dimensions of {name}; expected {shape} but "
+                                     f"found {value.shape}")
             object.__setattr__(self, name, value)
         object.__setattr__(self, "names", tuple(self.names))
         object.__setattr__(self, "source", dict(self.source))

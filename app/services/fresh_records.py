@@ -34,7 +34,7 @@ import logging
 import os
 import threading
 from collections import OrderedDict
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import pyarrow as pa
@@ -186,12 +186,7 @@ def discard(session: Session, engine_ids: Iterable[int], *, moved: bool = False)
     _remove(session, engine_ids)
     if _spool is None:
         return
-    wanted = pa.array(sorted(engine_ids), pa.int64())
-    for path in _spooled(_spool, _database(session)):
-        table = _open_spooled(path)
-        if table is None:
-            continue
-        inside = pc.is_in(pc.cast(table["engine_id"], pa.int64()), value_set=wanted)
+    for path, _table, inside in _spooled_of(_spool, _database(session), engine_ids):
         if (pc.any if moved else pc.all)(inside).as_py():
             path.unlink(missing_ok=True)
 
@@ -272,15 +267,20 @@ def _open_spooled(path: Path) -> pa.Table | None:
         return None
 
 
-def _read_spooled(spool: Path, database: str, engine_ids: set[int]) -> list[pa.Table]:
-    """The spooled rows of these engines, upload by upload (the files stay)."""
+def _spooled_of(spool: Path, database: str, engine_ids: set[int],
+                ) -> Iterator[tuple[Path, pa.Table, pa.BooleanArray]]:
+    """Each spooled upload of ``database`` still there, oldest first: its file, its rows and
+    which of them are of these engines."""
     wanted = pa.array(sorted(engine_ids), pa.int64())
-    parts = []
     for path in _spooled(spool, database):
         table = _open_spooled(path)
-        if table is None:
-            continue
-        inside = pc.is_in(pc.cast(table["engine_id"], pa.int64()), value_set=wanted)
-        if pc.any(inside).as_py():
-            parts.append(table.filter(inside))
-    return parts
+        if table is not None:
+            yield path, table, pc.is_in(pc.cast(table["engine_id"], pa.int64()),
+                                        value_set=wanted)
+
+
+def _read_spooled(spool: Path, database: str, engine_ids: set[int]) -> list[pa.Table]:
+    """The spooled rows of these engines, upload by upload (the files stay)."""
+    return [table.filter(inside) for _path, table, inside in _spooled_of(spool, database,
+                                                                          engine_ids)
+            if pc.any(inside).as_py()]
