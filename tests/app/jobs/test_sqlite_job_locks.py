@@ -37,12 +37,15 @@ def test_an_estimation_job_computes_without_the_write_lock(
                          body=csv_bytes(reference_rows(400)), content_format="csv")
     add_reference_design(url, fleet.operator_id)
 
-    # While the filters run, a writer that does not wait at all (busy timeout 0) must get in.
+    # While the filters run, another writer must get in. It waits up to 2 s: the runner's own
+    # polls take the write lock for milliseconds (with no wait at all the writer sometimes met
+    # one under load), while a lock held by the job itself would never be released, since the
+    # job's thread is the one waiting here.
     writes_during_compute: list[str] = []
     real_run_filters = store.run_filters
 
     def run_filters_beside_a_writer(*args, **kwargs):  # type: ignore[no-untyped-def]
-        other = sqlite3.connect(path, timeout=0)
+        other = sqlite3.connect(path, timeout=2.0)
         try:
             other.execute("INSERT INTO operators (name, created_at) VALUES ('Beside Air', "
                           "CURRENT_TIMESTAMP)")
