@@ -37,10 +37,10 @@ def test_an_estimation_job_computes_without_the_write_lock(
                          body=csv_bytes(reference_rows(400)), content_format="csv")
     add_reference_design(url, fleet.operator_id)
 
-    # While the filters run, another writer must get in. It waits up to 2 s: the runner's own
-    # polls take the write lock for milliseconds (with no wait at all the writer sometimes met
-    # one under load), while a lock held by the job itself would never be released, since the
-    # job's thread is the one waiting here.
+    # While the filters run, another writer must get in. It waits up to 2 s: the runner's
+    # other threads may hold the write lock for milliseconds (with no wait at all the writer
+    # once met such a turn under load), while a lock held by the job itself would never be
+    # released, since the job's thread is the one waiting here.
     writes_during_compute: list[str] = []
     real_run_filters = store.run_filters
 
