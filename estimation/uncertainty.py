@@ -89,14 +89,18 @@ engine far from nominal (hpc_flow -17 %) has its hpc_eff read 4.6 % low. So the 
 is calibrated on the simulated fleets (docs/math.md section 15): the error of each parameter k
 is regressed on the record's estimates,
 
-    h_hat_k - h_k ~ C_k [1, h_hat],     h_cal = h_hat - [1, h_hat] C^T      (``correct_level``)
+    h_hat_k - h_k ~ C_k x(h_hat),     h_cal = h_hat - x(h_hat) C^T      (``correct_level``)
 
+with x = [1, h_hat] (straight) or x = [1, h_hat, h_hat_i h_hat_j] (curved: the engine's error
+bends with the products of its estimates; ``correction_design``), curved where that cuts the
+straight fit's cross-validated error by at least ``MIN_CURVE_GAIN``
 (``fit_level_correction``), and C_k is kept where a C fitted on the other calibration fleets
 cuts the RMS error of the fleet left out by at least ``MIN_CORRECTION_GAIN``. Every
 calibration figure is then taken on the records corrected by their own fleet's left-out C:
-the correction's error out of sample. The change since a baseline is corrected alike; the
-constant cancels (``correct_change``). The model error s grows with the record's distance
-from the nominal engine d (``spread``: the RMS of its estimated deviations):
+the correction's error out of sample. The change since a baseline is the calibrated level's at
+both ends, differenced: the constant cancels (``correct_change``). The model error s grows
+with the record's distance from the nominal engine d (``spread``: the RMS of its estimated
+deviations):
 
     sigma_k^2 = a_k^2 bias2_k + (f_k sigma_f,k)^2 + s_k^2 + (kappa_k d)^2
 
@@ -238,7 +242,8 @@ class Calibration:
         p = len(self.names)
         # What a field left out (None: a calibration stored before it) stands for, and the
         # shape every field must have.
-        defaults = {"level_correction": np.zeros((p, p + 1)), "slope_correction": np.zeros((p, p)),
+        defaults = {"level_correction": np.zeros((p, correction_width(p))),
+                    "slope_correction": np.zeros((p, p)),
                     "slope_scale": np.ones(p), "level_spread": np.zeros(p),
                     "filter_scale": np.ones(p), "change_scale": np.ones(p),
                     "bias_scale": np.ones(p), "slope_gain": np.ones(p),
@@ -247,7 +252,11 @@ class Calibration:
         for name, default in defaults.items():
             if getattr(self, name) is None:
                 object.__setattr__(self, name, default)
-        shapes = {"level_correction": (p, p + 1), "slope_correction": (p, p)}
+        C = np.asarray(self.level_correction, float)
+        if C.shape == (p, p + 1):  # stored before the curved correction: straight alone
+            object.__setattr__(self, "level_correction", np.concatenate(
+                [C, np.zeros((p, correction_width(p) - p - 1))], axis=1))
+        shapes = {"level_correction": (p, correction_width(p)), "slope_correction": (p, p)}
         for name in ("level_correction", "slope_correction", "bias_scale", "level_std",
                      "change_std", "slope_error", "bias2", "drift", "observable", "slope_gain",
                      "slope_noise", "slope_common", "slope_gain_std", "level_spread",
@@ -280,15 +289,22 @@ class Calibration:
             out[held] = np.asarray(values)[index[held]]
             return out
 
-        correction = np.zeros((len(index), len(index) + 1))
-        rows = np.flatnonzero(held)
+        # Columns of the correction: the constant, one per name, one per pair of names
+        # (``correction_design``); a name the calibration does not hold is no regressor.
+        q = len(index)
         C = np.asarray(self.level_correction)
+        column = _correction_columns(len(self.names))
+        correction = np.zeros((q, correction_width(q)))
+        rows = np.flatnonzero(held)
+        new_column = _correction_columns(q)
         correction[rows, 0] = C[index[rows], 0]
-        slope_correction = np.zeros((len(index), len(index)))
+        slope_correction = np.zeros((q, q))
         A = np.asarray(self.slope_correction)
-        for j in rows:  # a name the calibration does not hold is no regressor
+        for j in rows:
             correction[rows, 1 + j] = C[index[rows], 1 + index[j]]
             slope_correction[rows, j] = A[index[rows], index[j]]
+            for i in rows[rows <= j]:
+                correction[rows, new_column[i, j]] = C[index[rows], column[index[i], index[j]]]
         return replace(
             self, names=tuple(names), level_std=pick(self.level_std, 0.0),
             level_correction=correction, level_spread=pick(self.level_spread, 0.0),
@@ -313,14 +329,14 @@ class Calibration:
                 level_sigma(np.asarray(self.filter_scale) * filter_std, bias2, model))
 
     def change(
-        self, delta: np.ndarray, filter_std: np.ndarray, filter_std0: np.ndarray,
-        kcycles: np.ndarray,
+        self, h_hat: np.ndarray, h_hat0: np.ndarray, filter_std: np.ndarray,
+        filter_std0: np.ndarray, kcycles: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """The calibrated change and its 1-sigma [N, p] of delta = h_hat(t) - h_hat(0) [N, p]
-        (``correct_change``; ``change_sigma`` with the filter's 1-sigma at t and at the
-        baseline scaled by the change's scale)."""
+        """The calibrated change and its 1-sigma [N, p] of the estimates h_hat(t) [N, p]
+        since their baseline h_hat(0) [N, p] (``correct_change``; ``change_sigma`` with the
+        filter's 1-sigma at t and at the baseline scaled by the change's scale)."""
         f = np.asarray(self.change_scale)
-        return (correct_change(delta, np.asarray(self.level_correction)),
+        return (correct_change(h_hat, h_hat0, np.asarray(self.level_correction)),
                 change_sigma(f * filter_std, f * filter_std0, kcycles, self.drift,
                              self.change_std))
 
@@ -398,6 +414,14 @@ class Calibration:
         wherever a slope is shown (False: stored before it was, recalibrate)."""
         shown = np.asarray(self.observable) & np.isfinite(np.asarray(self.slope_gain))
         return bool(np.all(np.isfinite(np.asarray(self.slope_gain_std))[shown]))
+
+
+def _correction_columns(p: int) -> np.ndarray:
+    """[p, p] int: the column of the product h_i h_j in ``correction_design`` (symmetric)."""
+    out = np.zeros((p, p), int)
+    i, j = np.triu_indices(p)
+    out[i, j] = out[j, i] = 1 + p + np.arange(i.size)
+    return out
 
 
 def level_sigma(
@@ -821,28 +845,47 @@ def period_pieces(
 # the correction cuts its error, cross-validated over the calibration fleets, by at least this
 # fraction of its RMS (below, it mostly refits noise).
 MIN_CORRECTION_GAIN = 0.2
+# A corrected parameter's correction is curved (on the estimates' products too) where that
+# cuts the straight correction's cross-validated RMS error by at least this fraction.
+MIN_CURVE_GAIN = 0.05
 # Grid of the spread kappa (``fit_model_spread``): 0 to 0.6 in steps of 0.005.
 SPREAD_GRID = np.arange(0.0, 0.6 + 1e-9, 0.005)
 
 
-def correction_design(h_hat: np.ndarray) -> np.ndarray:
-    """[N, 1 + p]: a column of ones beside the estimates h_hat [N, p], the regressors of the
-    level's correction."""
+def correction_width(p: int) -> int:
+    """Columns of the level's correction of p parameters: the constant, the p estimates and
+    their p (p + 1) / 2 products (``correction_design``)."""
+    return 1 + p + p * (p + 1) // 2
+
+
+def correction_design(h_hat: np.ndarray, curved: bool = True) -> np.ndarray:
+    """[N, 1 + p + p (p + 1) / 2]: the regressors of the level's correction, a column of ones,
+    the estimates h_hat [N, p] and, ``curved``, their products h_i h_j (i <= j, in
+    ``np.triu_indices`` order); [N, 1 + p] without the products."""
     h_hat = np.asarray(h_hat, float)
-    return np.concatenate([np.ones((h_hat.shape[0], 1)), h_hat], axis=1)
+    columns = [np.ones(h_hat.shape[:-1] + (1,)), h_hat]
+    if curved:
+        i, j = np.triu_indices(h_hat.shape[-1])
+        columns.append(h_hat[..., i] * h_hat[..., j])
+    return np.concatenate(columns, axis=-1)
 
 
 def correct_level(h_hat: np.ndarray, correction: np.ndarray) -> np.ndarray:
-    """The calibrated level [N, p]: h_hat - [1, h_hat] C^T for the correction C [p, 1 + p]
-    (a row of zeros leaves its parameter as estimated)."""
-    return np.asarray(h_hat, float) - correction_design(h_hat) @ np.asarray(correction).T
+    """The calibrated level [N, p]: h_hat - X C^T for the correction C [p, w] on the
+    regressors X of ``correction_design`` (w = 1 + p: the straight part alone); a row of
+    zeros leaves its parameter as estimated."""
+    h_hat = np.asarray(h_hat, float)
+    correction = np.asarray(correction, float)
+    curved = correction.shape[-1] > 1 + h_hat.shape[-1]
+    return h_hat - correction_design(h_hat, curved) @ correction.T
 
 
-def correct_change(delta: np.ndarray, correction: np.ndarray) -> np.ndarray:
-    """The calibrated change [N, p] of a change delta = h_hat(t) - h_hat(0) [N, p]: the
-    constant of the correction cancels, its slopes stay (``correct_level`` at both ends)."""
-    delta = np.asarray(delta, float)
-    return delta - delta @ np.asarray(correction)[:, 1:].T
+def correct_change(h_hat: np.ndarray, h_hat0: np.ndarray, correction: np.ndarray) -> np.ndarray:
+    """The calibrated change [N, p] of the estimates h_hat [N, p] since the baseline's
+    h_hat0 [p] or [N, p]: the calibrated level at both ends, differenced (its constant
+    cancels)."""
+    return (correct_level(h_hat, correction)
+            - correct_level(np.broadcast_to(h_hat0, np.shape(h_hat)), correction))
 
 
 def spread(h_hat: np.ndarray) -> np.ndarray:
@@ -853,14 +896,16 @@ def spread(h_hat: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class LevelCorrection:
-    """The level's correction (``fit_level_correction``): C [p, 1 + p] over all calibration
-    fleets, and for each fleet of ``groups`` the C fitted without it ([G, p, 1 + p], the rows
-    not kept zero as in C): a calibration record corrected by its fleet's left-out C carries
-    the correction's error on a fleet it did not see, which is what its sigma is fitted on."""
+    """The level's correction (``fit_level_correction``): C [p, w] over all calibration
+    fleets (w = ``correction_width``), and for each fleet of ``groups`` the C fitted without
+    it ([G, p, w], the rows not kept zero as in C): a calibration record corrected by its
+    fleet's left-out C carries the correction's error on a fleet it did not see, which is
+    what its sigma is fitted on. curved [p]: the rows that use the estimates' products."""
 
     matrix: np.ndarray
     groups: np.ndarray
     left_out: np.ndarray
+    curved: np.ndarray
 
     def without(self, group: object) -> np.ndarray:
         """The C fitted without the fleet ``group`` (C itself for a fleet not in groups)."""
@@ -870,36 +915,51 @@ class LevelCorrection:
 
 def fit_level_correction(
     h_hat: np.ndarray, err: np.ndarray, fleet: np.ndarray,
-    min_gain: float = MIN_CORRECTION_GAIN,
+    min_gain: float = MIN_CORRECTION_GAIN, min_curve_gain: float = MIN_CURVE_GAIN,
 ) -> LevelCorrection:
     """The level's correction (module docstring, "Calibrated level").
 
     h_hat [N, p] and err = h_hat - h [N, p] on the calibration records, fleet [N] the
-    calibration fleet of each. Row k of C is the least-squares fit of err_k on [1, h_hat]
-    over all fleets, kept where fitting on the other fleets and scoring on the one left out
-    cuts the RMS error by at least ``min_gain`` (pooled over the left-out fleets); zeros
-    elsewhere, and everywhere with fewer than two fleets (nothing to cross-validate).
+    calibration fleet of each. Row k of C is the least-squares fit of err_k on the
+    regressors of ``correction_design`` over all fleets: on [1, h_hat] (straight), or also on
+    the estimates' products (curved) where that, fitted on the other fleets and scored on the
+    one left out, cuts the straight fit's RMS error by at least ``min_curve_gain``. A row is
+    kept where its fit so cross-validated cuts the RMS error by at least ``min_gain`` (pooled
+    over the left-out fleets); zeros elsewhere, and everywhere with fewer than two fleets
+    (nothing to cross-validate).
     """
-    X = correction_design(h_hat)
     err = np.asarray(err, float)
     fleet = np.asarray(fleet)
     p = err.shape[1]
+    width = correction_width(p)
+    X = correction_design(h_hat)
     groups = np.unique(fleet)
     ok = np.all(np.isfinite(X), axis=1) & np.all(np.isfinite(err), axis=1)
     if len(groups) < 2 or not ok.any():
-        return LevelCorrection(np.zeros((p, p + 1)), groups, np.zeros((len(groups), p, p + 1)))
-    left_out = np.zeros((len(groups), p, p + 1))
-    residual = err.copy()
-    for i, g in enumerate(groups):
-        test = (fleet == g) & ok
-        left_out[i] = np.linalg.lstsq(X[ok & (fleet != g)], err[ok & (fleet != g)],
-                                      rcond=None)[0].T
-        residual[test] = err[test] - X[test] @ left_out[i].T
-    before = np.sqrt(np.mean(np.square(err[ok]), axis=0))
-    after = np.sqrt(np.mean(np.square(residual[ok]), axis=0))
-    keep = after <= (1.0 - min_gain) * before
-    matrix = np.where(keep[:, None], np.linalg.lstsq(X[ok], err[ok], rcond=None)[0].T, 0.0)
-    return LevelCorrection(matrix, groups, np.where(keep[None, :, None], left_out, 0.0))
+        return LevelCorrection(np.zeros((p, width)), groups, np.zeros((len(groups), p, width)),
+                               np.zeros(p, bool))
+
+    def fitted(rows: np.ndarray, columns: int) -> np.ndarray:  # [p, width], zero padded
+        out = np.zeros((p, width))
+        out[:, :columns] = np.linalg.lstsq(X[rows, :columns], err[rows], rcond=None)[0].T
+        return out
+
+    left_out = {w: np.zeros((len(groups), p, width)) for w in (1 + p, width)}
+    rms = {}
+    for w, outs in left_out.items():
+        residual = err.copy()
+        for i, g in enumerate(groups):
+            test = (fleet == g) & ok
+            outs[i] = fitted(ok & (fleet != g), w)
+            residual[test] = err[test] - X[test] @ outs[i].T
+        rms[w] = np.sqrt(np.mean(np.square(residual[ok]), axis=0))
+    curved = rms[width] <= (1.0 - min_curve_gain) * rms[1 + p]
+    after = np.where(curved, rms[width], rms[1 + p])
+    keep = after <= (1.0 - min_gain) * np.sqrt(np.mean(np.square(err[ok]), axis=0))
+    matrix = np.where(curved[:, None], fitted(ok, width), fitted(ok, 1 + p))
+    left = np.where(curved[None, :, None], left_out[width], left_out[1 + p])
+    return LevelCorrection(np.where(keep[:, None], matrix, 0.0), groups,
+                           np.where(keep[None, :, None], left, 0.0), curved & keep)
 
 
 def fit_model_spread(

@@ -475,32 +475,66 @@ def test_calibration_on_names_reorders_and_fills_the_names_it_does_not_hold() ->
 
 def test_level_correction_recovers_a_map_shared_by_the_fleets() -> None:
     """Errors that are a linear function of the estimates (the nonlinear engine read by a
-    linear filter) plus noise, in four fleets: the correction comes back and cuts the error
-    of a fleet it did not see; a parameter whose error is noise alone is left as estimated;
-    one fleet alone cannot be cross-validated and corrects nothing."""
+    linear filter) plus noise, in four fleets: the correction comes back straight and cuts the
+    error of a fleet it did not see; a parameter whose error is noise alone is left as
+    estimated; one fleet alone cannot be cross-validated and corrects nothing."""
     rng = np.random.default_rng(8)
     true_map = np.array([[0.2, 0.3, -0.1, 0.0], [0.0, 0.0, 0.0, 0.0]])  # [p, 1 + p], p = 3
     true_map = np.vstack([true_map, [-0.1, 0.0, 0.2, 0.1]])
     h_hat = rng.normal(0.0, 2.0, (4000, 3))
-    err = unc.correction_design(h_hat) @ true_map.T + rng.normal(0.0, 0.1, (4000, 3))
+    err = unc.correction_design(h_hat, curved=False) @ true_map.T + rng.normal(0.0, 0.1,
+                                                                              (4000, 3))
     fleet = np.repeat(np.arange(4), 1000)
     fit = unc.fit_level_correction(h_hat, err, fleet)
-    np.testing.assert_allclose(fit.matrix[[0, 2]], true_map[[0, 2]], atol=0.02)
+    assert fit.matrix.shape == (3, unc.correction_width(3)) == (3, 10)
+    np.testing.assert_allclose(fit.matrix[[0, 2], :4], true_map[[0, 2]], atol=0.02)
+    assert not fit.curved.any() and np.all(fit.matrix[:, 4:] == 0.0)  # straight: no products
     assert np.all(fit.matrix[1] == 0.0)  # noise only: not corrected
-    assert fit.without(2).shape == (3, 4) and not np.array_equal(fit.without(2), fit.matrix)
+    assert fit.without(2).shape == (3, 10) and not np.array_equal(fit.without(2), fit.matrix)
     # A fleet the correction did not see: its level error falls to the noise.
     h_new = rng.normal(0.0, 2.0, (1000, 3))
-    err_new = unc.correction_design(h_new) @ true_map.T + rng.normal(0.0, 0.1, (1000, 3))
+    err_new = unc.correction_design(h_new, curved=False) @ true_map.T + rng.normal(
+        0.0, 0.1, (1000, 3))
     h_true = h_new - err_new
     rms = np.sqrt(np.mean((unc.correct_level(h_new, fit.matrix) - h_true) ** 2, axis=0))
     assert np.all(rms[[0, 2]] < 0.12) and rms[1] == pytest.approx(0.1, rel=0.1)
-    # The change: the constant cancels, the slopes stay (the level's difference).
-    np.testing.assert_allclose(
-        unc.correct_change(h_new[5:] - h_new[0], fit.matrix),
-        unc.correct_level(h_new[5:], fit.matrix) - unc.correct_level(h_new[:1], fit.matrix),
-        atol=1e-12)
+    # The change of a straight correction: the constant cancels, its slopes stay.
+    delta = h_new[5:] - h_new[0]
+    np.testing.assert_allclose(unc.correct_change(h_new[5:], h_new[0], fit.matrix),
+                               delta - delta @ fit.matrix[:, 1:4].T, atol=1e-12)
     alone = unc.fit_level_correction(h_hat[:1000], err[:1000], fleet[:1000])
     assert np.all(alone.matrix == 0.0)
+
+
+def test_curved_level_correction_where_the_error_bends() -> None:
+    """An error that grows with the square of one estimate and with the product of two (a
+    nonlinear engine far from nominal): its row is fitted on the products too and its error on
+    a fleet the fit did not see falls to the noise, where the straight fit leaves most of
+    it; a row whose error is straight stays straight."""
+    rng = np.random.default_rng(11)
+    h_hat = rng.normal(0.0, 2.0, (6000, 3))
+    bend = 0.05 * h_hat[:, 0] ** 2 - 0.08 * h_hat[:, 1] * h_hat[:, 2]
+    err = np.c_[0.1 + bend, 0.3 * h_hat[:, 1], np.zeros(6000)] + rng.normal(0.0, 0.05,
+                                                                            (6000, 3))
+    fleet = np.repeat(np.arange(6), 1000)
+    fit = unc.fit_level_correction(h_hat, err, fleet)
+    np.testing.assert_array_equal(fit.curved, [True, False, False])
+    assert np.all(fit.matrix[1, 4:] == 0.0) and np.all(fit.matrix[2] == 0.0)
+    column = {pair: 4 + m for m, pair in enumerate(zip(*np.triu_indices(3), strict=True))}
+    assert fit.matrix[0, column[0, 0]] == pytest.approx(0.05, abs=0.005)
+    assert fit.matrix[0, column[1, 2]] == pytest.approx(-0.08, abs=0.005)
+    h_new = rng.normal(0.0, 2.0, (2000, 3))
+    bend_new = 0.05 * h_new[:, 0] ** 2 - 0.08 * h_new[:, 1] * h_new[:, 2]
+    h_true = h_new - np.c_[0.1 + bend_new, 0.3 * h_new[:, 1], np.zeros(2000)]
+    curved = unc.correct_level(h_new, fit.matrix) - h_true
+    straight = unc.correct_level(h_new, fit.matrix[:, :4]) - h_true  # the products left out
+    assert np.sqrt(np.mean(curved[:, 0] ** 2)) < 0.02
+    assert np.sqrt(np.mean(straight[:, 0] ** 2)) > 0.3
+    # The change is the calibrated level's: the products do not cancel as the slopes do.
+    np.testing.assert_allclose(
+        unc.correct_change(h_new[5:], h_new[0], fit.matrix),
+        unc.correct_level(h_new[5:], fit.matrix) - unc.correct_level(h_new[:1], fit.matrix),
+        atol=1e-12)
 
 
 def test_model_spread_follows_an_error_that_grows_away_from_nominal() -> None:
@@ -548,20 +582,30 @@ def test_calibrated_level_round_trips_and_reorders() -> None:
         names=("a", "b"), level_std=np.array([0.1, 0.2]), change_std=np.zeros(2),
         slope_error=np.zeros(2), bias2=np.zeros(2), drift=np.zeros(2),
         observable=np.array([True, True]),
-        level_correction=np.array([[0.5, 0.1, 0.2], [-0.5, 0.3, 0.4]]),
+        # columns 1, a, b, a^2, a b, b^2
+        level_correction=np.array([[0.5, 0.1, 0.2, 0.0, 0.03, 0.0],
+                                   [-0.5, 0.3, 0.4, 0.01, 0.02, 0.05]]),
         level_spread=np.array([0.01, 0.02]), filter_scale=np.array([0.9, 0.8]),
         change_scale=np.array([0.7, 0.6]))
     back = unc.Calibration.from_dict(json.loads(json.dumps(calib.to_dict())))
     for name in ("level_correction", "level_spread", "filter_scale", "change_scale"):
         np.testing.assert_array_equal(getattr(back, name), getattr(calib, name))
     on = calib.on(("b", "x", "a"))
-    np.testing.assert_array_equal(on.level_correction, [[-0.5, 0.4, 0.0, 0.3],
-                                                        [0.0, 0.0, 0.0, 0.0],
-                                                        [0.5, 0.2, 0.0, 0.1]])
+    # columns 1, b, x, a, b^2, b x, b a, x^2, x a, a^2
+    np.testing.assert_array_equal(on.level_correction,
+                                  [[-0.5, 0.4, 0.0, 0.3, 0.05, 0.0, 0.02, 0.0, 0.0, 0.01],
+                                   [0.0] * 10,
+                                   [0.5, 0.2, 0.0, 0.1, 0.0, 0.0, 0.03, 0.0, 0.0, 0.0]])
     h = np.array([[1.0, 2.0]])
     level, _ = calib.level(h, np.ones_like(h))
     reordered, _ = on.level(np.array([[2.0, 7.0, 1.0]]), np.ones((1, 3)))
-    assert reordered[0, 0] == pytest.approx(level[0, 1]) and reordered[0, 1] == 7.0
+    np.testing.assert_allclose(reordered[0, [2, 0]], level[0])
+    assert reordered[0, 1] == 7.0
+    # A straight correction stored before the products reads with them zero.
+    straight = unc.Calibration.from_dict(
+        {**calib.to_dict(), "level_correction": [[0.5, 0.1, 0.2], [-0.5, 0.3, 0.4]]})
+    np.testing.assert_array_equal(straight.level_correction,
+                                  [[0.5, 0.1, 0.2, 0.0, 0.0, 0.0], [-0.5, 0.3, 0.4, 0.0, 0.0, 0.0]])
     old = {k: v for k, v in calib.to_dict().items()
            if k not in ("level_correction", "level_spread", "filter_scale", "change_scale")}
     plain = unc.Calibration.from_dict(old)

@@ -124,7 +124,7 @@ def score(
     raw_err = st["level_err"]  # the filter's estimate against its own 1-sigma
     # What the trend shows (``trends.health.apply``): the calibrated level and change.
     levels = [calib.level(s.h_hat, s.h_sigma) for s in segs]
-    changes = [calib.change(s.h_hat - s.h_hat[0], s.h_sigma, s.h_sigma[0], s.kcycles)
+    changes = [calib.change(s.h_hat, s.h_hat[:1], s.h_sigma, s.h_sigma[0], s.kcycles)
                for s in segs]
     st["level_err"] = np.concatenate([h - s.h_true for (h, _), s in zip(levels, segs,
                                                                         strict=True)])

@@ -461,10 +461,11 @@ def fit(
                     s.h_true) for s, k in zip(segs, fleet_of, strict=True)]
     slope_hat, slope_true = slopes(segs)
     # The drift bias d = B_h r of a trend, through the correction where there is one
-    # (M (I + B_h) r - r, M = I - C[:, 1:]); no trend long enough to measure the fleet's rate
-    # on: no drift term.
+    # (M (I + B_h) r - r, M = I - C[:, 1:1 + p], the correction's straight part: its curve
+    # bends a trend by the engine's own level, which the change's s_delta holds); no trend
+    # long enough to measure the fleet's rate on: no drift term.
     rate = np.nan_to_num(slope_true)
-    M = np.eye(p) - fit.matrix[:, 1:]
+    M = np.eye(p) - fit.matrix[:, 1:1 + p]
     drift = np.where(corrected, M @ (rate + uncertainty.drift_bias(B_h, rate)) - rate,
                      uncertainty.drift_bias(B_h, rate))
     st = stack(segs, drift)
@@ -527,6 +528,7 @@ def fit(
                 "slope_scale": None if sc.scale is None else round(float(sc.scale[0]), 3),
                 "two_sigma": two_sigma,
                 "level_corrected": [n for n, c in zip(names, corrected, strict=True) if c],
+                "level_curved": [n for n, c in zip(names, fit.curved, strict=True) if c],
                 "fleet_cover1_min": [round(float(x), 3) for x in cover1.min(axis=0)],
                 "fleet_cover1_max": [round(float(x), 3) for x in cover1.max(axis=0)],
                 "fleet_cover2_min": [round(float(x), 3) for x in cover2.min(axis=0)]},

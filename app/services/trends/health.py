@@ -113,7 +113,7 @@ def apply(
             takeoff = np.arange(len(out))  # no phases: one record a cycle
         kcycles = (takeoff - takeoff[bb]) / 1000.0
         if on is not None:
-            delta, sigma = on.change(h - h[bb], f, f[bb], kcycles)
+            delta, sigma = on.change(h, h[bb], f, f[bb], kcycles)
         else:
             delta, sigma = h - h[bb], np.sqrt(np.square(f) + np.square(f[bb]))
         new_h = np.where(has[:, None], delta, np.nan)

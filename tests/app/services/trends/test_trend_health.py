@@ -173,9 +173,11 @@ CORRECTED = Calibration(
     level_std=np.array([2.0, 0.1, 0.2]), change_std=np.array([1.0, 0.05, 0.0]),
     slope_error=np.zeros(3), bias2=np.array([1.0, 0.04, 0.09]), drift=np.array([0.3, 0.02, 0.0]),
     observable=np.array([False, True, True]), bias_scale=np.array([1.0, 1.0, 0.0]),
-    level_correction=np.array([[0.0, 0.0, 0.0, 0.0],
-                               [0.3, 0.1, -0.2, 0.05],
-                               [-0.1, 0.0, 0.4, 0.0]]),
+    # Columns: 1, the three estimates, their products (fan_eff^2, fan_eff hpc_eff, fan_eff
+    # hpc_flow, hpc_eff^2, hpc_eff hpc_flow, hpc_flow^2); hpc_eff's correction is curved.
+    level_correction=np.array([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                               [0.3, 0.1, -0.2, 0.05, 0.0, 0.0, 0.0, 0.0, 0.01, 0.02],
+                               [-0.1, 0.0, 0.4, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]]),
     level_spread=np.array([0.0, 0.05, 0.02]), filter_scale=np.array([1.0, 1.0, 0.5]),
     change_scale=np.array([1.0, 0.7, 0.6]), source={"design": "test"},
 )
@@ -202,7 +204,15 @@ def test_calibrated_level_and_change_are_the_corrected_estimates(
     for j, name in enumerate(LAYOUT.health[:2]):
         k = CORRECTED.names.index(name)
         row = CORRECTED.level_correction[k]
-        fitted = row[0] + sum(row[1 + i] * by_name[n] for i, n in enumerate(CORRECTED.names))
+
+        def fitted_of(v: dict[str, np.ndarray], row: np.ndarray = row) -> np.ndarray:
+            names = CORRECTED.names
+            pairs = zip(*np.triu_indices(3), strict=True)
+            return (row[0] + sum(row[1 + i] * v[n] for i, n in enumerate(names))
+                    + sum(row[4 + m] * v[names[a]] * v[names[b]]
+                          for m, (a, b) in enumerate(pairs)))
+
+        fitted = fitted_of(by_name)
         np.testing.assert_allclose(_column(_group(level.json()), name, "value"),
                                    h[:, j] - fitted, atol=5e-4)
         sigma = np.sqrt(CORRECTED.bias_scale[k] ** 2 * CORRECTED.bias2[k]
@@ -210,10 +220,10 @@ def test_calibrated_level_and_change_are_the_corrected_estimates(
                         + CORRECTED.level_std[k] ** 2 + (CORRECTED.level_spread[k] * d) ** 2)
         np.testing.assert_allclose(_column(_group(level.json()), name, "sigma"), sigma,
                                    atol=5e-4)
-        # The change: the correction's constant cancels, its slopes stay.
-        delta = {n: v[base:SHOP_AT] - v[base] for n, v in by_name.items()}
-        expected = delta[name] - sum(row[1 + i] * delta[n]
-                                     for i, n in enumerate(CORRECTED.names))
+        # The change: the calibrated level's change (the correction's constant cancels).
+        now = {n: v[base:SHOP_AT] for n, v in by_name.items()}
+        then = {n: np.full(SHOP_AT - base, v[base]) for n, v in by_name.items()}
+        expected = (now[name] - fitted_of(now)) - (then[name] - fitted_of(then))
         np.testing.assert_allclose(_column(_group(change.json()), name, "value")[base:SHOP_AT],
                                    expected, atol=5e-4)
         g = CORRECTED.change_scale[k]
