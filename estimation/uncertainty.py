@@ -876,8 +876,10 @@ def correct_level(h_hat: np.ndarray, correction: np.ndarray) -> np.ndarray:
     zeros leaves its parameter as estimated."""
     h_hat = np.asarray(h_hat, float)
     correction = np.asarray(correction, float)
-    curved = correction.shape[-1] > 1 + h_hat.shape[-1]
-    return h_hat - correction_design(h_hat, curved) @ correction.T
+    p = h_hat.shape[-1]
+    if correction.shape[-1] > 1 + p and not np.any(correction[:, 1 + p:]):
+        correction = correction[:, :1 + p]  # no row curved: the products are not formed
+    return h_hat - correction_design(h_hat, correction.shape[-1] > 1 + p) @ correction.T
 
 
 def correct_change(h_hat: np.ndarray, h_hat0: np.ndarray, correction: np.ndarray) -> np.ndarray:
