@@ -270,7 +270,8 @@ def snapshot_filter(
         # step therefore updates only the engines up to the last one with a live snapshot
         # there (all of them unless the caller puts the shorter engines last).
         live = np.isfinite(dy_b).any(axis=2) | (scale_b != 0)  # [Bn, S]
-        ends = np.where(live.any(axis=1), S - np.argmax(live[:, ::-1], axis=1), 0)
+        ends = (np.where(live.any(axis=1), S - np.argmax(live[:, ::-1], axis=1), 0) if S
+                else np.zeros(Bn, dtype=np.int64))
         updated = np.zeros(S, dtype=np.int64)  # engines updated at each step: a prefix
         for b in np.flatnonzero(ends):
             updated[: ends[b]] = b + 1

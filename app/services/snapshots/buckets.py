@@ -243,16 +243,21 @@ class FleetChange:
             # Engine groups estimated in parallel change the same fleet periods: one
             # transaction at a time from here to its commit, or two could both insert a period.
             session.execute(select(func.pg_advisory_xact_lock(FLEET_PERIOD_LOCK, design_id)))
-        keys = list(self.delta)
+        # The rows of the changed (period, start) pairs, read with any other row of the same
+        # periods and starts (a week that starts a month): a statement of two lists, not one
+        # condition per pair.
+        periods = sorted({p for p, _t in self.delta})
+        starts = sorted({t for _p, t in self.delta})
         stored = {
-            (row.period, row.start.timestamp()): row
+            key: row
             for row in session.scalars(
                 select(FleetPeriod).where(
                     FleetPeriod.design_id == design_id,
-                    or_(*(and_(FleetPeriod.period == p, FleetPeriod.start == _time(t))
-                          for p, t in keys)),
+                    FleetPeriod.period.in_(periods),
+                    FleetPeriod.start.in_([_time(t) for t in starts]),
                 ).with_for_update()
             )
+            if (key := (row.period, row.start.timestamp())) in self.delta
         }
         for key, (dn, dsums, dsquares) in self.delta.items():
             row = stored.get(key)

@@ -237,9 +237,6 @@ def _run_part(
         # padding after the shorter ones' last records is a block the filter skips.
         row = np.empty(E, dtype=np.int64)
         row[np.argsort(-counts, kind="stable")] = np.arange(E)
-        # Slot (row, record) of each of the chunk's records, engine by engine.
-        slot_e = np.repeat(row, counts)
-        slot_j = np.arange(len(slot_e)) - np.repeat(np.cumsum(counts) - counts, counts)
         present = [(r, n) for r, n in zip(runs, counts, strict=True) if n]
         y = np.concatenate([r.y[c0 : c0 + n] for r, n in present])
         u = np.concatenate([r.u[c0 : c0 + n] for r, n in present])
@@ -248,17 +245,17 @@ def _run_part(
         g = est.schedule(np.concatenate([r.conditions[c0 : c0 + n] for r, n in present]))
         u_dev = 100.0 * (u - g.u_trim) / g.u_trim
         u_dev = np.where(np.isfinite(u_dev), u_dev, 0.0)  # a missing actuator: at trim
-        dy = np.full((E, S, ny), np.nan)
         dy_rec = snapshot_deviation(y, g.y_trim, g.G_u, u_dev)
-        dy[slot_e, slot_j] = dy_rec
-        G_y = _per_slot(g.G_y, (E, S), slot_e, slot_j, g.constant)  # the filter's layout
-        n_rec = len(slot_e)
+        n_rec = len(dy_rec)
         noise_rec = (np.broadcast_to(est.noise_std, (n_rec, ny)) if g.noise_std is None
                      else np.sqrt(g.noise_std**2 + MODEL_ERROR**2))
-        noise = np.broadcast_to(est.noise_std, (E, S, ny)).copy()
-        if g.noise_std is not None:
-            noise[slot_e, slot_j] = noise_rec
         var_rec = noise_rec**2
+        # The filter's layout [row, record] (padding: no sensor, the design's noise, no gain).
+        dy = _per_slot(dy_rec, S, row, counts, np.nan)
+        noise = (np.broadcast_to(est.noise_std, (E, S, ny)) if g.noise_std is None
+                 else _per_slot(noise_rec, S, row, counts, est.noise_std))
+        G_y = (np.broadcast_to(g.G_y[0], (E, S, *g.G_y.shape[1:])) if g.constant
+               else _per_slot(g.G_y, S, row, counts, 0.0))
         resets = np.zeros((E, S), dtype=bool)
         flights = np.zeros((E, S), dtype=bool)
         scale = np.zeros((E, S))
@@ -520,15 +517,17 @@ def _records(G: np.ndarray, rec: slice, constant: bool) -> np.ndarray:
 
 
 def _per_slot(
-    G: np.ndarray, shape: tuple[int, int], slot_e: np.ndarray, slot_j: np.ndarray,
-    constant: bool,
+    values: np.ndarray, S: int, row: np.ndarray, counts: np.ndarray, fill: float | np.ndarray,
 ) -> np.ndarray:
-    """Scheduled gains [n, a, b] of the chunk's records laid out [E, S, a, b] (padding rows
-    zero), or one gain broadcast over every slot when the schedule is constant."""
-    if constant:
-        return np.broadcast_to(G[0], (*shape, *G.shape[1:]))
-    out = np.zeros((*shape, *G.shape[1:]))
-    out[slot_e, slot_j] = G
+    """The chunk's per-record ``values`` [n, ...] (engine after engine, ``counts`` records
+    each) laid out [E, S, ...]: engine e's records at the start of row ``row[e]``, the rest
+    of the row ``fill``."""
+    out = np.empty((len(counts), S, *values.shape[1:]))
+    at = 0
+    for e, n in enumerate(counts.tolist()):
+        out[row[e], :n] = values[at : at + n]
+        out[row[e], n:] = fill
+        at += n
     return out
 
 
