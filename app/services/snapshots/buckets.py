@@ -233,8 +233,13 @@ class FleetChange:
 
     def add(self, period: str, start: float, mean: np.ndarray, sign: int) -> None:
         """One engine's period mean going in (sign +1) or out (-1)."""
-        n, sums, squares = self.delta.get((period, start), (0, 0.0 * mean, 0.0 * mean))
-        self.delta[(period, start)] = (n + sign, sums + sign * mean, squares + sign * mean**2)
+        key = (period, start)
+        got = self.delta.get(key)
+        if got is None:  # the zeros made only for a new key
+            zero = 0.0 * mean
+            got = (0, zero, zero)
+        n, sums, squares = got
+        self.delta[key] = (n + sign, sums + sign * mean, squares + sign * mean**2)
 
     def apply(self, session: Session, *, operator_id: int, design_id: int) -> None:
         if not self.delta:
