@@ -287,11 +287,13 @@ def _run_part(
         # record's products are its own stacked matrix products, whatever the records beside.
         Gz_Vp = (np.broadcast_to(g.G_z[0] @ est.Vp, (n_rec, g.G_z.shape[1], est.m))
                  if g.constant else g.G_z @ est.Vp)  # [n_rec, nz, m]
-        z_u = None
+        z_u: np.ndarray | None = None
         if g.G_zu is not None:
             G_zu = np.asarray(g.G_zu)
-            # Summed input by input: a record's value does not depend on its batch.
-            z_u = sum(G_zu[..., k] * u_dev[:, k, None] for k in range(u_dev.shape[1]))
+            # Summed input by input from zero: a record's value does not depend on its batch.
+            z_u = np.zeros((n_rec, G_zu.shape[-2]))
+            for k in range(u_dev.shape[1]):
+                z_u = z_u + G_zu[..., k] * u_dev[:, k, None]
         # The wear detector's matched filter on every record of the chunk at once (records
         # engine by engine: each engine's rows are one stretch).
         z_rec, parts_rec = _matched(est, dy_rec, var_rec, g.G_y, g.G_u,
