@@ -416,9 +416,9 @@ def shift_scan(
         first = max(depth - L, 0)  # run index of the first record with a baseline
         bases = sliding_baselines(series[: max(len(series) - GAP, 0)], N_BASE)
         # record i (run index) has history series[L + i - depth : L + i] before its append
-        k_idx = np.arange(j + first, end)
-        with_base = bases[L + first - depth : L + first - depth + len(k_idx)]
-        scan = level_scan(q[k_idx] - with_base, P[k_idx], model.H) if len(k_idx) else None
+        k0 = min(j + first, end)  # the records with a baseline: k0 ... end - 1
+        with_base = bases[L + first - depth : L + first - depth + end - k0]
+        scan = level_scan(q[k0:end] - with_base, P[k0:end], model.H) if end > k0 else None
         stop = end
         # The CUSUM and its running mean, record by record on Python floats, with the same
         # operations as ``shift_step`` (``b if b > a else a`` is ``max(a, b)``, NaN

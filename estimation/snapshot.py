@@ -263,6 +263,18 @@ def snapshot_filter(
         q_blk = q_res[c0:c1]
         innov_blk = innov[c0:c1]
         P_blk = P_res[c0:c1] if P_res is not None else None
+        # After an engine's last snapshot with a sensor present or a walk (the padding rows of
+        # an engine with fewer snapshots than the block's longest) a step leaves q and P as
+        # they are, bit for bit: P += 0 Qq, no sensor gives K = 0, and P, symmetric, is its
+        # own symmetrised value; the innovations are the NaN of the missing sensors. Each
+        # step therefore updates only the engines up to the last one with a live snapshot
+        # there (all of them unless the caller puts the shorter engines last).
+        live = np.isfinite(dy_b).any(axis=2) | (scale_b != 0)  # [Bn, S]
+        ends = (np.where(live.any(axis=1), S - np.argmax(live[:, ::-1], axis=1), 0) if S
+                else np.zeros(Bn, dtype=np.int64))
+        updated = np.zeros(S, dtype=np.int64)  # engines updated at each step: a prefix
+        for b in np.flatnonzero(ends):
+            updated[: ends[b]] = b + 1
         # A singular H P H^T + R leaves NaN (raised below, as numpy's solve raises), not a
         # warning per snapshot.
         with np.errstate(invalid="ignore"):
@@ -284,18 +296,27 @@ def snapshot_filter(
                         G = np.broadcast_to(G, (E, ny, p))[c0:c1]
                     HV = np.broadcast_to(G @ Vp, (Bn, ny, m))  # [Bn, ny, m]
                     Hm = HV * present[:, :, None]  # [Bn, ny, m]
-                P += walk_w[:, w]
-                innov_j = innov_blk[:, j]
-                np.subtract(dy_b[:, j], np.einsum("bim,bm->bi", HV, q), out=innov_j)
-                PHt = P @ Hm.transpose(0, 2, 1)  # [Bn, m, ny]
-                Sm = Hm @ PHt
-                Sm.reshape(Bn, ny * ny)[:, :: ny + 1] += var_b[:, j]  # + R on the diagonal
-                Kt = _solve(Sm, PHt.transpose(0, 2, 1))  # K^T [Bn, ny, m]
-                resid = np.where(present, innov_j, 0.0)
-                q += np.einsum("bim,bi->bm", Kt, resid)
-                P -= PHt @ Kt
-                np.add(P, P.transpose(0, 2, 1), out=sym)
-                np.multiply(0.5, sym, out=P)
+                nb = int(updated[j])
+                if nb == Bn:
+                    q_j, P_j, sym_j, walk_j = q, P, sym, walk_w[:, w]
+                    dy_j, var_j, innov_j = dy_b[:, j], var_b[:, j], innov_blk[:, j]
+                else:
+                    innov_blk[nb:, j] = dy_b[nb:, j]  # NaN - HV q is the NaN
+                    q_j, P_j, sym_j, walk_j = q[:nb], P[:nb], sym[:nb], walk_w[:nb, w]
+                    dy_j, var_j, innov_j = dy_b[:nb, j], var_b[:nb, j], innov_blk[:nb, j]
+                    HV, Hm, present = HV[:nb], Hm[:nb], present[:nb]
+                if nb:
+                    P_j += walk_j
+                    np.subtract(dy_j, np.einsum("bim,bm->bi", HV, q_j), out=innov_j)
+                    PHt = P_j @ Hm.transpose(0, 2, 1)  # [nb, m, ny]
+                    Sm = Hm @ PHt
+                    Sm.reshape(nb, ny * ny)[:, :: ny + 1] += var_j  # + R on the diagonal
+                    Kt = _solve(Sm, PHt.transpose(0, 2, 1))  # K^T [nb, ny, m]
+                    resid = np.where(present, innov_j, 0.0)
+                    q_j += np.einsum("bim,bi->bm", Kt, resid)
+                    P_j -= PHt @ Kt
+                    np.add(P_j, P_j.transpose(0, 2, 1), out=sym_j)
+                    np.multiply(0.5, sym_j, out=P_j)
                 q_blk[:, j] = q
                 if P_blk is not None:
                     P_blk[:, j] = P

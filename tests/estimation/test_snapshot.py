@@ -170,3 +170,37 @@ def test_fleet_wide_gains_restart_equals_uninterrupted_and_keeps_covariances():
     np.testing.assert_allclose(whole.q_hat, q_ref, rtol=1e-9, atol=1e-11)
     np.testing.assert_allclose(whole.P, P_ref, rtol=1e-9, atol=1e-11)
     np.testing.assert_array_equal(whole.P, np.swapaxes(whole.P, -1, -2))  # symmetric by storage
+
+
+@pytest.mark.parametrize("shorter_last", [True, False])
+def test_padding_after_an_engines_last_snapshot_leaves_its_numbers_bit_for_bit(
+    shorter_last: bool,
+) -> None:
+    """Engines of different lengths in one call, each padded after its last snapshot (no
+    sensor, no walk), the shorter ones laid out last (the steps there update only the
+    engines before them) or first: every engine's estimates, covariances and innovations
+    equal its run alone bit for bit (its 1-sigma to rounding: one GEMM over the rows), its
+    padding rows repeat its last estimate and covariance, their innovations are NaN."""
+    V, G, dy, std, scale, Qq, P0 = _case(5)
+    lengths = [12, 12, 9, 7, 7, 3, 0] if shorter_last else [0, 3, 7, 12, 7, 9, 12]
+    start = SnapshotState(np.random.default_rng(6).standard_normal((E, M)),
+                          np.broadcast_to(P0, (E, M, M)).copy())
+    for e, n in enumerate(lengths):
+        dy[e, n:] = np.nan
+        scale[e, n:] = 0.0
+    got = snapshot_filter(start, dy, G, V, Qq, std, walk_scale=scale, keep_covariance=True)
+    assert got.P is not None
+    for e, n in enumerate(lengths):
+        one = snapshot_filter(start.select([e]), dy[e : e + 1, :n], G[e : e + 1, :n], V, Qq,
+                              std, walk_scale=scale[e : e + 1, :n], keep_covariance=True)
+        assert one.P is not None
+        for mine, alone in ((got.q_hat[e, :n], one.q_hat[0]), (got.P[e, :n], one.P[0]),
+                            (got.innovation[e, :n], one.innovation[0])):
+            assert mine.tobytes() == alone.tobytes()
+        np.testing.assert_allclose(got.h_std[e, :n], one.h_std[0], rtol=1e-14, atol=0)
+        last_q = one.state.q_hat[0]
+        last_P = one.state.P[0]
+        assert (got.q_hat[e, n:] == last_q).all() and (got.P[e, n:] == last_P).all()
+        assert np.isnan(got.innovation[e, n:]).all()
+        assert got.state.q_hat[e].tobytes() == last_q.tobytes()
+        assert got.state.P[e].tobytes() == last_P.tobytes()

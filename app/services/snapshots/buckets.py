@@ -233,8 +233,13 @@ class FleetChange:
 
     def add(self, period: str, start: float, mean: np.ndarray, sign: int) -> None:
         """One engine's period mean going in (sign +1) or out (-1)."""
-        n, sums, squares = self.delta.get((period, start), (0, 0.0 * mean, 0.0 * mean))
-        self.delta[(period, start)] = (n + sign, sums + sign * mean, squares + sign * mean**2)
+        key = (period, start)
+        got = self.delta.get(key)
+        if got is None:  # the zeros made only for a new key
+            zero = 0.0 * mean
+            got = (0, zero, zero)
+        n, sums, squares = got
+        self.delta[key] = (n + sign, sums + sign * mean, squares + sign * mean**2)
 
     def apply(self, session: Session, *, operator_id: int, design_id: int) -> None:
         if not self.delta:
@@ -243,16 +248,21 @@ class FleetChange:
             # Engine groups estimated in parallel change the same fleet periods: one
             # transaction at a time from here to its commit, or two could both insert a period.
             session.execute(select(func.pg_advisory_xact_lock(FLEET_PERIOD_LOCK, design_id)))
-        keys = list(self.delta)
+        # The rows of the changed (period, start) pairs, read with any other row of the same
+        # periods and starts (a week that starts a month): a statement of two lists, not one
+        # condition per pair.
+        periods = sorted({p for p, _t in self.delta})
+        starts = sorted({t for _p, t in self.delta})
         stored = {
-            (row.period, row.start.timestamp()): row
+            key: row
             for row in session.scalars(
                 select(FleetPeriod).where(
                     FleetPeriod.design_id == design_id,
-                    or_(*(and_(FleetPeriod.period == p, FleetPeriod.start == _time(t))
-                          for p, t in keys)),
+                    FleetPeriod.period.in_(periods),
+                    FleetPeriod.start.in_([_time(t) for t in starts]),
                 ).with_for_update()
             )
+            if (key := (row.period, row.start.timestamp())) in self.delta
         }
         for key, (dn, dsums, dsquares) in self.delta.items():
             row = stored.get(key)

@@ -28,13 +28,18 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from typing import Protocol
 
-from sqlalchemy import Engine, func, select
+from sqlalchemy import Engine, text
 from sqlalchemy.orm import Session
 
 from app.services.snapshots import backlog
 
 GROUPS_PER_WORKER = 2  # smaller groups let the job and the workers even out at the end
 ENGINE_LOCK = 0x46480011  # first key of the engines' advisory locks (the second: the engine id)
+_LOCKS = text("SELECT pg_advisory_lock(:key, e) FROM unnest(CAST(:ids AS integer[])) AS t(e)")
+_TRY_LOCKS = text(
+    "SELECT e FROM unnest(CAST(:ids AS integer[])) WITH ORDINALITY AS t(e, o) "
+    "WHERE pg_try_advisory_lock(:key, e) ORDER BY o")
+_UNLOCKS = text("SELECT pg_advisory_unlock(:key, e) FROM unnest(CAST(:ids AS integer[])) AS t(e)")
 
 
 class Launcher(Protocol):
@@ -87,20 +92,30 @@ def engine_locks(bind: Engine, engine_ids: Sequence[int], *, wait: bool) -> Iter
     the work do not end them): all of them, waiting for each (``wait``), or those free now.
     Yields the engines held; released at the end, or when the process dies."""
     connection = bind.connect().execution_options(isolation_level="AUTOCOMMIT")
+    # One statement for all of them (in ascending order, as every process takes them) rather
+    # than one each.
+    wanted = sorted(int(e) for e in engine_ids)
     held: list[int] = []
     try:
-        for engine_id in sorted(engine_ids):
-            if wait:
-                connection.execute(select(func.pg_advisory_lock(ENGINE_LOCK, engine_id)))
-                held.append(engine_id)
-            elif connection.execute(
-                select(func.pg_try_advisory_lock(ENGINE_LOCK, engine_id))
-            ).scalar_one():
-                held.append(engine_id)
+        try:
+            if wait and wanted:
+                connection.execute(_LOCKS, {"key": ENGINE_LOCK, "ids": wanted})
+                held = wanted
+            elif wanted:  # those free now
+                held = [int(e) for e in connection.execute(
+                    _TRY_LOCKS, {"key": ENGINE_LOCK, "ids": wanted}).scalars()]
+        except BaseException:
+            # A statement cut short may hold some of the locks: the connection is dropped
+            # (not pooled), and its session's locks end with it.
+            connection.invalidate()
+            raise
         yield held
     finally:
         try:
-            for engine_id in held:
-                connection.execute(select(func.pg_advisory_unlock(ENGINE_LOCK, engine_id)))
+            if held:
+                connection.execute(_UNLOCKS, {"key": ENGINE_LOCK, "ids": held})
+        except BaseException:
+            connection.invalidate()
+            raise
         finally:
             connection.close()

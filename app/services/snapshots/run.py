@@ -226,7 +226,6 @@ def _run_part(
     wear_in: list[list[WearInput]] = [[] for _ in runs]
     last = [r.state.last_epoch for r in runs]
     longest = max((len(r.epoch) for r in runs), default=0)
-    s = est.layout.slices()
     E = len(runs)
     ny = len(est.sensor_columns)
     chunk = max(64, CHUNK_BYTES // (max(E, 1) * _record_bytes(est)))
@@ -234,9 +233,10 @@ def _run_part(
         c1 = min(c0 + chunk, longest)
         S = c1 - c0
         counts = np.array([max(0, min(c1, len(r.epoch)) - c0) for r in runs], dtype=np.int64)
-        # Slot (engine, record) of each of the chunk's records, engine by engine.
-        slot_e = np.repeat(np.arange(E), counts)
-        slot_j = np.arange(len(slot_e)) - np.repeat(np.cumsum(counts) - counts, counts)
+        # The filter's row of each engine: the engines with more records first, so that the
+        # padding after the shorter ones' last records is a block the filter skips.
+        row = np.empty(E, dtype=np.int64)
+        row[np.argsort(-counts, kind="stable")] = np.arange(E)
         present = [(r, n) for r, n in zip(runs, counts, strict=True) if n]
         y = np.concatenate([r.y[c0 : c0 + n] for r, n in present])
         u = np.concatenate([r.u[c0 : c0 + n] for r, n in present])
@@ -245,14 +245,17 @@ def _run_part(
         g = est.schedule(np.concatenate([r.conditions[c0 : c0 + n] for r, n in present]))
         u_dev = 100.0 * (u - g.u_trim) / g.u_trim
         u_dev = np.where(np.isfinite(u_dev), u_dev, 0.0)  # a missing actuator: at trim
-        dy = np.full((E, S, ny), np.nan)
         dy_rec = snapshot_deviation(y, g.y_trim, g.G_u, u_dev)
-        dy[slot_e, slot_j] = dy_rec
-        G_y, G_u, G_z = (_per_slot(G, (E, S), slot_e, slot_j, g.constant)
-                         for G in (g.G_y, g.G_u, g.G_z))
-        noise = np.broadcast_to(est.noise_std, (E, S, ny)).copy()
-        if g.noise_std is not None:
-            noise[slot_e, slot_j] = np.sqrt(g.noise_std**2 + MODEL_ERROR**2)
+        n_rec = len(dy_rec)
+        noise_rec = (np.broadcast_to(est.noise_std, (n_rec, ny)) if g.noise_std is None
+                     else np.sqrt(g.noise_std**2 + MODEL_ERROR**2))
+        var_rec = noise_rec**2
+        # The filter's layout [row, record] (padding: no sensor, the design's noise, no gain).
+        dy = _per_slot(dy_rec, S, row, counts, np.nan)
+        noise = (np.broadcast_to(est.noise_std, (E, S, ny)) if g.noise_std is None
+                 else _per_slot(noise_rec, S, row, counts, est.noise_std))
+        G_y = (np.broadcast_to(g.G_y[0], (E, S, *g.G_y.shape[1:])) if g.constant
+               else _per_slot(g.G_y, S, row, counts, 0.0))
         resets = np.zeros((E, S), dtype=bool)
         flights = np.zeros((E, S), dtype=bool)
         scale = np.zeros((E, S))
@@ -266,59 +269,54 @@ def _run_part(
             maint = np.zeros(n, dtype=bool)
             for t in r.maintenance:
                 maint |= (t <= epochs) & (t > prev)  # NaN prev (first record): no reset
-            resets[e, :n] = maint
-            flights[e, :n] = new_flight
+            resets[row[e], :n] = maint
+            flights[row[e], :n] = new_flight
             # A maintenance action may move the health: widen P to the fleet spread.
-            scale[e, :n] = new_flight.astype(float) + maint * (FLEET_STD / WALK_STD) ** 2
+            scale[row[e], :n] = new_flight.astype(float) + maint * (FLEET_STD / WALK_STD) ** 2
             last[e] = float(epochs[-1])
-        state = SnapshotState(
-            np.concatenate([f.q_hat for f in filt]), np.concatenate([f.P for f in filt])
-        )
+        by_row = np.argsort(row)
+        state = SnapshotState(np.concatenate([filt[e].q_hat for e in by_row]),
+                              np.concatenate([filt[e].P for e in by_row]))
         result = snapshot_filter(
             state, dy, G_y, est.vstar, est.Qq, noise, scale, keep_covariance=True
         )
         assert result.P is not None
         q_all, P_all = result.q_hat, result.P
-        Gz_Vp = (np.broadcast_to(g.G_z[0] @ est.Vp, (*G_z.shape[:-1], est.m)) if g.constant
-                 else G_z @ est.Vp)  # [E, S, nz, m]
-        values_all = np.empty((E, S, est.layout.width))
-        values_all[..., s["q"]] = q_all
-        values_all[..., s["q_sigma"]] = np.sqrt(
-            np.maximum(np.diagonal(P_all, axis1=2, axis2=3), 0.0)
-        )
-        values_all[..., s["h"]] = q_all @ est.Vp.T
-        values_all[..., s["h_sigma"]] = result.h_std
-        z_hat = (Gz_Vp @ q_all[..., None])[..., 0]
+        h_all = q_all @ est.Vp.T
+        # The estimates' other numbers from each engine's own records (no padding rows); a
+        # record's products are its own stacked matrix products, whatever the records beside.
+        Gz_Vp = (np.broadcast_to(g.G_z[0] @ est.Vp, (n_rec, g.G_z.shape[1], est.m))
+                 if g.constant else g.G_z @ est.Vp)  # [n_rec, nz, m]
+        z_u: np.ndarray | None = None
         if g.G_zu is not None:
-            z_u = np.zeros((E, S, z_hat.shape[-1]))
             G_zu = np.asarray(g.G_zu)
-            # Summed input by input: a record's value does not depend on its batch.
-            z_u[slot_e, slot_j] = sum(G_zu[..., k] * u_dev[:, k, None]
-                                      for k in range(u_dev.shape[1]))
-            z_hat = z_hat + z_u
-        values_all[..., s["z"]] = z_hat
-        z_var = ((Gz_Vp @ P_all) * Gz_Vp).sum(axis=-1)
-        values_all[..., s["z_sigma"]] = np.sqrt(np.maximum(z_var, 0.0))
-        values_all[..., s["residual"]] = result.innovation
+            # Summed input by input from zero: a record's value does not depend on its batch.
+            z_u = np.zeros((n_rec, G_zu.shape[-2]))
+            for k in range(u_dev.shape[1]):
+                z_u = z_u + G_zu[..., k] * u_dev[:, k, None]
         # The wear detector's matched filter on every record of the chunk at once (records
         # engine by engine: each engine's rows are one stretch).
-        z_rec, parts_rec = _matched(est, dy_rec, noise[slot_e, slot_j] ** 2, g.G_y, g.G_u,
+        z_rec, parts_rec = _matched(est, dy_rec, var_rec, g.G_y, g.G_u,
                                     g.constant, wear_det.candidates)
         first = np.cumsum(counts) - counts
         for e, r in enumerate(runs):
             n = int(counts[e])
             if n == 0:
                 continue
-            q = q_all[e, :n]
-            P = P_all[e, :n]
-            values = values_all[e, :n]
-            out = outputs[e]
-            records = ChunkRecords(dy[e, :n], G_y[e, :n], G_u[e, :n], noise[e, :n] ** 2)
-            dets[e] = _wssr_filled(est, dets[e], r, c0, q, P, resets[e, :n], values, out,
-                                   records)
+            i = row[e]
+            q = q_all[i, :n]
+            P = P_all[i, :n]
             rec = slice(int(first[e]), int(first[e]) + n)
+            values = _values(est, q, P, h_all[i, :n], result.h_std[i, :n],
+                             result.innovation[i, :n], Gz_Vp[rec],
+                             None if z_u is None else z_u[rec])
+            out = outputs[e]
+            records = ChunkRecords(dy_rec[rec], _records(g.G_y, rec, g.constant),
+                                   _records(g.G_u, rec, g.constant), var_rec[rec])
+            dets[e] = _wssr_filled(est, dets[e], r, c0, q, P, resets[i, :n], values, out,
+                                   records)
             wear_in[e].append(WearInput(
-                q, flights[e, :n], resets[e, :n], z_rec[rec],
+                q, flights[i, :n], resets[i, :n], z_rec[rec],
                 MatchedParts(parts_rec.num[rec], parts_rec.gram[rec])))
             packed = values.astype(VALUE_DTYPE)
             out.n_records += n
@@ -489,16 +487,49 @@ def _record_bytes(est: SnapshotEstimator) -> int:
     return 8 * per_record
 
 
-def _per_slot(
-    G: np.ndarray, shape: tuple[int, int], slot_e: np.ndarray, slot_j: np.ndarray,
-    constant: bool,
+def _values(
+    est: SnapshotEstimator, q: np.ndarray, P: np.ndarray, h: np.ndarray, h_std: np.ndarray,
+    innovation: np.ndarray, Gz_Vp: np.ndarray, z_u: np.ndarray | None,
 ) -> np.ndarray:
-    """Scheduled gains [n, a, b] of the chunk's records laid out [E, S, a, b] (padding rows
-    zero), or one gain broadcast over every slot when the schedule is constant."""
+    """One engine's records' estimate numbers [n, width] (the ``values`` block of each): q,
+    P [n, m, m] and its posterior h, h_std, innovations; Gz_Vp [n, nz, m] = G_z V*^+ and the
+    input term z_u [n, nz] (None without one) of each record's aux estimate."""
+    s = est.layout.slices()
+    values = np.empty((len(q), est.layout.width))
+    values[:, s["q"]] = q
+    values[:, s["q_sigma"]] = np.sqrt(np.maximum(np.diagonal(P, axis1=1, axis2=2), 0.0))
+    values[:, s["h"]] = h
+    values[:, s["h_sigma"]] = h_std
+    z_hat = (Gz_Vp @ q[..., None])[..., 0]
+    if z_u is not None:
+        z_hat = z_hat + z_u
+    values[:, s["z"]] = z_hat
+    z_var = ((Gz_Vp @ P) * Gz_Vp).sum(axis=-1)
+    values[:, s["z_sigma"]] = np.sqrt(np.maximum(z_var, 0.0))
+    values[:, s["residual"]] = innovation
+    return values
+
+
+def _records(G: np.ndarray, rec: slice, constant: bool) -> np.ndarray:
+    """A schedule's gains [n, a, b] of the records ``rec``, or its one gain broadcast over
+    them when the schedule is constant."""
     if constant:
-        return np.broadcast_to(G[0], (*shape, *G.shape[1:]))
-    out = np.zeros((*shape, *G.shape[1:]))
-    out[slot_e, slot_j] = G
+        return np.broadcast_to(G[0], (rec.stop - rec.start, *G.shape[1:]))
+    return G[rec]
+
+
+def _per_slot(
+    values: np.ndarray, S: int, row: np.ndarray, counts: np.ndarray, fill: float | np.ndarray,
+) -> np.ndarray:
+    """The chunk's per-record ``values`` [n, ...] (engine after engine, ``counts`` records
+    each) laid out [E, S, ...]: engine e's records at the start of row ``row[e]``, the rest
+    of the row ``fill``."""
+    out = np.empty((len(counts), S, *values.shape[1:]))
+    at = 0
+    for e, n in enumerate(counts.tolist()):
+        out[row[e], :n] = values[at : at + n]
+        out[row[e], n:] = fill
+        at += n
     return out
 
 

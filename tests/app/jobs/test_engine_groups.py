@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from sqlalchemy import select
+from sqlalchemy import select, text
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.config import Settings
@@ -308,3 +308,50 @@ def test_under_celery_the_groups_go_to_the_worker_processes_as_tasks(
     _same(_stored(factory, spread), _stored(factory, alone))
     with transaction(factory, write=False) as session:
         assert backlog.pending(session, spread) == {}
+
+
+def test_engine_locks_take_those_free_or_wait_and_leave_none_held(tmp_path: Path) -> None:
+    """The locks of a group: those free now (another process holds the rest), or all of them
+    once their holder lets go (waiting), each engine's lock held once and none left after."""
+    with live_database("postgresql", tmp_path) as (url, _factory):
+        bind = make_engine(url)
+        other = make_engine(url)
+        try:
+            def held_now() -> list[int]:
+                with bind.connect() as connection:
+                    return sorted(int(e) for e in connection.execute(text(
+                        "SELECT objid FROM pg_locks WHERE locktype = 'advisory' "
+                        "AND classid = :key AND database = (SELECT oid FROM pg_database "
+                        "WHERE datname = current_database())"),
+                        {"key": groups.ENGINE_LOCK}).scalars())
+
+            with groups.engine_locks(other, [7, 3, 5], wait=False) as first:
+                assert first == [3, 5, 7] and held_now() == [3, 5, 7]
+                with groups.engine_locks(bind, [9, 5, 2, 3], wait=False) as rest:
+                    assert rest == [2, 9]
+                    assert held_now() == [2, 3, 5, 7, 9]
+                assert held_now() == [3, 5, 7]
+            assert held_now() == []
+
+            holding, releasing = threading.Event(), threading.Event()
+
+            def hold() -> None:
+                with groups.engine_locks(other, [5, 7], wait=False) as mine:
+                    assert mine == [5, 7]
+                    holding.set()
+                    threading.Event().wait(0.3)
+                    releasing.set()
+
+            holder = threading.Thread(target=hold)
+            holder.start()
+            assert holding.wait(30)
+            with groups.engine_locks(bind, [7, 3, 5], wait=True) as all_of_them:
+                assert releasing.is_set()  # not before the holder let go
+                assert all_of_them == [3, 5, 7] and held_now() == [3, 5, 7]
+            holder.join(30)
+            assert held_now() == []
+            with groups.engine_locks(bind, [], wait=True) as none:
+                assert none == []
+        finally:
+            bind.dispose()
+            other.dispose()
