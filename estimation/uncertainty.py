@@ -576,11 +576,13 @@ def correct_slopes(slopes: np.ndarray, correction: np.ndarray) -> np.ndarray:
     return slopes - slopes @ np.asarray(correction, float).T
 
 
-# The slope correction's least squares leaves out the directions of the estimated slopes
-# below this fraction of the largest singular value: an SVD design's m tuners span all its
-# estimates, and beyond them the pieces' slopes hold only rounding (1e-8 of the largest on
-# svd:6), whose fit gave coefficients of 1e5-1e8 (bench_uncertainty).
-SLOPE_CORRECTION_RCOND = 1e-6
+# The corrections' least squares (of the slopes, of the level on its regressors scaled to unit
+# mean square) leave out the directions below this fraction of the largest singular value:
+# an SVD design's m tuners span all its estimates, and beyond them the regressors hold only
+# rounding (1e-8 of the largest on svd:6; the estimates are kept as float32), whose fit gave
+# coefficients of 1e5-1e8 (bench_uncertainty), which multiply rounding that differs between
+# the calibration and the stored estimates.
+CORRECTION_RCOND = 1e-6
 
 
 def fit_slope_correction(fleets: Sequence[TrendPieces]) -> np.ndarray:
@@ -588,7 +590,7 @@ def fit_slope_correction(fleets: Sequence[TrendPieces]) -> np.ndarray:
     "Slope correction"): row k the least-squares fit of the pieces' errors b_e,k - b_true,e,k
     on their estimated slopes b_e, each piece's row weighted by T_e^2, its weight in its
     fleet's slope (so its squared residual by T_e^4), the least-norm one over the directions
-    the slopes span (``SLOPE_CORRECTION_RCOND``); zeros without pieces."""
+    the slopes span (``CORRECTION_RCOND``); zeros without pieces."""
     pooled = TrendPieces.pooled(fleets)
     p = pooled.hat.shape[1]
     w = np.square(pooled.spans)
@@ -598,7 +600,7 @@ def fit_slope_correction(fleets: Sequence[TrendPieces]) -> np.ndarray:
         return np.zeros((p, p))
     X = w[ok, None] * pooled.hat[ok]
     Y = w[ok, None] * (pooled.hat[ok] - pooled.true[ok])
-    return np.asarray(np.linalg.lstsq(X, Y, rcond=SLOPE_CORRECTION_RCOND)[0].T)
+    return np.asarray(np.linalg.lstsq(X, Y, rcond=CORRECTION_RCOND)[0].T)
 
 
 def fit_slope_gain(hat: np.ndarray, true: np.ndarray, spans: np.ndarray,
@@ -923,7 +925,8 @@ def fit_level_correction(
 
     h_hat [N, p] and err = h_hat - h [N, p] on the calibration records, fleet [N] the
     calibration fleet of each. Row k of C is the least-squares fit of err_k on the
-    regressors of ``correction_design`` over all fleets: on [1, h_hat] (straight), or also on
+    regressors of ``correction_design`` over all fleets (the least-norm one over the
+    directions they span, ``CORRECTION_RCOND``): on [1, h_hat] (straight), or also on
     the estimates' products (curved) where that, fitted on the other fleets and scored on the
     one left out, cuts the straight fit's RMS error by at least ``min_curve_gain``. A row is
     kept where its fit so cross-validated cuts the RMS error by at least ``min_gain`` (pooled
@@ -941,9 +944,16 @@ def fit_level_correction(
         return LevelCorrection(np.zeros((p, width)), groups, np.zeros((len(groups), p, width)),
                                np.zeros(p, bool))
 
+    # The regressors at unit mean square, so that the least squares' cut of the directions the
+    # estimates do not span (``CORRECTION_RCOND``) weighs estimates and products alike.
+    scale = np.sqrt(np.mean(np.square(X[ok]), axis=0))
+    scale[scale == 0.0] = 1.0
+    Z = X / scale
+
     def fitted(rows: np.ndarray, columns: int) -> np.ndarray:  # [p, width], zero padded
         out = np.zeros((p, width))
-        out[:, :columns] = np.linalg.lstsq(X[rows, :columns], err[rows], rcond=None)[0].T
+        W = np.linalg.lstsq(Z[rows, :columns], err[rows], rcond=CORRECTION_RCOND)[0]
+        out[:, :columns] = (W / scale[:columns, None]).T
         return out
 
     left_out = {w: np.zeros((len(groups), p, width)) for w in (1 + p, width)}

@@ -537,6 +537,28 @@ def test_curved_level_correction_where_the_error_bends() -> None:
         atol=1e-12)
 
 
+def test_level_correction_of_estimates_spanning_fewer_directions_fits_no_rounding() -> None:
+    """An SVD design's estimates span its m tuners only: here three parameters from two
+    tuners, kept as float32 (as the pipeline keeps them). The correction fits what the
+    estimates carry, not their rounding: its coefficients stay of the size of the map, and it
+    corrects estimates computed in float64 from the same tuners (as stored estimates are
+    decoded) as it corrects the float32 ones it was fitted on."""
+    rng = np.random.default_rng(12)
+    V = np.array([[1.0, 0.0], [0.0, 1.0], [0.7, -0.4]])  # h = V q
+    q = rng.normal(0.0, 2.0, (6000, 2))
+    exact = q @ V.T
+    rounded = exact.astype(np.float32).astype(np.float64)
+    err = np.c_[0.1 + 0.2 * exact[:, 0] + 0.03 * exact[:, 1] ** 2, 0.3 * exact[:, 1],
+                np.zeros(6000)] + rng.normal(0.0, 0.05, (6000, 3))
+    fit = unc.fit_level_correction(rounded, err, np.repeat(np.arange(6), 1000))
+    assert fit.curved[0] and np.abs(fit.matrix).max() < 5.0
+    np.testing.assert_allclose(unc.correct_level(exact, fit.matrix),
+                               unc.correct_level(rounded, fit.matrix), atol=1e-4)
+    h_true = exact - err
+    rms = np.sqrt(np.mean((unc.correct_level(exact, fit.matrix) - h_true)[:, :2] ** 2, axis=0))
+    assert np.all(rms < 0.06)
+
+
 def test_model_spread_follows_an_error_that_grows_away_from_nominal() -> None:
     """Errors whose std grows with the record's distance from nominal, s^2 + (kappa d)^2:
     the fitted sigma holds its targets, and its spread term is what carries it (kappa > 0, the
