@@ -530,11 +530,15 @@ def test_curved_level_correction_where_the_error_bends() -> None:
     straight = unc.correct_level(h_new, fit.matrix[:, :4]) - h_true  # the products left out
     assert np.sqrt(np.mean(curved[:, 0] ** 2)) < 0.02
     assert np.sqrt(np.mean(straight[:, 0] ** 2)) > 0.3
-    # The change is the calibrated level's: the products do not cancel as the slopes do.
-    np.testing.assert_allclose(
-        unc.correct_change(h_new[5:], h_new[0], fit.matrix),
-        unc.correct_level(h_new[5:], fit.matrix) - unc.correct_level(h_new[:1], fit.matrix),
-        atol=1e-12)
+    # The change: the products do not cancel between its ends as the straight part does.
+    # Corrected at both ends, it holds the true change to the noise; the straight part alone
+    # (the products taken as cancelling) misses it as the straight level does.
+    true_change = h_true[5:] - h_true[0]
+    change = unc.correct_change(h_new[5:], h_new[0], fit.matrix) - true_change
+    delta = h_new[5:] - h_new[0]
+    straight_change = delta - delta @ fit.matrix[:, 1:4].T - true_change
+    assert np.sqrt(np.mean(change[:, 0] ** 2)) < 0.03
+    assert np.sqrt(np.mean(straight_change[:, 0] ** 2)) > 0.3
 
 
 def test_level_correction_of_estimates_spanning_fewer_directions_fits_no_rounding() -> None:
