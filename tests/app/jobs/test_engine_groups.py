@@ -41,7 +41,7 @@ from app.models.estimates import (
     FilterState,
     FleetPeriod,
 )
-from app.services.snapshots import backlog, groups
+from app.services.snapshots import backlog, groups, store
 from tests.support.fleet_fixture import add_reference_design, csv_bytes, make_fleet, reference_rows
 from tests.support.jobs import live_database, wait_until
 from tests.support.paths import ROOT
@@ -175,6 +175,52 @@ def test_engine_groups_in_pool_processes_equal_the_job_alone(
     _same(got, expected)
     with transaction(factory, write=False) as session:
         assert backlog.pending(session, spread) == {}
+
+
+def test_batches_cut_at_engines_or_new_records_and_keep_the_order(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    engines = [Engine(id=i) for i in range(1, 10)]
+    rows = {1: 300, 2: 300, 3: 900, 4: None, 5: 200, 6: 100, 8: 5000, 9: 1}  # 4, 7: unknown
+    monkeypatch.setattr(store, "BATCH_RECORDS", 1000)
+
+    def ids(cut: list[list[Engine]]) -> list[list[int]]:
+        return [[e.id for e in b] for b in cut]
+
+    # An engine over the cap is a batch of its own; an unknown count adds nothing.
+    assert ids(store.batches(engines, rows)) == [[1, 2], [3, 4], [5, 6, 7], [8], [9]]
+    monkeypatch.setattr(store, "BATCH", 2)
+    assert ids(store.batches(engines, rows)) == [[1, 2], [3, 4], [5, 6], [7], [8], [9]]
+    assert store.batches([], rows) == []
+
+
+def test_a_backlog_cut_into_batches_by_records_equals_one_batch(
+    two_fleets: tuple[str, sessionmaker[Session], int, int], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The job alone over the same upload in one batch and in several (``BATCH_RECORDS``
+    lowered): the same stored numbers."""
+    _url, factory, whole, cut = two_fleets
+    with transaction(factory) as session:
+        session.execute(Job.__table__.update().where(Job.operator_id == cut)
+                        .values(status="cancelled"))
+    _run_alone(factory)
+    with transaction(factory) as session:
+        session.execute(Job.__table__.update().where(Job.operator_id == cut)
+                        .values(status="queued"))
+    sizes: list[int] = []
+    real = store.batches
+
+    def counted(engines: Sequence[Engine], counts: dict[int, int | None]) -> list[list[Engine]]:
+        out = real(engines, counts)
+        sizes.extend(sum(counts.get(e.id) or 0 for e in b) for b in out)
+        return out
+
+    monkeypatch.setattr(store, "BATCH_RECORDS", ROWS // 4)
+    monkeypatch.setattr(store, "batches", counted)
+    _run_alone(factory)
+    assert _estimation(factory, cut).status == "succeeded"
+    assert len(sizes) >= 4 and sum(sizes) == ROWS
+    _same(_stored(factory, cut), _stored(factory, whole))
 
 
 class StuckWorker:
