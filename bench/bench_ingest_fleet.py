@@ -146,18 +146,19 @@ def raw_binary_copy(url: str, operator_id: int, fmt: str = "binary", upload_id: 
 
 
 def wait_for_jobs(engine: Any, operator_id: int, started: float) -> None:
-    """Until the operator has no queued or running job (polled every 5 ms; the upload's job
-    was queued in its transaction, so it is there once the response is)."""
-    while True:
-        with engine.connect() as connection:
-            busy = connection.execute(text(
-                "SELECT count(*) FROM jobs WHERE operator_id = :o AND status IN "
-                "('queued', 'running')"), {"o": operator_id}).scalar_one()
-        if not busy:
-            return
-        if time.perf_counter() - started > 600:
-            raise SystemExit("the estimation job did not end")
-        time.sleep(0.005)
+    """Until the operator has no queued or running job (the upload's job was queued in its
+    transaction, so it is there once the response is). Polled on one connection, every 5 ms
+    at first and then every 0.5 % of the time waited (at most 100 ms): the clock's resolution
+    stays within 0.5 %, and the polling takes little of the CPU the timed work runs on (every
+    5 ms, it took 1-2 s of CPU over a 20 s wait, on the same two cores)."""
+    busy = text("SELECT count(*) FROM jobs WHERE operator_id = :o AND status IN "
+                "('queued', 'running')")
+    with engine.connect().execution_options(isolation_level="AUTOCOMMIT") as connection:
+        while connection.execute(busy, {"o": operator_id}).scalar_one():
+            waited = time.perf_counter() - started
+            if waited > 600:
+                raise SystemExit("the estimation job did not end")
+            time.sleep(min(0.1, max(0.005, waited / 200)))
 
 
 def post_all(client: httpx.Client, bodies: list[bytes]) -> None:

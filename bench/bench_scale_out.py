@@ -40,7 +40,14 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from _common import ROOT, load_line, throwaway_database
+from _common import (
+    ROOT,
+    cpu_by_process,
+    load_line,
+    postgres_backends,
+    process_cpu,
+    throwaway_database,
+)
 
 sys.path.insert(0, str(ROOT / "bench"))
 
@@ -65,14 +72,15 @@ TARGET_SPEEDUP = 1.7
 
 
 @contextmanager
-def celery_worker(env: dict[str, str], concurrency: int) -> Iterator[None]:
-    """``fleethealth worker --concurrency N`` until the block ends (a warm shutdown)."""
+def celery_worker(env: dict[str, str], concurrency: int) -> Iterator[int]:
+    """``fleethealth worker --concurrency N`` until the block ends (a warm shutdown); yields
+    its process id."""
     command = [sys.executable, "-c", "from app.cli import main; main()", "worker",
                f"--concurrency={concurrency}"]
     worker = subprocess.Popen(command, env=env, cwd=ROOT, stdout=subprocess.DEVNULL,
                               stderr=subprocess.DEVNULL)
     try:
-        yield
+        yield worker.pid
     finally:
         worker.terminate()
         try:
@@ -104,8 +112,8 @@ def one_run(args: argparse.Namespace, plan: object, warm: pa.Table, bodies: list
         worker_env = {**os.environ, **env, "FLEETHEALTH_DATABASE_URL": url,
                       "FLEETHEALTH_DATA_DIR": args.data_dir, "FLEETHEALTH_LOG_LEVEL": "WARNING",
                       "FLEETHEALTH_LOG_JSON": "false", "OMP_NUM_THREADS": "1"}
-        with server.serving(url, Path(args.data_dir), port=args.port, env=env) as (_p, base), \
-                (celery_worker(worker_env, workers) if mode == "celery" else _nothing()):
+        with server.serving(url, Path(args.data_dir), port=args.port, env=env) as (served, base), \
+                (celery_worker(worker_env, workers) if mode == "celery" else _nothing()) as worker:
             engine = create_engine(url)
             with httpx.Client(base_url=base, timeout=3600, headers={"X-API-Key": key}) as client:
                 # Two warm-up uploads: the first may find the pool's or worker's process still
@@ -121,11 +129,13 @@ def one_run(args: argparse.Namespace, plan: object, warm: pa.Table, bodies: list
                     post_all(client, bodies)
                     upload = time.perf_counter() - t_up
                     load0 = os.getloadavg()[0]
+                    watch = CpuWatch(engine, served.pid, worker)
                     t0 = time.perf_counter()
                     hold.execute(text("SELECT pg_advisory_unlock(:k)"), {"k": SERIAL_CLAIM_LOCK})
                     hold.commit()
                 wait_for_jobs(engine, operator_id, t0)
                 took = time.perf_counter() - t0
+                cpu = watch.line()
             with engine.connect() as connection:
                 estimated = connection.execute(text(
                     "SELECT count(*) FROM estimates e JOIN engines g ON g.id = e.engine_id "
@@ -153,6 +163,7 @@ def one_run(args: argparse.Namespace, plan: object, warm: pa.Table, bodies: list
           f"{float(ran[1]):.2f} s, the warm-ups' included); load at start {load0:.2f},"
           f" at end {os.getloadavg()[0]:.2f}; {estimated - args.warm:,} estimates stored, "
           f"{waiting} marks left, {failed} job(s) not succeeded", flush=True)
+    print(f"    {cpu}", flush=True)
     total = upload + took
     print(f"    uploads stored before (claims held) in {upload:.2f} s; upload then backlog, "
           f"one after the other: {total:.2f} s, {n / total:,.0f} records/s end to end "
@@ -168,7 +179,62 @@ def one_run(args: argparse.Namespace, plan: object, warm: pa.Table, bodies: list
 
 @contextmanager
 def _nothing() -> Iterator[None]:
-    yield
+    yield None
+
+
+def machine_busy() -> float:
+    """CPU seconds the machine's cores spent busy since boot (``/proc/stat``: all but idle
+    and iowait)."""
+    fields = [int(f) for f in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:8]]
+    return (sum(fields) - fields[3] - fields[4]) / os.sysconf("SC_CLK_TCK")
+
+
+def every_process() -> dict[int, tuple[str, float]]:
+    """Name and CPU seconds (``process_cpu``) of every process on the machine."""
+    out = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            comm = stat.read_text().split("(", 1)[1].rsplit(")", 1)[0]
+        except OSError:
+            continue
+        out[int(stat.parent.name)] = (comm, process_cpu(int(stat.parent.name)))
+    return out
+
+
+class CpuWatch:
+    """CPU seconds over the timed window: the server's process tree (the job and the pool),
+    the Celery worker's tree, the database's PostgreSQL backends, this bench's own process
+    (its polling for the jobs' end), the other processes by name, and the whole machine."""
+
+    def __init__(self, engine: object, server_pid: int, worker_pid: int | None) -> None:
+        self.engine, self.pids = engine, {"server": server_pid, "celery": worker_pid}
+        self.start = self._read()
+
+    def _read(self) -> dict[str, dict[int, float]]:
+        trees = {role: cpu_by_process(pid) for role, pid in self.pids.items() if pid}
+        return {**trees, "postgres": {b: process_cpu(b) for b in postgres_backends(self.engine)},
+                "bench": {os.getpid(): process_cpu(os.getpid())},
+                "all": {p: c for p, (_n, c) in every_process().items()},
+                "machine": {0: machine_busy()}}
+
+    def line(self) -> str:
+        names = {p: n for p, (n, _c) in every_process().items()}
+        end = self._read()
+        spent = {role: sum(c - self.start.get(role, {}).get(p, 0.0) for p, c in procs.items())
+                 for role, procs in end.items() if role not in ("all", "machine")}
+        known = {p for role, procs in end.items() if role not in ("all", "machine")
+                 for p in procs}
+        others: dict[str, float] = {}
+        for p, c in end["all"].items():
+            if p not in known:
+                name = names.get(p, "?")
+                others[name] = others.get(name, 0.0) + c - self.start["all"].get(p, 0.0)
+        machine = end["machine"][0] - self.start["machine"][0]
+        gone = machine - sum(spent.values()) - sum(others.values())
+        top = sorted(others.items(), key=lambda kv: -kv[1])[:4]
+        return ("CPU s in the window: " + ", ".join(f"{k} {v:.1f}" for k, v in spent.items())
+                + "; other processes " + ", ".join(f"{n} {c:.1f}" for n, c in top)
+                + f"; processes that ended, and the kernel's own {gone:.1f}; machine {machine:.1f}")
 
 
 def _busy(n: int = 3_000_000) -> int:
