@@ -27,6 +27,7 @@ parallel by other processes (``catch_up``, ``groups``; docs/jobs.md).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 from datetime import UTC, datetime
 from typing import Any
@@ -171,23 +172,26 @@ def _active_designs(
 
 
 BATCH = 256  # engines filtered together (and committed together by a job)
-# ... and at most about this many new records in a batch: a batch's records are in memory at
-# once, and the filter's steps over many engines' long backlogs run slower in arrays that big
-# (one batch of 2,000,000 records took 12 % more CPU than four of 500,000).
+# ... and about this many new records at most: a batch's records are in memory at once, and
+# the filter's steps over many engines' long backlogs run slower in arrays that big (one batch
+# of 2,000,000 records took 12 % more CPU than four of 500,000).
 BATCH_RECORDS = 500_000
 
 
 def batches(
     engines: Sequence[Engine], new_records: Mapping[int, int | None]
 ) -> list[list[Engine]]:
-    """``engines`` in order, cut into batches of at most ``BATCH`` engines and, beyond their
-    first engine, ``BATCH_RECORDS`` new records (``new_records``: an engine's count; unknown
-    when absent or None, and counted as none)."""
+    """``engines`` in order, cut into batches of at most ``BATCH`` engines and of about equal
+    new records, as few as keep each at about ``BATCH_RECORDS`` or less (no small batch left
+    at the end). ``new_records``: an engine's count; unknown when absent or None, and then
+    counted as none. An engine goes into the current batch unless its middle record would
+    pass the batch's share."""
+    counts = [new_records.get(e.id) or 0 for e in engines]
+    share = sum(counts) / max(1, math.ceil(sum(counts) / BATCH_RECORDS))
     out: list[list[Engine]] = []
     records = 0
-    for engine in engines:
-        n = new_records.get(engine.id) or 0
-        if not out or len(out[-1]) >= BATCH or records + n > BATCH_RECORDS:
+    for engine, n in zip(engines, counts, strict=True):
+        if not out or len(out[-1]) >= BATCH or (records and records + n / 2 > share):
             out.append([])
             records = 0
         out[-1].append(engine)

@@ -190,8 +190,15 @@ def test_batches_cut_at_engines_or_new_records_and_keep_the_order(
     # An engine over the cap is a batch of its own; an unknown count adds nothing.
     assert ids(store.batches(engines, rows)) == [[1, 2], [3, 4], [5, 6, 7], [8], [9]]
     monkeypatch.setattr(store, "BATCH", 2)
-    assert ids(store.batches(engines, rows)) == [[1, 2], [3, 4], [5, 6], [7], [8], [9]]
+    assert ids(store.batches(engines, rows)) == [[1, 2], [3, 4], [5, 6], [7, 8], [9]]
     assert store.batches([], rows) == []
+    # Seven of 300 under a cap of 2,000: two batches of about 1,050, not 1,800 and 300.
+    monkeypatch.setattr(store, "BATCH", 256)
+    monkeypatch.setattr(store, "BATCH_RECORDS", 2000)
+    even = {i: 300 for i in range(1, 8)}
+    assert ids(store.batches(engines[:7], even)) == [[1, 2, 3, 4], [5, 6, 7]]
+    monkeypatch.setattr(store, "BATCH", 2)
+    assert ids(store.batches(engines[:3], {})) == [[1, 2], [3]]  # counts unknown: BATCH
 
 
 def test_a_backlog_cut_into_batches_by_records_equals_one_batch(
