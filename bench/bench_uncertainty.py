@@ -26,6 +26,7 @@ over calibration draws as well.
     .venv/bin/python bench/bench_uncertainty.py                       # 8 aircraft, a year
     .venv/bin/python bench/bench_uncertainty.py --aircraft 12 --designs svd:8+bias
     .venv/bin/python bench/bench_uncertainty.py --designs subset:10 --rotations 200
+    .venv/bin/python bench/bench_uncertainty.py --designs subset:10 --actuators
 """
 
 from __future__ import annotations
@@ -160,6 +161,9 @@ def main() -> None:
     ap.add_argument("--designs", default=",".join(DESIGNS))
     ap.add_argument("--cache", type=Path, default=Path("/tmp/fh/cache"))
     ap.add_argument("--json", type=Path, default=None, help="write the calibrations here")
+    ap.add_argument("--actuators", action="store_true",
+                    help="also measure how much of each level's error is the engines' actuator "
+                         "biases (rigging), over the scoring fleets")
     args = ap.parse_args()
 
     sched = engine_schedule(args.cache)
@@ -233,6 +237,8 @@ def main() -> None:
         print(f"fleet-average slopes over the {len(test_seeds)} scoring fleets (1-sigma with the "
               "gain's standard error; the peer: without it):")
         print(slope_coverage(calib.names, slope_rows))
+        if args.actuators:
+            print(health_uncertainty.actuator_share(est, test_fleets).report())
         if args.rotations:
             pieces = [calibration.trend_pieces(calibration.tracks(est, *f))
                       for f in cal_fleets + test_fleets]

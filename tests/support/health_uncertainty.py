@@ -27,6 +27,7 @@ from app.services.designs import calibration
 from app.services.snapshots.estimator import SnapshotEstimator
 from estimation import uncertainty
 from estimation.engine.fleet import FleetPlan, Snapshots
+from estimation.engine.health import ACTUATOR_BIASES, HEALTH_NAMES
 from tests.support import health_accuracy
 
 PRIOR_VAR = calibration.PRIOR_VAR
@@ -154,3 +155,66 @@ def score(
         slope_true=slope_true, slope_shown=slope_shown,
         records=int(st["level_err"].shape[0]), segments=len(segs), pieces=len(pieces.spans),
     )
+
+
+@dataclass(frozen=True)
+class ActuatorShare:
+    """How much of each level's error is the engines' actuator biases (Wf, VSV, VBV rigging:
+    fixed per engine in the simulator) that a design without bias tuners cannot estimate.
+    Per engine, the mean over its settled records of the estimate and of its error; per
+    parameter [p], the RMS over engines of that error once a straight fit on the engine's
+    mean estimates is taken out (what a straight level correction leaves), and once a fit on
+    the estimates and the true biases is (all biases, then each alone). Every fit is made on
+    the other fleets (leave one fleet out)."""
+
+    names: tuple[str, ...]
+    biases: tuple[str, ...]
+    engines: int
+    rms: np.ndarray  # [p]
+    rms_without: np.ndarray  # [p, 1 + len(biases)]
+
+    def report(self) -> str:
+        head = ", ".join(("all", *self.biases))
+        lines = [f"level error per engine (mean over its settled records, {self.engines} "
+                 "engines), RMS [%] after a straight correction on the estimates -> on the "
+                 f"estimates and the true actuator biases ({head}); fitted leaving the "
+                 "engine's fleet out:"]
+        for k, n in enumerate(self.names):
+            rest = " / ".join(f"{v:.3f}" for v in self.rms_without[k])
+            share = 1.0 - (self.rms_without[k, 0] / self.rms[k]) ** 2
+            lines.append(f"  {n:10s} {self.rms[k]:.3f} -> {rest}  ({share:.0%} of what the "
+                         "correction leaves is the biases')")
+        return "\n".join(lines)
+
+
+def actuator_share(
+    est: SnapshotEstimator, fleets: list[tuple[FleetPlan, Snapshots]],
+) -> ActuatorShare:
+    """``ActuatorShare`` of ``est`` over ``fleets`` (at least two)."""
+    cols = [HEALTH_NAMES.index(b) for b in ACTUATOR_BIASES]
+    fleet_of, means, errors, biases = [], [], [], []
+    for f, (plan, snaps) in enumerate(fleets):
+        for t in health_accuracy.tracks(est, plan, snaps):
+            ok = t.settled
+            if not ok.any():
+                continue
+            means.append(t.h_hat[ok].mean(axis=0))
+            errors.append((t.h_hat[ok] - t.h_true[ok]).mean(axis=0))
+            biases.append(plan.health[t.round[ok], plan.esns.index(t.esn)][:, cols].mean(axis=0))
+            fleet_of.append(f)
+    h, err, b, fl = np.array(means), np.array(errors), np.array(biases), np.array(fleet_of)
+
+    def left(x: np.ndarray) -> np.ndarray:
+        """RMS [p] of what a fit of the errors on [1, x], made on the other fleets, leaves."""
+        x = np.c_[np.ones(len(x)), x]
+        rest = np.empty_like(err)
+        for f in np.unique(fl):
+            out = fl == f
+            coef, *_ = np.linalg.lstsq(x[~out], err[~out], rcond=None)
+            rest[out] = err[out] - x[out] @ coef
+        return np.sqrt(np.mean(rest**2, axis=0))
+
+    picks = [list(range(len(cols)))] + [[c] for c in range(len(cols))]
+    return ActuatorShare(
+        names=tuple(est.layout.health), biases=tuple(ACTUATOR_BIASES), engines=len(err),
+        rms=left(h), rms_without=np.stack([left(np.c_[h, b[:, p]]) for p in picks], axis=1))
