@@ -4,12 +4,12 @@
 // engineering-unit performance, fault hypotheses, operating condition).
 
 const HEALTH = [
-  ["fan_eff", "Fan efficiency", "Fan isentropic efficiency scalar: change from the nominal engine; negative is deterioration."],
+  ["fan_eff", "Fan efficiency", "Fan isentropic efficiency scalar: change from the nominal engine; negative is deterioration. A fuel-metering offset reads as fan efficiency (about 60 % of what is left of its level's error on the built-in engine, with a design that has no bias tuners)."],
   ["fan_flow", "Fan flow capacity", "Fan corrected-flow scalar: negative is deterioration (fouling, erosion)."],
   ["lpc_eff", "LPC efficiency", "Low-pressure compressor (booster) efficiency scalar."],
   ["lpc_flow", "LPC flow capacity", "Low-pressure compressor corrected-flow scalar."],
   ["hpc_eff", "HPC efficiency", "High-pressure compressor efficiency scalar; a water wash recovers part of its loss."],
-  ["hpc_flow", "HPC flow capacity", "High-pressure compressor corrected-flow scalar."],
+  ["hpc_flow", "HPC flow capacity", "High-pressure compressor corrected-flow scalar. The gas-path sensors cannot tell it from the engine's VSV rigging: on the built-in engine, with a design that has no bias tuners, rigging offsets are about 70 % of what is left of its level's error, so read its change since the baseline rather than its level, and expect a step where VSVs were re-rigged."],
   ["hpt_eff", "HPT efficiency", "High-pressure turbine efficiency scalar."],
   ["hpt_flow", "HPT flow capacity", "High-pressure turbine flow scalar: erosion raises it (positive is deterioration)."],
   ["lpt_eff", "LPT efficiency", "Low-pressure turbine efficiency scalar."],
