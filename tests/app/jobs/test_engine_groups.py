@@ -144,6 +144,17 @@ def _run_alone(factory: sessionmaker[Session]) -> None:
     run_pending(factory)
 
 
+def _first_alone(factory: sessionmaker[Session], later: int) -> None:
+    """Run every queued job alone but those of operator ``later``, which stay queued."""
+    with transaction(factory) as session:
+        session.execute(Job.__table__.update().where(Job.operator_id == later)
+                        .values(status="cancelled"))
+    _run_alone(factory)
+    with transaction(factory) as session:
+        session.execute(Job.__table__.update().where(Job.operator_id == later)
+                        .values(status="queued"))
+
+
 def test_engine_groups_in_pool_processes_equal_the_job_alone(
     two_fleets: tuple[str, sessionmaker[Session], int, int], tmp_path: Path
 ) -> None:
@@ -152,13 +163,7 @@ def test_engine_groups_in_pool_processes_equal_the_job_alone(
     try:
         pool.start(wait=True)
         # The first operator's job alone; the second's spread over the job and a pool process.
-        with transaction(factory) as session:
-            session.execute(Job.__table__.update().where(Job.operator_id == spread)
-                            .values(status="cancelled"))
-        _run_alone(factory)
-        with transaction(factory) as session:
-            session.execute(Job.__table__.update().where(Job.operator_id == spread)
-                            .values(status="queued"))
+        _first_alone(factory, spread)
         groups.configure(pool)
         run_pending(factory)
     finally:
@@ -207,13 +212,7 @@ def test_a_backlog_cut_into_batches_by_records_equals_one_batch(
     """The job alone over the same upload in one batch and in several (``BATCH_RECORDS``
     lowered): the same stored numbers."""
     _url, factory, whole, cut = two_fleets
-    with transaction(factory) as session:
-        session.execute(Job.__table__.update().where(Job.operator_id == cut)
-                        .values(status="cancelled"))
-    _run_alone(factory)
-    with transaction(factory) as session:
-        session.execute(Job.__table__.update().where(Job.operator_id == cut)
-                        .values(status="queued"))
+    _first_alone(factory, cut)
     sizes: list[int] = []
     real = store.batches
 
@@ -262,13 +261,7 @@ def test_a_worker_killed_holding_its_engines_loses_nothing(
     two_fleets: tuple[str, sessionmaker[Session], int, int], tmp_path: Path
 ) -> None:
     url, factory, alone, spread = two_fleets
-    with transaction(factory) as session:
-        session.execute(Job.__table__.update().where(Job.operator_id == spread)
-                        .values(status="cancelled"))
-    _run_alone(factory)
-    with transaction(factory) as session:
-        session.execute(Job.__table__.update().where(Job.operator_id == spread)
-                        .values(status="queued"))
+    _first_alone(factory, spread)
     stuck = StuckWorker(url)
     groups.configure(stuck)
     job_thread = threading.Thread(target=run_pending, args=(factory,))
@@ -323,13 +316,7 @@ def test_under_celery_the_groups_go_to_the_worker_processes_as_tasks(
             pytest.fail(f"CI must run the Celery tests, but {reason}")
         pytest.skip(reason)
     url, factory, alone, spread = two_fleets
-    with transaction(factory) as session:
-        session.execute(Job.__table__.update().where(Job.operator_id == spread)
-                        .values(status="cancelled"))
-    _run_alone(factory)
-    with transaction(factory) as session:
-        session.execute(Job.__table__.update().where(Job.operator_id == spread)
-                        .values(status="queued"))
+    _first_alone(factory, spread)
     job_id = _estimation(factory, spread).id
     queue = f"fleethealth-test-{uuid.uuid4().hex[:12]}"
     env = {**os.environ, "FLEETHEALTH_DATABASE_URL": url, "FLEETHEALTH_REDIS_URL": broker,
