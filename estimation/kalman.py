@@ -223,6 +223,61 @@ class StreamEstimate(NamedTuple):
     z_hat: np.ndarray
 
 
+class FilterTerms(NamedTuple):
+    """A constant gain's products that the recursion of ``filter_stream_states`` uses, formed
+    once (``filter_terms``) for row vectors: Phi^T = ((I - K C) A)^T, K^T, and with inputs
+    (K D)^T and ((I - K C) B)^T."""
+
+    PhiT: np.ndarray
+    KT: np.ndarray
+    KDT: np.ndarray | None
+    IKCBT: np.ndarray | None
+
+
+def filter_terms(
+    A: np.ndarray, C: np.ndarray, K: np.ndarray, B: np.ndarray | None = None,
+    D: np.ndarray | None = None,
+) -> FilterTerms:
+    """``FilterTerms`` of gain K on (A, C) and, given B (and D), of the inputs."""
+    n = A.shape[0]
+    A = check_shape("A", A, (n, n))
+    ny = np.shape(C)[0]
+    C = check_shape("C", C, (ny, n))
+    K = check_shape("K", K, (n, ny))
+    I_KC = np.eye(n) - K @ C
+    if B is None:
+        return FilterTerms((I_KC @ A).T, K.T, None, None)
+    nu = np.shape(B)[1]
+    B = check_shape("B", B, (n, nu))
+    D = check_shape("D", D, (ny, nu))
+    return FilterTerms((I_KC @ A).T, K.T, (K @ D).T, (I_KC @ B).T)
+
+
+def input_terms(
+    terms: FilterTerms, y: np.ndarray, u: np.ndarray | None, u_prev: np.ndarray | None,
+) -> np.ndarray:
+    """The terms of the recursion that do not depend on x_hat, for all steps:
+    K (y[k] - D u[k]) + (I - K C) B u[k-1] [n_steps, n_engines, n].
+    y [n_steps, n_engines, ny] (time-major, checked by the caller)."""
+    T, E, _ny = y.shape
+    out = y @ terms.KT  # K y[k] for all steps, [T, E, n]
+    if u is not None:
+        if terms.KDT is None or terms.IKCBT is None:
+            raise DimensionError("inputs u need the terms of B and D (filter_terms)")
+        u = np.asarray(u, float)
+        nu = terms.IKCBT.shape[0]
+        if u.shape != (T, E, nu):
+            raise DimensionError(
+                f"u must be [n_steps, n_engines, n_inputs] = ({T}, {E}, {nu}), found {u.shape}"
+            )
+        out -= u @ terms.KDT
+        drive = u @ terms.IKCBT  # applies at the next step
+        out[1:] += drive[:-1]
+        if u_prev is not None:  # [nu] or [n_engines, nu]: broadcast over the engines
+            out[0] += np.asarray(u_prev, float) @ terms.IKCBT
+    return out
+
+
 def stream_input_terms(
     A: np.ndarray,
     C: np.ndarray,
@@ -233,31 +288,26 @@ def stream_input_terms(
     D: np.ndarray | None,
     u_prev: np.ndarray | None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The terms of ``filter_stream_states`` that do not depend on x_hat, for all steps:
-    K (y[k] - D u[k]) + (I - K C) B u[k-1] [n_steps, n_engines, n], and Phi^T = ((I - K C) A)^T.
-    y [n_steps, n_engines, ny] (time-major, checked by the caller)."""
-    T, E, ny = y.shape
-    n = A.shape[0]
-    C = check_shape("C", C, (ny, n))
-    K = check_shape("K", K, (n, ny))
-    I_KC = np.eye(n) - K @ C
-    PhiT = (I_KC @ A).T
-    out = y @ K.T  # K y[k] for all steps, [T, E, n]
-    if u is not None:
-        u = np.asarray(u, float)
-        nu = u.shape[-1]
-        if u.shape != (T, E, nu):
-            raise DimensionError(
-                f"u must be [n_steps, n_engines, n_inputs] = ({T}, {E}, nu), found {u.shape}"
-            )
-        B = check_shape("B", B, (n, nu))
-        D = check_shape("D", D, (ny, nu))
-        out -= u @ (K @ D).T
-        drive = u @ (I_KC @ B).T  # applies at the next step
-        out[1:] += drive[:-1]
-        if u_prev is not None:
-            out[0] += np.broadcast_to(np.asarray(u_prev, float), (E, nu)) @ (I_KC @ B).T
-    return out, PhiT
+    """``input_terms`` of gain K, and Phi^T."""
+    if np.shape(C)[0] != y.shape[2]:
+        check_shape("C", C, (y.shape[2], np.shape(A)[0]))
+    terms = filter_terms(A, C, K, *((B, D) if u is not None else ()))
+    return input_terms(terms, y, u, u_prev), terms.PhiT
+
+
+def run_filter_terms(
+    terms: FilterTerms, y: np.ndarray, u: np.ndarray | None = None,
+    x0: np.ndarray | None = None, u_prev: np.ndarray | None = None,
+) -> np.ndarray:
+    """``filter_stream_states`` with the gain's terms formed beforehand (a gain used for many
+    short runs forms them once)."""
+    out = input_terms(terms, y, u, u_prev)
+    PhiT = terms.PhiT
+    if x0 is not None:  # [n] or [n_engines, n]: broadcast over the engines (default 0)
+        out[0] += np.asarray(x0, float) @ PhiT
+    for k in range(1, out.shape[0]):
+        out[k] += out[k - 1] @ PhiT
+    return out
 
 
 def filter_stream_states(
@@ -290,15 +340,10 @@ def filter_stream_states(
         raise DimensionError(
             f"y must be [n_steps, n_engines, n_sensors] (time-major), found shape {y.shape}"
         )
-    T, E, ny = y.shape
-    n = A.shape[0]
-    A = check_shape("A", A, (n, n))
-    out, PhiT = stream_input_terms(A, C, K, y, u, B, D, u_prev)
-    x_prev = np.zeros((E, n)) if x0 is None else np.broadcast_to(np.asarray(x0, float), (E, n))
-    out[0] += x_prev @ PhiT
-    for k in range(1, T):
-        out[k] += out[k - 1] @ PhiT
-    return out
+    if np.shape(C)[0] != y.shape[2]:
+        check_shape("C", C, (y.shape[2], np.shape(A)[0]))
+    terms = filter_terms(A, C, K, *((B, D) if u is not None else ()))
+    return run_filter_terms(terms, y, u, x0, u_prev)
 
 
 def filter_stream(

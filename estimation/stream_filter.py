@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from estimation.errors import UnobservableDesignError
-from estimation.kalman import filter_stream_states, steady_state_gain
+from estimation.kalman import FilterTerms, filter_terms, run_filter_terms, steady_state_gain
 from estimation.model import LinearModel
 from estimation.reduced import reduced_model
 
@@ -38,6 +38,12 @@ class SegmentGain:
     # Transient bias compensation (docs/math.md section 7): the gain of each transient-index
     # region (-1, +1) with R_b in place of R; empty without a bias model.
     region_gains: Mapping[int, np.ndarray] = field(default_factory=dict)
+    # The recursion's products of K (``kalman.filter_terms``), formed once for the many short
+    # runs a gain serves (a live upload's chunk of a few samples).
+    terms: FilterTerms = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "terms", filter_terms(self.A, self.C, self.K, self.B, self.D))
 
 
 def resample(model: LinearModel, dt: float) -> LinearModel:
@@ -108,8 +114,8 @@ def filter_run(g: SegmentGain, ys: np.ndarray, us: np.ndarray, x_prev: np.ndarra
     missing = np.isnan(ys).any(axis=1)
     L = ys.shape[0]
     if not missing.any():
-        return filter_stream_states(g.A, g.C, g.K, ys[:, None, :], u=us[:, None, :], B=g.B,
-                                    D=g.D, x0=x_prev, u_prev=u_prev)[:, 0, :]
+        return run_filter_terms(g.terms, ys[:, None, :], us[:, None, :], x_prev,
+                                u_prev)[:, 0, :]
     x = np.empty((L, g.A.shape[0]))
     k = 0
     while k < L:
@@ -119,7 +125,7 @@ def filter_run(g: SegmentGain, ys: np.ndarray, us: np.ndarray, x_prev: np.ndarra
             continue
         rest = missing[k:]
         e = k + int(np.argmax(rest)) if rest.any() else L
-        x[k:e] = filter_stream_states(g.A, g.C, g.K, ys[k:e, None, :], u=us[k:e, None, :],
-                                      B=g.B, D=g.D, x0=x_prev, u_prev=u_prev)[:, 0, :]
+        x[k:e] = run_filter_terms(g.terms, ys[k:e, None, :], us[k:e, None, :], x_prev,
+                                  u_prev)[:, 0, :]
         x_prev, u_prev, k = x[e - 1], us[e - 1], e
     return x

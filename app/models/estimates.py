@@ -494,7 +494,7 @@ class EstimateLayout:
 
     @property
     def width(self) -> int:
-        return sum(len(self.names(group)) for _block, group in BLOCKS)
+        return self.slices()["wssr"].stop  # the last block's end
 
     def slices(self) -> dict[str, slice]:
         cached = self.__dict__.get("_slices")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from estimation.stream_filter import filter_run, segment_gain
@@ -34,3 +36,37 @@ def test_a_segment_whose_tuners_are_unobservable_runs_on_the_prediction_alone() 
         u_prev = us[k]
     np.testing.assert_allclose(x, expected, rtol=1e-12, atol=1e-12)
     np.testing.assert_array_equal(x[:, 2:], np.broadcast_to(x0[2:], (50, n - 2)))
+
+
+def test_a_gains_run_follows_the_textbook_filter_and_its_own_gain_after_replace() -> None:
+    """``filter_run`` (the products of K formed once with the gain) gives the textbook
+    prediction-correction recursion sample by sample, a missing sample included; a gain made
+    from another by ``replace`` forms its own products (a zero gain predicts only)."""
+    model = reference_model()
+    noise = reference_noise(model)
+    vstar = svd_vstar(model, 4)
+    Vp = np.linalg.solve(vstar @ vstar.T, vstar).T
+    g = segment_gain(model, vstar, Vp, noise["Q"], noise["Qh"], model.dt)
+    rng = np.random.default_rng(7)
+    n = g.A.shape[0]
+    x0, u0 = rng.normal(size=n), rng.normal(size=model.n_inputs)
+    ys = rng.normal(size=(40, model.n_sensors))
+    us = rng.normal(size=(40, model.n_inputs))
+    ys[17, 3] = np.nan  # not a measurement: the prediction alone there
+
+    def textbook(K: np.ndarray) -> np.ndarray:
+        out, x_prev, u_prev = np.empty((40, n)), x0, u0
+        for k in range(40):
+            pred = g.A @ x_prev + g.B @ u_prev
+            if not np.isnan(ys[k]).any():
+                pred = pred + K @ (ys[k] - g.C @ pred - g.D @ us[k])
+            out[k] = x_prev = pred
+            u_prev = us[k]
+        return out
+
+    np.testing.assert_allclose(filter_run(g, ys, us, x0, u0), textbook(g.K),
+                               rtol=1e-10, atol=1e-12)
+    still = replace(g, K=np.zeros_like(g.K))
+    assert not still.terms.KT.any()
+    np.testing.assert_allclose(filter_run(still, ys, us, x0, u0), textbook(still.K),
+                               rtol=1e-12, atol=1e-12)

@@ -89,8 +89,8 @@ def filter_piece(
         else:
             x = filter_run(g, ys, us, x_prev, u_prev)
         # Innovation dy - C x_pred - D du with x_pred = A x_hat[k-1] + B du[k-1].
-        xp = np.vstack([x_prev[None, :], x[:-1]])
-        up = np.vstack([u_prev[None, :], us[:-1]])
+        xp, up = np.empty_like(x), np.empty_like(us)
+        xp[0], xp[1:], up[0], up[1:] = x_prev, x[:-1], u_prev, us[:-1]
         pred = xp @ g.A.T + up @ g.B.T
         q = x[:, nx:]
         rows[i:j, sl["q"]] = q
