@@ -494,7 +494,7 @@ class EstimateLayout:
 
     @property
     def width(self) -> int:
-        return self.slices()["wssr"].stop  # the last block's end
+        return self.slices()[BLOCKS[-1][0]].stop  # the last block's end
 
     def slices(self) -> dict[str, slice]:
         cached = self.__dict__.get("_slices")

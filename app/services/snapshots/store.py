@@ -609,7 +609,7 @@ def catch_up(
             result = estimate_engines(
                 session, operator_id, {e: m.earliest for e, m in work.items()}, progress,
                 commit=commit, from_backlog=True,
-            new_records={e: m.rows for e, m in work.items()},
+                new_records={e: m.rows for e, m in work.items()},
             )
         totals["passes"] += 1
         for key in COUNTS:
