@@ -22,6 +22,11 @@ machine caps what any second process can buy (Linux shares CPU time between sess
 processes, when the cores are busy): ``headroom`` measures that cap with a pure-Python control
 before and after each mode's runs, to read the speed-up against.
 
+Each run also prints the CPU seconds of the timed window by role (``CpuWatch``): the server's
+process tree (the job, the pool), the Celery worker's tree, the database's PostgreSQL backends,
+this bench's own process, the other processes by name (PostgreSQL's background writers among
+them) and the whole machine: what two cores have to give for the backlog.
+
 BLAS and OpenMP run one thread (bench/_common.py) in every process.
 
     .venv/bin/python bench/bench_scale_out.py --redis-db N [--rows 100000] [--modes pool,celery]
