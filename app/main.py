@@ -139,8 +139,10 @@ def create_app(
     install_request_logging(app)
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
     # Pages, scripts and JSON trends compressed for browsers that accept gzip (plotly.js comes
-    # compressed already, so the middleware leaves it as it is).
-    app.add_middleware(GZipMiddleware, minimum_size=1024, compresslevel=6)
+    # compressed already, so the middleware leaves it as it is). Level 1: an engine's trend
+    # (790 kB of JSON) compresses to 34 % in 5 ms; level 6 gets 29 % in 30 ms, a cost every
+    # page load pays, for 45 kB fewer (4 ms on a 100 Mbit/s link).
+    app.add_middleware(GZipMiddleware, minimum_size=1024, compresslevel=1)
 
     app.include_router(health.router)
     app.include_router(me.router)

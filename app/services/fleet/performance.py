@@ -29,16 +29,14 @@ from __future__ import annotations
 import functools
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from datetime import UTC, datetime
 
 import numpy as np
 from scipy import signal
-from sqlalchemy import Float, cast, func, select
 from sqlalchemy.orm import Session
 
-from app.models import Snapshot
 from app.models.estimates import EstimateLayout
-from app.services.snapshots import egt
+from app.services.snapshots import egt, rows
 from app.services.snapshots.estimator import MEASURED_COLUMNS, schedule_trims
 from estimation.engine.atmosphere import flight_condition
 from estimation.engine.schedule import EngineSchedule
@@ -218,48 +216,34 @@ def nominal_margin_c(schedule: EngineSchedule, egt_redline_c: float) -> float:
     return egt_redline_c - type_reference(schedule).egt_reference_c
 
 
-def _snapshot_epoch(session: Session) -> Any:
-    column = Snapshot.__table__.c.recorded_at
-    if session.get_bind().dialect.name == "sqlite":
-        return (func.julianday(column) - 2440587.5) * 86400.0
-    return cast(func.extract("epoch", column), Float)
-
-
 def record_conditions(
     session: Session, engine_id: int, epoch: np.ndarray
 ) -> RecordConditions:
     """The snapshot of each estimate (engine, time) [n]: condition and measured sensors (NaN
-    where no snapshot matches or a value is missing)."""
+    where no snapshot matches or a value is missing). The engine's snapshots from the first
+    estimate's time on are read as the estimation reads them (``rows.load_records``: on
+    PostgreSQL one binary value for all of them, not a row object each)."""
     n = len(epoch)
     cond = np.full((n, 4), np.nan)
     measured = {k: np.full(n, np.nan) for k in MEASURED_COLUMNS}
     if n == 0:
         return RecordConditions(cond, measured)
-    t = Snapshot.__table__.c
-    lo, hi = float(np.min(epoch)), float(np.max(epoch))
-    at = _snapshot_epoch(session)
-    rows = session.connection().execute(
-        select(at, t.alt_ft, t.mach, t.dtamb_k, t.power_pct,
-               *[t[c] for c in MEASURED_COLUMNS.values()])
-        .where(t.engine_id == engine_id, at >= lo - 1.0, at <= hi + 1.0)
-    ).all()
-    if not rows:
+    after = datetime.fromtimestamp(float(np.min(epoch)) - 1.0, UTC)
+    found = rows.load_records(session, [(engine_id, after)], list(MEASURED_COLUMNS.values()),
+                              [])[engine_id]
+    at = found.epoch
+    if len(at) == 0:
         return RecordConditions(cond, measured)
-    # As plain tuples: numpy reads a SQLAlchemy row as a sequence one item at a time, ten
-    # times slower. None (a missing value) becomes NaN.
-    data = np.array([tuple(r) for r in rows], dtype=float)
-    order = np.argsort(data[:, 0], kind="stable")
-    data = data[order]
-    # Estimate and snapshot share (engine, recorded_at); the two epoch expressions may differ
-    # in the last float digits, so match to the nearest within half a second.
-    i = np.clip(np.searchsorted(data[:, 0], epoch), 1, len(data) - 1) if len(data) > 1 else (
+    # Estimate and snapshot share (engine, recorded_at): match to the nearest within half a
+    # second.
+    i = np.clip(np.searchsorted(at, epoch), 1, len(at) - 1) if len(at) > 1 else (
         np.zeros(n, dtype=int))
-    if len(data) > 1:
+    if len(at) > 1:
         left = i - 1
-        closer = np.abs(data[left, 0] - epoch) <= np.abs(data[i, 0] - epoch)
+        closer = np.abs(at[left] - epoch) <= np.abs(at[i] - epoch)
         i = np.where(closer, left, i)
-    hit = np.abs(data[i, 0] - epoch) < 0.5
-    cond[hit] = data[i[hit], 1:5]
+    hit = np.abs(at[i] - epoch) < 0.5
+    cond[hit] = found.conditions[i[hit]]
     for k, name in enumerate(MEASURED_COLUMNS):
-        measured[name][hit] = data[i[hit], 5 + k]
+        measured[name][hit] = found.y[i[hit], k]
     return RecordConditions(cond, measured)
