@@ -259,7 +259,10 @@ def input_terms(
     """The terms of the recursion that do not depend on x_hat, for all steps:
     K (y[k] - D u[k]) + (I - K C) B u[k-1] [n_steps, n_engines, n].
     y [n_steps, n_engines, ny] (time-major, checked by the caller)."""
-    T, E, _ny = y.shape
+    T, E, ny = y.shape
+    if terms.KT.shape[0] != ny:
+        raise DimensionError(
+            f"y has {ny} sensors but the gain K and matrix C take {terms.KT.shape[0]}")
     out = y @ terms.KT  # K y[k] for all steps, [T, E, n]
     if u is not None:
         if terms.KDT is None or terms.IKCBT is None:
@@ -289,8 +292,6 @@ def stream_input_terms(
     u_prev: np.ndarray | None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``input_terms`` of gain K, and Phi^T."""
-    if np.shape(C)[0] != y.shape[2]:
-        check_shape("C", C, (y.shape[2], np.shape(A)[0]))
     terms = filter_terms(A, C, K, *((B, D) if u is not None else ()))
     return input_terms(terms, y, u, u_prev), terms.PhiT
 
@@ -340,8 +341,6 @@ def filter_stream_states(
         raise DimensionError(
             f"y must be [n_steps, n_engines, n_sensors] (time-major), found shape {y.shape}"
         )
-    if np.shape(C)[0] != y.shape[2]:
-        check_shape("C", C, (y.shape[2], np.shape(A)[0]))
     terms = filter_terms(A, C, K, *((B, D) if u is not None else ()))
     return run_filter_terms(terms, y, u, x0, u_prev)
 
