@@ -690,6 +690,18 @@ def health_candidates(S_full: np.ndarray, p: int) -> np.ndarray:
     return np.all(np.asarray(S_full)[p:] == 0.0, axis=0)
 
 
+def wear_hypotheses(
+    library: Sequence[tuple[str, Mapping[str, float]]], health: Sequence[str]
+) -> tuple[str, ...]:
+    """``health_candidates`` by name, for a design read back from storage: of the library's
+    (name, shifts) faults, those whose every non-zero shift is one of the design's health
+    parameters ``health`` (a shift of any other name is an actuator bias, a row of S_full
+    below the health parameters)."""
+    known = set(health)
+    return tuple(name for name, shifts in library
+                 if all(k in known for k, v in shifts.items() if v != 0.0))
+
+
 def health_weight(Vp: np.ndarray) -> np.ndarray:
     """W = V*^+T V*^+ [m, m] from V*^+ [p, m]: a tuner change weighted as its health change."""
     return np.asarray(Vp, float).T @ np.asarray(Vp, float)

@@ -333,6 +333,12 @@ class EventConfidence(BaseModel):
     not_visible: list[str] = Field(
         description="library faults with no visible signature on the built-in engine"
     )
+    left_out: list[str] = Field(
+        default_factory=list,
+        description="faults of the event's WSSR that are not hypotheses of this kind of event: "
+        "for a wear event, actuator biases and faults fitted with a negative magnitude (wear "
+        "is attributed among module deteriorations)",
+    )
 
 
 class EventOut(BaseModel):

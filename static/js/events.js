@@ -132,6 +132,19 @@ function confusionRowPlot(div, row) {
   }));
 }
 
+// A wear event ranks module deteriorations only (wear is no actuator bias): the faults left
+// out are named, and a notice says when one of them fits the change clearly better than the
+// isolated fault (under half its WSSR).
+function leftOutNote(event, c) {
+  if (!c.left_out || !c.left_out.length) return null;
+  const wssr = event.wssr || {};
+  const better = c.left_out.filter((f) => wssr[f] !== undefined && wssr[f] < 0.5 * wssr[c.isolated]);
+  return h("p", { class: better.length ? "notice" : "muted", id: "left-out" },
+    `Wear is attributed among the module deteriorations fitted with a positive magnitude; not ranked: ${c.left_out.join(", ")}.`
+    + (better.length ? ` ${better.join(" and ")} fit${better.length > 1 ? "" : "s"} this change better (WSSR ${better.map((f) => fmtNum(wssr[f], 1)).join(", ")} against ${fmtNum(wssr[c.isolated], 1)} for ${c.isolated}): `
+      + "check the fuel metering and actuator rigging, and the sensors, before reading it as wear." : ""));
+}
+
 function confidenceCard(event) {
   const c = event.confidence;
   if (!c) return [h("section", { class: "card", id: "confidence" }, h("h2", {}, "Confidence"), h("p", { class: "muted" }, "No WSSR stored for this event."))];
@@ -150,6 +163,7 @@ function confidenceCard(event) {
     h("p", { class: "muted", id: "confidence-source" }, `${SOURCE_TEXT[c.source] || c.source}${c.evaluation_job_id ? ` (evaluation job #${c.evaluation_job_id})` : ""}; the label names the fewest faults holding ${fmtNum(100 * c.credible_mass, 0)} % of the probability.`),
     group, fit,
     c.not_visible.length ? h("p", { class: "muted" }, `Faults with no visible signature on the built-in engine, which no design isolates: ${c.not_visible.join(", ")}.`) : null,
+    leftOutNote(event, c),
     h("div", { class: "grid" },
       h("div", {}, h("h3", {}, "Probability of each fault hypothesis"), post),
       h("div", {}, h("h3", {}, c.confusion_row ? `How the design isolates a true ${c.confusion_row.true_fault} fault` : "Confusion row"),

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import httpx
 import pytest
 
 from tests.browser.conftest import (
@@ -90,4 +91,45 @@ def test_a_viewer_cannot_acknowledge(page: Any, server: Server, console: Console
     assert page.locator("#ack").is_disabled() and page.locator("#add-comment").is_disabled()
     assert page.locator("#assign").is_disabled()
     assert "viewer key" in page.inner_text("main")
+    assert console.unexpected() == []
+
+
+def test_a_wear_event_ranks_module_faults_and_says_what_fits_better(
+    page: Any, server: Server, console: Console
+) -> None:
+    """A wear event whose change an actuator bias (Wf) fits better than any module fault: the
+    confidence names the event's own fault, and the page says which faults it did not rank and
+    that Wf fits the change better."""
+    from app.db import transaction
+    from app.models import Event
+    from app.models.base import utcnow
+    from tests.app.services.trends.test_trends import add_engine, make_fleet
+
+    with transaction(server.factory) as session:
+        fleet = make_fleet(session, "Wear Page Air")
+        fleet.design.result = {"vstar": [[1.0]] * 5}
+        engine = add_engine(session, fleet, "WEAR-1")
+        event = Event(
+            operator_id=fleet.operator_id, engine_id=engine.id, design_id=fleet.design.id,
+            seq=300, detected_at=utcnow(), kind="wear", fault="LPT", magnitude=1.01,
+            statistic=8.7, wssr={"Fan": 16.1, "HPC": 15.6, "LPT": 11.9, "Wf": 2.3},
+            shift={"tuners": {"q1": 0.1}, "health": {"lpt_eff": -1.0, "lpt_flow": 3.4},
+                   "fault": {"lpt_eff": -2.0, "lpt_flow": 2.0},
+                   "wear": {"alert": "directional", "statistic": 8.7, "threshold": 7.4,
+                            "baseline_seq": 20, "hypotheses": ["Fan", "HPC", "LPT"]}},
+        )
+        session.add(event)
+        session.flush()
+        key, event_id = fleet.key, event.id
+    sign_in(page, key, f"/events.html?id={event_id}")
+    page.wait_for_selector("#left-out")
+    confidence = httpx.get(f"{server.base_url}/api/v1/events/{event_id}",
+                           headers={"X-API-Key": key}).json()["confidence"]
+    assert confidence["isolated"] == "LPT" and confidence["left_out"] == ["Wf"]
+    assert "LPT" in page.inner_text("#confidence h2")
+    note = page.inner_text("#left-out")
+    assert "not ranked: Wf" in note and "Wf fits this change better" in note
+    assert page.evaluate("document.querySelector('#posterior').data[0].x") == ["Fan", "HPC",
+                                                                               "LPT"]
+    screenshot(page, "event-wear-left-out")
     assert console.unexpected() == []

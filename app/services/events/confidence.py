@@ -9,6 +9,13 @@ tuner estimates), else none (WSSR alone); ``source`` says which. The label names
 faults holding 90 % of the posterior ("HPT or Wf"); the ambiguity group is the isolated fault
 and the faults the design's confusion mixes it with; the confusion row is how the design
 isolates that fault.
+
+A wear event is attributed among module deteriorations fitted with a positive magnitude (wear
+is no actuator bias: ``estimation.wear.best_fault``), so its confidence ranks those hypotheses
+only, with the confusion among them: the event stores them (``shift.wear.hypotheses``); one
+stored before that ranks the design's module faults (``estimation.wear.wear_hypotheses``).
+The faults left out are named (``left_out``), so the page can say when one of them fits the
+change better than any wear hypothesis.
 """
 
 from __future__ import annotations
@@ -26,6 +33,7 @@ from app.services.designs.evaluation import latest_evaluation
 from app.services.designs.service import get_design
 from estimation.isolation import SEED_002_FAULTS
 from estimation.posterior import fault_posterior
+from estimation.wear import wear_hypotheses
 
 CREDIBLE_MASS = 0.9
 LIBRARY_ORDER = {f.name: i for i, f in enumerate(SEED_002_FAULTS)}
@@ -47,12 +55,17 @@ class DesignEvidence:
     confusion: np.ndarray | None = None  # percent, rows true, columns isolated
     not_visible: tuple[str, ...] = ()
     evaluation_job_id: int | None = None
+    wear_faults: tuple[str, ...] | None = None  # the design's module faults (wear_hypotheses)
 
 
 def design_evidence(session: Session, operator_id: int, design_id: int) -> DesignEvidence:
     """The design's tuner count and its best measured confusion (see the module docstring)."""
     design = get_design(session, operator_id=operator_id, design_id=design_id)
-    n_tuners = len((design.result or {}).get("vstar") or []) or 1
+    design_result: Mapping[str, Any] = design.result or {}
+    n_tuners = len(design_result.get("vstar") or []) or 1
+    library = (design_result.get("faults") or {}).get("library")
+    wear_faults = None if not library else wear_hypotheses(
+        [(f["name"], f["shifts"]) for f in library], design_result.get("health") or ())
     job = latest_evaluation(session, operator_id=operator_id, design_id=design_id)
     result: Mapping[str, Any] = (job.result or {}) if job is not None else {}
     engine = result.get(engine_evaluation.RESULT_KEY)
@@ -61,14 +74,27 @@ def design_evidence(session: Session, operator_id: int, design_id: int) -> Desig
             n_tuners, "nonlinear_engine", tuple(engine["faults"]),
             np.asarray(engine["confusion_percent"], float),
             tuple(engine.get("visibility", {}).get("not_visible", ())), job.id if job else None,
+            wear_faults,
         )
     linear = (result.get("confusion") or {}).get(LINEAR_VARIANT)
     if linear:
         return DesignEvidence(
             n_tuners, "linear_monte_carlo", tuple(linear["faults"]),
-            np.asarray(linear["percent"], float), (), job.id if job else None,
+            np.asarray(linear["percent"], float), (), job.id if job else None, wear_faults,
         )
-    return DesignEvidence(n_tuners, "wssr_only")
+    return DesignEvidence(n_tuners, "wssr_only", wear_faults=wear_faults)
+
+
+def hypotheses(event: Event, evidence: DesignEvidence, faults: tuple[str, ...]) -> tuple[str, ...]:
+    """The faults of ``faults`` (the event's WSSR) that its confidence ranks: all of them, or
+    for a wear event those its attribution chose from (see the module docstring); all of
+    them where that leaves none."""
+    if event.kind != "wear":
+        return faults
+    stored = ((event.shift or {}).get("wear") or {}).get("hypotheses")
+    chosen = stored if stored else evidence.wear_faults
+    kept = tuple(f for f in faults if chosen is not None and f in chosen)
+    return kept or faults
 
 
 def event_confidence(event: Event, evidence: DesignEvidence) -> dict[str, Any] | None:
@@ -77,11 +103,14 @@ def event_confidence(event: Event, evidence: DesignEvidence) -> dict[str, Any] |
     if not wssr_map:
         return None
     # JSON objects come back in another key order from PostgreSQL: the library's order.
-    faults = tuple(sorted(wssr_map, key=lambda f: (LIBRARY_ORDER.get(f, len(LIBRARY_ORDER)), f)))
+    every = tuple(sorted(wssr_map, key=lambda f: (LIBRARY_ORDER.get(f, len(LIBRARY_ORDER)), f)))
+    faults = hypotheses(event, evidence, every)
     wssr = np.array([wssr_map[f] for f in faults])
     source, C = evidence.source, None
     if evidence.confusion is not None and evidence.faults is not None:
-        if set(evidence.faults) == set(faults):
+        # Measured on the event's library: its rows and columns of the ranked hypotheses (a
+        # wear event's module faults: P(isolated j | true i) renormalised over them).
+        if set(evidence.faults) == set(every):
             order = [evidence.faults.index(f) for f in faults]
             C = evidence.confusion[np.ix_(order, order)]
         else:
@@ -103,6 +132,7 @@ def event_confidence(event: Event, evidence: DesignEvidence) -> dict[str, Any] |
         "ambiguity_group": [isolated],
         "confusion_row": None,
         "not_visible": [f for f in evidence.not_visible if f in faults],
+        "left_out": [f for f in every if f not in faults],
     }
     if C is not None:
         # The isolated fault and those it is confused with directly (C_ij + C_ji above the

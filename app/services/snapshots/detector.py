@@ -192,13 +192,16 @@ def wear_from_document(d: Mapping[str, Any] | None) -> WearState:
 
 
 def wear_event(
-    est: SnapshotEstimator, alert: WearAlert, seq: int, epoch: float, baseline_seq: int
+    est: SnapshotEstimator, alert: WearAlert, seq: int, epoch: float, baseline_seq: int,
+    candidates: np.ndarray,
 ) -> EventDraft:
     """The ``wear`` event of a wear alert: the attributed fault and its magnitude (times the
     library's nominal shift), the accumulated change since the baseline in tuners and health
     parameters (docs/math.md, wear), the WSSR of every fault for that change, and under
     ``wear`` the alert's kind (``limit``, ``rate``, ``directional``, ``fleet``), its CUSUM
-    against its threshold and the baseline's first record."""
+    against its threshold, the baseline's first record and the hypotheses the attribution
+    chose from: the wear ``candidates`` (module deteriorations) fitted with a positive
+    magnitude, which the event's confidence ranks (``app.services.events.confidence``)."""
     names = est.layout.faults
     change = np.zeros(est.m) if alert.change is None else np.asarray(alert.change, float)
     fault_shift = {}
@@ -218,6 +221,8 @@ def wear_event(
             "fault": fault_shift,
             "nearest": None if alert.fault is None else names[alert.fault],
             "wear": {"alert": alert.kind, "statistic": float(alert.statistic),
-                     "threshold": float(alert.threshold), "baseline_seq": baseline_seq},
+                     "threshold": float(alert.threshold), "baseline_seq": baseline_seq,
+                     "hypotheses": [names[i] for i in np.flatnonzero(
+                         np.asarray(candidates, bool) & (np.asarray(alert.f) > 0))]},
         },
     )

@@ -472,7 +472,7 @@ def _wear_watched(
     for alert in run.alerts:
         out.events.append(detector.wear_event(
             est, alert, base + alert.index, float(epoch[alert.index]),
-            base + alert.baseline_start))
+            base + alert.baseline_start, det.candidates))
     return run.state
 
 

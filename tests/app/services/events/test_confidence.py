@@ -128,3 +128,67 @@ def test_event_without_wssr_has_no_confidence(
     session.commit()
     shown = client.get(f"/api/v1/events/{event.id}", headers={"X-API-Key": fleet.key}).json()
     assert shown["confidence"] is None
+
+
+WEAR_LIBRARY = [
+    {"name": "Fan", "shifts": {"fan_eff": -2.0, "fan_flow": -2.0}},
+    {"name": "HPC", "shifts": {"hpc_eff": -2.0, "hpc_flow": -2.0}},
+    {"name": "HPT", "shifts": {"hpt_eff": -2.0, "hpt_flow": 2.0}},
+    {"name": "Wf", "shifts": {"wf_bias": -2.0}},
+]
+
+
+def _restricted(wssr: dict[str, float], faults: list[str]) -> np.ndarray:
+    """The posterior over ``faults`` alone, with the engine confusion's rows and columns of
+    them (each row renormalised over them, the floor added first), by hand."""
+    idx = [FAULTS.index(f) for f in faults]
+    w = np.array([wssr[f] for f in faults])
+    p = np.exp(-(w - w.min()) / 2)
+    C = np.asarray(ENGINE_CONFUSION)[np.ix_(idx, idx)] + FLOOR
+    C = C / C.sum(axis=1, keepdims=True)
+    p = p * C[:, int(np.argmin(w))]
+    return p / p.sum()
+
+
+def test_wear_event_ranks_the_module_faults_its_attribution_chose_from(
+    client: TestClient, session: Session, fleet: Fleet
+) -> None:
+    """A wear event is attributed among module deteriorations fitted with a positive magnitude:
+    its confidence ranks those, so the isolated fault is the event's own even where an actuator
+    bias (Wf) fits the change better, and the faults left out are named. A wear event stored
+    before the hypotheses were (none in its document) ranks the design's module faults."""
+    fleet.design.result = {"vstar": [[1.0]] * 5, "health": ["fan_eff", "fan_flow", "hpc_eff",
+                                                           "hpc_flow", "hpt_eff", "hpt_flow"],
+                           "faults": {"library": WEAR_LIBRARY}}
+    _job(session, fleet, {"nonlinear_engine": {"faults": FAULTS,
+                                               "confusion_percent": ENGINE_CONFUSION}}, 1)
+    engine = add_engine(session, fleet, "CF3")
+    wssr = {"Fan": 16.0, "HPC": 15.5, "HPT": 12.0, "Wf": 2.3}  # Wf fits best, HPT of the modules
+    wear_doc = {"alert": "directional", "statistic": 8.7, "threshold": 7.4, "baseline_seq": 20}
+    stored = _event(session, fleet, engine.id, 1, kind="wear", fault="HPT", wssr=wssr,
+                    shift={"wear": {**wear_doc, "hypotheses": ["Fan", "HPT"]}})
+    older = _event(session, fleet, engine.id, 2, kind="wear", fault="HPT", wssr=wssr,
+                   shift={"wear": wear_doc})
+    abrupt = _event(session, fleet, engine.id, 3, fault="Wf", wssr=wssr)
+    session.commit()
+    h = {"X-API-Key": fleet.key}
+
+    conf = client.get(f"/api/v1/events/{stored.id}", headers=h).json()["confidence"]
+    assert conf["faults"] == ["Fan", "HPT"] and conf["left_out"] == ["HPC", "Wf"]
+    assert conf["isolated"] == "HPT" == stored.fault
+    np.testing.assert_allclose(conf["posterior"], _restricted(wssr, ["Fan", "HPT"]), rtol=1e-9)
+    assert conf["source"] == "nonlinear_engine"
+    assert conf["confusion_row"] == {"true_fault": "HPT", "faults": ["Fan", "HPT"],
+                                     "percent": [0.0, 62.0]}
+    # The fit is judged on the ranked hypotheses: HPT's WSSR of 12 with 4 degrees of freedom.
+    assert conf["fit_probability"] == pytest.approx(0.017351, rel=1e-3)
+
+    conf = client.get(f"/api/v1/events/{older.id}", headers=h).json()["confidence"]
+    assert conf["faults"] == ["Fan", "HPC", "HPT"] and conf["left_out"] == ["Wf"]
+    assert conf["isolated"] == "HPT"
+    np.testing.assert_allclose(conf["posterior"], _restricted(wssr, ["Fan", "HPC", "HPT"]),
+                               rtol=1e-9)
+
+    # An abrupt fault's isolation ranks every fault of the library, actuator biases too.
+    conf = client.get(f"/api/v1/events/{abrupt.id}", headers=h).json()["confidence"]
+    assert conf["faults"] == FAULTS and conf["left_out"] == [] and conf["isolated"] == "Wf"

@@ -133,6 +133,15 @@ def test_demo_fleet_healthy_stretches_raise_at_most_one_wear_event_per_engine_ye
         years += float(np.sum(gaps[gaps < 30 * 86400.0])) / YEAR_S
         false += sum(1 for ev in out.events
                      if ev.kind == "wear" and not faulty[np.searchsorted(t, ev.epoch)])
+        for ev in out.events:
+            if ev.kind == "wear" and ev.fault is not None:
+                # The event names the hypotheses its attribution chose from (module faults
+                # fitted with a positive magnitude): its fault among them, and where the alert
+                # is the engine's own (not the fleet's direction) the best fit of them.
+                chosen = ev.shift["wear"]["hypotheses"]
+                assert ev.fault in chosen and not set(chosen) & {"Wf", "VSV", "VBV"}
+                if ev.shift["wear"]["alert"] != "fleet":
+                    assert ev.fault == min(chosen, key=lambda f: ev.wssr[f])
     print(f"\ndemo fleet, {len(engines)} engines: {false} false wear events in {years:.1f} "
           f"healthy engine-years")
     assert years > 4.0
@@ -256,3 +265,21 @@ def test_a_run_past_the_wear_budget_goes_in_parts_that_learn_from_the_earlier_on
         assert (out.state.wear.direction is None) == (i < wear.WearSettings().fleet_min)
         assert out.state.wear.drift is not None
         drifts.append(out.state.wear.drift)
+
+
+@pytest.mark.parametrize("biases", [False, True])
+def test_wear_hypotheses_by_name_are_the_candidates_of_the_fault_matrix(
+    default_schedule: EngineSchedule, biases: bool
+) -> None:
+    """``wear.wear_hypotheses`` (a stored design's library and health names, what an event's
+    confidence reads) names the faults ``wear.health_candidates`` marks on the estimator's
+    fault matrix: the module faults, and the actuator biases too where the design estimates
+    them as health parameters."""
+    method, m = ("svd", 8) if biases else fleet.ACTIVE_DESIGN
+    est = fleet.design_estimator(default_schedule, method, m, biases=biases)
+    names = est.layout.faults
+    mask = wear.health_candidates(est.S_full, len(est.layout.health))
+    by_name = wear.wear_hypotheses(list(zip(names, est.fault_shifts, strict=True)),
+                                   est.layout.health)
+    assert by_name == tuple(n for n, c in zip(names, mask, strict=True) if c)
+    assert ("Wf" in by_name) is biases and "HPC" in by_name
