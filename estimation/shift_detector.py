@@ -231,11 +231,13 @@ class Isolation:
 
 class ShiftRun(NamedTuple):
     """A run of records through the detector: the state after it, the alarms isolated (in
-    order) and the states after the records at which a checkpoint is due (record index)."""
+    order), the states after the records at which a checkpoint is due (record index) and the
+    record at which each isolation was made (index into the run, ``isolations``' order)."""
 
     state: ShiftState
     isolations: list[Isolation]
     checkpoints: list[tuple[int, ShiftState]]
+    isolated_at: list[int]
 
 
 def wssr_all(shift: np.ndarray, P: np.ndarray, H: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -367,6 +369,7 @@ def shift_steps(
     """
     isolations: list[Isolation] = []
     checkpoints: list[tuple[int, ShiftState]] = []
+    isolated_at: list[int] = []
     for j in range(len(q)):
         seq = seq0 + j
         obs = None if observe is None else observe(j)
@@ -374,9 +377,10 @@ def shift_steps(
                                          bool(resets[j]), obs)
         if iso is not None:
             isolations.append(iso)
+            isolated_at.append(j)
         if checkpoint_every and (seq + 1) % checkpoint_every == 0:
             checkpoints.append((j, state))
-    return ShiftRun(state, isolations, checkpoints)
+    return ShiftRun(state, isolations, checkpoints, isolated_at)
 
 
 def shift_scan(
@@ -394,6 +398,7 @@ def shift_scan(
     reset_at = np.flatnonzero(resets)
     isolations: list[Isolation] = []
     checkpoints: list[tuple[int, ShiftState]] = []
+    isolated_at: list[int] = []
     j = 0
     while j < n:
         if state.pending is not None or resets[j]:
@@ -403,6 +408,7 @@ def shift_scan(
                                              bool(resets[j]), obs)
             if iso is not None:
                 isolations.append(iso)
+                isolated_at.append(j)
             if checkpoint_every and (seq + 1) % checkpoint_every == 0:
                 checkpoints.append((j, state))
             j += 1
@@ -486,4 +492,4 @@ def shift_scan(
         if scan is not None and j + armed < stop:
             wssr[j + armed : stop] = scan.wssr[armed - first : stop - j - first]
         j = stop
-    return ShiftRun(state, isolations, checkpoints)
+    return ShiftRun(state, isolations, checkpoints, isolated_at)

@@ -922,10 +922,11 @@ def _confident_rows(
 
 def _active(
     det: WearDetector, st: WearState, x: np.ndarray, cycles: np.ndarray,
-    z: np.ndarray | None, offset: int, b0: int,
+    z: np.ndarray | None, offset: int, b0: int, hold: np.ndarray | None = None,
 ) -> tuple[WearState, WearAlert | None]:
     """Records of a stretch after its baseline (armed; ``st`` holds the baseline): the
-    state after them, or after the first alert and that alert."""
+    state after them, or after the first alert and that alert; no alert on a record
+    ``hold`` marks (an alert due there waits for the first record after)."""
     cfg = det.settings
     cand = det.candidates
     x0 = np.asarray(st.x0, float)
@@ -986,6 +987,8 @@ def _active(
             held[:j] = False
         bank_hit = crossed & held[P:]
     hit = limit_hit | rate_hit | bank_hit | fleet_hit
+    if hold is not None:
+        hit &= ~hold
     if not hit.any():
         new_cross = crossed[-1] and not st.crossed
         kc = int(np.argmax(crossed)) if new_cross else -1
@@ -1080,9 +1083,11 @@ def _carry(
 def _stretch_steps(
     det: WearDetector, st: WearState, x: np.ndarray, cycles: np.ndarray,
     z: np.ndarray | None, offset: int, t: np.ndarray | None = None,
+    hold: np.ndarray | None = None,
 ) -> tuple[WearState, WearAlert | None]:
     """Records of one stretch (no reset among them but perhaps at the first, already
-    applied to ``st``): collect the baselines, complete them, scan the armed records."""
+    applied to ``st``): collect the baselines, complete them, scan the armed records (no
+    alert on those ``hold`` marks)."""
     cfg = det.settings
     n = len(x)
     if st.alerted or n == 0:
@@ -1109,10 +1114,11 @@ def _stretch_steps(
                                       z_rows=z_rows, t_rows=t_rows, direction=st.direction))
         x, cycles = x[j + 1 :], cycles[j + 1 :]
         z = None if z is None else z[j + 1 :]
+        hold = None if hold is None else hold[j + 1 :]
         offset += j + 1
         if not len(x):
             return st, None
-    return _active(det, st, x, cycles, z, offset, b0)
+    return _active(det, st, x, cycles, z, offset, b0, hold)
 
 
 def replace_state(st: WearState, **changes: object) -> WearState:
@@ -1123,7 +1129,7 @@ def wear_steps(
     det: WearDetector, state: WearState, x: np.ndarray, new_cycle: np.ndarray,
     resets: np.ndarray, z: np.ndarray | None = None, keep: Sequence[int] = (),
     epoch: np.ndarray | None = None, direction: np.ndarray | None = None,
-    zf: np.ndarray | None = None,
+    zf: np.ndarray | None = None, hold: np.ndarray | None = None,
 ) -> WearRun:
     """Continue one engine's wear detector over a run of records.
 
@@ -1139,6 +1145,9 @@ def wear_steps(
     on its signature (``along``), a stretch that starts in this run (a reset, or an engine's
     first record) adopts it and runs the fleet CUSUM as the bank's last column, the budget
     split (``_budgets``); a stretch under way keeps what it adopted at its start.
+    hold [S] bool (None: none): records on which no alert is raised, the CUSUMs going on (the
+    pipeline holds wear alerts while the shift detector confirms an alarm, and restarts the
+    stretch where that alarm becomes an event).
     """
     if direction is not None and zf is not None and z is not None:
         fleet = tuple(np.asarray(direction, float).tolist())
@@ -1169,7 +1178,8 @@ def wear_steps(
         zs = z if st.direction is None else z_f
         st, alert = _stretch_steps(det, st, x[a:b], cycles[a:b],
                                    None if zs is None else zs[a:b], a,
-                                   None if epoch is None else np.asarray(epoch, float)[a:b])
+                                   None if epoch is None else np.asarray(epoch, float)[a:b],
+                                   None if hold is None else np.asarray(hold, bool)[a:b])
         if alert is not None:
             alerts.append(alert)
         if b - 1 in want:

@@ -86,6 +86,29 @@ def test_linear_drift_along_a_fault_is_alerted_and_attributed_to_it() -> None:
     assert again.alerts[1].baseline_start == 400 + wear.WearSettings().settle
 
 
+def test_an_alert_due_on_held_records_comes_on_the_first_record_after() -> None:
+    """``wear_steps`` with records held (the pipeline's shift alarm awaiting isolation): no
+    alert on them, the CUSUMs going on, so an alert due there comes on the first record after
+    the hold, the same alert otherwise; a hold before the alert changes nothing."""
+    rng = np.random.default_rng(4)
+    H, W = _library(rng)
+    S, onset, true_fault = 600, 200, 1
+    noise = rng.normal(scale=0.01, size=(S, H.shape[0]))
+    x = noise + np.clip(np.arange(S) - onset, 0, None)[:, None] * 0.004 * H[:, true_fault]
+    det = wear.WearDetector(H, W, np.ones(H.shape[1], bool))
+    flights, resets = np.ones(S, bool), np.zeros(S, bool)
+    (free,) = wear.wear_steps(det, wear.WearState(), x, flights, resets).alerts
+    hold = np.zeros(S, bool)
+    hold[free.index - 3 : free.index + 7] = True
+    (held,) = wear.wear_steps(det, wear.WearState(), x, flights, resets, hold=hold).alerts
+    assert held.index == free.index + 7
+    assert (held.kind, held.fault) == (free.kind, free.fault)
+    early = np.zeros(S, bool)
+    early[100:150] = True
+    (same,) = wear.wear_steps(det, wear.WearState(), x, flights, resets, hold=early).alerts
+    assert _alert_key(same) == _alert_key(free)
+
+
 def test_noise_alone_alarms_at_the_cusum_design_rate() -> None:
     """White increments N(0, s^2) of the magnitude, reference k s and threshold h s: Page's
     CUSUM, whose mean run length Siegmund approximates as

@@ -154,14 +154,30 @@ class ChunkRecords(NamedTuple):
 
 class WearInput(NamedTuple):
     """One engine's records of a chunk as the wear detector takes them: tuner estimates q,
-    new flight and reset flags, the bank's matched-filter projections z and the sums for the
-    fleet direction's (``estimation.wear.matched_sums``)."""
+    new flight and reset flags, the bank's matched-filter projections z, the sums for the
+    fleet direction's (``estimation.wear.matched_sums``) and the records it holds its alerts
+    on (``ShiftMarks.pending``)."""
 
     q: np.ndarray
     new_flight: np.ndarray
     resets: np.ndarray
     z: np.ndarray
     parts: MatchedParts
+    hold: np.ndarray
+
+
+class ShiftMarks(NamedTuple):
+    """What the wear detector takes from the shift detector over a chunk's records of an
+    engine: ``pending`` [n], the records on which an alarm awaits its isolation (wear alerts
+    wait: the change is the shift detector's to judge), and ``raised`` [n], the records on
+    which an alarm became an event (the wear stretch restarts there: the abrupt change
+    explains the step, so wear is measured from a baseline after it, the new stretch's first
+    ``settle`` records left out, rather than alerting on the same step again). Both follow
+    from each record's detector state alone, so they do not depend on how the records are
+    split into chunks and runs."""
+
+    pending: np.ndarray
+    raised: np.ndarray
 
 
 def run_filters(
@@ -313,11 +329,11 @@ def _run_part(
             out = outputs[e]
             records = ChunkRecords(dy_rec[rec], _records(g.G_y, rec, g.constant),
                                    _records(g.G_u, rec, g.constant), var_rec[rec])
-            dets[e] = _wssr_filled(est, dets[e], r, c0, q, P, resets[i, :n], values, out,
-                                   records)
+            dets[e], shifts = _wssr_filled(est, dets[e], r, c0, q, P, resets[i, :n], values,
+                                           out, records)
             wear_in[e].append(WearInput(
-                q, flights[i, :n], resets[i, :n], z_rec[rec],
-                MatchedParts(parts_rec.num[rec], parts_rec.gram[rec])))
+                q, flights[i, :n], resets[i, :n] | shifts.raised, z_rec[rec],
+                MatchedParts(parts_rec.num[rec], parts_rec.gram[rec]), shifts.pending))
             packed = values.astype(VALUE_DTYPE)
             out.n_records += n
             if sink is None:
@@ -353,8 +369,7 @@ def _wear_runs(
                                                          if i != e and d is not None)])
         zf = None if direction is None else along(j.parts, np.asarray(direction),
                                                    det.candidates)
-        state = _wear_watched(det, r.state.wear, r, j.q, j.new_flight, j.resets, j.z, out,
-                              est, direction, zf)
+        state = _wear_watched(det, r.state.wear, r, j, out, est, direction, zf)
         out.state = dataclasses.replace(
             out.state, wear=dataclasses.replace(state, drift=drifts[e]))
 
@@ -446,12 +461,12 @@ def _joined(pieces: Sequence[WearInput]) -> WearInput | None:
 
     return WearInput(joined("q"), joined("new_flight"), joined("resets"), joined("z"),
                      MatchedParts(np.concatenate([p.parts.num for p in pieces]),
-                                  np.concatenate([p.parts.gram for p in pieces])))
+                                  np.concatenate([p.parts.gram for p in pieces])),
+                     joined("hold"))
 
 
 def _wear_watched(
-    det: WearDetector, state: WearState, r: EngineRun, q: np.ndarray,
-    new_flight: np.ndarray, resets: np.ndarray, z: np.ndarray, out: EngineOutput,
+    det: WearDetector, state: WearState, r: EngineRun, wi: WearInput, out: EngineOutput,
     est: SnapshotEstimator, direction: tuple[float, ...] | None, zf: np.ndarray | None,
 ) -> WearState:
     """Continue the engine's wear detector over its records of the run (tuner estimates q,
@@ -462,9 +477,9 @@ def _wear_watched(
     base = r.seq0
     marks = out.checkpoints
     keep = [cp.seq - base - 1 for cp in marks]
-    epoch = r.epoch[: len(q)]
-    run = wear_steps(det, state, q, new_flight, resets, z, keep, epoch,
-                     None if direction is None else np.asarray(direction), zf)
+    epoch = r.epoch[: len(wi.q)]
+    run = wear_steps(det, state, wi.q, wi.new_flight, wi.resets, wi.z, keep, epoch,
+                     None if direction is None else np.asarray(direction), zf, wi.hold)
     kept = dict(run.states)
     for i, cp in enumerate(marks):
         out.checkpoints[i] = cp._replace(
@@ -537,9 +552,10 @@ def _wssr_filled(
     est: SnapshotEstimator, det: ShiftState, r: EngineRun, c0: int, q: np.ndarray,
     P: np.ndarray, resets: np.ndarray, values: np.ndarray, out: EngineOutput,
     records: ChunkRecords | None = None,
-) -> ShiftState:
+) -> tuple[ShiftState, ShiftMarks]:
     """Run the detector over the engine's records of the chunk (``shift_scan``): fill the
-    WSSR block of ``values``, collect events and checkpoints; the detector state after.
+    WSSR block of ``values``, collect events and checkpoints; the detector state after, and
+    its marks for the wear detector.
 
     records: the chunk's records of the engine, for isolation in sensor space.
     """
@@ -550,7 +566,7 @@ def _wssr_filled_per_record(
     est: SnapshotEstimator, det: ShiftState, r: EngineRun, c0: int, q: np.ndarray,
     P: np.ndarray, resets: np.ndarray, values: np.ndarray, out: EngineOutput,
     records: ChunkRecords | None = None,
-) -> ShiftState:
+) -> tuple[ShiftState, ShiftMarks]:
     """``_wssr_filled`` one record at a time (``shift_steps``, the reference the batched run
     is tested against)."""
     return _detected(est, shift_steps, det, r, c0, q, P, resets, values, out, records)
@@ -560,20 +576,26 @@ def _detected(
     est: SnapshotEstimator, scan: Callable[..., ShiftRun], det: ShiftState, r: EngineRun,
     c0: int, q: np.ndarray, P: np.ndarray, resets: np.ndarray, values: np.ndarray,
     out: EngineOutput, records: ChunkRecords | None,
-) -> ShiftState:
+) -> tuple[ShiftState, ShiftMarks]:
     n = len(q)
     epoch = r.epoch[c0 : c0 + n]
     observe = None if records is None else functools.partial(records.observation, est)
     run = scan(est, det, r.seq0 + c0, epoch, q, P, resets,
                values[:, est.layout.slices()["wssr"]], observe, CHECKPOINT_EVERY)
-    for iso in run.isolations:
+    seq0 = r.seq0 + c0
+    marks = ShiftMarks(np.zeros(n, bool), np.zeros(n, bool))
+    for iso, j in zip(run.isolations, run.isolated_at, strict=True):
+        marks.pending[max(iso.alarm.seq - seq0, 0) : j] = True
         draft = detector.event(est, iso)
         if draft is not None:
             out.events.append(draft)
+            marks.raised[j] = True
+    if run.state.pending is not None:
+        marks.pending[max(run.state.pending.seq - seq0, 0) :] = True
     for j, state in run.checkpoints:
         at = float(epoch[j])
         out.checkpoints.append(Checkpoint(
             r.seq0 + c0 + j + 1, at, PipelineState(SnapshotState(q[j : j + 1], P[j : j + 1]),
                                                    state, at),
         ))
-    return run.state
+    return run.state, marks

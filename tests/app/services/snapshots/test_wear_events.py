@@ -27,6 +27,7 @@ from app.services.tenancy import service as tenancy
 from estimation import wear
 from estimation.engine.fleet import fleet_snapshots, plan_fleet
 from estimation.engine.schedule import EngineSchedule, build_schedule
+from estimation.shift_detector import N_CONFIRM
 from estimation.tuners import svd_vstar
 from tests.estimation.models import reference_model
 from tests.support import detection_replay, fd001_replay
@@ -38,6 +39,9 @@ from tests.support.paths import FD001
 # 132.0 (a direction from 9 others), 1-20 131.0 against 126.5, 1-50 122.0 against 118.5.
 UNITS = 100
 YEAR_S = 365.25 * 86400.0
+# Records of a wear stretch before its CUSUMs arm, and the armed ones a drift averages.
+WEAR_ARMED = wear.WearSettings().settle + wear.WearSettings().n_base
+DRIFT_TAIL = wear.WearSettings().drift_tail
 
 
 @pytest.fixture(scope="module")
@@ -249,22 +253,28 @@ def test_a_run_past_the_wear_budget_goes_in_parts_that_learn_from_the_earlier_on
 ) -> None:
     """With the wear input bounded to less than an engine (``run.WEAR_BYTES``), a run goes
     engine by engine: the same estimates, events and states as calling ``run_filters`` on
-    each engine in turn with the drifts of those before it; the sixth engine on adopts a
-    fleet direction."""
+    each engine in turn with the drifts of those before it; an engine adopts a fleet direction
+    once ``fleet_min`` engines before it have a drift (one whose latest stretch began at a
+    shift event too near its end has none yet)."""
     est = fd001_replay.fd001_estimator(fd001_replay.fd001_schedule())
     engines = fd001_replay.fd001_runs(FD001, est, 8)
     monkeypatch.setattr(run, "WEAR_BYTES", 1)
     parts = run.run_filters(est, [e.run for e in engines])
     monkeypatch.undo()
     drifts: list[tuple[float, ...]] = []
-    for i, (e, out) in enumerate(zip(engines, parts, strict=True)):
+    for e, out in zip(engines, parts, strict=True):
         (alone,) = run.run_filters(est, [e.run], fleet=list(drifts))
         assert np.array_equal(out.packed, alone.packed, equal_nan=True)
         assert out.events == alone.events
         assert out.state.wear == alone.state.wear
-        assert (out.state.wear.direction is None) == (i < wear.WearSettings().fleet_min)
-        assert out.state.wear.drift is not None
-        drifts.append(out.state.wear.drift)
+        fleet_min = wear.WearSettings().fleet_min
+        assert (out.state.wear.direction is None) == (len(drifts) < fleet_min)
+        shifts = [ev.seq for ev in out.events if ev.kind != "wear"]
+        assert (out.state.wear.drift is None) == (
+            bool(shifts) and len(e.run.epoch) - shifts[-1] - N_CONFIRM < WEAR_ARMED + DRIFT_TAIL)
+        if out.state.wear.drift is not None:
+            drifts.append(out.state.wear.drift)
+    assert len(drifts) < len(engines)  # a unit whose shift event restarted its wear stretch
 
 
 @pytest.mark.parametrize("biases", [False, True])
@@ -283,3 +293,30 @@ def test_wear_hypotheses_by_name_are_the_candidates_of_the_fault_matrix(
                                    est.layout.health)
     assert by_name == tuple(n for n, c in zip(names, mask, strict=True) if c)
     assert ("Wf" in by_name) is biases and "HPC" in by_name
+
+
+def test_an_abrupt_fault_raises_one_event_not_a_wear_alert_on_the_same_step(
+    default_schedule: EngineSchedule,
+) -> None:
+    """The demo fleet's first six aircraft through ``run.run_filters``: while the shift
+    detector confirms an alarm the wear detector holds its alerts, and each alarm that becomes
+    an event restarts the engine's wear stretch, so the wear detector measures from a baseline
+    after the step and does not alert on the same step again (before, three of its four faults
+    also raised a wear event 6 to 22 records after the alarm, one named Fan for an HPC
+    fault)."""
+    est = fleet.design_estimator(default_schedule, *fleet.ACTIVE_DESIGN)
+    plan_rng, snap_rng = np.random.default_rng(fleet.SEED).spawn(2)
+    plan = plan_fleet(fleet.fleet_config(fleet.DemoSize(aircraft=6)), plan_rng)
+    engines = detection_replay.engine_runs(plan, fleet_snapshots(plan, snap_rng), est)
+    shifts = 0
+    for out in run.run_filters(est, [e.run for e in engines]):
+        for ev in out.events:
+            if ev.kind == "wear":
+                continue
+            shifts += 1
+            # Held until the isolation, then the new stretch's baseline: no wear alert arms
+            # before it is complete.
+            assert not [w.seq for w in out.events if w.kind == "wear"
+                        and ev.seq <= w.seq < ev.seq + N_CONFIRM + WEAR_ARMED]
+            assert out.state.wear.k <= len(out.packed) - ev.seq - N_CONFIRM
+    assert shifts >= 3
