@@ -86,6 +86,51 @@ def test_linear_drift_along_a_fault_is_alerted_and_attributed_to_it() -> None:
     assert again.alerts[1].baseline_start == 400 + wear.WearSettings().settle
 
 
+def test_explained_share_is_the_fits_part_of_the_change() -> None:
+    """``explained``: h_i^T W h_i f_i^2 / d^T W d by hand; 1 along a fault, 0 across it."""
+    rng = np.random.default_rng(5)
+    H, W = _library(rng)
+    d = rng.normal(size=(3, H.shape[0]))
+    d[1] = 0.7 * H[:, 2]
+    wssr, f = wear.attribute(d, W, H)
+    share = wear.explained(wssr, f, W, H)
+    for k in range(3):
+        for i in range(H.shape[1]):
+            h = H[:, i]
+            assert share[k, i] == pytest.approx((h @ W @ h) * f[k, i] ** 2 / (d[k] @ W @ d[k]))
+    assert share[1, 2] == pytest.approx(1.0)
+    assert wear.explained(*wear.attribute(np.zeros((1, H.shape[0])), W, H), W, H).max() == 0.0
+
+
+def test_a_limit_alert_needs_a_change_of_the_faults_kind() -> None:
+    """A change whose magnitude along a fault reaches the limit while the fault explains a
+    tenth of it (estimates wandering across the fault's direction as well) raises no limit
+    alert, in the scan and record by record; the same change along the fault alone does."""
+    rng = np.random.default_rng(6)
+    H, W = _library(rng, n=1)
+    m = H.shape[0]
+    h = H[:, 0]
+    a = h @ W @ h
+    v = rng.normal(size=m)
+    v -= (h @ W @ v) / a * h  # W-orthogonal to h: no part of it along the fault
+    v *= np.sqrt(9.0 * 1.2**2 * a / (v @ W @ v))  # nine times the fault's part
+    S, onset = 400, 100
+    ramp = np.clip(np.arange(S) - onset, 0, None)[:, None] / (S - onset)
+    cfg = wear.WearSettings(margin=1e6)  # the rate CUSUM never alerts: the limit alone
+    det = wear.WearDetector(H, W, np.ones(1, bool), cfg)
+    noise = rng.normal(scale=1e-3, size=(S, m))
+    for change, alerted in ((1.2 * h, True), (1.2 * h + v, False)):
+        x = noise + ramp * change
+        scan = wear.wear_scan(x, H, W, np.arange(S, dtype=float), np.zeros(S, bool),
+                              settings=cfg)
+        steps = wear.wear_steps(det, wear.WearState(), x, np.ones(S, bool), np.zeros(S, bool))
+        assert [a.kind for a in scan.alerts] == ([wear.LIMIT] if alerted else [])
+        assert [_alert_key(a) for a in steps.alerts] == [_alert_key(a) for a in scan.alerts]
+        wssr, f = wear.attribute(change[None, :], W, H)
+        assert f[0, 0] == pytest.approx(1.2)
+        assert wear.explained(wssr, f, W, H)[0, 0] == pytest.approx(1.0 if alerted else 0.1)
+
+
 def test_an_alert_due_on_held_records_comes_on_the_first_record_after() -> None:
     """``wear_steps`` with records held (the pipeline's shift alarm awaiting isolation): no
     alert on them, the CUSUMs going on, so an alert due there comes on the first record after
