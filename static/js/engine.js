@@ -35,6 +35,8 @@ const PERFORMANCE_PANELS = [
   { key: "perf-deficit", title: "Thrust deficit against the nominal engine at the same condition", ylabel: "Thrust deficit", series: ["thrust_deficit"] },
   { key: "perf-margins", title: "Stall margins", ylabel: "Stall margin", series: ["SM_fan", "SM_LPC", "SM_HPC"] },
   { key: "perf-margin-change", title: "Stall-margin change from the baseline", ylabel: "Change", series: ["SM_fan_change", "SM_LPC_change", "SM_HPC_change"] },
+  { key: "perf-t40", title: "Turbine inlet temperature (T40, estimated) against the nominal engine at the same condition", ylabel: "ΔT40", series: ["T40_change"] },
+  { key: "perf-bpr", title: "Bypass ratio (estimated), per flight phase", ylabel: "Bypass ratio", series: ["BPR"], byPhase: true },
 ];
 const UNIT_LABELS = { degC: "°C", pts: "margin points" };
 
@@ -130,9 +132,14 @@ function draw() {
   const pending = [];
   const pendingClicks = [];
   // Health first (the change since the baseline, the view engineers read), then the
-  // performance panels in engineering units, then the rest.
-  const ordered = ORDER.map((k) => trend.groups.find((g) => g.key === k)).filter(Boolean);
-  const groups = [...ordered.slice(0, 1), ...performancePanels(), ...ordered.slice(1)];
+  // performance panels in engineering units, then the rest. Where the performance panels
+  // show every auxiliary output in its unit (the built-in engine), the design's own view of
+  // them in percent of the nominal engine's value is left to the CSV and the API.
+  const performance = performancePanels();
+  const inUnits = new Set(performance.flatMap((p) => p.series.map((s) => s.name.replace(/ \(.*\)$/, ""))));
+  const auxInUnits = (g) => g.key === "aux" && g.series.every((s) => inUnits.has(s.name) || inUnits.has(`${s.name}_change`));
+  const ordered = ORDER.map((k) => trend.groups.find((g) => g.key === k)).filter((g) => g && !auxInUnits(g));
+  const groups = [...ordered.slice(0, 1), ...performance, ...ordered.slice(1)];
   for (const group of groups) {
     const id = `plot-${group.key}`;
     // Many traces: a taller plot, so the legend's rows below it leave the data its height.

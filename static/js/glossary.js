@@ -49,7 +49,7 @@ const AUX = [
   ["SM_HPC", "HPC stall margin", "margin points", "Distance of the high-pressure compressor operating point from its stall line, in margin points on the performance panels."],
   ["BPR", "Bypass ratio", "1", "Bypass flow over core flow."],
 ].map(([code, name, unit, meaning]) => ({ code, name, unit, group: "Thrust, temperatures and stall margins",
-  meaning: `${meaning} The engine page's "Estimated auxiliary outputs" plot gives its change from the nominal engine in percent.` }));
+  meaning: `${meaning} For the built-in engine the engine page shows it in its unit on the performance panels; for another engine type its "Estimated auxiliary outputs" plot gives its change from the type's nominal engine in percent (the API's aux group, and the CSV, keep that percent for every type).` }));
 
 const PERFORMANCE = [
   ["egt_margin", "EGT margin", "degC", "Red-line EGT minus the take-off EGT corrected to ISA+15 K: what is left before the limit."],
@@ -62,6 +62,7 @@ const PERFORMANCE = [
   ["SM_fan_change", "Fan stall-margin change", "margin points", "Fan stall margin against the engine's baseline."],
   ["SM_LPC_change", "LPC stall-margin change", "margin points", "LPC stall margin against the engine's baseline."],
   ["SM_HPC_change", "HPC stall-margin change", "margin points", "HPC stall margin against the engine's baseline."],
+  ["T40_change", "ΔT40 (turbine inlet temperature)", "degC", "Estimated turbine inlet temperature minus the nominal engine's at the same condition (not measured: from the health estimates)."],
 ].map(([code, name, unit, meaning]) => ({ code, name, unit, group: "Performance in engineering units", meaning }));
 
 const FAULTS = [

@@ -39,14 +39,15 @@ def test_trend_plots_every_group_with_bands_markers_and_units(
     # type's limit lines as dashed amber and red shapes.
     drawn = []
     for panel in ("perf-egt", "perf-degt", "perf-deltas", "perf-thrust", "perf-rated",
-                  "perf-deficit", "perf-margins", "perf-margin-change"):
+                  "perf-deficit", "perf-margins", "perf-margin-change", "perf-t40", "perf-bpr"):
         drawn += [t["name"] for t in traces(page, f"#plot-{panel}") if t["role"] == "line"]
-    # Thrust and thrust in % of rated: one line per flight phase (take-off and cruise differ
-    # fourfold); the rest one line per series.
+    # Thrust, thrust in % of rated and the bypass ratio: one line per flight phase (take-off
+    # and cruise thrust differ fourfold); the rest one line per series.
     phases = sorted({p for p in api["phase"] if p})
-    expected = [f"{s['name']} ({p})" if s["name"] in ("Fn", "Fn_rated") else s["name"]
+    by_phase = ("Fn", "Fn_rated", "BPR")
+    expected = [f"{s['name']} ({p})" if s["name"] in by_phase else s["name"]
                 for s in performance["series"]
-                for p in (phases if s["name"] in ("Fn", "Fn_rated") else [None])]
+                for p in (phases if s["name"] in by_phase else [None])]
     assert sorted(drawn) == sorted(expected)
     thrust = [t for t in traces(page, "#plot-perf-thrust") if t["role"] == "line"]
     assert sum(t["n"] for t in thrust) <= api["n_points"]
@@ -59,8 +60,13 @@ def test_trend_plots_every_group_with_bands_markers_and_units(
     assert sorted(limit_values) == sorted(
         line["value"] for line in performance["limits"] if line["series"] == "egt_margin"
     )
+    # Every auxiliary output is on a performance panel in its unit (T40 as its change from the
+    # nominal engine, in degrees): the design's percent-of-nominal view of them is not drawn.
+    assert page.locator("#plot-aux").count() == 0
+    assert "ΔT40 [°C]" == page.evaluate(
+        "document.querySelector('#plot-perf-t40').layout.yaxis.title.text")
     for group in api["groups"]:
-        if group["key"] == "performance":
+        if group["key"] in ("performance", "aux"):
             continue
         plotted = traces(page, f"#plot-{group['key']}")
         lines = [t for t in plotted if t["role"] == "line"]

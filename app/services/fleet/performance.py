@@ -9,6 +9,8 @@ condition comes from the record's snapshot):
 - margin SM [pts] = SM_trim (1 + z/100); its change from the baseline SM_trim z/100 [pts];
 - thrust Fn [lbf] = Fn_trim (1 + z/100); in percent of rated, 100 Fn / Fn_rated where Fn_rated is
   the schedule's take-off thrust at sea-level static, ISA; thrust deficit -z [%];
+- turbine inlet temperature T40 (estimated, not measured): its change from the nominal engine
+  at the same condition, T40_trim z/100 [K = degC]; bypass ratio BPR = BPR_trim (1 + z/100);
 - EGT is T48 (HPT exit / LPT inlet, the station the built-in engine reports as EGT; T50 is the
   LPT exit). Each delta is the measurement minus the baseline model (the nominal engine solved
   at the record's own condition), in corrected parameters (theta2 = T2/288.15 K,
@@ -46,6 +48,8 @@ DELTA_SENSORS = (("dEGT", "T48", "degC"), ("dWf", "Wf", "%"), ("dN2", "Nc", "%")
                  ("dN1", "Nf", "%"))
 MARGINS = ("SM_fan", "SM_LPC", "SM_HPC")
 THRUST = "Fn"
+TURBINE_INLET = "T40"  # estimated (not measured): its change from the nominal engine, K
+BYPASS_RATIO = "BPR"
 # Schedule axes order: alt [ft], mach, power [%], dtamb [K].
 RATED_CONDITION = (0.0, 0.0, 100.0, 0.0)
 EGT_REFERENCE_CONDITION = (0.0, 0.0, 100.0, 15.0)
@@ -158,6 +162,12 @@ def engineering_units(
             zm = z[:, aux.index(name)].astype(float)
             out.append((name, "pts", trims[name] * (1.0 + zm / 100.0)))
             out.append((f"{name}_change", "pts", trims[name] * zm / 100.0))
+    if TURBINE_INLET in aux and TURBINE_INLET in trims:
+        z40 = z[:, aux.index(TURBINE_INLET)].astype(float)
+        out.append(("T40_change", "degC", trims[TURBINE_INLET] * z40 / 100.0 / RANKINE_PER_KELVIN))
+    if BYPASS_RATIO in aux and BYPASS_RATIO in trims:
+        zb = z[:, aux.index(BYPASS_RATIO)].astype(float)
+        out.append(("BPR", "1", trims[BYPASS_RATIO] * (1.0 + zb / 100.0)))
     theta = flight_condition(cond[:, 0], cond[:, 1], cond[:, 2]).theta if n else np.empty(0)
     deltas: list[tuple[str, str, np.ndarray]] = []
     for name, sensor, unit in DELTA_SENSORS:

@@ -49,6 +49,8 @@ def test_units_equal_hand_computation_from_the_trims(schedule: EngineSchedule) -
     z = np.zeros((2, len(AUX)))
     z[:, 0] = [-3.0, -17.6]  # thrust 3 % and 17.6 % below the baseline
     z[:, 4] = [-40.0, -10.0]  # HPC stall margin
+    z[:, 1] = [1.0, 2.5]  # T40 1 % and 2.5 % above the nominal engine's
+    z[:, 5] = [-2.0, 4.0]  # bypass ratio
     base = {"T48": trims["T48"], "Wf": trims["Wf"], "Nc": trims["Nc"], "Nf": trims["Nf"]}
     # Measured: EGT 18 degR above the baseline, Wf +2 %, N2 -1 %, N1 as the baseline.
     measured = {"T48": trims["T48"] + 18.0, "Wf": trims["Wf"] * 1.02, "Nc": trims["Nc"] * 0.99,
@@ -69,6 +71,11 @@ def test_units_equal_hand_computation_from_the_trims(schedule: EngineSchedule) -
     np.testing.assert_allclose(got["SM_HPC_change"][1], -trims["SM_HPC"] * np.array([0.4, 0.1]))
     assert got["SM_HPC"][0] == "pts"
     np.testing.assert_allclose(got["SM_fan_change"][1], 0.0)
+    # T40: its change from the nominal engine in K (the trims are degR).
+    np.testing.assert_allclose(got["T40_change"][1],
+                               trims["T40"] * np.array([0.01, 0.025]) / 1.8, rtol=1e-12)
+    assert got["T40_change"][0] == "degC" and got["BPR"][0] == "1"
+    np.testing.assert_allclose(got["BPR"][1], trims["BPR"] * np.array([0.98, 1.04]), rtol=1e-12)
 
     theta = flight_condition(cond[:, 0], cond[:, 1], cond[:, 2]).theta
     d_egt = 18.0 / 1.8 / theta  # K, corrected

@@ -70,6 +70,8 @@ BOUNDS = {
     "dWf": 0.6,  # %
     "dN2": 0.15,
     "dN1": 0.15,
+    "T40_change": 3.5,  # K (the estimated turbine inlet temperature's change from nominal)
+    "BPR": 0.05,  # bypass ratio (about 8.5 at take-off)
 }
 COVERAGE_ONE_SIGMA = (0.5, 0.95)
 # The demo's active design, and the browser tests' seed design (subset m = 8), with the
@@ -165,8 +167,10 @@ def _truth(schedule: EngineSchedule, plan: FleetPlan, snaps: Snapshots, esn: str
         "egt_margin": REDLINE_C - (at_ref.sensors[:, SENSOR_NAMES.index("T48")] / 1.8 - 273.15),
         "dEGT": (true.sensors[:, 7] - nominal.sensors[:, 7]) / theta / 1.8,
     }
-    for name in ("SM_fan", "SM_LPC", "SM_HPC"):
+    for name in ("SM_fan", "SM_LPC", "SM_HPC", "BPR"):
         out[name] = true.aux[:, AUX_NAMES.index(name)]
+    t40 = AUX_NAMES.index("T40")
+    out["T40_change"] = (true.aux[:, t40] - nominal.aux[:, t40]) / 1.8
     for name, sensor in (("dWf", "Wf"), ("dN2", "Nc"), ("dN1", "Nf")):
         k = SENSOR_NAMES.index(sensor)
         out[name] = 100.0 * (true.sensors[:, k] / nominal.sensors[:, k] - 1.0)
