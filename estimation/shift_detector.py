@@ -41,7 +41,7 @@ from dataclasses import dataclass, replace
 from typing import NamedTuple, Protocol
 
 import numpy as np
-from scipy import stats
+from scipy import optimize, stats
 
 from estimation.detection import CusumDesign, cusum_step
 from estimation.isolation import bounded_fit
@@ -194,8 +194,11 @@ class ShiftState:
 @dataclass(frozen=True, eq=False)
 class Isolation:
     """An alarm's outcome: the tuner change since its baseline, WSSR_i and f_i of every fault
-    with the threshold they are held to, the change's distance with its threshold and the
-    least part of the distance a named fault must explain (``evidence_threshold``)."""
+    with the threshold they are held to, the change's distance with its threshold, the least
+    part of the distance a named fault must explain (``evidence_threshold``), and how a right
+    fault's WSSR is distributed: chi-squared with ``wssr_dof`` degrees of freedom once divided
+    by ``wssr_scale`` (the model-error margin of a sensor-space fit; what an event's
+    confidence judges the fit with)."""
 
     alarm: PendingAlarm
     change: np.ndarray
@@ -205,6 +208,8 @@ class Isolation:
     distance: float
     shift_threshold: float
     evidence_threshold: float = 0.0
+    wssr_dof: int = 1
+    wssr_scale: float = 1.0
 
     @property
     def nearest(self) -> int | None:
@@ -269,11 +274,27 @@ def isolate(
             alarm, change, wssr, f,
             SENSOR_WSSR_MARGIN * float(stats.chi2.ppf(SENSOR_ISOLATION_LEVEL, n - 1)),
             float(fit.c), float(stats.chi2.isf(SHIFT_LEVEL, n)), EVIDENCE_THRESHOLD,
+            n - 1, SENSOR_WSSR_MARGIN,
         )
     wssr, f = wssr_all(change, P, model.H)
     distance = float(change @ np.linalg.solve(P, change))
     return Isolation(alarm, change, wssr, f, model.wssr_threshold, distance,
-                     model.shift_threshold)
+                     model.shift_threshold, wssr_dof=max(model.m - 1, 1))
+
+
+def sensor_fit_dof(threshold: float) -> int:
+    """The n - 1 degrees of freedom of a sensor-space isolation's WSSR threshold
+    (``isolate``: SENSOR_WSSR_MARGIN chi2_0.999(n - 1)), read back from the threshold, for
+    events stored before they were stored themselves."""
+    q = threshold / SENSOR_WSSR_MARGIN
+    if q <= float(stats.chi2.ppf(SENSOR_ISOLATION_LEVEL, 1)):
+        return 1
+    hi = 2.0
+    while float(stats.chi2.ppf(SENSOR_ISOLATION_LEVEL, hi)) < q:
+        hi *= 2.0
+    dof = optimize.brentq(lambda d: float(stats.chi2.ppf(SENSOR_ISOLATION_LEVEL, d)) - q,
+                          1.0, hi)
+    return max(int(round(dof)), 1)
 
 
 def _rows(a: np.ndarray) -> Rows:

@@ -324,6 +324,11 @@ class EventConfidence(BaseModel):
         description="chi-squared tail probability of the smallest WSSR: small when no library "
         "fault explains the event"
     )
+    fit_level: float = Field(
+        default=0.001,
+        description="the tail probability below which no library fault explains the event (the "
+        "level the isolation accepts a fault at)",
+    )
     ambiguity_group: list[str] = Field(
         description="faults the design confuses with the isolated one (its confusion)"
     )

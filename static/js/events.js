@@ -154,11 +154,11 @@ function confidenceCard(event) {
     ? h("p", { class: "notice", id: "ambiguity" }, `This design cannot reliably tell ${c.ambiguity_group.join(" or ")} apart `
       + `(${c.source === "nonlinear_engine" ? "on the built-in nonlinear engine" : "in its Monte Carlo evaluation"}): treat the finding as "${c.ambiguity_group.join(" or ")}".`)
     : null;
-  const fit = c.fit_probability < 0.01
+  const fit = c.fit_probability < c.fit_level
     ? h("p", { class: "notice" }, `No library fault explains the event well (chi-squared tail probability ${fmtNum(c.fit_probability, 3)}): the probabilities rank the library's faults only.`)
     : null;
   const card = h("section", { class: "card", id: "confidence" },
-    h("h2", {}, c.fit_probability < 0.01 ? `Confidence: closest library fault ${c.label}, but none fits the event`
+    h("h2", {}, c.fit_probability < c.fit_level ? `Confidence: closest library fault ${c.label}, but none fits the event`
       : `Confidence: ${c.label} (${fmtNum(100 * c.probability, 0)} % ${c.isolated})`),
     h("p", { class: "muted", id: "confidence-source" }, `${SOURCE_TEXT[c.source] || c.source}${c.evaluation_job_id ? ` (evaluation job #${c.evaluation_job_id})` : ""}; the label names the fewest faults holding ${fmtNum(100 * c.credible_mass, 0)} % of the probability.`),
     group, fit,

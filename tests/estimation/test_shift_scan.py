@@ -48,3 +48,19 @@ def test_level_scan_equals_one_solve_per_record_and_a_batch_of_one_bit_for_bit(
 def test_level_scan_checks_shapes() -> None:
     with pytest.raises(ValueError, match="P must be"):
         level_scan(np.zeros((3, 2)), np.zeros((3, 3, 3)), np.zeros((2, 1)))
+
+
+@pytest.mark.parametrize("dof", [1, 2, 9, 19, 219, 1999])
+def test_a_sensor_space_threshold_reads_back_to_its_degrees_of_freedom(dof: int) -> None:
+    """``sensor_fit_dof`` inverts the sensor-space isolation threshold (an event stored before
+    its degrees of freedom were): SENSOR_WSSR_MARGIN chi2_0.999(dof) -> dof."""
+    from scipy import stats
+
+    from estimation.shift_detector import (
+        SENSOR_ISOLATION_LEVEL,
+        SENSOR_WSSR_MARGIN,
+        sensor_fit_dof,
+    )
+
+    threshold = SENSOR_WSSR_MARGIN * float(stats.chi2.ppf(SENSOR_ISOLATION_LEVEL, dof))
+    assert sensor_fit_dof(threshold) == dof

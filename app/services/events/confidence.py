@@ -1,9 +1,11 @@
 """Confidence per event: the posterior over the fault hypotheses, computed when it is read.
 
-From the event's stored WSSR per hypothesis (tuner space, chi-squared with m - 1 degrees of
-freedom for a design of m tuners, seed 002 eq. 21-23) and the measured confusion of the
-design that isolated it (``estimation.posterior.fault_posterior``, p_i ∝ pi_i exp(-WSSR_i / 2)
-C_ij with j the isolated fault). The confusion is the design's latest evaluation on the
+From the event's stored WSSR per hypothesis (seed 002 eq. 21-23: chi-squared for the right
+fault, with the degrees of freedom and model-error margin of the isolation that computed it,
+``wssr_fit``: m - 1 in tuner space for a design of m tuners, n - 1 for a sensor-space fit of n
+values) and the measured confusion of the design that isolated it
+(``estimation.posterior.fault_posterior``, p_i ∝ pi_i exp(-WSSR_i / 2 s) C_ij with j the
+isolated fault and s that margin). The confusion is the design's latest evaluation on the
 built-in nonlinear engine when there is one, else its linear Monte Carlo confusion (WSSR on
 tuner estimates), else none (WSSR alone); ``source`` says which. The label names the fewest
 faults holding 90 % of the posterior ("HPT or Wf"); the ambiguity group is the isolated fault
@@ -25,14 +27,17 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy import stats
 from sqlalchemy.orm import Session
 
 from app.models.estimates import Event
 from app.services.designs import engine_evaluation
 from app.services.designs.evaluation import latest_evaluation
 from app.services.designs.service import get_design
+from app.services.snapshots.estimator import ISOLATION_LEVEL
 from estimation.isolation import SEED_002_FAULTS
 from estimation.posterior import fault_posterior
+from estimation.shift_detector import SENSOR_WSSR_MARGIN, sensor_fit_dof
 from estimation.wear import wear_hypotheses
 
 CREDIBLE_MASS = 0.9
@@ -97,6 +102,24 @@ def hypotheses(event: Event, evidence: DesignEvidence, faults: tuple[str, ...]) 
     return kept or faults
 
 
+def wssr_fit(event: Event, evidence: DesignEvidence) -> tuple[int, float]:
+    """The chi-squared degrees of freedom of a right fault's WSSR, and the model-error scale it
+    is divided by (``fault_posterior``'s dof and scale): stored with an abrupt event (the shift
+    detector's isolation, ``Isolation.wssr_dof``: in tuner space m - 1; in sensor space the
+    fit's n - 1 values, held to its margin); for one stored before them, a threshold other than
+    the tuner space's quantile is a sensor-space fit's, read back to its n - 1; a wear event's
+    WSSR (tuner space, weighted as the health change) takes m - 1."""
+    shift = event.shift or {}
+    tuner = max(evidence.n_tuners - 1, 1)
+    if shift.get("wssr_dof"):
+        return int(shift["wssr_dof"]), float(shift.get("wssr_scale") or 1.0)
+    threshold = shift.get("wssr_threshold")
+    if event.kind == "wear" or threshold is None or np.isclose(
+            float(threshold), stats.chi2.ppf(ISOLATION_LEVEL, tuner), rtol=1e-9):
+        return tuner, 1.0
+    return sensor_fit_dof(float(threshold)), SENSOR_WSSR_MARGIN
+
+
 def event_confidence(event: Event, evidence: DesignEvidence) -> dict[str, Any] | None:
     """The ``confidence`` of an event (``EventConfidence``); None without stored WSSR."""
     wssr_map = {k: float(v) for k, v in (event.wssr or {}).items()}
@@ -115,7 +138,8 @@ def event_confidence(event: Event, evidence: DesignEvidence) -> dict[str, Any] |
             C = evidence.confusion[np.ix_(order, order)]
         else:
             source = "wssr_only"  # the confusion was measured on another fault library
-    post = fault_posterior(wssr, max(evidence.n_tuners - 1, 1), faults, confusion=C)
+    dof, scale = wssr_fit(event, evidence)
+    post = fault_posterior(wssr, dof, faults, confusion=C, scale=scale)
     isolated = faults[int(post.isolated)]
     out: dict[str, Any] = {
         "source": source,
@@ -129,6 +153,7 @@ def event_confidence(event: Event, evidence: DesignEvidence) -> dict[str, Any] |
         "label": post.label(CREDIBLE_MASS)[0],
         "credible_mass": CREDIBLE_MASS,
         "fit_probability": float(post.fit_probability),
+        "fit_level": 1.0 - ISOLATION_LEVEL,
         "ambiguity_group": [isolated],
         "confusion_row": None,
         "not_visible": [f for f in evidence.not_visible if f in faults],

@@ -130,6 +130,8 @@ def event(est: SnapshotEstimator, iso: Isolation) -> EventDraft | None:
             "health": {n: float(v) for n, v in zip(est.layout.health, h_change, strict=True)},
             "fault": fault_shift,
             "wssr_threshold": iso.wssr_threshold,
+            "wssr_dof": iso.wssr_dof,
+            "wssr_scale": iso.wssr_scale,
             "nearest": names[best] if best is not None else None,
             "distance": iso.distance,
         },

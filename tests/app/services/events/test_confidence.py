@@ -192,3 +192,37 @@ def test_wear_event_ranks_the_module_faults_its_attribution_chose_from(
     # An abrupt fault's isolation ranks every fault of the library, actuator biases too.
     conf = client.get(f"/api/v1/events/{abrupt.id}", headers=h).json()["confidence"]
     assert conf["faults"] == FAULTS and conf["left_out"] == [] and conf["isolated"] == "Wf"
+
+
+def test_an_isolated_faults_fit_is_judged_with_its_own_degrees_of_freedom(
+    client: TestClient, session: Session, fleet: Fleet
+) -> None:
+    """An abrupt fault isolated in sensor space (20 records of 11 sensors: 219 degrees of
+    freedom, the WSSR held to a margin of 1.5 for model error) has a WSSR in the hundreds: its
+    fit is judged as chi-squared with those degrees of freedom, not the tuner space's m - 1
+    (which called every isolated fault of the demo "none fits", tail probabilities near
+    1e-50). Stored with the event, or read back from its threshold for one stored before."""
+    from scipy import stats
+
+    from estimation.shift_detector import SENSOR_ISOLATION_LEVEL, SENSOR_WSSR_MARGIN
+
+    engine = add_engine(session, fleet, "CF4")
+    wssr = {"Fan": 900.0, "HPC": 255.7, "HPT": 700.0, "Wf": 820.0}
+    threshold = SENSOR_WSSR_MARGIN * float(stats.chi2.ppf(SENSOR_ISOLATION_LEVEL, 219))
+    base = {"tuners": {"q1": -1.0}, "health": {"hpc_eff": -2.2}, "fault": {"hpc_eff": -2.2},
+            "wssr_threshold": threshold}
+    stored = _event(session, fleet, engine.id, 1, fault="HPC", wssr=wssr,
+                    shift={**base, "wssr_dof": 219, "wssr_scale": SENSOR_WSSR_MARGIN})
+    older = _event(session, fleet, engine.id, 2, fault="HPC", wssr=wssr, shift=base)
+    session.commit()
+    expected_fit = float(stats.chi2.sf(255.7 / SENSOR_WSSR_MARGIN, 219))
+    w = np.array([wssr[f] for f in FAULTS]) / SENSOR_WSSR_MARGIN
+    p = np.exp(-(w - w.min()) / 2)
+    for event in (stored, older):
+        conf = client.get(f"/api/v1/events/{event.id}",
+                          headers={"X-API-Key": fleet.key}).json()["confidence"]
+        assert conf["fit_probability"] == pytest.approx(expected_fit, rel=1e-9)
+        assert conf["fit_probability"] > 0.5  # a good fit, as the isolation found it
+        np.testing.assert_allclose(conf["posterior"], p / p.sum(), rtol=1e-9)
+        assert conf["isolated"] == "HPC"
+

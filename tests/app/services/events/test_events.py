@@ -20,7 +20,7 @@ def _event(session: Session, fleet: Fleet, engine_id: int, seq: int, **kw: objec
         detected_at=T0 + timedelta(days=seq), kind="isolated_fault", fault="HPC",
         magnitude=1.1, statistic=42.0, wssr={"HPC": 1.5, "Fan": 30.0},
         shift={"tuners": {"q1": -1.0}, "health": {"hpc_eff": -2.2}, "fault": {"hpc_eff": -2.2},
-               "wssr_threshold": 20.5},
+               "wssr_threshold": 20.5, "wssr_dof": 4, "wssr_scale": 1.0},
     )
     fields.update(kw)
     event = Event(**fields)
