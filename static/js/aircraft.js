@@ -78,6 +78,13 @@ function drawPositions() {
   const y = healthRange();
   const divs = [];
   const pending = [];
+  // A parameter the design cannot estimate comes back as nulls: named once, not drawn.
+  const hidden = unobservable();
+  $("#unobservable")?.remove();
+  if (hidden.size) {
+    container.before(h("p", { class: "muted", id: "unobservable" },
+      `Not observable with this design: ${[...hidden].map(nameOf).join(", ")}.`));
+  }
   for (const p of positions()) {
     const segs = tail.segments.filter((s) => s.position === p && group(s, "health"));
     const div = h("div", { id: `plot-position-${p}`, class: "plot tall" });
@@ -87,6 +94,7 @@ function drawPositions() {
     segs.forEach((seg, k) => {
       const g = group(seg, "health");
       g.series.forEach((s, i) => {
+        if (hidden.has(s.name)) return;
         for (const t of lineWithBand(...broken(seg.trend.time, s), i)) {
           // One legend entry per parameter, however many engines the position had.
           // The hover names the engine, and the 1-sigma where the API gives one.
@@ -236,11 +244,20 @@ function drawInstallations() {
     : h("p", { class: "muted" }, "No installations recorded."));
 }
 
+// Health parameters no segment's design estimates (each segment's ``unobservable``).
+function unobservable() {
+  const groups = tail.segments.map((seg) => group(seg, "health")).filter(Boolean);
+  if (!groups.length) return new Set();
+  const seen = groups.map((g) => new Set(g.unobservable || []));
+  return new Set([...seen[0]].filter((n) => seen.every((set) => set.has(n))));
+}
+
 function drawParameterChoices() {
   const names = [];
+  const hidden = unobservable();
   for (const seg of tail.segments) {
     for (const g of seg.trend.groups.filter((x) => x.key === "health" || x.key === "aux")) {
-      for (const s of g.series) if (!names.includes(s.name)) names.push(s.name);
+      for (const s of g.series) if (!names.includes(s.name) && !hidden.has(s.name)) names.push(s.name);
     }
   }
   const wanted = params().get("parameter");

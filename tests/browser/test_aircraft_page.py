@@ -62,11 +62,16 @@ def test_aircraft_page_from_the_fleet_tail_link(
     for p in positions:
         segs = [s for s in trend["segments"] if s["position"] == p and s["trend"]["groups"]]
         health = next(g for g in segs[0]["trend"]["groups"] if g["key"] == "health")
+        # A parameter the design cannot estimate is named, not drawn, and not offered.
+        hidden = set(health.get("unobservable") or [])
+        shown = [s for s in health["series"] if s["name"] not in hidden]
         lines = [t for t in traces(page, f"#plot-position-{p}") if t["role"] == "line"]
-        assert len(lines) == len(segs) * len(health["series"])
+        assert len(lines) == len(segs) * len(shown)
+        options = page.eval_on_selector_all("#parameter option", "os => os.map((o) => o.value)")
+        assert not hidden & set(options)
         # Every point (a gap in the data adds one null point to break the line).
         assert sorted(t["n"] for t in lines) == pytest.approx(sorted(
-            s["trend"]["n_points"] for s in segs for _ in health["series"]), abs=10)
+            s["trend"]["n_points"] for s in segs for _ in shown), abs=10)
         ranges.append(page.evaluate(
             f"(() => {{ const l = document.querySelector('#plot-position-{p}').layout;"
             " return [l.xaxis.range, l.yaxis.range]; })()"))
