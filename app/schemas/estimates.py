@@ -251,6 +251,11 @@ class DeteriorationGroup(BaseModel):
     n_engines: list[int]
     health: list[DeteriorationSeries]
     aux: list[DeteriorationSeries]
+    unobservable: list[str] = Field(
+        default_factory=list,
+        description="health parameters the design's calibration finds unobservable (their "
+        "means and spreads null)",
+    )
 
 
 class FleetDeterioration(BaseModel):

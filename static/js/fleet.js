@@ -170,7 +170,13 @@ async function loadDeterioration() {
     const multi = data.groups.length > 1;
     let units = [];
     data.groups.forEach((g, gi) => {
-      const series = g[which];
+      // A health parameter the design cannot observe: named, not drawn.
+      const hidden = new Set(which === "health" ? g.unobservable || [] : []);
+      if (hidden.size) {
+        message.append(h("p", { class: "muted", id: `unobservable-${g.design_id}` },
+          `${multi ? `${g.engine_type}: n` : "N"}ot observable with its design: ${[...hidden].map(nameOf).join(", ")}.`));
+      }
+      const series = g[which].filter((s) => !hidden.has(s.name));
       units = units.concat(series.map((s) => s.unit));
       series.forEach((s, i) => {
         const style = styleFor(s.name, i);

@@ -513,6 +513,10 @@ def _fleet_status(
     }
 
 
+def _nulls(values: np.ndarray) -> list[float | None]:
+    return [None if not np.isfinite(v) else v for v in values.tolist()]
+
+
 def _series(
     names: tuple[str, ...], units: list[str] | None, mean: np.ndarray, spread: np.ndarray,
     offset: int,
@@ -522,8 +526,8 @@ def _series(
         {
             "name": name,
             "unit": unit_list[j],
-            "mean": np.round(mean[:, offset + j], 4).tolist(),
-            "sigma": np.round(spread[:, offset + j], 4).tolist(),
+            "mean": _nulls(np.round(mean[:, offset + j], 4)),
+            "sigma": _nulls(np.round(spread[:, offset + j], 4)),
         }
         for j, name in enumerate(names)
     ]
@@ -597,8 +601,13 @@ def fleet_deterioration(
         spread = np.sqrt(np.maximum(squares / n_engines[:, None] - mean**2, 0.0))
         p = len(layout.health)
         units = layout.units
-
-
+        # A parameter the design's calibration finds unobservable: nulls, named (as the
+        # engine trend's health group has it), not a fleet average of what it cannot see.
+        calib = design_calibration(session, design_id)
+        hidden = (np.zeros(p, bool) if calib is None
+                  else ~np.asarray(calib.on(layout.health).observable, bool))
+        mean[:, :p][:, hidden] = np.nan
+        spread[:, :p][:, hidden] = np.nan
         groups.append(
             {
                 "engine_type": type_name,
@@ -610,6 +619,7 @@ def fleet_deterioration(
                 "n_engines": n_engines.tolist(),
                 "health": _series(layout.health, units.get("health"), mean, spread, 0),
                 "aux": _series(layout.aux, units.get("aux"), mean, spread, p),
+                "unobservable": [n for n, off in zip(layout.health, hidden, strict=True) if off],
             }
         )
     return {"bucket": bucket, "groups": groups}

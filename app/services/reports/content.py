@@ -307,7 +307,8 @@ def fleet_report(session: Session, operator_id: int, bucket: str = "month") -> F
     groups = tuple(
         DeteriorationGroup(
             g["engine_type"], list(g["time"]), list(g["n_engines"]),
-            tuple(Series(s["name"], s["unit"], s["mean"], s["sigma"]) for s in g["health"]),
+            tuple(Series(s["name"], s["unit"], s["mean"], s["sigma"]) for s in g["health"]
+                  if s["name"] not in g["unobservable"]),
             tuple(Series(s["name"], s["unit"], s["mean"], s["sigma"]) for s in g["aux"]),
         )
         for g in deterioration["groups"]

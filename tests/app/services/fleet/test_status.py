@@ -106,6 +106,22 @@ def test_deterioration_is_the_mean_over_engines_of_engine_means(session: Session
     got = [s["mean"][0] for s in group["health"]]
     np.testing.assert_allclose(got, expected, atol=1e-4)
     np.testing.assert_allclose([s["sigma"][0] for s in group["health"]], spread, atol=1e-4)
+    assert group["unobservable"] == []
+    # With a calibration that finds fan_eff unobservable: nulls, named; the rest as before.
+    calib = Calibration(
+        names=("fan_eff", "hpc_eff", "hpc_flow"), level_std=np.zeros(3), change_std=np.zeros(3),
+        slope_error=np.zeros(3), bias2=np.zeros(3), drift=np.zeros(3),
+        observable=np.array([False, True, True]),
+    )
+    fleet.design.result = {"uncertainty": calib.to_dict()}
+    session.flush()
+    group = status.fleet_deterioration(session, fleet.operator_id, "month")["groups"][0]
+    assert group["unobservable"] == ["fan_eff"]
+    fan = next(s for s in group["health"] if s["name"] == "fan_eff")
+    assert fan["mean"] == [None] and fan["sigma"] == [None]
+    shown = [i for i, s in enumerate(group["health"]) if s["name"] != "fan_eff"]
+    np.testing.assert_allclose([group["health"][i]["mean"][0] for i in shown], expected[shown],
+                               atol=1e-4)
 
 
 def test_deterioration_slopes_split_at_shop_visits_calibrated_and_unobservable(
