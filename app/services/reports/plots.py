@@ -101,7 +101,7 @@ def deterioration_figure(groups: tuple[DeteriorationGroup, ...], which: str) -> 
     """The fleet page's deterioration plot: fleet mean per bucket, spread over engines as
     error bars; ``which`` is "health" or "aux"."""
     label = ("Fleet-average health parameter change" if which == "health"
-             else "Fleet-average thrust and margin change")
+             else "Fleet-average thrust and margins, % of the nominal engine")
     series = tuple(s for g in groups for s in (g.health if which == "health" else g.aux))
     figure = go.Figure(layout=_layout(label, _axis_title(label, series)))
     multi = len(groups) > 1
