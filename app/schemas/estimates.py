@@ -343,6 +343,11 @@ class EventConfidence(BaseModel):
     not_visible: list[str] = Field(
         description="library faults with no visible signature on the built-in engine"
     )
+    explained: float | None = Field(
+        default=None,
+        description="for a wear event, the share of the accumulated change (weighed as its "
+        "health change) the isolated fault explains; null for other events",
+    )
     left_out: list[str] = Field(
         default_factory=list,
         description="faults of the event's WSSR that are not hypotheses of this kind of event: "

@@ -163,6 +163,9 @@ function confidenceCard(event) {
     h("p", { class: "muted", id: "confidence-source" }, `${SOURCE_TEXT[c.source] || c.source}${c.evaluation_job_id ? ` (evaluation job #${c.evaluation_job_id})` : ""}; the label names the fewest faults holding ${fmtNum(100 * c.credible_mass, 0)} % of the probability.`),
     group, fit,
     c.not_visible.length ? h("p", { class: "muted" }, `Faults with no visible signature on the built-in engine, which no design isolates: ${c.not_visible.join(", ")}.`) : null,
+    c.explained !== null && c.explained !== undefined
+      ? h("p", { class: "muted", id: "explained" }, `${c.isolated} explains ${fmtNum(100 * c.explained, 0)} % of the change accumulated since the wear baseline (weighed as the health change).`)
+      : null,
     leftOutNote(event, c),
     h("div", { class: "grid" },
       h("div", {}, h("h3", {}, "Probability of each fault hypothesis"), post),

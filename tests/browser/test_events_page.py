@@ -127,6 +127,8 @@ def test_a_wear_event_ranks_module_faults_and_says_what_fits_better(
                            headers={"X-API-Key": key}).json()["confidence"]
     assert confidence["isolated"] == "LPT" and confidence["left_out"] == ["Wf"]
     assert "LPT" in page.inner_text("#confidence h2")
+    # LPT's part of the change: 1 - 11.9 / (1.0^2 + 3.4^2) = 5 %.
+    assert page.inner_text("#explained").startswith("LPT explains 5 % of the change")
     note = page.inner_text("#left-out")
     assert "not ranked: Wf" in note and "Wf fits this change better" in note
     assert page.evaluate("document.querySelector('#posterior').data[0].x") == ["Fan", "HPC",

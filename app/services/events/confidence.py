@@ -120,6 +120,18 @@ def wssr_fit(event: Event, evidence: DesignEvidence) -> tuple[int, float]:
     return sensor_fit_dof(float(threshold)), SENSOR_WSSR_MARGIN
 
 
+def _explained(event: Event, wssr: float) -> float | None:
+    """For a wear event, the share of its accumulated change that a fault of this WSSR
+    explains: 1 - WSSR / d^T W d, the change weighed as its health change (W = V*^+T V*^+,
+    so d^T W d is the sum of the stored health change's squares; ``estimation.wear.explained``).
+    None for other events, or no change."""
+    if event.kind != "wear":
+        return None
+    health = ((event.shift or {}).get("health") or {}).values()
+    total = float(sum(float(v) ** 2 for v in health))
+    return None if total <= 0 else max(0.0, 1.0 - wssr / total)
+
+
 def event_confidence(event: Event, evidence: DesignEvidence) -> dict[str, Any] | None:
     """The ``confidence`` of an event (``EventConfidence``); None without stored WSSR."""
     wssr_map = {k: float(v) for k, v in (event.wssr or {}).items()}
@@ -158,6 +170,7 @@ def event_confidence(event: Event, evidence: DesignEvidence) -> dict[str, Any] |
         "confusion_row": None,
         "not_visible": [f for f in evidence.not_visible if f in faults],
         "left_out": [f for f in every if f not in faults],
+        "explained": _explained(event, wssr_map[isolated]),
     }
     if C is not None:
         # The isolated fault and those it is confused with directly (C_ij + C_ji above the

@@ -165,8 +165,9 @@ def test_wear_event_ranks_the_module_faults_its_attribution_chose_from(
     engine = add_engine(session, fleet, "CF3")
     wssr = {"Fan": 16.0, "HPC": 15.5, "HPT": 12.0, "Wf": 2.3}  # Wf fits best, HPT of the modules
     wear_doc = {"alert": "directional", "statistic": 8.7, "threshold": 7.4, "baseline_seq": 20}
+    health = {"hpt_eff": -3.0, "hpt_flow": 2.0, "fan_eff": 1.0}  # sum of squares 14
     stored = _event(session, fleet, engine.id, 1, kind="wear", fault="HPT", wssr=wssr,
-                    shift={"wear": {**wear_doc, "hypotheses": ["Fan", "HPT"]}})
+                    shift={"health": health, "wear": {**wear_doc, "hypotheses": ["Fan", "HPT"]}})
     older = _event(session, fleet, engine.id, 2, kind="wear", fault="HPT", wssr=wssr,
                    shift={"wear": wear_doc})
     abrupt = _event(session, fleet, engine.id, 3, fault="Wf", wssr=wssr)
@@ -182,6 +183,8 @@ def test_wear_event_ranks_the_module_faults_its_attribution_chose_from(
                                      "percent": [0.0, 62.0]}
     # The fit is judged on the ranked hypotheses: HPT's WSSR of 12 with 4 degrees of freedom.
     assert conf["fit_probability"] == pytest.approx(0.017351, rel=1e-3)
+    # HPT's part of the change weighed as its health change: 1 - 12 / 14.
+    assert conf["explained"] == pytest.approx(1.0 - 12.0 / 14.0)
 
     conf = client.get(f"/api/v1/events/{older.id}", headers=h).json()["confidence"]
     assert conf["faults"] == ["Fan", "HPC", "HPT"] and conf["left_out"] == ["Wf"]
@@ -192,6 +195,7 @@ def test_wear_event_ranks_the_module_faults_its_attribution_chose_from(
     # An abrupt fault's isolation ranks every fault of the library, actuator biases too.
     conf = client.get(f"/api/v1/events/{abrupt.id}", headers=h).json()["confidence"]
     assert conf["faults"] == FAULTS and conf["left_out"] == [] and conf["isolated"] == "Wf"
+    assert conf["explained"] is None
 
 
 def test_an_isolated_faults_fit_is_judged_with_its_own_degrees_of_freedom(
