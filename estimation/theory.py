@@ -352,3 +352,26 @@ def _scatter(
             full[ok] = part[i]
         fields.append(full)
     return BatchedErrors(*fields)
+
+
+def information_floor(
+    gains: Sequence[np.ndarray], noise_std: Sequence[np.ndarray], prior_std: np.ndarray,
+    records: int,
+) -> np.ndarray:
+    """The least 1-sigma [p] with which ``records`` snapshots at each of several operating
+    points can know constant parameters (the Cramer-Rao bound with the fleet's prior): each
+    point's steady-state gain G_k [ny, p] (``LinearModel.steady_state_gains``, the sensors
+    the design uses) and noise 1-sigma [ny] give the information G_k^T R_k^-1 G_k, and
+
+        P = (records sum_k G_k^T R_k^-1 G_k + diag(prior_std)^-2)^-1,   floor = sqrt(diag P).
+
+    A parameter whose floor stays near its prior however many records come (a direction no
+    phase's sensors see apart from another, as hpc_flow from the VSV rigging on the built-in
+    engine) has a level no estimator can know better: its error is each engine's own for life.
+    """
+    prior_std = np.asarray(prior_std, float)
+    info = np.diag(1.0 / prior_std**2)
+    for G, s in zip(gains, noise_std, strict=True):
+        Gw = np.asarray(G, float) / np.asarray(s, float)[:, None]
+        info = info + records * (Gw.T @ Gw)
+    return np.sqrt(np.diag(np.linalg.inv(info)))
