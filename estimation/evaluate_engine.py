@@ -113,6 +113,7 @@ WF_MODES = ("input", "sensor")
 # Record phases: the flight's steady snapshot points and ground idle (flight.PHASE_WINDOWS).
 RECORD_PHASES = ("ground_idle", "takeoff", "climb", "cruise")
 DEFAULT_PHASES = ("takeoff", "cruise")  # the product's replay
+FLOOR_RECORDS = 1000  # snapshots of each phase the information floor is stated for
 GROUND_IDLE_S = 60.0  # the ground-idle snapshot's time from the start of the flight
 NO_SIGNATURE_SIGMAS = 1.0  # an event signature below this shows a fault no better than chance
 
@@ -521,3 +522,39 @@ def evaluate_design(
     explained = c - wssr[np.arange(len(isolated)), isolated]
     return EngineEvaluation(design.name, rec.fault_names, conf, wssr, dof, f, rec.fault,
                             isolated, rms, coverage, explained)
+
+
+def information_floors(
+    schedule: EngineSchedule,
+    sensors: Sequence[str],
+    records: int = FLOOR_RECORDS,
+    phases: Sequence[str] = DEFAULT_PHASES,
+    scatter_std: float = 0.4,
+    bias_std: tuple[float, float, float] = (0.5, 1.0, 2.0),
+) -> np.ndarray:
+    """The least 1-sigma [13] (``HEALTH_NAMES``, percent) with which ``sensors`` can know each
+    health parameter and actuator bias of an engine from ``records`` snapshots of each of
+    ``phases`` of the seed 001 flight (``theory.information_floor``): the schedule's linear
+    model at each phase's condition, the engine's sensor noise in percent of the sensor's trim
+    there, the simulated fleet's scatter and rigging (``simulate_records``' defaults) as the
+    prior, fuel flow held as an input as the pipeline holds it. What no design on these sensors
+    can beat, however it is tuned; a parameter whose floor stays near its prior is one whose
+    level the sensors do not see."""
+    from estimation.theory import information_floor
+
+    points = {p.phase: p.condition for p in snapshot_points(flight_profile())}
+    unknown = [p for p in phases if p not in points]
+    if unknown:
+        raise EngineEvaluationError(f"phases {unknown} have no snapshot of the seed 001 flight")
+    rows = [SENSOR_NAMES.index(s) for s in sensors if s != "Wf"]
+    absolute = engine_noise_std()[rows]
+    gains, noise = [], []
+    for phase in phases:
+        c = points[phase]
+        model = schedule.model_at(float(c.alt_ft[0]), float(c.mach[0]), float(c.power_pct[0]),
+                                  float(c.dtamb_k[0]))
+        trims = np.array([model.trim[SENSOR_NAMES[r]] for r in rows])
+        gains.append(model.steady_state_gains()[0][rows])
+        noise.append(100.0 * absolute / np.abs(trims))
+    prior = np.r_[np.full(N_TURBO, scatter_std), bias_std]
+    return information_floor(gains, noise, prior, records)

@@ -62,6 +62,7 @@ def test_two_designs_side_by_side(page: Any, server: Server, console: Console) -
     bars = _data(page, "#engine-health-a")
     assert bars[0]["y"] == pytest.approx(engine["health"]["rms"])
     assert bars[1]["y"] == pytest.approx([100 * c for c in engine["health"]["coverage_95"]])
+    assert bars[2]["y"] == pytest.approx(engine["health"]["floor"])  # the sensors' floor
     card = page.inner_text("#design-a")
     assert f"correct {engine['percent_correct']:.1f} %" in card
     assert engine["visibility"]["not_visible"]  # VBV on this engine

@@ -85,6 +85,13 @@ def test_builtin_design_evaluation_has_the_nonlinear_engine_run(
     idx = [HEALTH_NAMES.index(h) for h in names]
     np.testing.assert_allclose(run["health"]["rms"], direct.health_rms[idx], rtol=1e-9)
     np.testing.assert_allclose(run["health"]["coverage_95"], direct.coverage[idx], rtol=1e-9)
+    # The least 1-sigma the sensors allow: as the estimation core computes it; hpc_flow's
+    # stays near its 0.4 % scatter (the VSV rigging mixes with it), hpc_eff's falls far below.
+    floors = ee.information_floors(coarse_schedule, stored["sensors"])
+    np.testing.assert_allclose(run["health"]["floor"], np.round(floors[idx], 4))
+    assert run["health"]["floor_records"] == ee.FLOOR_RECORDS
+    floor = dict(zip(names, run["health"]["floor"], strict=True))
+    assert floor["hpc_flow"] > 0.15 > 0.1 > floor["hpc_eff"]
     # The VBV bias moves nothing the sensors see (module docstring of evaluate_engine).
     vis = run["visibility"]
     assert "VBV" in vis["not_visible"] and "HPT" in vis["visible"]
