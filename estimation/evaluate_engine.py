@@ -530,16 +530,20 @@ def information_floors(
     records: int = FLOOR_RECORDS,
     phases: Sequence[str] = DEFAULT_PHASES,
     scatter_std: float = 0.4,
+    cycles_max: float = 12000.0,
+    rate_spread: float = 0.3,
     bias_std: tuple[float, float, float] = (0.5, 1.0, 2.0),
 ) -> np.ndarray:
     """The least 1-sigma [13] (``HEALTH_NAMES``, percent) with which ``sensors`` can know each
     health parameter and actuator bias of an engine from ``records`` snapshots of each of
     ``phases`` of the seed 001 flight (``theory.information_floor``): the schedule's linear
     model at each phase's condition, the engine's sensor noise in percent of the sensor's trim
-    there, the simulated fleet's scatter and rigging (``simulate_records``' defaults) as the
-    prior, fuel flow held as an input as the pipeline holds it. What no design on these sensors
-    can beat, however it is tuned; a parameter whose floor stays near its prior is one whose
-    level the sensors do not see."""
+    there, fuel flow held as an input as the pipeline holds it, and as the prior the health
+    covariance of ``simulate_records``' fleet (its defaults: scatter, deterioration over
+    U(0, cycles_max) cycles at the mean rates times a lognormal(rate_spread) multiplier, which
+    moves the modules together, and the rigging). What no design on these sensors can beat
+    on those engines, however it is tuned; a parameter whose floor stays near its prior is one
+    whose level the sensors do not see."""
     from estimation.theory import information_floor
 
     points = {p.phase: p.condition for p in snapshot_points(flight_profile())}
@@ -556,5 +560,14 @@ def information_floors(
         trims = np.array([model.trim[SENSOR_NAMES[r]] for r in rows])
         gains.append(model.steady_state_gains()[0][rows])
         noise.append(100.0 * absolute / np.abs(trims))
-    prior = np.r_[np.full(N_TURBO, scatter_std), bias_std]
-    return information_floor(gains, noise, prior, records)
+    # Deterioration c m_i r_i with c ~ U(0, C) (thousands of cycles), m_i ~ lognormal(0, s):
+    # E[c m_i] = C/2 e^(s^2/2), E[c^2 m_i m_j] = C^2/3 e^(s^2) (e^(2 s^2) for i = j).
+    C, s2 = cycles_max / 1000.0, rate_spread**2
+    mean = C / 2.0 * np.exp(s2 / 2.0)
+    moments = np.full((N_TURBO, N_TURBO), C**2 / 3.0 * np.exp(s2))
+    np.fill_diagonal(moments, C**2 / 3.0 * np.exp(2.0 * s2))
+    cov = np.zeros((N_HEALTH, N_HEALTH))
+    cov[:N_TURBO, :N_TURBO] = (np.outer(DETERIORATION_RATES, DETERIORATION_RATES)
+                               * (moments - mean**2) + scatter_std**2 * np.eye(N_TURBO))
+    cov[N_TURBO:, N_TURBO:] = np.diag(np.square(bias_std))
+    return information_floor(gains, noise, cov, records)

@@ -355,22 +355,24 @@ def _scatter(
 
 
 def information_floor(
-    gains: Sequence[np.ndarray], noise_std: Sequence[np.ndarray], prior_std: np.ndarray,
+    gains: Sequence[np.ndarray], noise_std: Sequence[np.ndarray], prior: np.ndarray,
     records: int,
 ) -> np.ndarray:
     """The least 1-sigma [p] with which ``records`` snapshots at each of several operating
-    points can know constant parameters (the Cramer-Rao bound with the fleet's prior): each
-    point's steady-state gain G_k [ny, p] (``LinearModel.steady_state_gains``, the sensors
-    the design uses) and noise 1-sigma [ny] give the information G_k^T R_k^-1 G_k, and
+    points can know constant parameters (the Bayesian Cramer-Rao bound with the fleet's
+    prior): each point's steady-state gain G_k [ny, p] (``LinearModel.steady_state_gains``,
+    the sensors the design uses) and noise 1-sigma [ny] give the information
+    G_k^T R_k^-1 G_k; ``prior`` is the fleet's covariance [p, p] of the parameters, or their
+    1-sigma [p] (independent), and
 
-        P = (records sum_k G_k^T R_k^-1 G_k + diag(prior_std)^-2)^-1,   floor = sqrt(diag P).
+        P = (records sum_k G_k^T R_k^-1 G_k + P_prior^-1)^-1,   floor = sqrt(diag P).
 
     A parameter whose floor stays near its prior however many records come (a direction no
     phase's sensors see apart from another, as hpc_flow from the VSV rigging on the built-in
     engine) has a level no estimator can know better: its error is each engine's own for life.
     """
-    prior_std = np.asarray(prior_std, float)
-    info = np.diag(1.0 / prior_std**2)
+    prior = np.asarray(prior, float)
+    info = np.diag(1.0 / prior**2) if prior.ndim == 1 else np.linalg.inv(prior)
     for G, s in zip(gains, noise_std, strict=True):
         Gw = np.asarray(G, float) / np.asarray(s, float)[:, None]
         info = info + records * (Gw.T @ Gw)

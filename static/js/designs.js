@@ -86,10 +86,10 @@ function healthBars(div, health) {
     { x: health.names, y: health.coverage_95.map((c) => 100 * c), type: "scatter", mode: "markers", yaxis: "y2",
       name: "95 % interval coverage", marker: { color: PALETTE[1], size: 9, symbol: "diamond" },
       customdata: health.names.map(label), hovertemplate: "%{customdata}: coverage %{y:.0f} %<extra></extra>" },
-    // What no design on these sensors can beat: the level's least 1-sigma after the stated
-    // take-off and cruise records (evaluations made before it have none).
+    // What no design on these sensors can beat from the same records as the baseline: the
+    // level's least 1-sigma (evaluations made before it have none).
     ...(health.floor ? [{ x: health.names, y: health.floor, type: "scatter", mode: "markers",
-      name: `least 1σ these sensors allow (${health.floor_records} take-off and cruise records)`,
+      name: `least 1σ these sensors allow from the same ${health.floor_records} take-off and cruise records`,
       marker: { color: "#000000", size: 14, symbol: "line-ew-open", line: { width: 2 } },
       customdata: health.names.map(label), hovertemplate: "%{customdata}: at best ±%{y:.2f} %<extra></extra>" }] : []),
   ], layout({

@@ -178,15 +178,16 @@ def test_actuator_faults_as_offsets_of_stroke() -> None:
 
 
 def test_information_floors_fall_with_more_sensors_and_name_what_none_see() -> None:
-    """The least 1-sigma of each parameter after 1,000 take-off and cruise snapshots: the
-    product's eleven sensors never do worse than seed 002's six (more information), the VBV
-    rigging stays at its prior with either (it moves nothing the sensors see), and hpc_flow
-    stays near 0.24 % with all eleven, where hpc_eff reaches a few hundredths."""
+    """The least 1-sigma of each parameter after 1,000 take-off and cruise snapshots of the
+    evaluation's fleet (scatter, deterioration, rigging): the product's eleven sensors never
+    do worse than seed 002's six (more information), the VBV rigging stays at its prior with
+    either (it moves nothing the sensors see), and hpc_flow stays near 0.3 % with all eleven,
+    where hpc_eff reaches a few hundredths."""
     k = {n: i for i, n in enumerate(HEALTH_NAMES)}
     eleven = ee.information_floors(schedule(), [s for s in SENSOR_NAMES if s != "Wf"])
     six = ee.information_floors(schedule(), ["Nf", "Nc", "T24", "Ps30", "T30", "T48"])
     assert np.all(eleven <= six + 1e-12)
     assert eleven[k["vbv_bias"]] == pytest.approx(2.0, rel=1e-3)
-    assert 0.2 < eleven[k["hpc_flow"]] < 0.3 and eleven[k["hpc_eff"]] < 0.06
+    assert 0.2 < eleven[k["hpc_flow"]] < 0.4 and eleven[k["hpc_eff"]] < 0.06
     # Fuel flow is held as an input: naming it among the sensors changes nothing.
     np.testing.assert_allclose(ee.information_floors(schedule(), SENSOR_NAMES), eleven)

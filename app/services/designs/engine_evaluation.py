@@ -137,7 +137,10 @@ def run_engine_evaluation(
     shown = [h for h in HEALTH_NAMES if h in TURBOMACHINERY or h in health]
     idx = [HEALTH_NAMES.index(h) for h in shown]
     turbo = [HEALTH_NAMES.index(h) for h in TURBOMACHINERY]
-    floors = ee.information_floors(schedule, design.sensors)
+    # The least 1-sigma the design's sensors allow from the same records as the baseline
+    # (records_before, half take-off, half cruise): how far the design is from the bound.
+    per_phase = max(settings.records_before // len(ee.DEFAULT_PHASES), 1)
+    floors = ee.information_floors(schedule, design.sensors, per_phase)
     report(1.0, "nonlinear engine done")
     return {
         "engine": "built-in two-spool turbofan (estimation.engine), seed 002 Table 3 faults",
@@ -175,10 +178,10 @@ def run_engine_evaluation(
             "coverage_95": result.coverage[idx].tolist(),
             "rms_turbomachinery": float(np.sqrt(np.mean(result.health_rms[turbo] ** 2))),
             "coverage_turbomachinery": float(np.mean(result.coverage[turbo])),
-            # The least 1-sigma the design's sensors allow each level after FLOOR_RECORDS
-            # take-off and cruise snapshots (``evaluate_engine.information_floors``).
+            # The least 1-sigma the design's sensors allow each level from the baseline's
+            # records (``evaluate_engine.information_floors``).
             "floor": np.round(floors[idx], 4).tolist(),
-            "floor_records": ee.FLOOR_RECORDS,
+            "floor_records": per_phase * len(ee.DEFAULT_PHASES),
         },
         "n_engines": int(len(rec.fault)),
     }
