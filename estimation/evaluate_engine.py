@@ -560,8 +560,20 @@ def information_floors(
         trims = np.array([model.trim[SENSOR_NAMES[r]] for r in rows])
         gains.append(model.steady_state_gains()[0][rows])
         noise.append(100.0 * absolute / np.abs(trims))
-    # Deterioration c m_i r_i with c ~ U(0, C) (thousands of cycles), m_i ~ lognormal(0, s):
-    # E[c m_i] = C/2 e^(s^2/2), E[c^2 m_i m_j] = C^2/3 e^(s^2) (e^(2 s^2) for i = j).
+    cov = fleet_health_covariance(scatter_std, cycles_max, rate_spread, bias_std)
+    return information_floor(gains, noise, cov, records)
+
+
+def fleet_health_covariance(
+    scatter_std: float = 0.4,
+    cycles_max: float = 12000.0,
+    rate_spread: float = 0.3,
+    bias_std: tuple[float, float, float] = (0.5, 1.0, 2.0),
+) -> np.ndarray:
+    """The covariance [13, 13] of ``simulate_records``' engines before a fault: scatter
+    N(0, scatter_std) plus deterioration r_i m_i c, c ~ U(0, C) thousand cycles shared by the
+    modules, m_i ~ lognormal(0, s) each (E[c m_i] = C/2 e^(s^2/2), E[c^2 m_i m_j] =
+    C^2/3 e^(s^2), e^(2 s^2) for i = j), and the rigging N(0, bias_std)."""
     C, s2 = cycles_max / 1000.0, rate_spread**2
     mean = C / 2.0 * np.exp(s2 / 2.0)
     moments = np.full((N_TURBO, N_TURBO), C**2 / 3.0 * np.exp(s2))
@@ -570,4 +582,4 @@ def information_floors(
     cov[:N_TURBO, :N_TURBO] = (np.outer(DETERIORATION_RATES, DETERIORATION_RATES)
                                * (moments - mean**2) + scatter_std**2 * np.eye(N_TURBO))
     cov[N_TURBO:, N_TURBO:] = np.diag(np.square(bias_std))
-    return information_floor(gains, noise, cov, records)
+    return cov

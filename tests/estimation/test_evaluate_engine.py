@@ -191,3 +191,20 @@ def test_information_floors_fall_with_more_sensors_and_name_what_none_see() -> N
     assert 0.2 < eleven[k["hpc_flow"]] < 0.4 and eleven[k["hpc_eff"]] < 0.06
     # Fuel flow is held as an input: naming it among the sensors changes nothing.
     np.testing.assert_allclose(ee.information_floors(schedule(), SENSOR_NAMES), eleven)
+
+
+def test_fleet_health_covariance_is_the_simulated_fleets() -> None:
+    """``fleet_health_covariance`` against the health of engines drawn as ``simulate_records``
+    draws them (its module docstring): 200,000 engines, within the Monte Carlo's scatter."""
+    from estimation.engine.fleet import DETERIORATION_RATES
+
+    rng = np.random.default_rng(0)
+    n = 200_000
+    cycles = rng.uniform(0.0, 12000.0, (n, 1))
+    mult = np.exp(0.3 * rng.standard_normal((n, 10)))
+    h = np.zeros((n, 13))
+    h[:, :10] = rng.normal(0.0, 0.4, (n, 10)) + DETERIORATION_RATES * mult * cycles / 1000.0
+    h[:, 10:] = rng.normal(0.0, 1.0, (n, 3)) * np.array([0.5, 1.0, 2.0])
+    cov = ee.fleet_health_covariance()
+    scale = np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
+    assert np.max(np.abs(np.cov(h.T) - cov) / scale) < 0.02
