@@ -104,6 +104,7 @@ from estimation.engine.schedule import EngineSchedule
 from estimation.engine.sensors import SENSOR_NAMES
 from estimation.engine.steady import steady_state
 from estimation.shift_detector import EVIDENCE_THRESHOLD, MAGNITUDE_RANGE
+from estimation.theory import information_floor
 
 WF = SENSOR_NAMES.index("Wf")
 NF = SENSOR_NAMES.index("Nf")
@@ -116,6 +117,43 @@ DEFAULT_PHASES = ("takeoff", "cruise")  # the product's replay
 FLOOR_RECORDS = 1000  # snapshots of each phase the information floor is stated for
 GROUND_IDLE_S = 60.0  # the ground-idle snapshot's time from the start of the flight
 NO_SIGNATURE_SIGMAS = 1.0  # an event signature below this shows a fault no better than chance
+
+
+@dataclass(frozen=True)
+class FleetSpread:
+    """How the simulated engines of an evaluation differ before a fault: scatter
+    N(0, scatter_std) in the ten turbomachinery parameters; deterioration over U(0, cycles_max)
+    cycles, shared by the modules, at the fleet simulator's mean rates times a
+    lognormal(rate_spread) multiplier per parameter; actuator biases N(0, bias_std)."""
+
+    scatter_std: float = 0.4
+    cycles_max: float = 12000.0
+    rate_spread: float = 0.3
+    bias_std: tuple[float, float, float] = (0.5, 1.0, 2.0)
+
+    def draw(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """n engines' health [n, 13] (``HEALTH_NAMES``, percent)."""
+        h = np.zeros((n, N_HEALTH))
+        cycles = rng.uniform(0.0, self.cycles_max, (n, 1))
+        mult = np.exp(self.rate_spread * rng.standard_normal((n, N_TURBO)))
+        h[:, :N_TURBO] = (rng.normal(0.0, self.scatter_std, (n, N_TURBO))
+                          + DETERIORATION_RATES * mult * cycles / 1000.0)
+        h[:, N_TURBO:] = rng.normal(0.0, 1.0, (n, 3)) * np.asarray(self.bias_std)
+        return h
+
+    def covariance(self) -> np.ndarray:
+        """The covariance [13, 13] of ``draw``'s engines: with c ~ U(0, C) thousand cycles and
+        m_i ~ lognormal(0, s), E[c m_i] = C/2 e^(s^2/2) and E[c^2 m_i m_j] = C^2/3 e^(s^2)
+        (e^(2 s^2) for i = j); the modules covary through the shared cycles."""
+        C, s2 = self.cycles_max / 1000.0, self.rate_spread**2
+        mean = C / 2.0 * np.exp(s2 / 2.0)
+        moments = np.full((N_TURBO, N_TURBO), C**2 / 3.0 * np.exp(s2))
+        np.fill_diagonal(moments, C**2 / 3.0 * np.exp(2.0 * s2))
+        cov = np.zeros((N_HEALTH, N_HEALTH))
+        cov[:N_TURBO, :N_TURBO] = (np.outer(DETERIORATION_RATES, DETERIORATION_RATES)
+                                   * (moments - mean**2) + self.scatter_std**2 * np.eye(N_TURBO))
+        cov[N_TURBO:, N_TURBO:] = np.diag(np.square(self.bias_std))
+        return cov
 
 
 class EngineEvaluationError(ValueError):
@@ -178,18 +216,17 @@ def simulate_records(
     faults: Sequence[isolation.Fault] = isolation.SEED_002_FAULTS,
     n_before: int = 30,
     n_after: int = 20,
-    scatter_std: float = 0.4,
-    cycles_max: float = 12000.0,
-    rate_spread: float = 0.3,
-    bias_std: tuple[float, float, float] = (0.5, 1.0, 2.0),
+    scatter_std: float = FleetSpread.scatter_std,
+    cycles_max: float = FleetSpread.cycles_max,
+    rate_spread: float = FleetSpread.rate_spread,
+    bias_std: tuple[float, float, float] = FleetSpread.bias_std,
     noise: bool = True,
     phases: Sequence[str] = DEFAULT_PHASES,
 ) -> EngineRecords:
     """A fleet of ``n_per_fault`` engines per library fault on the nonlinear engine.
 
-    Each engine: scatter N(0, scatter_std) in the ten turbomachinery parameters, deterioration
-    U(0, cycles_max) cycles at the fleet simulator's mean rates times a lognormal(rate_spread)
-    multiplier per parameter, actuator biases N(0, bias_std); then the fault's shifts from
+    Each engine drawn as ``FleetSpread.draw`` draws it (scatter, deterioration, actuator
+    biases, with these settings); then the fault's shifts from
     record ``n_before`` on. Every record at its own random flight's condition, of a phase
     drawn uniformly from ``phases`` (``RECORD_PHASES``; default take-off and cruise, half
     each).
@@ -203,12 +240,7 @@ def simulate_records(
         raise EngineEvaluationError(f"phases from {RECORD_PHASES}, got {tuple(phases)}")
     S = isolation.signature_matrix(faults, HEALTH_NAMES)  # [13, n_f]
     fault = np.repeat(np.arange(len(faults)), n_per_fault)
-    h0 = np.zeros((E, N_HEALTH))
-    cycles = rng.uniform(0.0, cycles_max, (E, 1))
-    mult = np.exp(rate_spread * rng.standard_normal((E, N_TURBO)))
-    h0[:, :N_TURBO] = (rng.normal(0.0, scatter_std, (E, N_TURBO))
-                       + DETERIORATION_RATES * mult * cycles / 1000.0)
-    h0[:, N_TURBO:] = rng.normal(0.0, 1.0, (E, 3)) * np.asarray(bias_std)
+    h0 = FleetSpread(scatter_std, cycles_max, rate_spread, bias_std).draw(E, rng)
     health = np.repeat(h0[:, None, :], K, axis=1)
     health[:, n_before:, :] += S.T[fault][:, None, :]
     cond = _snapshot_conditions(E * K, rng, tuple(phases))
@@ -529,23 +561,16 @@ def information_floors(
     sensors: Sequence[str],
     records: int = FLOOR_RECORDS,
     phases: Sequence[str] = DEFAULT_PHASES,
-    scatter_std: float = 0.4,
-    cycles_max: float = 12000.0,
-    rate_spread: float = 0.3,
-    bias_std: tuple[float, float, float] = (0.5, 1.0, 2.0),
+    spread: FleetSpread = FleetSpread(),
 ) -> np.ndarray:
     """The least 1-sigma [13] (``HEALTH_NAMES``, percent) with which ``sensors`` can know each
     health parameter and actuator bias of an engine from ``records`` snapshots of each of
     ``phases`` of the seed 001 flight (``theory.information_floor``): the schedule's linear
     model at each phase's condition, the engine's sensor noise in percent of the sensor's trim
-    there, fuel flow held as an input as the pipeline holds it, and as the prior the health
-    covariance of ``simulate_records``' fleet (its defaults: scatter, deterioration over
-    U(0, cycles_max) cycles at the mean rates times a lognormal(rate_spread) multiplier, which
-    moves the modules together, and the rigging). What no design on these sensors can beat
-    on those engines, however it is tuned; a parameter whose floor stays near its prior is one
-    whose level the sensors do not see."""
-    from estimation.theory import information_floor
-
+    there, fuel flow held as an input as the pipeline holds it, and the fleet's ``spread`` as
+    the prior (``FleetSpread.covariance``, ``simulate_records``' engines by default). What no
+    design on these sensors can beat on those engines' linear models, however it is tuned; a
+    parameter whose floor stays near its prior is one whose level the sensors do not see."""
     points = {p.phase: p.condition for p in snapshot_points(flight_profile())}
     unknown = [p for p in phases if p not in points]
     if unknown:
@@ -560,26 +585,4 @@ def information_floors(
         trims = np.array([model.trim[SENSOR_NAMES[r]] for r in rows])
         gains.append(model.steady_state_gains()[0][rows])
         noise.append(100.0 * absolute / np.abs(trims))
-    cov = fleet_health_covariance(scatter_std, cycles_max, rate_spread, bias_std)
-    return information_floor(gains, noise, cov, records)
-
-
-def fleet_health_covariance(
-    scatter_std: float = 0.4,
-    cycles_max: float = 12000.0,
-    rate_spread: float = 0.3,
-    bias_std: tuple[float, float, float] = (0.5, 1.0, 2.0),
-) -> np.ndarray:
-    """The covariance [13, 13] of ``simulate_records``' engines before a fault: scatter
-    N(0, scatter_std) plus deterioration r_i m_i c, c ~ U(0, C) thousand cycles shared by the
-    modules, m_i ~ lognormal(0, s) each (E[c m_i] = C/2 e^(s^2/2), E[c^2 m_i m_j] =
-    C^2/3 e^(s^2), e^(2 s^2) for i = j), and the rigging N(0, bias_std)."""
-    C, s2 = cycles_max / 1000.0, rate_spread**2
-    mean = C / 2.0 * np.exp(s2 / 2.0)
-    moments = np.full((N_TURBO, N_TURBO), C**2 / 3.0 * np.exp(s2))
-    np.fill_diagonal(moments, C**2 / 3.0 * np.exp(2.0 * s2))
-    cov = np.zeros((N_HEALTH, N_HEALTH))
-    cov[:N_TURBO, :N_TURBO] = (np.outer(DETERIORATION_RATES, DETERIORATION_RATES)
-                               * (moments - mean**2) + scatter_std**2 * np.eye(N_TURBO))
-    cov[N_TURBO:, N_TURBO:] = np.diag(np.square(bias_std))
-    return cov
+    return information_floor(gains, noise, spread.covariance(), records)

@@ -27,8 +27,8 @@ and the attributed fault is the candidate with the smallest WSSR among those wit
 Alerts (the first of a stretch; one alert per stretch, the next after a reset):
 
 - ``limit``: the attributed magnitude f reaches ``limit`` (times the library's nominal
-  shift) and the fault explains at least ``limit_share`` of the change, its part
-  h_i^T W h_i f_i^2 of d^T W d (``explained``): the engine has lost as much as a nominal
+  shift) and the fault explains at least ``limit_share`` of the change, 1 - WSSR_i / d^T W d
+  (``explained``): the engine has lost as much as a nominal
   fault since its baseline, however slowly, and the change is of that fault's kind (a
   change the fault explains a tenth of is estimates wandering where the design hardly
   sees, whose projection on a fault can reach the limit).
@@ -312,20 +312,32 @@ def attribute(
     return wssr, f
 
 
-def explained(wssr: np.ndarray, f: np.ndarray, W: np.ndarray, H: np.ndarray) -> np.ndarray:
-    """The share of each change d that each fault explains, h_i^T W h_i f_i^2 / d^T W d
-    (``attribute``'s WSSR_i is the rest: d^T W d = WSSR_i + h_i^T W h_i f_i^2); 0 for no
-    change. wssr, f [K, n] -> [K, n]."""
+def explained(wssr: np.ndarray | float, total: np.ndarray | float) -> np.ndarray:
+    """The share of a change d that a fault of WSSR_i explains, 1 - WSSR_i / d^T W d (``total``
+    the change's own d^T W d, broadcast against ``wssr``; ``attribute``'s WSSR_i is what the
+    fault leaves of it); 0 for no change."""
+    wssr, total = np.broadcast_arrays(np.asarray(wssr, float), np.asarray(total, float))
+    ok = total > 0
+    return np.where(ok, np.maximum(1.0 - wssr / np.where(ok, total, 1.0), 0.0), 0.0)
+
+
+def change_energy(wssr: np.ndarray, f: np.ndarray, W: np.ndarray, H: np.ndarray) -> np.ndarray:
+    """d^T W d of each change from one fault's fit: WSSR_i + h_i^T W h_i f_i^2 (the same for
+    every fault i of a row; ``attribute``). wssr, f [K, n] -> [K, n]."""
     a = np.einsum("mn,mn->n", H, np.asarray(W) @ H)  # h_i^T W h_i
-    part = a * np.asarray(f) ** 2
-    total = np.asarray(wssr) + part
-    return np.where(total > 0, part / np.where(total > 0, total, 1.0), 0.0)
+    return np.asarray(wssr) + a * np.asarray(f) ** 2
+
+
+def attributable(f: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """The faults wear may be attributed to: candidates fitted with a positive magnitude (wear
+    moves a module in its deterioration direction). f [..., n], candidates [n] -> bool."""
+    return np.asarray(candidates, bool) & (np.asarray(f) > 0)
 
 
 def best_fault(wssr: np.ndarray, f: np.ndarray, candidates: np.ndarray) -> np.ndarray:
     """Index of the attributed fault per row: smallest WSSR among the candidates with f > 0
     (-1 where none). wssr, f [K, n], candidates [n] bool -> [K] int."""
-    allowed = candidates[None, :] & (f > 0)
+    allowed = attributable(f, candidates[None, :])
     masked = np.where(allowed, wssr, np.inf)
     best = np.argmin(masked, axis=1)
     return np.where(allowed.any(axis=1), best, -1)
@@ -654,7 +666,7 @@ def wear_scan(
         best = best_fault(wssr, f, cand)
         at = (np.arange(len(f)), np.maximum(best, 0))
         mag = np.where(best >= 0, f[at], 0.0)
-        share = np.where(best >= 0, explained(wssr, f, W, H)[at], 0.0)
+        share = np.where(best >= 0, explained(wssr, change_energy(wssr, f, W, H))[at], 0.0)
         armed = np.arange(s0, s1) >= b1
         rate_hit = armed[b1 - 1 - s0 :] & np.any((g > delta) & cand, axis=1)
         limit_hit = armed & (mag >= cfg.limit) & (share >= cfg.limit_share)
@@ -961,7 +973,7 @@ def _active(
     rows = np.arange(len(best))
     at = (rows, np.maximum(best, 0))
     mag = np.where(best >= 0, f[at], 0.0)
-    share = np.where(best >= 0, explained(wssr, f, det.W, det.H)[at], 0.0)
+    share = np.where(best >= 0, explained(wssr, change_energy(wssr, f, det.W, det.H))[at], 0.0)
     limit_hit = (mag >= cfg.limit) & (share >= cfg.limit_share)
     rate_hit = np.any((g > delta) & cand, axis=1)
     use_bank = z is not None

@@ -343,6 +343,11 @@ class EventConfidence(BaseModel):
     not_visible: list[str] = Field(
         description="library faults with no visible signature on the built-in engine"
     )
+    fits_better: list[str] = Field(
+        default_factory=list,
+        description="of left_out, the faults whose WSSR is under half the isolated fault's: "
+        "they fit the change clearly better than any hypothesis of this kind of event",
+    )
     explained: float | None = Field(
         default=None,
         description="for a wear event, the share of the accumulated change (weighed as its "

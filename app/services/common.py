@@ -8,6 +8,7 @@ from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
+import numpy as np
 from sqlalchemy import Select, func, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
@@ -115,3 +116,11 @@ def no_gc_pauses() -> Iterator[None]:
     finally:
         if was_enabled:
             gc.enable()
+
+
+def json_numbers_or_null(column: np.ndarray) -> list[float | None]:
+    """JSON numbers rounded to four decimals; a missing value (NaN) becomes null."""
+    rounded = np.round(column, 4)
+    if not np.isnan(rounded).any():
+        return rounded.tolist()
+    return [None if np.isnan(v) else v for v in rounded.tolist()]

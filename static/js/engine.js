@@ -136,7 +136,7 @@ function draw() {
   // show every auxiliary output in its unit (the built-in engine), the design's own view of
   // them in percent of the nominal engine's value is left to the CSV and the API.
   const performance = performancePanels();
-  const inUnits = new Set(performance.flatMap((p) => p.series.map((s) => s.name.replace(/ \(.*\)$/, ""))));
+  const inUnits = new Set((trend.groups.find((g) => g.key === "performance")?.series || []).map((s) => s.name));
   const auxInUnits = (g) => g.key === "aux" && g.series.every((s) => inUnits.has(s.name) || inUnits.has(`${s.name}_change`));
   const ordered = ORDER.map((k) => trend.groups.find((g) => g.key === k)).filter((g) => g && !auxInUnits(g));
   const groups = [...ordered.slice(0, 1), ...performance, ...ordered.slice(1)];

@@ -134,11 +134,11 @@ function confusionRowPlot(div, row) {
 
 // A wear event ranks module deteriorations only (wear is no actuator bias): the faults left
 // out are named, and a notice says when one of them fits the change clearly better than the
-// isolated fault (under half its WSSR).
+// isolated fault (the API's fits_better).
 function leftOutNote(event, c) {
   if (!c.left_out || !c.left_out.length) return null;
   const wssr = event.wssr || {};
-  const better = c.left_out.filter((f) => wssr[f] !== undefined && wssr[f] < 0.5 * wssr[c.isolated]);
+  const better = c.fits_better || [];
   return h("p", { class: better.length ? "notice" : "muted", id: "left-out" },
     `Wear is attributed among the module deteriorations fitted with a positive magnitude; not ranked: ${c.left_out.join(", ")}.`
     + (better.length ? ` ${better.join(" and ")} fit${better.length > 1 ? "" : "s"} this change better (WSSR ${better.map((f) => fmtNum(wssr[f], 1)).join(", ")} against ${fmtNum(wssr[c.isolated], 1)} for ${c.isolated}): `

@@ -193,18 +193,11 @@ def test_information_floors_fall_with_more_sensors_and_name_what_none_see() -> N
     np.testing.assert_allclose(ee.information_floors(schedule(), SENSOR_NAMES), eleven)
 
 
-def test_fleet_health_covariance_is_the_simulated_fleets() -> None:
-    """``fleet_health_covariance`` against the health of engines drawn as ``simulate_records``
-    draws them (its module docstring): 200,000 engines, within the Monte Carlo's scatter."""
-    from estimation.engine.fleet import DETERIORATION_RATES
-
-    rng = np.random.default_rng(0)
-    n = 200_000
-    cycles = rng.uniform(0.0, 12000.0, (n, 1))
-    mult = np.exp(0.3 * rng.standard_normal((n, 10)))
-    h = np.zeros((n, 13))
-    h[:, :10] = rng.normal(0.0, 0.4, (n, 10)) + DETERIORATION_RATES * mult * cycles / 1000.0
-    h[:, 10:] = rng.normal(0.0, 1.0, (n, 3)) * np.array([0.5, 1.0, 2.0])
-    cov = ee.fleet_health_covariance()
+def test_fleet_spread_covariance_is_that_of_the_engines_it_draws() -> None:
+    """``FleetSpread.covariance`` (closed form) against 200,000 engines ``FleetSpread.draw``
+    draws, as ``simulate_records`` draws its engines: within the Monte Carlo's scatter."""
+    spread = ee.FleetSpread()
+    h = spread.draw(200_000, np.random.default_rng(0))
+    cov = spread.covariance()
     scale = np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
     assert np.max(np.abs(np.cov(h.T) - cov) / scale) < 0.02

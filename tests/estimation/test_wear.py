@@ -87,19 +87,23 @@ def test_linear_drift_along_a_fault_is_alerted_and_attributed_to_it() -> None:
 
 
 def test_explained_share_is_the_fits_part_of_the_change() -> None:
-    """``explained``: h_i^T W h_i f_i^2 / d^T W d by hand; 1 along a fault, 0 across it."""
+    """``explained`` with ``change_energy``: h_i^T W h_i f_i^2 / d^T W d, the change's own
+    weighted norm computed here; 1 along a fault, 0 for no change."""
     rng = np.random.default_rng(5)
     H, W = _library(rng)
     d = rng.normal(size=(3, H.shape[0]))
     d[1] = 0.7 * H[:, 2]
     wssr, f = wear.attribute(d, W, H)
-    share = wear.explained(wssr, f, W, H)
+    total = np.einsum("km,mn,kn->k", d, W, d)
+    np.testing.assert_allclose(wear.change_energy(wssr, f, W, H), total[:, None] + 0 * f,
+                               rtol=1e-12)
+    share = wear.explained(wssr, total[:, None])
     for k in range(3):
         for i in range(H.shape[1]):
             h = H[:, i]
             assert share[k, i] == pytest.approx((h @ W @ h) * f[k, i] ** 2 / (d[k] @ W @ d[k]))
     assert share[1, 2] == pytest.approx(1.0)
-    assert wear.explained(*wear.attribute(np.zeros((1, H.shape[0])), W, H), W, H).max() == 0.0
+    assert wear.explained(np.zeros(4), 0.0).max() == 0.0
 
 
 def test_a_limit_alert_needs_a_change_of_the_faults_kind() -> None:
@@ -128,7 +132,8 @@ def test_a_limit_alert_needs_a_change_of_the_faults_kind() -> None:
         assert [_alert_key(a) for a in steps.alerts] == [_alert_key(a) for a in scan.alerts]
         wssr, f = wear.attribute(change[None, :], W, H)
         assert f[0, 0] == pytest.approx(1.2)
-        assert wear.explained(wssr, f, W, H)[0, 0] == pytest.approx(1.0 if alerted else 0.1)
+        share = wear.explained(wssr, wear.change_energy(wssr, f, W, H))
+        assert share[0, 0] == pytest.approx(1.0 if alerted else 0.1)
 
 
 def test_an_alert_due_on_held_records_comes_on_the_first_record_after() -> None:

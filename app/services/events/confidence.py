@@ -38,9 +38,12 @@ from app.services.snapshots.estimator import ISOLATION_LEVEL
 from estimation.isolation import SEED_002_FAULTS
 from estimation.posterior import fault_posterior
 from estimation.shift_detector import SENSOR_WSSR_MARGIN, sensor_fit_dof
-from estimation.wear import wear_hypotheses
+from estimation.wear import explained, wear_hypotheses
 
 CREDIBLE_MASS = 0.9
+# A fault left out of a wear event's hypotheses fits its change clearly better than the
+# isolated one below this share of the isolated fault's WSSR.
+BETTER_FIT = 0.5
 LIBRARY_ORDER = {f.name: i for i, f in enumerate(SEED_002_FAULTS)}
 LINEAR_VARIANT = "wssr_q"  # the pipeline isolates on tuner estimates
 SOURCES = {
@@ -122,14 +125,14 @@ def wssr_fit(event: Event, evidence: DesignEvidence) -> tuple[int, float]:
 
 def _explained(event: Event, wssr: float) -> float | None:
     """For a wear event, the share of its accumulated change that a fault of this WSSR
-    explains: 1 - WSSR / d^T W d, the change weighed as its health change (W = V*^+T V*^+,
-    so d^T W d is the sum of the stored health change's squares; ``estimation.wear.explained``).
-    None for other events, or no change."""
+    explains (``estimation.wear.explained``): the change weighed as its health change
+    (W = V*^+T V*^+, so d^T W d is the sum of the stored health change's squares). None for
+    other events, or no change."""
     if event.kind != "wear":
         return None
-    health = ((event.shift or {}).get("health") or {}).values()
-    total = float(sum(float(v) ** 2 for v in health))
-    return None if total <= 0 else max(0.0, 1.0 - wssr / total)
+    health = np.fromiter(((event.shift or {}).get("health") or {}).values(), float)
+    total = float(health @ health)
+    return None if total <= 0 else float(explained(wssr, total))
 
 
 def event_confidence(event: Event, evidence: DesignEvidence) -> dict[str, Any] | None:
@@ -170,6 +173,8 @@ def event_confidence(event: Event, evidence: DesignEvidence) -> dict[str, Any] |
         "confusion_row": None,
         "not_visible": [f for f in evidence.not_visible if f in faults],
         "left_out": [f for f in every if f not in faults],
+        "fits_better": [f for f in every if f not in faults
+                        and wssr_map[f] < BETTER_FIT * wssr_map[isolated]],
         "explained": _explained(event, wssr_map[isolated]),
     }
     if C is not None:

@@ -50,7 +50,7 @@ from app.models.estimates import (
     FilterState,
     FleetPeriod,
 )
-from app.services.common import no_gc_pauses
+from app.services.common import json_numbers_or_null, no_gc_pauses
 from app.services.designs.calibration import design_calibration
 from app.services.events.service import latest_open_events, open_event_counts
 from app.services.fleet import performance, slopes
@@ -513,10 +513,6 @@ def _fleet_status(
     }
 
 
-def _nulls(values: np.ndarray) -> list[float | None]:
-    return [None if not np.isfinite(v) else v for v in values.tolist()]
-
-
 def _series(
     names: tuple[str, ...], units: list[str] | None, mean: np.ndarray, spread: np.ndarray,
     offset: int,
@@ -526,8 +522,8 @@ def _series(
         {
             "name": name,
             "unit": unit_list[j],
-            "mean": _nulls(np.round(mean[:, offset + j], 4)),
-            "sigma": _nulls(np.round(spread[:, offset + j], 4)),
+            "mean": json_numbers_or_null(mean[:, offset + j]),
+            "sigma": json_numbers_or_null(spread[:, offset + j]),
         }
         for j, name in enumerate(names)
     ]

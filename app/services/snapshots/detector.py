@@ -20,7 +20,7 @@ import numpy as np
 
 from app.services.snapshots.estimator import SnapshotEstimator
 from estimation.shift_detector import Isolation, PendingAlarm, Rows, SensorFit, ShiftState
-from estimation.wear import WearAlert, WearState
+from estimation.wear import WearAlert, WearState, attributable
 
 HISTORY_FORMAT = "float64-le-base64"
 
@@ -225,6 +225,6 @@ def wear_event(
             "wear": {"alert": alert.kind, "statistic": float(alert.statistic),
                      "threshold": float(alert.threshold), "baseline_seq": baseline_seq,
                      "hypotheses": [names[i] for i in np.flatnonzero(
-                         np.asarray(candidates, bool) & (np.asarray(alert.f) > 0))]},
+                         attributable(alert.f, candidates))]},
         },
     )

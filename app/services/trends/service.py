@@ -51,6 +51,7 @@ from app.models.estimates import (
     Event,
     FilterState,
 )
+from app.services.common import json_numbers_or_null
 from app.services.designs import calibration
 from app.services.encoding import json_numbers
 from app.services.encoding.json_numbers import RawJSON
@@ -379,17 +380,9 @@ def _series_columns(
     return columns, lo, hi
 
 
-def _clean(column: np.ndarray) -> list[float | None]:
-    """JSON numbers; a missing value (NaN: sensor not reported) becomes null."""
-    rounded = np.round(column, 4)
-    if not np.isnan(rounded).any():
-        return rounded.tolist()
-    return [None if np.isnan(v) else v for v in rounded.tolist()]
-
-
 def _lists(matrix: np.ndarray) -> list[Any]:
     """Each row of ``matrix`` as a list of JSON numbers (the dict a caller reads)."""
-    return [_clean(row) for row in matrix]
+    return [json_numbers_or_null(row) for row in matrix]
 
 
 def _encoded(matrix: np.ndarray) -> list[Any]:

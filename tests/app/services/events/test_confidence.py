@@ -176,6 +176,7 @@ def test_wear_event_ranks_the_module_faults_its_attribution_chose_from(
 
     conf = client.get(f"/api/v1/events/{stored.id}", headers=h).json()["confidence"]
     assert conf["faults"] == ["Fan", "HPT"] and conf["left_out"] == ["HPC", "Wf"]
+    assert conf["fits_better"] == ["Wf"]  # 2.3 under half of HPT's 12; HPC's 15.5 is not
     assert conf["isolated"] == "HPT" == stored.fault
     np.testing.assert_allclose(conf["posterior"], _restricted(wssr, ["Fan", "HPT"]), rtol=1e-9)
     assert conf["source"] == "nonlinear_engine"
