@@ -884,6 +884,39 @@ def correct_level(h_hat: np.ndarray, correction: np.ndarray) -> np.ndarray:
     return h_hat - correction_design(h_hat, correction.shape[-1] > 1 + p) @ correction.T
 
 
+def fleet_level(
+    mean: np.ndarray, products: np.ndarray, correction: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The mean and spread over engines [T, p] of the calibrated level of engines whose
+    estimates average mean [T, p] with the products of their estimates averaging products [T,
+    p (p + 1) / 2] (i <= j, ``np.triu_indices`` order), for the correction C [p, w]
+    (``correct_level``). The mean is exact for each engine's level taken at its own mean
+    estimates (the correction is linear in the regressors of ``correction_design``); the
+    spread is the engines' covariance carried through the correction's Jacobian at the mean
+    (exact for a straight correction). With C = 0: the estimates' mean and standard deviation.
+    """
+    mean = np.asarray(mean, float)
+    products = np.asarray(products, float)
+    C = np.asarray(correction, float)
+    p = mean.shape[-1]
+    i, j = np.triu_indices(p)
+    regressors = np.concatenate([np.ones(mean.shape[:-1] + (1,)), mean, products], axis=-1)
+    level = mean - regressors[..., : C.shape[-1]] @ C.T
+    second = np.zeros(mean.shape[:-1] + (p, p))
+    second[..., i, j] = products
+    second[..., j, i] = products
+    covariance = second - mean[..., :, None] * mean[..., None, :]
+    # d level / d h = I - C_h - sum over products of C_ij d(h_i h_j)/dh at the mean.
+    jacobian = np.broadcast_to(np.eye(p) - C[:, 1 : 1 + p], mean.shape[:-1] + (p, p)).copy()
+    if C.shape[-1] > 1 + p:
+        curved = C[:, 1 + p :]  # [p, pairs]
+        for k, (a, b) in enumerate(zip(i, j, strict=True)):
+            jacobian[..., :, a] -= curved[:, k] * mean[..., b, None]
+            jacobian[..., :, b] -= curved[:, k] * mean[..., a, None]
+    variance = np.einsum("...kl,...lm,...km->...k", jacobian, covariance, jacobian)
+    return level, np.sqrt(np.maximum(variance, 0.0))
+
+
 def correct_change(h_hat: np.ndarray, h_hat0: np.ndarray, correction: np.ndarray) -> np.ndarray:
     """The calibrated change [N, p] of the estimates h_hat [N, p] since the baseline's
     h_hat0 [p] or [N, p]: the calibrated level at both ends, differenced (its constant

@@ -256,6 +256,11 @@ class DeteriorationGroup(BaseModel):
         description="health parameters the design's calibration finds unobservable (their "
         "means and spreads null)",
     )
+    level: Literal["calibrated", "estimated"] = Field(
+        default="estimated",
+        description="calibrated: the health means are the calibrated level the engine pages "
+        "show (the design's calibration applied to each engine's period mean); estimated: the "
+        "design has no calibration, the estimates as stored")
 
 
 class FleetDeterioration(BaseModel):

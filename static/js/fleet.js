@@ -195,7 +195,7 @@ async function loadDeterioration() {
     // The auxiliary outputs as the estimates keep them: each record's change from the nominal
     // engine at its own condition, in percent of that engine's value (a stall margin at -50 %
     // is half the nominal margin); the engine page has them in their units.
-    const label = which === "health" ? "Fleet-average health parameter change" : "Fleet-average change from the nominal engine";
+    const label = which === "health" ? "Fleet-average health level" : "Fleet-average change from the nominal engine";
     await plot(div, traces, layout({
       xaxis: { title: { text: "Date (UTC)" }, type: "date" },
       yaxis: { title: { text: axisTitle(label, unitOf(units.map((unit) => ({ unit })))) } },

@@ -94,7 +94,8 @@ def test_migration_0013_fills_the_deterioration_periods_from_stored_estimates(
     backend: str, tmp_path: Path
 ) -> None:
     """Estimates stored before 0013 get their periods at the upgrade: the same rows the
-    pipeline keeps (here, those the test helper writes beside its estimates)."""
+    pipeline keeps (here, those the test helper writes beside its estimates); 0022 rewrites
+    the fleet's squares as second moments and back."""
     urls = fresh_database_url(backend, tmp_path)
     url = next(urls)
     try:
@@ -122,6 +123,19 @@ def test_migration_0013_fills_the_deterioration_periods_from_stored_estimates(
         kept = periods()
         assert len({(p[1], p[2]) for p in kept}) > 10
         downgrade(url, "0012")
+        upgrade(url)
+        assert periods() == kept
+        # 0022: the fleet's squares hold the health means' products; back at 0021, the squares.
+        downgrade(url, "0021")
+        with factory() as session:
+            buckets: dict[tuple, list[np.ndarray]] = {}
+            for b in session.scalars(select(DeteriorationBucket)):
+                buckets.setdefault((b.period, b.start), []).append(
+                    np.frombuffer(b.sums, "<f8") / b.n)
+            for row in session.scalars(select(FleetPeriod)):
+                means = np.array(buckets[(row.period, row.start)])
+                np.testing.assert_allclose(np.frombuffer(row.squares, "<f8"),
+                                           np.square(means).sum(0), rtol=1e-12)
         upgrade(url)
         assert periods() == kept
         # ... and they are the periods of the stored estimates, computed here on their own.

@@ -59,7 +59,7 @@ def test_fleet_status_lists_every_engine_and_plots_deterioration(
     assert {"fan_eff", "hpc_eff", "hpc_flow", "lpt_flow"} <= names
     assert len(plotted) == 10
     title = page.evaluate("document.querySelector('#deterioration').layout.yaxis.title.text")
-    assert "[%]" in title
+    assert "[%]" in title and "health level" in title
     # The fleet-average slope of each health parameter: as the API gives it, a number or why
     # there is none.
     slopes = httpx.get(f"{server.base_url}/api/v1/fleet/deterioration/slopes",

@@ -541,6 +541,34 @@ def test_curved_level_correction_where_the_error_bends() -> None:
     assert np.sqrt(np.mean(straight_change[:, 0] ** 2)) > 0.3
 
 
+def test_fleet_level_of_engine_means_against_each_engines_level() -> None:
+    """The fleet's calibrated level from its engines' means and products: the mean of the
+    engines' levels, exactly; the spread, exactly for straight rows and within a few percent
+    for a curved row (its Jacobian at the fleet mean); no correction: mean and SD."""
+    rng = np.random.default_rng(41)
+    p = 3
+    h = rng.normal(size=(2000, p)) * [1.0, 2.0, 0.5] + [-1.0, -3.0, 0.5]
+    i, j = np.triu_indices(p)
+    products = (h[:, i] * h[:, j]).mean(0)
+    C = np.zeros((p, unc.correction_width(p)))
+    C[0, : 1 + p] = [0.2, 0.1, -0.05, 0.3]
+    C[1, : 1 + p] = [-0.1, 0.0, 0.05, 0.0]
+    C[1, 1 + p :] = [0.01, 0.0, -0.004, 0.003, 0.0, 0.002]
+    level, spread = unc.fleet_level(h.mean(0), products, C)
+    levels = unc.correct_level(h, C)
+    np.testing.assert_allclose(level, levels.mean(0), atol=1e-12)
+    np.testing.assert_allclose(spread[[0, 2]], levels.std(0)[[0, 2]], rtol=1e-9)
+    np.testing.assert_allclose(spread[1], levels.std(0)[1], rtol=0.05)
+    plain, sd = unc.fleet_level(h.mean(0), products, np.zeros((p, 1 + p)))
+    np.testing.assert_allclose(plain, h.mean(0), atol=1e-12)
+    np.testing.assert_allclose(sd, h.std(0), rtol=1e-9)
+    # Periods at once [T, p].
+    both, _ = unc.fleet_level(np.stack([h[:1000].mean(0), h[1000:].mean(0)]),
+                              np.stack([(h[:1000, i] * h[:1000, j]).mean(0),
+                                        (h[1000:, i] * h[1000:, j]).mean(0)]), C)
+    np.testing.assert_allclose(both[1], levels[1000:].mean(0), atol=1e-12)
+
+
 def test_level_correction_of_estimates_spanning_fewer_directions_fits_no_rounding() -> None:
     """An SVD design's estimates span its m tuners only: here three parameters from two
     tuners, kept as float32 (as the pipeline keeps them). The correction fits what the

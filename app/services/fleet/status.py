@@ -568,7 +568,11 @@ def fleet_deterioration(
     Each engine first counts once per bucket (the mean of its estimates there), then the
     fleet mean and spread are taken over engines, so a busy engine does not dominate. Read
     from the sums the pipeline keeps (``fleet_periods``): one row per period, whatever the
-    number of engines and estimates. The slopes are ``fleet_deterioration_slopes``.
+    number of engines and estimates. The health values are the level the engine pages show:
+    with the design's calibration, its correction applied to each engine's period mean (the
+    fleet periods keep the second moments that the curved correction and the spread need:
+    ``uncertainty.fleet_level``), a parameter it cannot observe null. The slopes are
+    ``fleet_deterioration_slopes``.
     """
     if bucket not in ("week", "month"):
         raise InvalidInput(
@@ -586,24 +590,33 @@ def fleet_deterioration(
         ).all()
         if not rows:
             continue
-        width = len(layout.health) + len(layout.aux)
+        p = len(layout.health)
+        width = p + len(layout.aux)
         buckets = np.fromiter((r[0].timestamp() for r in rows), float, len(rows))
         n_engines = np.fromiter((r[1] for r in rows), np.int64, len(rows))
         sums = np.frombuffer(b"".join(r[2] for r in rows), "<f8").reshape(len(rows), width)
-        squares = np.frombuffer(b"".join(r[3] for r in rows), "<f8").reshape(len(rows), width)
+        squares = np.frombuffer(b"".join(r[3] for r in rows), "<f8").reshape(len(rows), -1)
         # Each engine counts once per period (the mean of its estimates there); the fleet's
-        # mean and spread are over engines.
+        # mean and spread are over engines. The health values: the level the engine pages
+        # show (the design's calibration on the engines' means; as estimated without one).
         mean = sums / n_engines[:, None]
-        spread = np.sqrt(np.maximum(squares / n_engines[:, None] - mean**2, 0.0))
-        p = len(layout.health)
-        units = layout.units
+        moments = squares / n_engines[:, None]
+        pairs = p * (p + 1) // 2
+        calib = design_calibration(session, design_id)
+        on = None if calib is None else calib.on(layout.health)
+        correction = np.zeros((p, 1 + p)) if on is None else np.asarray(on.level_correction)
+        health, health_spread = uncertainty.fleet_level(mean[:, :p], moments[:, :pairs],
+                                                        correction)
+        aux = mean[:, p:]
+        aux_spread = np.sqrt(np.maximum(moments[:, pairs:] - aux**2, 0.0))
         # A parameter the design's calibration finds unobservable: nulls, named (as the
         # engine trend's health group has it), not a fleet average of what it cannot see.
-        calib = design_calibration(session, design_id)
-        hidden = (np.zeros(p, bool) if calib is None
-                  else ~np.asarray(calib.on(layout.health).observable, bool))
-        mean[:, :p][:, hidden] = np.nan
-        spread[:, :p][:, hidden] = np.nan
+        hidden = np.zeros(p, bool) if on is None else ~np.asarray(on.observable, bool)
+        health[:, hidden] = np.nan
+        health_spread[:, hidden] = np.nan
+        mean = np.concatenate([health, aux], axis=1)
+        spread = np.concatenate([health_spread, aux_spread], axis=1)
+        units = layout.units
         groups.append(
             {
                 "engine_type": type_name,
@@ -616,6 +629,7 @@ def fleet_deterioration(
                 "health": _series(layout.health, units.get("health"), mean, spread, 0),
                 "aux": _series(layout.aux, units.get("aux"), mean, spread, p),
                 "unobservable": [n for n, off in zip(layout.health, hidden, strict=True) if off],
+                "level": "estimated" if on is None else "calibrated",
             }
         )
     return {"bucket": bucket, "groups": groups}

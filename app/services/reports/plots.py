@@ -100,7 +100,7 @@ def panel_figure(panel: Panel, time: list[str]) -> go.Figure:
 def deterioration_figure(groups: tuple[DeteriorationGroup, ...], which: str) -> go.Figure:
     """The fleet page's deterioration plot: fleet mean per bucket, spread over engines as
     error bars; ``which`` is "health" or "aux"."""
-    label = ("Fleet-average health parameter change" if which == "health"
+    label = ("Fleet-average health level from nominal" if which == "health"
              else "Fleet-average thrust and margins, % of the nominal engine")
     series = tuple(s for g in groups for s in (g.health if which == "health" else g.aux))
     figure = go.Figure(layout=_layout(label, _axis_title(label, series)))
@@ -141,5 +141,5 @@ def fleet_images(groups: tuple[DeteriorationGroup, ...]) -> list[Image]:
     if not groups:
         return []
     return [Image(title, png(deterioration_figure(groups, which)))
-            for which, title in (("health", "Fleet-average health parameter change"),
+            for which, title in (("health", "Fleet-average health level from nominal"),
                                  ("aux", "Fleet-average thrust and stall-margin change"))]

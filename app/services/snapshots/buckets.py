@@ -127,7 +127,7 @@ def refresh(
     # Per engine, the earliest period start over both periods: where kept estimates matter.
     b0 = {e: float(min(period_starts(np.array([first[e]]), p)[0] for p in PERIODS))
           for e in engines}
-    change = FleetChange()
+    change = FleetChange(len(layout.health))
     for period in PERIODS:
         p0 = {e: float(period_starts(np.array([first[e]]), period)[0]) for e in engines}
         rewritten = and_(
@@ -226,20 +226,22 @@ class PeriodRows:
 
 class FleetChange:
     """What a rewrite of engines' periods changes in the fleet's periods: per (period, start)
-    the change in the number of engines and in the sums of their means and squared means."""
+    the change in the number of engines, in the sums of their means and in the sums of their
+    means' second moments (``second_moments``)."""
 
-    def __init__(self) -> None:
+    def __init__(self, p: int) -> None:
+        self.p = p  # health values lead each mean
         self.delta: dict[tuple[str, float], tuple[int, np.ndarray, np.ndarray]] = {}
 
     def add(self, period: str, start: float, mean: np.ndarray, sign: int) -> None:
         """One engine's period mean going in (sign +1) or out (-1)."""
         key = (period, start)
+        moments = second_moments(mean, self.p)
         got = self.delta.get(key)
         if got is None:  # the zeros made only for a new key
-            zero = 0.0 * mean
-            got = (0, zero, zero)
+            got = (0, 0.0 * mean, 0.0 * moments)
         n, sums, squares = got
-        self.delta[key] = (n + sign, sums + sign * mean, squares + sign * mean**2)
+        self.delta[key] = (n + sign, sums + sign * mean, squares + sign * moments)
 
     def apply(self, session: Session, *, operator_id: int, design_id: int) -> None:
         if not self.delta:
@@ -283,6 +285,17 @@ class FleetChange:
         session.flush()
 
 
+def second_moments(mean: np.ndarray, p: int) -> np.ndarray:
+    """What a fleet period sums of one engine's period mean [..., p + n_aux] besides the mean
+    itself: the products of its health values h_i h_j (i <= j, ``np.triu_indices`` order), the
+    regressors of the calibrated level's curved correction and the fleet's covariance of the
+    health values, then the squares of its auxiliary values. With one health value, the
+    squares of every value."""
+    mean = np.asarray(mean, float)
+    i, j = np.triu_indices(p)
+    return np.concatenate([mean[..., i] * mean[..., j], np.square(mean[..., p:])], axis=-1)
+
+
 def _blob(values: np.ndarray) -> bytes:
     return np.ascontiguousarray(values, "<f8").tobytes()
 
@@ -310,3 +323,32 @@ def rebuild(session: Session, *, operator_id: int, design_id: int, layout: Estim
                            decode([r[1] for r in stored])))
     refresh(session, operator_id=operator_id, design_id=design_id, layout=layout,
             collected=collector)
+
+
+def rebuild_fleet(
+    session: Session, *, design_id: int, p: int,
+    moments: Callable[[np.ndarray, int], np.ndarray] = second_moments,
+) -> None:
+    """Recompute a design's fleet periods from its engines' periods (migrations, repairs): p
+    health values lead each sum; ``moments`` what the squares hold of an engine's mean
+    (``second_moments``; a migration back passes the form of its time)."""
+    fleet: dict[tuple[str, datetime], list] = {}
+    for period, start, operator_id, n, sums in session.execute(
+        select(DeteriorationBucket.period, DeteriorationBucket.start,
+               DeteriorationBucket.operator_id, DeteriorationBucket.n, DeteriorationBucket.sums)
+        .where(DeteriorationBucket.design_id == design_id)
+    ):
+        mean = np.frombuffer(sums, "<f8") / n
+        got = fleet.setdefault((period, start), [operator_id, 0, 0.0 * mean,
+                                                 0.0 * moments(mean, p)])
+        got[1] += 1
+        got[2] = got[2] + mean
+        got[3] = got[3] + moments(mean, p)
+    session.execute(delete(FleetPeriod).where(FleetPeriod.design_id == design_id))
+    if fleet:
+        session.execute(insert(cast(Table, FleetPeriod.__table__)), [
+            {"design_id": design_id, "period": period, "start": start,
+             "operator_id": operator_id, "n_engines": n, "sums": _blob(sums),
+             "squares": _blob(squares)}
+            for (period, start), (operator_id, n, sums, squares) in fleet.items()])
+

@@ -14,7 +14,7 @@ from app.models import EngineType, Installation, MaintenanceAction
 from app.models.estimates import Event
 from app.services.fleet import slopes, status
 from app.services.fleet.severity import LimitValue, severity
-from estimation.uncertainty import YEAR_S, Calibration
+from estimation.uncertainty import YEAR_S, Calibration, correct_level
 from tests.app.services.trends.test_trends import (
     LAYOUT,
     T0,
@@ -122,6 +122,55 @@ def test_deterioration_is_the_mean_over_engines_of_engine_means(session: Session
     shown = [i for i, s in enumerate(group["health"]) if s["name"] != "fan_eff"]
     np.testing.assert_allclose([group["health"][i]["mean"][0] for i in shown], expected[shown],
                                atol=1e-4)
+
+
+def test_deterioration_shows_the_calibrated_level_of_each_engines_mean(
+    session: Session,
+) -> None:
+    """With a calibrated design, the fleet's health means are the calibrated level the engine
+    pages show, taken on each engine's period mean (straight and curved rows alike), and the
+    spread over engines is that of those levels."""
+    fleet = make_fleet(session, "Fleet Level Air")
+    aircraft = add_aircraft(session, fleet, "F-LVL")
+    rng = np.random.default_rng(16)
+    start = datetime(2026, 5, 1, tzinfo=UTC)
+    means = []
+    for i in range(5):
+        engine = add_engine(session, fleet, f"C{i}")
+        v = rng.normal(size=(20, LAYOUT.width))
+        v[:, LAYOUT.slices()["h"]] += rng.normal(scale=3.0, size=3)  # engines apart
+        add_estimates(session, fleet, engine, aircraft, v,
+                      [start + timedelta(hours=12 * k) for k in range(20)])
+        means.append(as_stored(v)[:, LAYOUT.slices()["h"]].mean(0))
+    means = np.array(means)
+    # Row 0 straight, row 1 curved (the estimates' products), row 2 left as estimated.
+    correction = np.zeros((3, 10))
+    correction[0, :4] = [0.3, 0.1, -0.05, 0.02]
+    correction[1, :4] = [-0.2, 0.0, 0.08, 0.0]
+    correction[1, 4:] = [0.01, -0.004, 0.002, 0.006, 0.0, -0.003]
+    calib = Calibration(
+        names=LAYOUT.health, level_std=np.zeros(3), change_std=np.zeros(3),
+        slope_error=np.zeros(3), bias2=np.zeros(3), drift=np.zeros(3),
+        observable=np.ones(3, bool), level_correction=correction,
+    )
+    fleet.design.result = {"uncertainty": calib.to_dict()}
+    session.flush()
+    group = status.fleet_deterioration(session, fleet.operator_id, "month")["groups"][0]
+    assert group["level"] == "calibrated" and group["n_engines"] == [5]
+    levels = correct_level(means, correction)
+    got = np.array([s["mean"][0] for s in group["health"]])
+    np.testing.assert_allclose(got, levels.mean(0), atol=1e-4)
+    assert np.abs(got - means.mean(0)).max() > 0.1  # not the estimates' mean
+    spread = np.array([s["sigma"][0] for s in group["health"]])
+    # Straight rows: exact; the curved row carried through its Jacobian at the fleet mean.
+    np.testing.assert_allclose(spread[[0, 2]], levels.std(0)[[0, 2]], atol=1e-4)
+    np.testing.assert_allclose(spread[1], levels.std(0)[1], rtol=0.1)
+    # Without a calibration: the estimates as stored.
+    fleet.design.result = {}
+    session.flush()
+    group = status.fleet_deterioration(session, fleet.operator_id, "month")["groups"][0]
+    assert group["level"] == "estimated"
+    np.testing.assert_allclose([s["mean"][0] for s in group["health"]], means.mean(0), atol=1e-4)
 
 
 def test_deterioration_slopes_split_at_shop_visits_calibrated_and_unobservable(

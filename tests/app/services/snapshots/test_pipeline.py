@@ -21,6 +21,7 @@ from app.models.estimates import (
     FleetPeriod,
 )
 from app.services.snapshots import backlog, estimator, run, store
+from app.services.snapshots.buckets import second_moments
 from estimation import isolation, wear
 from estimation.model import LinearModel
 from estimation.tuners import svd_vstar
@@ -174,8 +175,8 @@ def test_split_and_late_uploads_equal_one_uninterrupted_run(session: Session) ->
         row = fleet_periods[key]
         assert row.n_engines == 3
         assert np.allclose(np.frombuffer(row.sums, "<f8"), 3 * sums / n, rtol=1e-9, atol=1e-9)
-        assert np.allclose(np.frombuffer(row.squares, "<f8"), 3 * (sums / n) ** 2, rtol=1e-9,
-                           atol=1e-9)
+        moments = second_moments(sums / n, len(layout.health))
+        assert np.allclose(np.frombuffer(row.squares, "<f8"), 3 * moments, rtol=1e-9, atol=1e-9)
 
     # Running again with nothing new changes nothing and duplicates nothing.
     store.estimate_engines(session, fleet.operator_id, {whole.id: times[0]})
