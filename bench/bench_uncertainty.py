@@ -110,6 +110,26 @@ def per_fleet_band(calib: uncertainty.Calibration,
     return "\n".join(lines)
 
 
+def fleet_average(calib: uncertainty.Calibration,
+                  rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> str:
+    """The fleet page's monthly fleet-average level of the shown parameters against the
+    truth, over the scoring fleets: the worst fleet's RMS over months, calibrated (what the page
+    shows) and as estimated (the page before), and the spread over engines shown against the
+    true spread."""
+    shown = np.asarray(calib.observable, bool)
+    level = np.array([r[0] for r in rows])[:, shown]
+    raw = np.array([r[1] for r in rows])[:, shown]
+    ratio = np.array([r[2] for r in rows])[:, shown]
+    names = [n for n, o in zip(calib.names, shown, strict=True) if o]
+    lines = ["fleet-average level per month (the fleet page) against the truth, RMS over months, "
+             "worst fleet [%]: calibrated / as estimated; spread over engines shown / true "
+             "(median over fleets)"]
+    for k, n in enumerate(names):
+        lines.append(f"  {n:10s} {level[:, k].max():5.2f} / {raw[:, k].max():5.2f}   "
+                     f"spread {np.median(ratio[:, k]):4.2f}")
+    return "\n".join(lines)
+
+
 def rotations(pieces: list[uncertainty.TrendPieces], observable: np.ndarray, k: int,
               draws: int, names: tuple[str, ...]) -> str:
     """Coverage over ``draws`` random sets of ``k`` calibration fleets from ``pieces``, each
@@ -212,7 +232,7 @@ def main() -> None:
               + (", ".join(calib.source["level_corrected"]) or "none"))
         print("shown: " + ", ".join(n for n, o in zip(calib.names, calib.observable,
                                                       strict=True) if o))
-        slope_rows, covers = [], []
+        slope_rows, covers, fleet_rows = [], [], []
         for seed, test_fleet in zip(test_seeds, test_fleets, strict=True):
             sc = health_uncertainty.score(est, calib, *test_fleet)
             covers.append((sc.cover1, sc.cover2, sc.change_cover1, sc.change_cover2))
@@ -232,8 +252,12 @@ def main() -> None:
                   f"{s['end_change_rms']:.2f} % (segment ends), worst slope error "
                   f"{s['slope_err_max']:.0%} over {s['slopes_shown']} observable slopes "
                   f"(<= 30 %)")
+            assert sc.fleet_level_rms is not None and sc.fleet_raw_rms is not None
+            assert sc.fleet_spread_ratio is not None
+            fleet_rows.append((sc.fleet_level_rms, sc.fleet_raw_rms, sc.fleet_spread_ratio))
             print(_common.load_line())
         print(per_fleet_band(calib, covers))
+        print(fleet_average(calib, fleet_rows))
         print(f"fleet-average slopes over the {len(test_seeds)} scoring fleets (1-sigma with the "
               "gain's standard error; the peer: without it):")
         print(slope_coverage(calib.names, slope_rows))

@@ -136,6 +136,51 @@ def confusion_posterior(
         return joint / joint.sum(axis=0, keepdims=True)
 
 
+RELIABILITY_EDGES = (0.0, 0.5, 0.7, 0.9, 0.99, 1.0)
+
+
+@dataclass(frozen=True)
+class Reliability:
+    """How often events named with a confidence are right, binned by that confidence.
+
+    edges [B + 1]; count, confidence (mean in the bin), hit_rate [B] (NaN: empty bin);
+    calibration_error: the count-weighted mean of |hit_rate - confidence| (expected
+    calibration error).
+    """
+
+    edges: tuple[float, ...]
+    count: np.ndarray
+    confidence: np.ndarray
+    hit_rate: np.ndarray
+    calibration_error: float
+
+    def rows(self) -> list[tuple[float, float, int, float, float]]:
+        """(low, high, count, mean confidence, hit rate) of each non-empty bin."""
+        return [(self.edges[b], self.edges[b + 1], int(self.count[b]),
+                 float(self.confidence[b]), float(self.hit_rate[b]))
+                for b in range(len(self.count)) if self.count[b]]
+
+
+def reliability(
+    confidence: np.ndarray, hit: np.ndarray, edges: Sequence[float] = RELIABILITY_EDGES,
+) -> Reliability:
+    """Bin events by the confidence of the fault they name [N] (the last bin closed) and
+    compare with how often that fault was the true one, hit [N] bool."""
+    confidence = np.asarray(confidence, float)
+    hit = np.asarray(hit, bool)
+    if confidence.shape != hit.shape:
+        raise PosteriorError("confidence and hit must have the same shape")
+    e = np.asarray(edges, float)
+    b = np.clip(np.searchsorted(e, confidence, side="right") - 1, 0, len(e) - 2)
+    count = np.bincount(b, minlength=len(e) - 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.bincount(b, confidence, len(e) - 1) / count
+        rate = np.bincount(b, hit.astype(float), len(e) - 1) / count
+    gap = np.abs(np.nan_to_num(rate - mean))
+    error = float(np.sum(count * gap) / max(count.sum(), 1))
+    return Reliability(tuple(float(x) for x in e), count, mean, rate, error)
+
+
 @dataclass(frozen=True)
 class AmbiguityGroups:
     """Faults the design cannot tell apart.

@@ -12,6 +12,7 @@ from estimation.posterior import (
     ambiguity_groups,
     confusion_posterior,
     fault_posterior,
+    reliability,
 )
 
 
@@ -79,3 +80,22 @@ def test_ambiguity_groups_are_connected_components() -> None:
     assert groups.label("Wf") == "HPT or Wf"
     assert groups.group_correct(C, names) == pytest.approx(np.mean([100, 100, 100, 100, 100]))
     assert ambiguity_groups(C, names, threshold=90.0).groups == tuple((n,) for n in names)
+
+
+def test_reliability_bins_confidence_against_hits() -> None:
+    """Events right as often as their confidence says: every bin's hit rate near its mean
+    confidence and a small calibration error; the same events claimed at 99 %: a large one."""
+    rng = np.random.default_rng(9)
+    confidence = rng.uniform(0.3, 1.0, 40000)
+    hit = rng.uniform(size=confidence.size) < confidence
+    honest = reliability(confidence, hit)
+    assert honest.count.sum() == confidence.size
+    for lo, hi, n, mean, rate in honest.rows():
+        assert lo <= mean <= hi and n > 100
+        assert abs(rate - mean) < 0.03
+    assert honest.calibration_error < 0.02
+    bold = reliability(np.full(confidence.size, 0.99), hit)
+    assert [r[2] for r in bold.rows()] == [confidence.size]  # the last bin, closed at 1
+    assert bold.calibration_error == pytest.approx(0.99 - hit.mean(), abs=1e-12)
+    with pytest.raises(PosteriorError):
+        reliability(confidence, hit[:-1])

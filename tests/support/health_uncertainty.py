@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.services.designs import calibration
+from app.services.snapshots import buckets
 from app.services.snapshots.estimator import SnapshotEstimator
 from estimation import uncertainty
 from estimation.engine.fleet import FleetPlan, Snapshots
@@ -70,6 +71,13 @@ class Score:
     records: int
     segments: int
     pieces: int  # engine trends the slopes are taken over
+    # The fleet page's monthly fleet-average level (``fleet_level`` of the engines' monthly
+    # means) against the engines' true monthly means averaged over the fleet: RMS over months
+    # of the calibrated figure, of the estimates' plain mean (the page before), and the spread
+    # over engines shown against the true one (RMS ratio).
+    fleet_level_rms: np.ndarray | None = None
+    fleet_raw_rms: np.ndarray | None = None
+    fleet_spread_ratio: np.ndarray | None = None
 
     @property
     def slope_error(self) -> np.ndarray:
@@ -141,6 +149,8 @@ def score(
     slope_hat = np.where(slope_shown, slope_hat, np.nan)
     ends = np.array([dh[-1] - (s.h_true[-1] - s.h_true[0])
                      for (dh, _), s in zip(changes, segs, strict=True)])
+    fleet_rms, raw_rms, spread_ratio = fleet_average_errors(
+        tr, np.asarray(calib.level_correction))
     cov = uncertainty.coverage
     return Score(
         names=calib.names, observable=calib.observable,
@@ -154,7 +164,42 @@ def score(
         slope_hat=slope_hat, slope_sigma=np.where(slope_shown, slope_sigma, np.nan),
         slope_true=slope_true, slope_shown=slope_shown,
         records=int(st["level_err"].shape[0]), segments=len(segs), pieces=len(pieces.spans),
+        fleet_level_rms=fleet_rms, fleet_raw_rms=raw_rms, fleet_spread_ratio=spread_ratio,
     )
+
+
+def fleet_average_errors(
+    tracks: list[calibration.HealthTrack], correction: np.ndarray, period: str = "month",
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The fleet page's fleet-average level per period, as the product forms it (each engine's
+    mean of its estimates in the period, their products, ``uncertainty.fleet_level``), against
+    the fleet average of the engines' true means over the same records: RMS error over periods
+    [p] with the correction and without it, and the RMS ratio of the spread over engines shown
+    to the true one."""
+    per: dict[float, list[tuple[np.ndarray, np.ndarray]]] = {}
+    for track in tracks:
+        assert track.epoch is not None
+        starts = buckets.period_starts(track.epoch, period)
+        for start in np.unique(starts):
+            mine = starts == start
+            per.setdefault(float(start), []).append((track.h_hat[mine].mean(0),
+                                                     track.h_true[mine].mean(0)))
+    p = np.shape(correction)[0]
+    i, j = np.triu_indices(p)
+    errs, raws, shown, true_spread = [], [], [], []
+    for start in sorted(per):
+        hat = np.array([h for h, _ in per[start]])
+        true = np.array([t for _, t in per[start]])
+        level, spread = uncertainty.fleet_level(hat.mean(0), (hat[:, i] * hat[:, j]).mean(0),
+                                                correction)
+        errs.append(level - true.mean(0))
+        raws.append(hat.mean(0) - true.mean(0))
+        shown.append(spread)
+        true_spread.append(true.std(0))
+    def rms(x: list[np.ndarray]) -> np.ndarray:
+        return np.sqrt(np.mean(np.square(np.array(x)), axis=0))
+
+    return rms(errs), rms(raws), rms(shown) / rms(true_spread)
 
 
 @dataclass(frozen=True)
