@@ -314,6 +314,18 @@ class ConfusionRow(BaseModel):
     percent: list[float] = Field(description="how often the design isolates each fault, %")
 
 
+class EventTempering(BaseModel):
+    """How the design's nonlinear-engine run tempered its events' confidence."""
+
+    wssr_scale: float = Field(description="s of p_i ∝ exp(-WSSR_i / 2 s) C_ij^beta")
+    confusion_power: float = Field(description="beta: the weight of the confusion column")
+    log_score: float = Field(description="mean log posterior of the true fault on the events "
+                             "it was fitted on (0 is perfect)")
+    default_score: float = Field(description="the same untempered (the isolation's margin, "
+                                 "beta = 1)")
+    events: int = Field(description="events of known fault it was fitted on")
+
+
 class EventConfidence(BaseModel):
     """Posterior over the fault hypotheses (seed 002 eq. 21-23 likelihoods times the design's
     measured confusion; estimation/posterior.py)."""
@@ -363,6 +375,11 @@ class EventConfidence(BaseModel):
         description="faults of the event's WSSR that are not hypotheses of this kind of event: "
         "for a wear event, actuator biases and faults fitted with a negative magnitude (wear "
         "is attributed among module deteriorations)",
+    )
+    tempering: EventTempering | None = Field(
+        default=None,
+        description="the posterior's tempering fitted on the design's nonlinear-engine run "
+        "(a sensor-space isolation with that run's confusion); null: untempered",
     )
 
 

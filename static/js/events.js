@@ -160,7 +160,7 @@ function confidenceCard(event) {
   const card = h("section", { class: "card", id: "confidence" },
     h("h2", {}, c.fit_probability < c.fit_level ? `Confidence: closest library fault ${c.label}, but none fits the event`
       : `Confidence: ${c.label} (${fmtNum(100 * c.probability, 0)} % ${c.isolated})`),
-    h("p", { class: "muted", id: "confidence-source" }, `${SOURCE_TEXT[c.source] || c.source}${c.evaluation_job_id ? ` (evaluation job #${c.evaluation_job_id})` : ""}; the label names the fewest faults holding ${fmtNum(100 * c.credible_mass, 0)} % of the probability.`),
+    h("p", { class: "muted", id: "confidence-source" }, `${SOURCE_TEXT[c.source] || c.source}${c.evaluation_job_id ? ` (evaluation job #${c.evaluation_job_id})` : ""}; the label names the fewest faults holding ${fmtNum(100 * c.credible_mass, 0)} % of the probability.${c.tempering ? ` Probabilities tempered to be right as often as they say on ${c.tempering.events} faulted engines of that evaluation (WSSR scale ${fmtNum(c.tempering.wssr_scale, 2)}, confusion weight ${fmtNum(c.tempering.confusion_power, 2)}).` : ""}`),
     group, fit,
     c.not_visible.length ? h("p", { class: "muted" }, `Faults with no visible signature on the built-in engine, which no design isolates: ${c.not_visible.join(", ")}.`) : null,
     c.explained !== null && c.explained !== undefined

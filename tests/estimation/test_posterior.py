@@ -12,6 +12,7 @@ from estimation.posterior import (
     ambiguity_groups,
     confusion_posterior,
     fault_posterior,
+    fit_tempering,
     reliability,
 )
 
@@ -99,3 +100,38 @@ def test_reliability_bins_confidence_against_hits() -> None:
     assert bold.calibration_error == pytest.approx(0.99 - hit.mean(), abs=1e-12)
     with pytest.raises(PosteriorError):
         reliability(confidence, hit[:-1])
+
+
+def test_tempering_recovers_the_model_errors_inflation_and_honest_confidence() -> None:
+    """Events whose WSSR is chi-squared times 3 (model error a linear fit does not see): the
+    posterior at scale 1 claims more than it knows; the fitted scale is near 3, its log score
+    beats the untempered one, and on new events of the same kind it is right as often as it
+    says. A confusion that adds nothing gets little weight."""
+    rng = np.random.default_rng(12)
+    m, n_f = 4, 3
+    H = rng.normal(0.0, 1.0, (m, n_f))
+    H /= np.linalg.norm(H, axis=0)
+
+    def events(n: int) -> tuple[np.ndarray, np.ndarray]:
+        true = rng.integers(0, n_f, n)
+        f = rng.uniform(-6.0, 6.0, n)
+        q = H[:, true].T * f[:, None] + np.sqrt(3.0) * rng.standard_normal((n, m))
+        return isolation.wssr_isolate(q, H, np.eye(m)).wssr, true
+
+    wssr, true = events(3000)
+    faults = ("a", "b", "c")
+    confusion = np.full((3, 3), 100.0 / 3)  # says nothing
+    t = fit_tempering(wssr, m - 1, true, faults, confusion)
+    assert 2.2 <= t.scale <= 4.0, t
+    assert t.confusion_power <= 0.25 and t.events == 3000
+    assert t.log_score > t.default_score
+    new_wssr, new_true = events(20000)
+    post = fault_posterior(new_wssr, m - 1, faults, confusion=confusion, scale=t.scale,
+                           confusion_power=t.confusion_power).posterior
+    bold = fault_posterior(new_wssr, m - 1, faults).posterior
+    for p, limit in ((post, 0.02), (bold, None)):
+        rel = reliability(p.max(1), p.argmax(1) == new_true)
+        if limit is None:
+            assert rel.calibration_error > 0.05  # untempered: overconfident
+        else:
+            assert rel.calibration_error < limit

@@ -22,6 +22,11 @@ the ambiguity groups
 (``estimation.posterior.ambiguity_groups``, among the visible faults) name the faults the
 design confuses.
 
+The events' confidence is tempered on a second faulted fleet of the same run
+(``posterior.fit_tempering``): the WSSR scale and the confusion's weight that make the
+posterior right as often as it says there, stored as ``posterior`` and read by the event page
+(``app.services.events.confidence``).
+
 Only designs of the built-in engine (engine model source ``builtin``, health parameters of the
 built-in engine) are run; for others the result says why the run is absent.
 """
@@ -39,12 +44,14 @@ from estimation import isolation
 from estimation.engine.health import HEALTH_NAMES
 from estimation.engine.schedule import EngineSchedule
 from estimation.engine.sensors import SENSOR_NAMES
-from estimation.posterior import ambiguity_groups
+from estimation.posterior import ambiguity_groups, fit_tempering
+from estimation.shift_detector import SENSOR_WSSR_MARGIN
 
 RESULT_KEY = "nonlinear_engine"
 NOTE_KEY = "nonlinear_engine_note"
 VISIBLE_SIGMAS = 3.0  # median event signature (noise sigmas) for a fault to count as visible
 AMBIGUITY_PERCENT = 10.0  # C_ij + C_ji above which two faults form an ambiguity group
+TEMPERING_FLEETS = 3  # the tempering's fleet: this many times the confusion's engines per fault
 TURBOMACHINERY = HEALTH_NAMES[:10]
 Progress = Callable[[float, str | None], None]
 
@@ -126,6 +133,14 @@ def run_engine_evaluation(
     report(0.6, f"nonlinear engine: isolating with {design.signatures} signatures")
     result = ee.evaluate_design(design, rec, schedule)
     conf = np.nan_to_num(result.confusion)
+    # The event confidence's tempering, fitted on a second faulted fleet (not the one the
+    # confusion was measured on): how far to trust the WSSR and the confusion together.
+    report(0.7, "nonlinear engine: tempering the event confidence on a second fleet")
+    second = ee.evaluate_design(design, ee.simulate_records(
+        TEMPERING_FLEETS * n, rng=rng, faults=faults, n_before=settings.records_before,
+        n_after=settings.records_after), schedule)
+    tempering = fit_tempering(second.wssr, second.dof, second.true_fault, result.faults,
+                              conf, SENSOR_WSSR_MARGIN)
     diag = np.diag(conf)
     # Groups among the visible faults: an invisible fault is isolated by elimination or at
     # random, and its row would chain every fault into one group.
@@ -171,6 +186,9 @@ def run_engine_evaluation(
             "ceiling_percent_correct": ee.chance_ceiling(median),
         },
         "ambiguity_groups": [list(g) for g in groups.groups if len(g) > 1],
+        # An event's confidence: p_i ∝ exp(-WSSR_i / 2 s) C_ij^beta, s and beta fitted on the
+        # second fleet's events (``posterior.fit_tempering``).
+        "posterior": tempering.to_dict(),
         "group_percent_correct": float(np.mean(rows)) if rows else None,
         "health": {
             "names": shown,

@@ -17,6 +17,8 @@ from app.services.snapshots import estimator
 from estimation import evaluate_engine as ee
 from estimation.engine.health import HEALTH_NAMES
 from estimation.engine.schedule import EngineSchedule, build_schedule
+from estimation.posterior import fit_tempering
+from estimation.shift_detector import SENSOR_WSSR_MARGIN
 from tests.estimation.models import reference_model
 from tests.support.fleetkit import Tenant, make_tenant, post
 
@@ -69,7 +71,8 @@ def test_builtin_design_evaluation_has_the_nonlinear_engine_run(
     run = result["nonlinear_engine"]
     assert run is not None, result.get("nonlinear_engine_note")
     # The same run by the estimation core, same seed and schedule.
-    rec = ee.simulate_records(4, rng=np.random.default_rng(SEED), n_before=8, n_after=5)
+    rng = np.random.default_rng(SEED)
+    rec = ee.simulate_records(4, rng=rng, n_before=8, n_after=5)
     stored = design["result"] if "result" in design else client.get(
         f"{API}/designs/{design['id']}", headers=tenant.headers()).json()["result"]
     vstar = np.zeros((len(stored["vstar"]), len(HEALTH_NAMES)))
@@ -80,6 +83,14 @@ def test_builtin_design_evaluation_has_the_nonlinear_engine_run(
     np.testing.assert_allclose(run["confusion_percent"], np.round(direct.confusion, 2))
     assert run["percent_correct"] == pytest.approx(float(np.mean(np.diag(direct.confusion))))
     assert run["faults"] == list(direct.faults)
+    # The events' confidence tempered on a second fleet of the same run, three times the size.
+    second = ee.evaluate_design(
+        ee.EngineDesign("d", tuple(stored["sensors"]), vstar),
+        ee.simulate_records(12, rng=rng, n_before=8, n_after=5), coarse_schedule)
+    tempering = fit_tempering(second.wssr, second.dof, second.true_fault, direct.faults,
+                              np.nan_to_num(direct.confusion), SENSOR_WSSR_MARGIN)
+    assert run["posterior"] == tempering.to_dict() and tempering.events == 12 * 8
+    assert tempering.log_score >= tempering.default_score
     assert run["settings"]["wf"] == "input"  # the demo's designs have no Wf sensor
     names = run["health"]["names"]
     idx = [HEALTH_NAMES.index(h) for h in names]

@@ -119,6 +119,43 @@ def test_posterior_from_wssr_then_linear_then_engine_confusion(
     assert conf["confusion_row"]["percent"] == ENGINE_CONFUSION[2]
 
 
+def test_sensor_space_event_tempered_as_the_engine_run_fitted_it(
+    client: TestClient, session: Session, fleet: Fleet
+) -> None:
+    """With the nonlinear-engine run's tempering stored, an event isolated in sensor space (the
+    kind that run measures) takes its WSSR scale and confusion weight, p_i ∝ exp(-WSSR_i / 2 s)
+    C_ij^beta; its fit probability keeps the isolation's margin; a tuner-space event is left
+    untempered."""
+    from scipy import stats
+
+    from estimation.shift_detector import SENSOR_WSSR_MARGIN
+
+    engine = add_engine(session, fleet, "CF3")
+    close = {"Fan": 40.0, "HPC": 30.0, "HPT": 6.0, "Wf": 9.0}
+    sensor = _event(session, fleet, engine.id, 1, fault="HPT", wssr=close,
+                    shift={"health": {"hpt_eff": -2.0}, "wssr_threshold": 60.0,
+                           "wssr_dof": 39, "wssr_scale": SENSOR_WSSR_MARGIN})
+    tuner = _event(session, fleet, engine.id, 2, fault="HPT", wssr=close)
+    tempering = {"wssr_scale": 4.0, "confusion_power": 0.5, "log_score": -0.2,
+                 "default_score": -0.3, "events": 600}
+    _job(session, fleet, {"nonlinear_engine": {
+        "faults": FAULTS, "confusion_percent": ENGINE_CONFUSION,
+        "visibility": {"not_visible": []}, "posterior": tempering}}, 1)
+    session.commit()
+    h = {"X-API-Key": fleet.key}
+    got = client.get(f"/api/v1/events/{sensor.id}", headers=h).json()["confidence"]
+    w = np.array([close[f] for f in FAULTS])
+    C = np.asarray(ENGINE_CONFUSION) + FLOOR
+    C = C / C.sum(axis=1, keepdims=True)
+    expected = np.exp(-(w - w.min()) / (2 * 4.0)) * C[:, int(np.argmin(w))] ** 0.5
+    np.testing.assert_allclose(got["posterior"], expected / expected.sum(), rtol=1e-9)
+    assert got["tempering"] == tempering
+    assert got["fit_probability"] == pytest.approx(stats.chi2.sf(6.0 / SENSOR_WSSR_MARGIN, 39))
+    plain = client.get(f"/api/v1/events/{tuner.id}", headers=h).json()["confidence"]
+    assert plain["tempering"] is None
+    np.testing.assert_allclose(plain["posterior"], _by_hand(close, ENGINE_CONFUSION), rtol=1e-9)
+
+
 def test_event_without_wssr_has_no_confidence(
     client: TestClient, session: Session, fleet: Fleet
 ) -> None:
