@@ -91,7 +91,8 @@ def _stored(factory: sessionmaker[Session], operator_id: int) -> Stored:
                          for b in session.scalars(select(DeteriorationBucket).where(
                              DeteriorationBucket.operator_id == operator_id)))
         periods = sorted((p.period, p.start, p.n_engines,
-                          tuple(np.frombuffer(p.sums, "<f8") + np.frombuffer(p.squares, "<f8")))
+                          tuple(np.concatenate([np.frombuffer(p.sums, "<f8"),
+                                                np.frombuffer(p.squares, "<f8")])))
                          for p in session.scalars(select(FleetPeriod).where(
                              FleetPeriod.operator_id == operator_id)))
     return per_engine, events, buckets, periods
