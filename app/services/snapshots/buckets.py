@@ -12,6 +12,7 @@ equal those of a full scan of the estimates.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
 from typing import cast
@@ -292,8 +293,14 @@ def second_moments(mean: np.ndarray, p: int) -> np.ndarray:
     health values, then the squares of its auxiliary values. With one health value, the
     squares of every value."""
     mean = np.asarray(mean, float)
-    i, j = np.triu_indices(p)
+    i, j = _pairs(p)
     return np.concatenate([mean[..., i] * mean[..., j], np.square(mean[..., p:])], axis=-1)
+
+
+@functools.cache
+def _pairs(p: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.triu_indices(p)``, made once per p (the periods take it per engine and period)."""
+    return np.triu_indices(p)
 
 
 def _blob(values: np.ndarray) -> bytes:
