@@ -125,6 +125,41 @@ async function loadStatus() {
     h("div", { class: "card" }, h("div", { class: "muted" }, "Red (alert) / amber (watch) / normal"), h("div", { class: "big" }, `${by("alert")} / ${by("watch")} / ${by("normal")}`)),
     h("div", { class: "card" }, h("div", { class: "muted" }, "Operator"), h("div", { class: "big" }, status.operator)));
   drawTable();
+  await drawEgtMargins();
+}
+
+// The EGT margin of each engine of the page that has one (the status's egt_margin check),
+// worst at the top, coloured by its level, with the amber and red limits as lines where every
+// engine's type has the same.
+async function drawEgtMargins() {
+  const LEVEL_COLOUR = { red: "#D55E00", amber: "#E69F00", normal: "#009E73" };
+  const rows = engines.map((e) => ({ e, c: (e.checks || []).find((c) => c.limit === "egt_margin") }))
+    .filter((r) => r.c && r.c.value !== null && r.c.value !== undefined)
+    .sort((a, b) => b.c.value - a.c.value);  // plotly draws the first category at the bottom
+  const message = $("#egt-message");
+  message.replaceChildren();
+  if (!rows.length) {
+    $("#egt-plot").replaceChildren();
+    message.append(h("p", { class: "muted" }, "No EGT margin yet: it needs a design of the built-in engine and records with EGT (T48)."));
+    return;
+  }
+  const same = (key) => rows.every((r) => r.c[key] === rows[0].c[key]);
+  const lines = same("amber") && same("red") ? [["amber", rows[0].c.amber], ["red", rows[0].c.red]] : [];
+  const height = Math.max(260, 90 + 22 * rows.length);
+  $("#egt-plot").style.minHeight = `${height}px`;
+  await plot($("#egt-plot"), [{
+    type: "bar", orientation: "h", name: "EGT margin",
+    y: rows.map((r) => `${r.e.esn}${r.e.tail ? ` (${r.e.tail} #${r.e.position})` : ""}`),
+    x: rows.map((r) => r.c.value), marker: { color: rows.map((r) => LEVEL_COLOUR[r.c.level] || "#999999") },
+    customdata: rows.map((r) => r.c.reason), hovertemplate: "%{customdata}<extra></extra>",
+    meta: { role: "egt-margin" },
+  }], layout({
+    height, hovermode: "closest", showlegend: false,
+    xaxis: { title: { text: "EGT margin [°C]" }, zeroline: true },
+    yaxis: { type: "category", automargin: true },
+    shapes: lines.map(([level, x]) => ({ type: "line", xref: "x", yref: "paper", x0: x, x1: x, y0: 0, y1: 1, line: { color: LEVEL_COLOUR[level], dash: "dash", width: 1.5 } })),
+    annotations: lines.map(([level, x]) => ({ xref: "x", yref: "paper", x, y: 1, yanchor: "bottom", text: `${level} ${fmtNum(x, 0)} °C`, showarrow: false, font: { color: LEVEL_COLOUR[level] } })),
+  }));
 }
 
 // Fleet-average deterioration slope per health parameter: a number ± 1σ (both in the group's

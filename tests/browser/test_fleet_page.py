@@ -72,6 +72,23 @@ def test_fleet_status_lists_every_engine_and_plots_deterioration(
                                    else "no trend yet")
         else:
             assert float(cell.split("±")[0]) == pytest.approx(item["slope"], abs=0.01)
+    # Each engine's EGT margin as the status gives it, worst at the top, coloured by level.
+    status = httpx.get(f"{server.base_url}/api/v1/fleet/status",
+                       headers={"X-API-Key": server.seeded.key}).json()
+    margins = {e["esn"]: c for e in status["engines"] for c in e["checks"]
+               if c["limit"] == "egt_margin" and c["value"] is not None}
+    assert margins, "the seeded fleet's engines have an EGT margin"
+    page.wait_for_function("document.querySelector('#egt-plot').data?.length === 1")
+    bars = page.evaluate("(() => { const t = document.querySelector('#egt-plot').data[0];"
+                         " return {y: t.y, x: t.x, colour: t.marker.color}; })()")
+    assert len(bars["y"]) == len(margins)
+    assert [label.split(" ")[0] for label in bars["y"]] == sorted(
+        margins, key=lambda esn: -margins[esn]["value"])  # the worst drawn at the top
+    assert bars["x"] == pytest.approx(sorted((c["value"] for c in margins.values()),
+                                             reverse=True))
+    colours = {"red": "#D55E00", "amber": "#E69F00", "normal": "#009E73"}
+    assert bars["colour"] == [colours[margins[label.split(" ")[0]]["level"]]
+                              for label in bars["y"]]
     screenshot(page, "fleet-status")
     # Every plot exports its data as CSV from the mode bar: one row per plotted point.
     page.hover("#deterioration")
