@@ -175,14 +175,17 @@ def engine_runs(
             u_all[:, i] = snaps.actuators[keep, ACTUATOR_NAMES.index(column_of[col])]
     phase = snaps.phase[keep].astype(str)
     fid = snaps.flight_id[keep].astype(str)
-    maint: dict[str, list[float]] = {}
+    # Each engine's maintenance (time, what it can move the health by): a re-installation is a
+    # shop visit, as the demo records it.
+    maint: dict[str, list[tuple[float, float]]] = {}
     seen: set[str] = set()
     for inst in sorted(plan.installations, key=lambda i: i.installed_at):
         if inst.esn in seen:
-            maint.setdefault(inst.esn, []).append(float(inst.installed_at))
+            maint.setdefault(inst.esn, []).append((float(inst.installed_at),
+                                                   estimator.RESET_STD["shop_visit"]))
         seen.add(inst.esn)
     for wash in plan.washes:
-        maint.setdefault(wash.esn, []).append(float(wash.at))
+        maint.setdefault(wash.esn, []).append((float(wash.at), estimator.RESET_STD["water_wash"]))
     out = []
     for k, name in enumerate(sorted(set(esn))):
         idx = np.flatnonzero(esn == name)
@@ -191,7 +194,8 @@ def engine_runs(
             engine_id=k, operator_id=0, seq0=0, state=snapshots_run.PipelineState.initial(est),
             epoch=t[idx], phase=list(phase[idx]),
             conditions=cond[idx], y=y_all[idx], u=u_all[idx],
-            maintenance=np.array(sorted(maint.get(name, [])), dtype=float),
+            maintenance=np.array([a[0] for a in sorted(maint.get(name, []))], dtype=float),
+            maintenance_std=np.array([a[1] for a in sorted(maint.get(name, []))], dtype=float),
         )
         out.append(EngineData(name, run, fid[idx]))
     return out

@@ -56,6 +56,13 @@ ISOLATION_LEVEL = 0.999  # WSSR quantile below which the best fault explains the
 # Filter settings: tuner random walk per flight (percent), fleet spread at start (percent).
 WALK_STD = 0.05
 FLEET_STD = 1.5
+# What a maintenance action can move the health by (percent, 1-sigma per tuner), widening the
+# filter's covariance at its first record: a shop visit or module change anything up to the
+# fleet's spread; a water wash only the compressors' fouling, well under a percent (widened to
+# the fleet's spread, the filter forgot the engine and its estimates wandered by a percent for
+# a day after each wash).
+WASH_STD = 0.5
+RESET_STD = {"water_wash": WASH_STD, "module_change": FLEET_STD, "shop_visit": FLEET_STD}
 START_STD = 5.0
 # Sensor model error (percent of trim) added in quadrature to the sensor noise: gains
 # interpolated between schedule nodes, and the linearisation of an engine several percent from

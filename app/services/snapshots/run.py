@@ -98,6 +98,9 @@ class EngineRun:
     u: np.ndarray  # [S, nu]
     maintenance: np.ndarray  # epochs of the engine's maintenance actions
     redo: dict[tuple[float, str], Event] = field(default_factory=dict)  # events the run recomputes
+    # What each maintenance action can move the health by (percent, ``estimator.RESET_STD``
+    # of its kind); None: the fleet's spread for every one.
+    maintenance_std: np.ndarray | None = None
 
 
 class Checkpoint(NamedTuple):
@@ -283,12 +286,17 @@ def _run_part(
             prev = np.concatenate([[np.nan if last[e] is None else last[e]], epochs[:-1]])
             new_flight = ~(epochs - prev < NEW_FLIGHT_S)  # NaN (first record) counts as new
             maint = np.zeros(n, dtype=bool)
-            for t in r.maintenance:
-                maint |= (t <= epochs) & (t > prev)  # NaN prev (first record): no reset
+            widen = np.zeros(n)
+            moves = (np.full(len(r.maintenance), FLEET_STD) if r.maintenance_std is None
+                     else r.maintenance_std)
+            for t, std in zip(r.maintenance, moves, strict=True):
+                hit = (t <= epochs) & (t > prev)  # NaN prev (first record): no reset
+                maint |= hit
+                widen = np.maximum(widen, hit * (std / WALK_STD) ** 2)
             resets[row[e], :n] = maint
             flights[row[e], :n] = new_flight
-            # A maintenance action may move the health: widen P to the fleet spread.
-            scale[row[e], :n] = new_flight.astype(float) + maint * (FLEET_STD / WALK_STD) ** 2
+            # A maintenance action may move the health: widen P by what it can move.
+            scale[row[e], :n] = new_flight.astype(float) + widen
             last[e] = float(epochs[-1])
         by_row = np.argsort(row)
         state = SnapshotState(np.concatenate([filt[e].q_hat for e in by_row]),

@@ -47,7 +47,7 @@ from app.services import fresh_records
 from app.services.common import no_gc_pauses
 from app.services.notifications import outbox
 from app.services.snapshots import backlog, buckets, detector, egt, groups, rows
-from app.services.snapshots.estimator import SnapshotEstimator, estimator_for_design
+from app.services.snapshots.estimator import RESET_STD, SnapshotEstimator, estimator_for_design
 from app.services.snapshots.run import EngineOutput, EngineRun, PipelineState, run_filters
 from estimation.snapshot import SnapshotState
 
@@ -348,7 +348,8 @@ def _prepare_runs(
     )
     maintenance = _by_engine(
         session,
-        select(MaintenanceAction.engine_id, MaintenanceAction.performed_at).where(
+        select(MaintenanceAction.engine_id, MaintenanceAction.performed_at,
+               MaintenanceAction.kind).where(
             MaintenanceAction.engine_id.in_(ids),
             MaintenanceAction.kind.in_(BASELINE_RESET_KINDS),
         ),
@@ -366,11 +367,13 @@ def _prepare_runs(
         rec = records[engine_id]
         if len(rec.epoch) == 0 and fs is not None and seq0 == fs.n_records:
             continue
-        times = sorted(row[1].timestamp() for row in maintenance.get(engine_id, []))
+        actions = sorted((row[1].timestamp(), RESET_STD[row[2]])
+                         for row in maintenance.get(engine_id, []))
         redo = _events_to_redo([row[1] for row in events.get(engine_id, [])], seq0, state)
         runs.append(EngineRun(engine_id, operator_id, seq0, state, rec.epoch,
                               rec.phase, rec.conditions, rec.y, rec.u,
-                              np.array(times, dtype=float), redo))
+                              np.array([a[0] for a in actions], dtype=float), redo,
+                              np.array([a[1] for a in actions], dtype=float)))
         kept.append(fs)
     return runs, kept, redone
 
