@@ -100,9 +100,9 @@ def per_fleet_band(calib: uncertainty.Calibration,
     for k in np.flatnonzero(shown):
         lines.append(
             f"  {calib.names[k]}: level in band on {int(level_ok[:, k].sum())}/{n} (1-sigma "
-            f"{c1[:, k].min():.2f}-{c1[:, k].max():.2f}, 2-sigma min {c2[:, k].min():.2f}); "
-            f"change on {int(change_ok[:, k].sum())}/{n} (1-sigma {d1[:, k].min():.2f}-"
-            f"{d1[:, k].max():.2f}, 2-sigma min {d2[:, k].min():.2f})")
+            f"{c1[:, k].min():.3f}-{c1[:, k].max():.3f}, 2-sigma min {c2[:, k].min():.3f}); "
+            f"change on {int(change_ok[:, k].sum())}/{n} (1-sigma {d1[:, k].min():.3f}-"
+            f"{d1[:, k].max():.3f}, 2-sigma min {d2[:, k].min():.3f})")
     every = int(np.all(level_ok[:, shown], axis=1).sum()) if shown.any() else n
     every_change = int(np.all(change_ok[:, shown], axis=1).sum()) if shown.any() else n
     lines.append(f"  fleets with every shown level in the band: {every}/{n}; every shown change: "
