@@ -70,6 +70,11 @@ def test_two_designs_side_by_side(page: Any, server: Server, console: Console) -
         assert fault in page.inner_text("#design-a .engine-invisible")
     ceiling = engine["visibility"]["ceiling_percent_correct"]
     assert f"more than {ceiling:.1f} % of all" in page.inner_text("#design-a .engine-invisible")
+    # How the events' confidence was tempered on the run's second fleet.
+    tempering = engine["posterior"]
+    text = page.inner_text("#design-a .engine-tempering")
+    assert f"tempered on {tempering['events']} other faulted engines" in text
+    assert f"{tempering['wssr_scale']:.2f}" in text
     # Design B has no evaluation yet: theory only, and a button to run one.
     assert [t["name"] for t in traces(page, "#health-b")] == [
         "squared bias (theory)", "variance (theory)"
