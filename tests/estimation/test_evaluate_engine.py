@@ -201,3 +201,44 @@ def test_fleet_spread_covariance_is_that_of_the_engines_it_draws() -> None:
     cov = spread.covariance()
     scale = np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
     assert np.max(np.abs(np.cov(h.T) - cov) / scale) < 0.02
+
+
+def test_event_confidence_tempered_on_one_fleet_is_honest_on_another() -> None:
+    """The event posterior on the nonlinear engine (reduced form of bench_confidence.py): the
+    demo design's confusion measured on one faulted fleet, its tempering fitted on a second
+    (``posterior.fit_tempering``, as the evaluation job does), scored on a third. Untempered
+    (the isolation's margin, the confusion at full weight) it claims more than it knows; the
+    tempered posterior scores better (mean log probability of the true fault), is nearer its
+    claims (calibration error), and its 90 % credible set holds the true fault at least 90 %
+    of the time."""
+    from estimation import posterior
+    from estimation.shift_detector import SENSOR_WSSR_MARGIN
+
+    design = ee.EngineDesign("demo", NO_WF, ee.subset_vstar(TURBO))
+
+    def events(n: int, seed: int) -> ee.EngineEvaluation:
+        rec = ee.simulate_records(n, rng=np.random.default_rng(seed), n_before=30, n_after=20)
+        return ee.evaluate_design(design, rec, schedule())
+
+    measured, fit_on, new = events(6, 10), events(12, 11), events(15, 12)
+    confusion = np.nan_to_num(measured.confusion)
+    faults = measured.faults
+    t = posterior.fit_tempering(fit_on.wssr, fit_on.dof, fit_on.true_fault, faults, confusion,
+                                SENSOR_WSSR_MARGIN)
+    assert t.log_score > t.default_score
+    truth = new.true_fault
+    rows = np.arange(len(truth))
+    scored = {}
+    for label, scale, power in (("tempered", t.scale, t.confusion_power),
+                                ("untempered", SENSOR_WSSR_MARGIN, 1.0)):
+        post = posterior.fault_posterior(new.wssr, new.dof, faults, confusion=confusion,
+                                         scale=scale, confusion_power=power)
+        p = post.posterior
+        rel = posterior.reliability(p.max(axis=1), p.argmax(axis=1) == truth)
+        held = np.mean([faults[k] in s for s, k in zip(post.credible_set(0.9), truth,
+                                                       strict=True)])
+        log_score = float(np.mean(np.log(np.maximum(p[rows, truth], posterior.LOG_FLOOR))))
+        scored[label] = (log_score, rel.calibration_error, held)
+    assert scored["tempered"][0] > scored["untempered"][0], scored
+    assert scored["tempered"][1] < scored["untempered"][1], scored
+    assert scored["tempered"][2] >= 0.9, scored
