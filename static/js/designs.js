@@ -155,7 +155,8 @@ async function column(id, side) {
       `Ambiguity groups: ${engine.ambiguity_groups.map((g) => g.join(" or ")).join("; ")} (naming the group is right for ${fmtNum(engine.group_percent_correct, 1)} % of the visible faults).`) : null,
     engine.posterior ? h("p", { class: "muted engine-tempering" },
       `Event confidence: tempered on ${engine.posterior.events} other faulted engines to be right as often as it says (WSSR scale ${fmtNum(engine.posterior.wssr_scale, 2)}, confusion weight ${fmtNum(engine.posterior.confusion_power, 2)}); `
-      + `mean log probability of the true fault ${fmtNum(engine.posterior.log_score, 3)}, untempered ${fmtNum(engine.posterior.default_score, 3)} (0 is certain and right).`) : null,
+      + `mean log probability of the true fault ${fmtNum(engine.posterior.log_score, 3)}, untempered ${fmtNum(engine.posterior.default_score, 3)} (0 is certain and right).`)
+      : h("p", { class: "notice engine-tempering" }, "This evaluation predates the tempering of the events' confidence: its events show untempered probabilities, which claim more than they know. Run the evaluation again."),
     engineConf,
     h("h3", {}, "Nonlinear engine: baseline health RMS and 95 % interval coverage"), engineHealth);
   } else if (evaluation) {
