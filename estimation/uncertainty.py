@@ -121,6 +121,7 @@ fleets measure well enough to calibrate it on, or one the design reads backwards
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -419,7 +420,7 @@ class Calibration:
 def _correction_columns(p: int) -> np.ndarray:
     """[p, p] int: the column of the product h_i h_j in ``correction_design`` (symmetric)."""
     out = np.zeros((p, p), int)
-    i, j = np.triu_indices(p)
+    i, j = pairs(p)
     out[i, j] = out[j, i] = 1 + p + np.arange(i.size)
     return out
 
@@ -862,14 +863,27 @@ def correction_width(p: int) -> int:
 
 def correction_design(h_hat: np.ndarray, curved: bool = True) -> np.ndarray:
     """[N, 1 + p + p (p + 1) / 2]: the regressors of the level's correction, a column of ones,
-    the estimates h_hat [N, p] and, ``curved``, their products h_i h_j (i <= j, in
-    ``np.triu_indices`` order); [N, 1 + p] without the products."""
+    the estimates h_hat [N, p] and, ``curved``, their products h_i h_j (``pair_products``);
+    [N, 1 + p] without the products."""
     h_hat = np.asarray(h_hat, float)
     columns = [np.ones(h_hat.shape[:-1] + (1,)), h_hat]
     if curved:
-        i, j = np.triu_indices(h_hat.shape[-1])
-        columns.append(h_hat[..., i] * h_hat[..., j])
+        columns.append(pair_products(h_hat))
     return np.concatenate(columns, axis=-1)
+
+
+@functools.cache
+def pairs(p: int) -> tuple[np.ndarray, np.ndarray]:
+    """(i, j) of the p (p + 1) / 2 pairs i <= j of p parameters, ``np.triu_indices`` order,
+    made once per p."""
+    return np.triu_indices(p)
+
+
+def pair_products(h: np.ndarray) -> np.ndarray:
+    """[..., p (p + 1) / 2]: the products h_i h_j (i <= j, ``pairs`` order) of h [..., p]."""
+    h = np.asarray(h, float)
+    i, j = pairs(h.shape[-1])
+    return h[..., i] * h[..., j]
 
 
 def correct_level(h_hat: np.ndarray, correction: np.ndarray) -> np.ndarray:
@@ -889,7 +903,7 @@ def fleet_level(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The mean and spread over engines [T, p] of the calibrated level of engines whose
     estimates average mean [T, p] with the products of their estimates averaging products [T,
-    p (p + 1) / 2] (i <= j, ``np.triu_indices`` order), for the correction C [p, w]
+    p (p + 1) / 2] (``pair_products``), for the correction C [p, w]
     (``correct_level``). The mean is exact for each engine's level taken at its own mean
     estimates (the correction is linear in the regressors of ``correction_design``); the
     spread is the engines' covariance carried through the correction's Jacobian at the mean
@@ -899,7 +913,7 @@ def fleet_level(
     products = np.asarray(products, float)
     C = np.asarray(correction, float)
     p = mean.shape[-1]
-    i, j = np.triu_indices(p)
+    i, j = pairs(p)
     regressors = np.concatenate([np.ones(mean.shape[:-1] + (1,)), mean, products], axis=-1)
     level = mean - regressors[..., : C.shape[-1]] @ C.T
     second = np.zeros(mean.shape[:-1] + (p, p))

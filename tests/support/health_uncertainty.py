@@ -184,14 +184,12 @@ def fleet_average_errors(
             mine = starts == start
             per.setdefault(float(start), []).append((track.h_hat[mine].mean(0),
                                                      track.h_true[mine].mean(0)))
-    p = np.shape(correction)[0]
-    i, j = np.triu_indices(p)
     errs, raws, shown, true_spread = [], [], [], []
     for start in sorted(per):
         hat = np.array([h for h, _ in per[start]])
         true = np.array([t for _, t in per[start]])
-        level, spread = uncertainty.fleet_level(hat.mean(0), (hat[:, i] * hat[:, j]).mean(0),
-                                                correction)
+        level, spread = uncertainty.fleet_level(
+            hat.mean(0), uncertainty.pair_products(hat).mean(0), correction)
         errs.append(level - true.mean(0))
         raws.append(hat.mean(0) - true.mean(0))
         shown.append(spread)

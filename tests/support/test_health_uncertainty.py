@@ -2,16 +2,17 @@
 
 The model-error term is calibrated (``health_uncertainty.calibrate``) on one small simulated
 fleet and scored on another seed with the product's own filter; thresholds are the issue's
-acceptance figures where a small fleet can show them: every parameter's honest 1-sigma holds the
-truth more often than the filter's own, the shown parameters' 1-sigma in at least 55 % and
-their 2-sigma in at least 85 % of the records, and the change since the baseline has an RMS error of
-at most 0.5 % over the shown parameters, as has the fleet page's monthly fleet-average
-level. The accuracy of the fleet-average slopes needs the bench's larger fleets; here, a
-slope is a number only where the calibration can vouch for it (an observable parameter with a
-gain) and is reported as unobservable elsewhere. Its 1-sigma
-(with the gain's own standard error) is scored on the product's calibration fleets against 16
-other fleets in the slow form (bench_uncertainty.py scores it, and draws of calibration fleets,
-in full); the reduced form is tests/estimation/test_uncertainty.py's.
+acceptance figures where a small fleet can show them: every parameter's honest 1-sigma holds
+the truth more often than the filter's own, the shown parameters' 1-sigma in at least 55 % and
+their 2-sigma in at least 85 % of the records, and the change since the baseline has an RMS
+error of at most 0.5 % over the shown parameters, as has the fleet page's monthly
+fleet-average level (calibrated on two fleets, nearer the truth than the estimates' plain
+mean). The accuracy of the fleet-average slopes needs the bench's larger fleets; here, a slope
+is a number only where the calibration can vouch for it (an observable parameter with a gain)
+and is reported as unobservable elsewhere. Its 1-sigma (with the gain's own standard error) is
+scored on the product's calibration fleets against 16 other fleets in the slow form
+(bench_uncertainty.py scores it, and draws of calibration fleets, in full); the reduced form
+is tests/estimation/test_uncertainty.py's.
 """
 
 from __future__ import annotations
@@ -58,20 +59,37 @@ def test_calibrated_uncertainty_on_an_independent_seed(schedule: EngineSchedule)
     assert np.all(sc.cover1[shown] >= 0.55), sc.report()
     assert np.all(sc.cover2[shown] >= 0.85), sc.report()
     assert np.sqrt(np.mean(sc.change_rms[shown] ** 2)) <= 0.5, sc.report()
-    # The fleet page's monthly fleet-average level within 0.5 % of the truth, no farther than
-    # the estimates' plain mean (one calibration fleet fits no level correction: the two are
-    # equal here; bench_uncertainty.py shows the correction's gain), with the spread over
-    # engines near the true one.
+    # The fleet page's monthly fleet-average level: with one calibration fleet no level
+    # correction is fitted, so it is the estimates' plain mean, within 0.5 % of the truth here,
+    # with the spread over engines near the true one.
     assert sc.fleet_level_rms is not None and sc.fleet_raw_rms is not None
     assert sc.fleet_spread_ratio is not None
-    level, raw = (np.sqrt(np.mean(x[shown] ** 2)) for x in (sc.fleet_level_rms, sc.fleet_raw_rms))
-    assert level <= raw + 1e-12 and level <= 0.5, (level, raw)
+    assert np.sqrt(np.mean(sc.fleet_level_rms[shown] ** 2)) <= 0.5, sc.fleet_level_rms
     assert np.all(np.abs(sc.fleet_spread_ratio[shown] - 1.0) < 0.3), sc.fleet_spread_ratio
     # Slopes: every engine trend of the fleet measured, a number only where shown.
     assert sc.pieces >= 4 and np.all(np.isfinite(sc.slope_true)), sc.report()
     assert not np.any(sc.slope_shown & ~shown), sc.report()
     assert np.all(np.isfinite(sc.slope_hat) == sc.slope_shown), sc.report()
     assert sc.report().count("unobservable") == int((~sc.slope_shown).sum())
+
+
+def test_fleet_page_average_of_the_calibrated_level_nearer_the_truth(
+    schedule: EngineSchedule,
+) -> None:
+    """Calibrated on two fleets (a level correction is fitted), the fleet page's monthly
+    fleet-average level on a third is much nearer the fleet average of the engines' true
+    levels than the estimates' plain mean (the page before): here 0.31-0.83 % against
+    1.07-1.86 % per shown parameter; bench_uncertainty.py on 48 demo-size fleets, 0.05-0.24 %
+    against 0.11-1.76 %."""
+    est = fleet.design_estimator(schedule, "svd", 6)
+    calib = calibration.calibrate(est, [_fleet(11), _fleet(13)], design="svd:6", seeds=[11, 13])
+    assert calib.source["level_corrected"]
+    sc = health_uncertainty.score(est, calib, *_fleet(12))
+    assert sc.fleet_level_rms is not None and sc.fleet_raw_rms is not None
+    shown = sc.observable
+    assert shown.any()
+    assert np.all(sc.fleet_level_rms[shown] < 0.8 * sc.fleet_raw_rms[shown]), (
+        sc.fleet_level_rms, sc.fleet_raw_rms)
 
 
 @pytest.mark.slow

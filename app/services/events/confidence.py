@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy import stats
@@ -112,22 +112,33 @@ def hypotheses(event: Event, evidence: DesignEvidence, faults: tuple[str, ...]) 
     return kept or faults
 
 
-def wssr_fit(event: Event, evidence: DesignEvidence) -> tuple[int, float]:
+class WssrFit(NamedTuple):
+    """How a right fault's WSSR of an event is distributed: chi-squared with ``dof`` degrees of
+    freedom once divided by ``scale``; ``sensor_space``: the fit was the shift detector's in
+    sensor space (the kind the design's nonlinear-engine run measures and tempers)."""
+
+    dof: int
+    scale: float
+    sensor_space: bool
+
+
+def wssr_fit(event: Event, evidence: DesignEvidence) -> WssrFit:
     """The chi-squared degrees of freedom of a right fault's WSSR, and the model-error scale it
     is divided by (``fault_posterior``'s dof and scale): stored with an abrupt event (the shift
-    detector's isolation, ``Isolation.wssr_dof``: in tuner space m - 1; in sensor space the
-    fit's n - 1 values, held to its margin); for one stored before them, a threshold other than
-    the tuner space's quantile is a sensor-space fit's, read back to its n - 1; a wear event's
-    WSSR (tuner space, weighted as the health change) takes m - 1."""
+    detector's isolation, ``Isolation.wssr_dof``: in tuner space m - 1 at scale 1; in sensor
+    space the fit's n - 1 values, held to its margin); for one stored before them, a threshold
+    other than the tuner space's quantile is a sensor-space fit's, read back to its n - 1; a
+    wear event's WSSR (tuner space, weighted as the health change) takes m - 1."""
     shift = event.shift or {}
     tuner = max(evidence.n_tuners - 1, 1)
     if shift.get("wssr_dof"):
-        return int(shift["wssr_dof"]), float(shift.get("wssr_scale") or 1.0)
+        scale = float(shift.get("wssr_scale") or 1.0)
+        return WssrFit(int(shift["wssr_dof"]), scale, scale != 1.0)
     threshold = shift.get("wssr_threshold")
     if event.kind == "wear" or threshold is None or np.isclose(
             float(threshold), stats.chi2.ppf(ISOLATION_LEVEL, tuner), rtol=1e-9):
-        return tuner, 1.0
-    return sensor_fit_dof(float(threshold)), SENSOR_WSSR_MARGIN
+        return WssrFit(tuner, 1.0, False)
+    return WssrFit(sensor_fit_dof(float(threshold)), SENSOR_WSSR_MARGIN, True)
 
 
 def _explained(event: Event, wssr: float) -> float | None:
@@ -160,12 +171,13 @@ def event_confidence(event: Event, evidence: DesignEvidence) -> dict[str, Any] |
             C = evidence.confusion[np.ix_(order, order)]
         else:
             source = "wssr_only"  # the confusion was measured on another fault library
-    dof, scale = wssr_fit(event, evidence)
+    dof, scale, sensor_space = wssr_fit(event, evidence)
     # A sensor-space isolation, the kind the design's nonlinear-engine run measures: its
     # posterior tempered as fitted there (the WSSR scale, the confusion's weight); the fit's
     # own tail probability keeps the isolation's margin.
-    tempering = (evidence.tempering if event.kind != "wear" and C is not None
-                 and evidence.source == "nonlinear_engine" and scale == SENSOR_WSSR_MARGIN
+    tempering = (evidence.tempering
+                 if sensor_space and event.kind != "wear" and C is not None
+                 and evidence.source == "nonlinear_engine"
                  else None)
     post = fault_posterior(
         wssr, dof, faults, confusion=C,

@@ -12,7 +12,6 @@ equal those of a full scan of the estimates.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
 from typing import cast
@@ -24,6 +23,7 @@ from sqlalchemy.orm import Session
 from app.models.estimates import DeteriorationBucket, Estimate, EstimateLayout, FleetPeriod
 from app.services.encoding.pgcopy import HEADER, PG_EPOCH_US, TRAILER, fixed_copy_rows
 from app.services.snapshots.rows import Block
+from estimation.uncertainty import pair_products
 
 PERIODS = ("week", "month")
 FLEET_PERIOD_LOCK = 0x46480012  # first key of a design's fleet-period advisory lock
@@ -288,19 +288,12 @@ class FleetChange:
 
 def second_moments(mean: np.ndarray, p: int) -> np.ndarray:
     """What a fleet period sums of one engine's period mean [..., p + n_aux] besides the mean
-    itself: the products of its health values h_i h_j (i <= j, ``np.triu_indices`` order), the
-    regressors of the calibrated level's curved correction and the fleet's covariance of the
-    health values, then the squares of its auxiliary values. With one health value, the
-    squares of every value."""
+    itself: the products of its health values (``uncertainty.pair_products``: the regressors
+    of the calibrated level's curved correction and the fleet's covariance of the health
+    values), then the squares of its auxiliary values. With one health value, the squares of
+    every value."""
     mean = np.asarray(mean, float)
-    i, j = _pairs(p)
-    return np.concatenate([mean[..., i] * mean[..., j], np.square(mean[..., p:])], axis=-1)
-
-
-@functools.cache
-def _pairs(p: int) -> tuple[np.ndarray, np.ndarray]:
-    """``np.triu_indices(p)``, made once per p (the periods take it per engine and period)."""
-    return np.triu_indices(p)
+    return np.concatenate([pair_products(mean[..., :p]), np.square(mean[..., p:])], axis=-1)
 
 
 def _blob(values: np.ndarray) -> bytes:
@@ -346,11 +339,11 @@ def rebuild_fleet(
         .where(DeteriorationBucket.design_id == design_id)
     ):
         mean = np.frombuffer(sums, "<f8") / n
-        got = fleet.setdefault((period, start), [operator_id, 0, 0.0 * mean,
-                                                 0.0 * moments(mean, p)])
+        moment = moments(mean, p)
+        got = fleet.setdefault((period, start), [operator_id, 0, 0.0 * mean, 0.0 * moment])
         got[1] += 1
         got[2] = got[2] + mean
-        got[3] = got[3] + moments(mean, p)
+        got[3] = got[3] + moment
     session.execute(delete(FleetPeriod).where(FleetPeriod.design_id == design_id))
     if fleet:
         session.execute(insert(cast(Table, FleetPeriod.__table__)), [
