@@ -215,6 +215,17 @@ class Calibration:
     # level_std on the filter's aux variance (``fit_model_std``); empty: not calibrated.
     aux_names: tuple[str, ...] = ()
     aux_std: np.ndarray | None = None
+    # Per aux output: the scale f (0, 1] of its filter variance where that alone over-covers
+    # (``fit_filter_scale``; None: 1), and the model error s_trim (percent of trim; None: 0)
+    # that a value in engineering units (the engine schedule's interpolated trim (1 + z / 100))
+    # carries besides z's honest sigma: the trim's error against the nominal engine solved at
+    # the record's condition, fitted on the values' errors as ``fit_model_std`` does.
+    aux_scale: np.ndarray | None = None
+    trim_std: np.ndarray | None = None
+    # Measured figures (the engine type's smoothed deltas and EGT margin, each in its unit):
+    # their whole 1-sigma, fitted like aux_std with no filter variance; empty: not calibrated.
+    delta_names: tuple[str, ...] = ()
+    delta_std: np.ndarray | None = None
     # Fleet-average slope: gain g_k, noise a_k and common error c_k (module docstring); None:
     # 1, unknown and 0.
     slope_gain: np.ndarray | None = None
@@ -276,6 +287,20 @@ class Calibration:
             raise DimensionError(f"Incompatible dimensions of aux_std; expected "
                                  f"({len(self.aux_names)},) but found {aux_std.shape}")
         object.__setattr__(self, "aux_std", aux_std)
+        for name, fill in (("aux_scale", 1.0), ("trim_std", 0.0)):
+            value = getattr(self, name)
+            value = np.full(len(self.aux_names), fill) if value is None else np.asarray(
+                value, float)
+            if value.shape != (len(self.aux_names),):
+                raise DimensionError(f"Incompatible dimensions of {name}; expected "
+                                     f"({len(self.aux_names)},) but found {value.shape}")
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, "delta_names", tuple(self.delta_names))
+        delta_std = np.asarray(np.zeros(0) if self.delta_std is None else self.delta_std, float)
+        if delta_std.shape != (len(self.delta_names),):
+            raise DimensionError(f"Incompatible dimensions of delta_std; expected "
+                                 f"({len(self.delta_names)},) but found {delta_std.shape}")
+        object.__setattr__(self, "delta_std", delta_std)
 
     def on(self, names: Sequence[str]) -> Calibration:
         """The calibration in the order of ``names``; a name it does not hold gets no model
@@ -348,6 +373,33 @@ class Calibration:
         value = float(np.asarray(self.aux_std)[self.aux_names.index(name)])
         return value if np.isfinite(value) else None
 
+    def delta_model_std(self, name: str) -> float | None:
+        """1-sigma of one measured figure (its unit); None when it was not calibrated."""
+        if name not in self.delta_names:
+            return None
+        value = float(np.asarray(self.delta_std)[self.delta_names.index(name)])
+        return value if np.isfinite(value) else None
+
+    def aux_sigma(self, names: Sequence[str], filter_std: np.ndarray) -> np.ndarray:
+        """The honest 1-sigma [N, nz] of aux estimates named ``names`` with the filter's
+        1-sigma filter_std [N, nz]: the filter's, scaled by f, and the calibrated model error
+        (percent of trim) in quadrature; an output the calibration does not hold keeps the
+        filter's."""
+        s = np.array([self.aux_model_std(n) or 0.0 for n in names], float)
+        f = self._aux_field(self.aux_scale, names, 1.0)
+        return np.sqrt(np.square(f * np.asarray(filter_std, float)) + np.square(s))
+
+    def trim_sigma(self, names: Sequence[str]) -> np.ndarray:
+        """[nz] s_trim of each aux output (percent of trim; 0: not held)."""
+        return self._aux_field(self.trim_std, names, 0.0)
+
+    def _aux_field(self, values: np.ndarray | None, names: Sequence[str],
+                   missing: float) -> np.ndarray:
+        held = np.asarray(values, float)
+        out = np.array([held[self.aux_names.index(n)] if n in self.aux_names else missing
+                        for n in names], float)
+        return np.where(np.isfinite(out), out, missing)
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form (``fleethealth.uncertainty-calibration/1``; NaN as null)."""
 
@@ -367,6 +419,10 @@ class Calibration:
             "source": dict(self.source),
             "aux_names": list(self.aux_names),
             "aux_std": listed(np.asarray(self.aux_std)),
+            "aux_scale": listed(np.asarray(self.aux_scale)),
+            "trim_std": listed(np.asarray(self.trim_std)),
+            "delta_names": list(self.delta_names),
+            "delta_std": listed(np.asarray(self.delta_std)),
             "slope_gain": listed(np.asarray(self.slope_gain)),
             "slope_noise": listed(np.asarray(self.slope_noise)),
             "slope_common": listed(np.asarray(self.slope_common)),
@@ -395,6 +451,10 @@ class Calibration:
             source=dict(d.get("source", {})),
             aux_names=tuple(d.get("aux_names", ())),
             aux_std=arr("aux_std") if "aux_std" in d else None,
+            aux_scale=arr("aux_scale") if "aux_scale" in d else None,
+            trim_std=arr("trim_std") if "trim_std" in d else None,
+            delta_names=tuple(d.get("delta_names", ())),
+            delta_std=arr("delta_std") if "delta_std" in d else None,
             slope_gain=arr("slope_gain") if "slope_gain" in d else None,
             slope_noise=arr("slope_noise") if "slope_noise" in d else None,
             slope_common=arr("slope_common") if "slope_common" in d else None,

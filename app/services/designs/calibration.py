@@ -21,8 +21,8 @@ the engine's first record or its last shop visit; a water wash does not move the
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -35,6 +35,15 @@ from app.services.designs.service import get_design
 from app.services.snapshots import buckets, estimator
 from app.services.snapshots import run as snapshots_run
 from estimation import uncertainty
+from estimation.engine.atmosphere import RANKINE, flight_condition
+from estimation.engine.deltas import (
+    DELTA_SENSORS,
+    EGT_SENSOR,
+    egt_delta,
+    egt_reference,
+    reference_egt,
+    smoothed_deltas,
+)
 from estimation.engine.errors import EngineConvergenceError
 from estimation.engine.fleet import FleetConfig, FleetPlan, Snapshots, fleet_snapshots, plan_fleet
 from estimation.engine.sensors import AUX_NAMES, SENSOR_NAMES
@@ -103,6 +112,9 @@ class EngineData:
     esn: str
     run: snapshots_run.EngineRun
     flight_id: np.ndarray  # [S]
+    # The sensors the classic deltas read (name -> [S], engine units), whether or not the
+    # design uses them.
+    measured: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -124,6 +136,7 @@ class HealthTrack:
     # installations: a re-installation is a shop visit); None where not kept.
     epoch: np.ndarray | None = None
     resets: np.ndarray | None = None
+    measured: Mapping[str, np.ndarray] | None = None  # the deltas' sensors (``EngineData``)
 
 
 @dataclass(frozen=True)
@@ -175,6 +188,8 @@ def engine_runs(
             u_all[:, i] = snaps.actuators[keep, ACTUATOR_NAMES.index(column_of[col])]
     phase = snaps.phase[keep].astype(str)
     fid = snaps.flight_id[keep].astype(str)
+    delta_sensors = {sensor: snaps.sensors[keep, SENSOR_NAMES.index(sensor)]
+                     for _name, sensor, _unit in DELTA_SENSORS}
     # Each engine's maintenance (time, what it can move the health by): a re-installation is a
     # shop visit, as the demo records it.
     maint: dict[str, list[tuple[float, float]]] = {}
@@ -197,7 +212,8 @@ def engine_runs(
             maintenance=np.array([a[0] for a in sorted(maint.get(name, []))], dtype=float),
             maintenance_std=np.array([a[1] for a in sorted(maint.get(name, []))], dtype=float),
         )
-        out.append(EngineData(name, run, fid[idx]))
+        out.append(EngineData(name, run, fid[idx],
+                              {k: v[idx] for k, v in delta_sensors.items()}))
     return out
 
 
@@ -230,21 +246,44 @@ def tracks(
                                      if i.esn == data.esn), dtype=float)
             out.append(HealthTrack(data.esn, rounds, flights > settle, values[:, s["h"]],
                                    values[:, s["h_sigma"]], h_true, values[:, s["z"]],
-                                   values[:, s["z_sigma"]], data.run.conditions, t, resets))
+                                   values[:, s["z_sigma"]], data.run.conditions, t, resets,
+                                   data.measured))
     return out
 
 
-def aux_errors(
+@dataclass(frozen=True)
+class FigureErrors:
+    """Errors against the simulator's truth of what the engine page shows besides the health,
+    over every ``AUX_EVERY``-th settled record: the aux estimates (percent of the nominal
+    engine's value at the record's condition) with their filter variance, the schedule's
+    interpolated trims of those outputs against the nominal engine's (percent; [N, nz] each),
+    and the smoothed deltas and EGT margin (``DELTA_FIGURES``, [N, 5] in their units)."""
+
+    aux_err: np.ndarray
+    aux_var: np.ndarray
+    trim_err: np.ndarray
+    delta_err: np.ndarray
+
+
+# The measured figures of the engine page whose model error the calibration fits (their
+# units: K, %, %, %, K).
+DELTA_FIGURES = ("egt_margin", *(name for name, _sensor, _unit in DELTA_SENSORS))
+
+
+def figure_errors(
     plan: FleetPlan, track_list: Sequence[HealthTrack], names: Sequence[str],
     every: int = AUX_EVERY,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Errors of the aux estimates against the simulator's truth, and their filter variance
-    ([N, nz] each, percent of the nominal engine's value at the record's condition), over every
-    ``every``-th settled record: the truth is the steady state of the record's true health
-    (``FleetPlan.health``, actuator biases included) at its condition and power setting,
-    against the nominal engine's there."""
+) -> FigureErrors:
+    """``FigureErrors`` of the tracks: the truth is the steady state of each record's true
+    health (``FleetPlan.health``, actuator biases included) at its condition and power
+    setting, against the nominal engine's there, and at the EGT margin's reference condition
+    (the deltas as the page computes them: over every record of the track, smoothed, against
+    the schedule's baseline)."""
     idx = [AUX_NAMES.index(n) for n in names]
-    errs, variances = [], []
+    schedule = estimator.builtin_schedule()
+    ref = egt_reference(schedule)
+    t48 = SENSOR_NAMES.index(EGT_SENSOR)
+    errs, variances, trim_errs, delta_errs = [], [], [], []
     for t in track_list:
         if t.z_hat is None or t.z_sigma is None or t.conditions is None:
             continue
@@ -256,14 +295,41 @@ def aux_errors(
         try:
             true = steady_state(c[:, :3], power=c[:, 3], health=health)
             nominal = steady_state(c[:, :3], power=c[:, 3])
+            at_ref = (steady_state(np.tile(ref.environment, (len(rows), 1)),
+                                   power=np.full(len(rows), ref.power), health=health)
+                      if t.measured else None)
         except (EngineConvergenceError, ValueError):
             continue  # an engine the solver cannot hold there: no truth to score against
         z_true = 100.0 * (true.aux[:, idx] / nominal.aux[:, idx] - 1.0)
         errs.append(t.z_hat[rows] - z_true)
         variances.append(t.z_sigma[rows] ** 2)
+        trims = estimator.schedule_trims(schedule, c)
+        trim_errs.append(np.stack([100.0 * (trims[n] / nominal.aux[:, k] - 1.0)
+                                   if n in trims else np.full(len(rows), np.nan)
+                                   for n, k in zip(names, idx, strict=True)], axis=1))
+        if at_ref is None or t.measured is None:
+            continue
+        theta = flight_condition(t.conditions[:, 0], t.conditions[:, 1],
+                                 t.conditions[:, 2]).theta
+        shown = dict((name, v) for name, _u, v in smoothed_deltas(
+            t.measured, estimator.baseline_trims(t.conditions, schedule), theta))
+        truth = {"egt_margin": -at_ref.sensors[:, t48] / RANKINE}  # redline 0, in K steps
+        for name, sensor, _unit in DELTA_SENSORS:
+            k = SENSOR_NAMES.index(sensor)
+            truth[name] = (egt_delta(true.sensors[:, k], nominal.sensors[:, k], theta[rows])
+                           if sensor == EGT_SENSOR
+                           else 100.0 * (true.sensors[:, k] / nominal.sensors[:, k] - 1.0))
+        if "dEGT" in shown:
+            shown["egt_margin"] = -reference_egt(shown["dEGT"], ref.t48_k, ref.theta)
+        delta_errs.append(np.stack(
+            [shown[n][rows] - truth[n] if n in shown else np.full(len(rows), np.nan)
+             for n in DELTA_FIGURES], axis=1))
     if not errs:
-        return np.empty((0, len(idx))), np.empty((0, len(idx)))
-    return np.concatenate(errs), np.concatenate(variances)
+        empty = np.empty((0, len(idx)))
+        return FigureErrors(empty, empty, empty, np.empty((0, len(DELTA_FIGURES))))
+    return FigureErrors(np.concatenate(errs), np.concatenate(variances),
+                        np.concatenate(trim_errs), np.concatenate(delta_errs) if delta_errs
+                        else np.empty((0, len(DELTA_FIGURES))))
 
 
 def segments(plan: FleetPlan, track_list: Sequence[HealthTrack]) -> list[Segment]:
@@ -374,13 +440,13 @@ def fleet_prior(segs: Sequence[Segment]) -> np.ndarray:
 class CalibrationFleet:
     """One simulated fleet filtered by a design (``calibration_fleet``): its settled
     segments, its trend pieces, the design's bias matrix over its conditions and the errors
-    of its aux estimates with their filter variance (empty when not calibrated)."""
+    of the other figures the engine page shows (``FigureErrors``: empty when not
+    calibrated)."""
 
     segments: list[Segment]
     pieces: uncertainty.TrendPieces
     bias_matrix: np.ndarray
-    aux_err: np.ndarray
-    aux_var: np.ndarray
+    figures: FigureErrors
 
 
 def calibration_fleet(
@@ -390,11 +456,12 @@ def calibration_fleet(
     track_list = tracks(est, plan, snaps)
     aux = tuple(est.layout.aux)
     if aux and all(n in AUX_NAMES for n in aux):
-        aux_err, aux_var = aux_errors(plan, track_list, aux)
+        figures = figure_errors(plan, track_list, aux)
     else:
-        aux_err = aux_var = np.empty((0, len(aux)))
+        empty = np.empty((0, len(aux)))
+        figures = FigureErrors(empty, empty, empty, np.empty((0, len(DELTA_FIGURES))))
     return CalibrationFleet(segments(plan, track_list), trend_pieces(track_list),
-                            bias_matrix(est, snaps), aux_err, aux_var)
+                            bias_matrix(est, snaps), figures)
 
 
 def calibrate(
@@ -446,8 +513,10 @@ def fit(
     fleet_of = [k for k, f in enumerate(fleets) for _ in f.segments]
     pieces = [f.pieces for f in fleets]
     B_hs = [f.bias_matrix for f in fleets]
-    aux_err = [f.aux_err for f in fleets if len(f.aux_err)]
-    aux_var = [f.aux_var for f in fleets if len(f.aux_err)]
+    aux_err = [f.figures.aux_err for f in fleets if len(f.figures.aux_err)]
+    aux_var = [f.figures.aux_var for f in fleets if len(f.figures.aux_err)]
+    trim_err = [f.figures.trim_err for f in fleets if len(f.figures.aux_err)]
+    delta_err = [f.figures.delta_err for f in fleets if len(f.figures.delta_err)]
     B_h = np.mean(B_hs, axis=0)
     p = B_h.shape[0]
     bias2 = uncertainty.analytic_bias2(B_h, fleet_prior(segs))
@@ -503,12 +572,26 @@ def fit(
               & (cover2.min(axis=0) >= BAND_TWO_SIGMA))
     if len(per_fleet) > 1:
         shown &= stable
-    aux_std = None
+    aux_std = aux_scale = trim_std = None
     if aux_err:
-        aux_std = uncertainty.fit_model_std(np.concatenate(aux_err), np.concatenate(aux_var),
-                                            one_sigma, two_sigma)
+        # The aux outputs' sigma as the level's: the filter's scaled where it alone
+        # over-covers, then the model error on top.
+        err, var = np.concatenate(aux_err), np.concatenate(aux_var)
+        aux_scale = uncertainty.fit_filter_scale(err, var, one_sigma)
+        aux_std = uncertainty.fit_model_std(err, aux_scale**2 * var, one_sigma, two_sigma)
+        # A value in engineering units (trim (1 + z / 100)) errs by z's error and its trim's:
+        # what its honest z sigma does not hold of that is the trim's term.
+        honest = aux_scale**2 * var + np.square(np.nan_to_num(aux_std))
+        trim_std = uncertainty.fit_model_std(err + np.concatenate(trim_err), honest, one_sigma,
+                                             two_sigma)
+    delta_std = None
+    if delta_err:  # measured figures: no filter variance, the whole error is the model's
+        err = np.concatenate(delta_err)
+        delta_std = uncertainty.fit_model_std(err, np.zeros_like(err), one_sigma, two_sigma)
     return uncertainty.Calibration(
-        aux_names=aux if aux_std is not None else (), aux_std=aux_std,
+        aux_names=aux if aux_std is not None else (), aux_std=aux_std, aux_scale=aux_scale,
+        trim_std=trim_std,
+        delta_names=DELTA_FIGURES if delta_std is not None else (), delta_std=delta_std,
         names=names, level_std=level_std, change_std=change_std,
         slope_error=slope_error, bias2=bias2, drift=drift, observable=shown, bias_scale=scale,
         slope_gain=sc.gain, slope_noise=sc.noise, slope_common=sc.common,

@@ -21,9 +21,14 @@ condition comes from the record's snapshot):
   day (the flat-rate corner where the margin is smallest): EGT_ref = T48_base(ref) + dEGT
   theta2(ref). A nominal engine has margin redline - T48_base(ref).
 
-Deltas and EGT margin are smoothed over flights with an exponential filter (``SMOOTHING``):
-one record's scatter (sensor noise 0.75 % of T48, about 6 K) would otherwise hide a trend of a
-few degrees.
+Deltas and EGT margin are smoothed over flights with an exponential filter
+(``estimation.engine.deltas``): one record's scatter (sensor noise 0.75 % of T48, about 6 K)
+would otherwise hide a trend of a few degrees.
+
+Every series carries a 1-sigma (``engineering_sigma``): the estimated ones from the aux
+estimates' honest sigma, the measured ones from the model error the design's calibration fitted
+against the simulator's truth (``designs.calibration.figure_errors``); scored against the truth
+in tests/app/services/trends/test_performance_truth.py.
 """
 
 from __future__ import annotations
@@ -34,27 +39,32 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 
 import numpy as np
-from scipy import signal
 from sqlalchemy.orm import Session
 
 from app.models.estimates import EstimateLayout
-from app.services.snapshots import egt, rows
+from app.services.snapshots import rows
 from app.services.snapshots.estimator import MEASURED_COLUMNS, schedule_trims
 from estimation.engine.atmosphere import flight_condition
+from estimation.engine.deltas import (
+    DELTA_SENSORS,
+    EGT_SENSOR,
+    egt_reference,
+    reference_egt,
+    smoothed_deltas,
+    smoothing_growth,
+)
 from estimation.engine.schedule import EngineSchedule
 
-EGT_SENSOR = "T48"
-DELTA_SENSORS = (("dEGT", "T48", "degC"), ("dWf", "Wf", "%"), ("dN2", "Nc", "%"),
-                 ("dN1", "Nf", "%"))
 MARGINS = ("SM_fan", "SM_LPC", "SM_HPC")
 THRUST = "Fn"
 TURBINE_INLET = "T40"  # estimated (not measured): its change from the nominal engine, K
 BYPASS_RATIO = "BPR"
 # Schedule axes order: alt [ft], mach, power [%], dtamb [K].
 RATED_CONDITION = (0.0, 0.0, 100.0, 0.0)
-EGT_REFERENCE_CONDITION = (0.0, 0.0, 100.0, 15.0)
-SMOOTHING = 0.1  # weight of each new record in the exponential filter (~10 flights)
 RANKINE_PER_KELVIN = 1.8
+# The measured sensor behind each measured figure.
+DELTA_SOURCES = {"egt_margin": EGT_SENSOR,
+                 **{name: sensor for name, sensor, _unit in DELTA_SENSORS}}
 ZERO_C = 273.15
 
 
@@ -63,7 +73,7 @@ class TypeReference:
     """Values of an engine type's nominal engine at its reference conditions."""
 
     rated_thrust_lbf: float
-    egt_reference_c: float  # T48 of the nominal engine at EGT_REFERENCE_CONDITION
+    egt_reference_c: float  # T48 of the nominal engine at deltas.EGT_REFERENCE_CONDITION
     theta_reference: float
 
 
@@ -75,43 +85,9 @@ def type_reference(schedule: EngineSchedule) -> TypeReference:
 @functools.lru_cache(maxsize=4)
 def _reference(_key: int, schedule: EngineSchedule) -> TypeReference:
     rated = schedule.trims_at(np.array([RATED_CONDITION]))
-    ref = schedule.trims_at(np.array([EGT_REFERENCE_CONDITION]))
-    alt, mach, _power, dtamb = EGT_REFERENCE_CONDITION
-    theta = float(flight_condition(alt, mach, dtamb).theta)
-    return TypeReference(
-        rated_thrust_lbf=float(rated[THRUST][0]),
-        egt_reference_c=float(ref[EGT_SENSOR][0]) / RANKINE_PER_KELVIN - ZERO_C,
-        theta_reference=theta,
-    )
-
-
-def smooth(values: np.ndarray, weight: float = SMOOTHING) -> np.ndarray:
-    """Exponential smoothing over records along axis 0 [n, k]; a missing value (NaN) keeps the
-    previous smoothed value, and the filter starts at the first value present.
-
-    Per column, over its present values x_0, x_1, ...: s_0 = x_0, s_i = s_(i-1) + w (x_i -
-    s_(i-1)), a first-order recursive filter (``scipy.signal.lfilter``); a missing record
-    carries the last s forward.
-    """
-    values = np.asarray(values, float)
-    out = np.full(values.shape, np.nan)
-    flat = values.reshape(values.shape[0], -1)
-    res = out.reshape(values.shape[0], -1)
-    for j in range(flat.shape[1]):
-        present = np.flatnonzero(~np.isnan(flat[:, j]))
-        if present.size == 0:
-            continue
-        x = flat[present, j]
-        s = np.empty_like(x)
-        s[0] = x[0]
-        if x.size > 1:
-            s[1:], _ = signal.lfilter([weight], [1.0, weight - 1.0], x[1:],
-                                      zi=[(1.0 - weight) * x[0]])
-        # Each record takes the smoothed value of the last present record at or before it.
-        last = np.searchsorted(present, np.arange(flat.shape[0]), side="right") - 1
-        known = last >= 0
-        res[known, j] = s[last[known]]
-    return out
+    ref = egt_reference(schedule)
+    return TypeReference(rated_thrust_lbf=float(rated[THRUST][0]),
+                         egt_reference_c=ref.t48_k - ZERO_C, theta_reference=ref.theta)
 
 
 @dataclass(frozen=True)
@@ -169,34 +145,13 @@ def engineering_units(
         zb = z[:, aux.index(BYPASS_RATIO)].astype(float)
         out.append(("BPR", "1", trims[BYPASS_RATIO] * (1.0 + zb / 100.0)))
     theta = flight_condition(cond[:, 0], cond[:, 1], cond[:, 2]).theta if n else np.empty(0)
-    deltas: list[tuple[str, str, np.ndarray]] = []
-    for name, sensor, unit in DELTA_SENSORS:
-        measured = records.measured.get(sensor)
-        if measured is None or sensor not in base:
-            continue
-        measured = np.asarray(measured, float)
-        if sensor == EGT_SENSOR:
-            delta = egt.egt_delta(measured, base[sensor], theta)
-        else:
-            delta = 100.0 * (measured / base[sensor] - 1.0)
-        deltas.append((name, unit, delta))
-    if deltas:
-        smoothed = smooth(np.stack([d for _n, _u, d in deltas], axis=1))
-        for j, (name, unit, _raw) in enumerate(deltas):
-            if name == "dEGT":
-                egt_ref = ref.egt_reference_c + smoothed[:, j] * ref.theta_reference
-                out.append(("egt_margin", "degC", egt_redline_c - egt_ref))
-            out.append((name, unit, smoothed[:, j]))
+    deltas = smoothed_deltas(records.measured, base, theta)
+    for name, unit, smoothed in deltas:
+        if name == "dEGT":
+            egt_ref = reference_egt(smoothed, ref.egt_reference_c, ref.theta_reference)
+            out.append(("egt_margin", "degC", egt_redline_c - egt_ref))
+        out.append((name, unit, smoothed))
     return out
-
-
-# Series whose estimate's 1-sigma is shown: the thrust estimate's sigma from the filter
-# covariance (z_sigma, percent of the record's trim) and, for a calibrated design, its model
-# error fitted on the simulated calibration fleets (``designs.calibration.aux_errors``). Scored
-# against the truth in tests/app/services/trends/test_performance_truth.py. The stall margins
-# carry no band: their error is mostly the design's bias (the HPC and LPC margins follow the
-# actuator biases and the health the tuners do not span), which the filter sigma misses.
-SIGMA_SERIES = ("Fn", "Fn_rated", "thrust_deficit")
 
 
 def engineering_sigma(
@@ -204,21 +159,59 @@ def engineering_sigma(
     layout: EstimateLayout,
     z_sigma: np.ndarray,
     records: RecordConditions,
-    thrust_model_std: float = 0.0,
+    delta_std: Mapping[str, float] | None = None,
+    trim_std: Mapping[str, float] | None = None,
     trims: Mapping[str, np.ndarray] | None = None,
 ) -> dict[str, np.ndarray]:
-    """1-sigma [n] of the ``SIGMA_SERIES`` in their engineering units, from the aux estimates'
-    filter 1-sigma z_sigma [n, n_aux] and the thrust estimate's calibrated model error
-    ``thrust_model_std`` (both percent of the record's trim, added in quadrature)."""
+    """1-sigma [n] of each series of ``engineering_units`` that has one, in its unit.
+
+    The estimated ones (thrust, stall margins, T40, bypass ratio and their changes) from the
+    aux estimates' 1-sigma z_sigma [n, n_aux] (percent of the record's trim; honest when the
+    trend has made it so with the design's calibration, ``Calibration.aux_sigma``); a value
+    (not a change) also carries its trim's interpolation error (``trim_std``, percent, name ->
+    1-sigma: ``Calibration.trim_sigma``) in quadrature. The
+    measured ones (the smoothed deltas and the EGT margin) from the calibrated ``delta_std``
+    (name -> 1-sigma of a settled record), grown over a trend's first records as the
+    smoothing's noise is (``deltas.smoothing_growth``); without it they have none.
+    """
+    n = len(records.conditions)
+    out: dict[str, np.ndarray] = {}
+    if n == 0:
+        return out
+    if trims is None:
+        trims = schedule_trims(schedule, records.conditions)
     aux = list(layout.aux)
-    if THRUST not in aux or len(records.conditions) == 0:
-        return {}
-    fn_trim = (trims if trims is not None
-               else schedule_trims(schedule, records.conditions))[THRUST]
-    sz = np.sqrt(np.asarray(z_sigma[:, aux.index(THRUST)], float) ** 2 + thrust_model_std**2)
-    fn = fn_trim * sz / 100.0
-    return {"Fn": fn, "Fn_rated": 100.0 * fn / type_reference(schedule).rated_thrust_lbf,
-            "thrust_deficit": sz}
+
+    def of(name: str) -> np.ndarray | None:
+        if name not in aux or name not in trims:
+            return None
+        return np.asarray(z_sigma[:, aux.index(name)], float)
+
+    def value(name: str, sz: np.ndarray) -> np.ndarray:  # the value's, in its unit
+        return trims[name] * np.hypot(sz, (trim_std or {}).get(name, 0.0)) / 100.0
+
+    sz = of(THRUST)
+    if sz is not None:
+        fn = value(THRUST, sz)
+        out.update(Fn=fn, Fn_rated=100.0 * fn / type_reference(schedule).rated_thrust_lbf,
+                   thrust_deficit=sz)
+    for name in MARGINS:
+        sm = of(name)
+        if sm is not None:
+            out[name] = value(name, sm)
+            out[f"{name}_change"] = trims[name] * sm / 100.0
+    s40 = of(TURBINE_INLET)
+    if s40 is not None:
+        out["T40_change"] = trims[TURBINE_INLET] * s40 / 100.0 / RANKINE_PER_KELVIN
+    sb = of(BYPASS_RATIO)
+    if sb is not None:
+        out["BPR"] = value(BYPASS_RATIO, sb)
+    growth = smoothing_growth(n)
+    for name, std in (delta_std or {}).items():
+        sensor = DELTA_SOURCES.get(name)
+        if sensor is not None and sensor in records.measured:
+            out[name] = std * growth
+    return out
 
 
 def nominal_margin_c(schedule: EngineSchedule, egt_redline_c: float) -> float:

@@ -29,16 +29,12 @@ from sqlalchemy.orm import Session
 from app.models import EngineModel, EstimatorDesign, Snapshot
 from app.models.estimates import EgtWindow, Estimate, FilterState
 from app.services.snapshots.estimator import baseline_trims, builtin_schedule_for_design
-from estimation.engine.atmosphere import RANKINE, flight_condition
+from estimation.engine.atmosphere import flight_condition
+from estimation.engine.deltas import egt_delta
 from estimation.engine.schedule import EngineSchedule
 
 EGT_WINDOW = 20
 BATCH = 256  # engines whose windows are taken together by ``rebuild``
-
-
-def egt_delta(t48: np.ndarray, baseline: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """dEGT [K, corrected] of measured T48 against the nominal engine's, both in degR."""
-    return (np.asarray(t48, float) - baseline) / theta / RANKINE
 
 
 def d_egt(conditions: np.ndarray, t48: np.ndarray, schedule: EngineSchedule) -> np.ndarray:

@@ -48,9 +48,10 @@ def performance_group(
     columns_of: Any,
     calibration: uncertainty.Calibration | None = None,
 ) -> dict[str, Any] | None:
-    """The group for records (epoch [n], packed values [n, width]); None when the design's
-    engine has no schedule. The thrust series' 1-sigma is the filter's, with the design's
-    calibrated model error of the thrust estimate when ``calibration`` has one."""
+    """The group for records (epoch [n], packed values [n, width]: the aux 1-sigma already
+    made honest by ``trends.health.apply``); None when the design's engine has no schedule.
+    Each series' 1-sigma is ``performance.engineering_sigma``'s, the measured figures' from
+    ``calibration`` (none without it)."""
     schedule = estimator.builtin_schedule_for_design(session, design_id)
     if schedule is None or len(epoch) == 0:
         return None
@@ -69,11 +70,15 @@ def performance_group(
     )
     if not series:
         return None
-    model_std = (calibration.aux_model_std(performance.THRUST) if calibration is not None
-                 else None)
+    delta_std = trim_std = None
+    if calibration is not None:
+        delta_std = {name: std for name in calibration.delta_names
+                     if (std := calibration.delta_model_std(name)) is not None}
+        trim_std = dict(zip(layout.aux, calibration.trim_sigma(layout.aux).tolist(),
+                            strict=True))
     sigmas = performance.engineering_sigma(
         schedule, layout, np.asarray(values[:, layout.slices()["z_sigma"]], dtype=float), records,
-        model_std or 0.0, trims,
+        delta_std, trim_std, trims,
     )
     matrix = np.stack([v for _n, _u, v in series], axis=1)
     banded = [j for j, (name, _u, _v) in enumerate(series) if name in sigmas]

@@ -15,6 +15,7 @@ from app.schemas.estimates import EngineTrend
 from app.services.fleet import performance
 from app.services.snapshots import estimator
 from app.services.trends import service as trends
+from estimation.engine import deltas
 from estimation.engine.atmosphere import flight_condition
 from estimation.engine.schedule import EngineSchedule, build_schedule
 from tests.app.services.trends.test_trends import (
@@ -93,7 +94,7 @@ def test_units_equal_hand_computation_from_the_trims(schedule: EngineSchedule) -
 
 def test_smoothing_skips_missing_values() -> None:
     x = np.array([[np.nan], [1.0], [np.nan], [3.0]])
-    np.testing.assert_allclose(performance.smooth(x, 0.5)[:, 0], [np.nan, 1.0, 1.0, 2.0])
+    np.testing.assert_allclose(deltas.smooth(x, 0.5)[:, 0], [np.nan, 1.0, 1.0, 2.0])
 
 
 def test_trend_of_a_builtin_design_carries_the_performance_group(

@@ -6,11 +6,17 @@ pipeline, exactly like an upload, under each of ``DESIGNS`` in turn; the engine 
 through the API and each record's figure is compared with the truth of its engine and round,
 solved by the steady-state solver at the record's own condition:
 
-- thrust deficit [%] and thrust in % of rated, with their 1-sigma band (coverage checked):
-  the filter's sigma and the thrust's model error, calibrated on a fleet of another seed;
-- stall margins [margin points];
+- thrust deficit [%] and thrust in % of rated;
+- stall margins [margin points] and their change from the nominal engine, T40's change, the
+  bypass ratio;
 - EGT margin [degC] at the reference (take-off, sea level, ISA+15 K);
-- the smoothed deltas dEGT [K, corrected], dWf, dN2, dN1 [%].
+- the smoothed deltas dEGT [K, corrected], dWf, dN2, dN1 [%];
+- the aux group's outputs in percent of the nominal engine's.
+
+Every one of them is shown with a 1-sigma band, calibrated on fleets of other seeds (the aux
+outputs' filter sigma, scale and model error, the trims' error, the deltas' model error:
+``designs.calibration.figure_errors``), and each band's coverage is checked: never
+overconfident (1-sigma >= 0.5, 2-sigma >= 0.85) and, over the figures, not too wide.
 
 The bounds (``BOUNDS``) are what the figures are good for on the page: a thrust deficit to a
 tenth of the 5 % amber limit, an EGT margin to a few kelvin of its 25 degC amber limit
@@ -19,7 +25,9 @@ the smoothing; the stall margins to about a point (their error is the design's b
 and actuator biases the tuners do not span). Measured (RMS, active design / subset m = 8):
 thrust deficit 0.26 / 0.49 %, % of rated 0.46 / 0.40, stall margins fan 0.07 / 0.08, LPC
 0.66 / 0.83, HPC 1.13 / 1.47 points, EGT margin 2.2 degC, dEGT 2.2 K, dWf 0.34 %, dN2 0.08 %,
-dN1 0.06 %; thrust-deficit 1-sigma coverage 0.82 / 0.89, 2-sigma 0.99 / 1.00. With the aux
+dN1 0.06 %; 1-sigma coverage 0.72-1.00 (median 0.86 / 0.85), 2-sigma >= 0.96. Before the bands
+were calibrated, thrust in % of rated held the truth within its 1-sigma on 0.19 of the records
+and the stall margins and deltas had no band. With the aux
 gains at a fixed fuel flow, as before ``estimation.engine.power_setting``, the thrust deficit
 was off by 1.6 % RMS on a young fleet and fails.
 """
@@ -47,6 +55,7 @@ from app.services.snapshots import estimator
 from app.services.snapshots import store as snapshots_store
 from app.services.tenancy import service as tenancy
 from app.services.uploads import store as uploads_store
+from estimation.engine import deltas
 from estimation.engine.atmosphere import flight_condition
 from estimation.engine.fleet import FleetPlan, Snapshots
 from estimation.engine.schedule import EngineSchedule, build_schedule
@@ -54,7 +63,7 @@ from estimation.engine.sensors import AUX_NAMES, SENSOR_NAMES
 from estimation.engine.steady import steady_state
 
 SEED = 11
-CALIBRATION_SEED = 12
+CALIBRATION_SEEDS = (12, 13, 14)  # small fleets' errors differ: a few of them
 FLIGHTS = 240
 REDLINE_C = 1100.0  # the engine type's default EGT redline
 SETTLE = 60  # records after an engine's first before its figures are scored (filter start-up)
@@ -113,11 +122,12 @@ def _seed(session: Session, schedule: EngineSchedule, plan: FleetPlan,
                                        spec=demo.design_spec(method, tuners, sensors))
         designs.run_design(session, design, designs.design_step)
         design_ids.append(design.id)
-        # The design's model error calibrated on another simulated fleet (as the demo's
-        # first start calibrates its active design, on a smaller fleet here).
+        # The design's model error calibrated on other simulated fleets (as the demo's
+        # first start calibrates its active design, on fewer and smaller fleets here).
         calib = calibration.calibrate(
             estimator.estimator_for_design(session, design),
-            [calibration.simulate_fleet(CALIBRATION_SEED, aircraft=2, flights=FLIGHTS)])
+            [calibration.simulate_fleet(seed, aircraft=2, flights=FLIGHTS)
+             for seed in CALIBRATION_SEEDS])
         calibration.store_calibration(session, design, calib)
     designs.activate_design(session, operator_id=op.id, design_id=design_ids[0])
     tails = {t: fleet_service.create_aircraft(session, operator_id=op.id, tail=t).id
@@ -156,7 +166,7 @@ def _truth(schedule: EngineSchedule, plan: FleetPlan, snaps: Snapshots, esn: str
     true = steady_state(env, power=power, health=health)
     nominal = steady_state(env, power=power)
     theta = flight_condition(env[:, 0], env[:, 1], env[:, 2]).theta
-    ref_alt, ref_mach, ref_power, ref_dt = performance.EGT_REFERENCE_CONDITION
+    ref_alt, ref_mach, ref_power, ref_dt = deltas.EGT_REFERENCE_CONDITION
     ref_env = np.tile([ref_alt, ref_mach, ref_dt], (len(rows), 1))
     at_ref = steady_state(ref_env, power=np.full(len(rows), ref_power), health=health)
     fn = AUX_NAMES.index("Fn")
@@ -169,11 +179,16 @@ def _truth(schedule: EngineSchedule, plan: FleetPlan, snaps: Snapshots, esn: str
     }
     for name in ("SM_fan", "SM_LPC", "SM_HPC", "BPR"):
         out[name] = true.aux[:, AUX_NAMES.index(name)]
+    for name in ("SM_fan", "SM_LPC", "SM_HPC"):
+        k = AUX_NAMES.index(name)
+        out[f"{name}_change"] = true.aux[:, k] - nominal.aux[:, k]
     t40 = AUX_NAMES.index("T40")
     out["T40_change"] = (true.aux[:, t40] - nominal.aux[:, t40]) / 1.8
     for name, sensor in (("dWf", "Wf"), ("dN2", "Nc"), ("dN1", "Nf")):
         k = SENSOR_NAMES.index(sensor)
         out[name] = 100.0 * (true.sensors[:, k] / nominal.sensors[:, k] - 1.0)
+    for k, name in enumerate(AUX_NAMES):  # the aux group: percent of the nominal engine's
+        out[f"aux.{name}"] = 100.0 * (true.aux[:, k] / nominal.aux[:, k] - 1.0)
     return out
 
 
@@ -182,7 +197,7 @@ def _score(client: TestClient, key: str, ids: dict[str, int], design_id: int,
            snaps: Snapshots) -> None:
     """Every engine's trend under ``design_id`` through the API against the truth."""
     errors: dict[str, list[np.ndarray]] = {name: [] for name in BOUNDS}
-    scaled: list[np.ndarray] = []  # thrust-deficit error over its 1-sigma
+    scaled: dict[str, list[np.ndarray]] = {}  # each banded figure's error over its 1-sigma
     engines = 0
     for esn, engine_id in ids.items():
         trend = client.get(f"/api/v1/engines/{engine_id}/trend",
@@ -201,26 +216,42 @@ def _score(client: TestClient, key: str, ids: dict[str, int], design_id: int,
             value = np.array(shown[name]["value"], dtype=float)
             errors[name].append((value - truth[name])[settled])
         deficit = shown["thrust_deficit"]
-        assert deficit["sigma"] is not None and shown["SM_HPC"]["sigma"] is None
-        err = np.array(deficit["value"], float) - truth["thrust_deficit"]
-        scaled.append((err / np.array(deficit["sigma"], float))[settled])
-        # Thrust in lbf is the same estimate: its band is the deficit's in lbf.
+        aux = {f"aux.{s['name']}": s for g in trend["groups"] if g["key"] == "aux"
+               for s in g["series"]}
+        for name, series in {**shown, **aux}.items():
+            if name not in truth:
+                continue
+            assert series["sigma"] is not None, f"{name} is shown without a 1-sigma"
+            err = np.array(series["value"], float) - truth[name]
+            scaled.setdefault(name, []).append((err / np.array(series["sigma"], float))[settled])
+        # Thrust in lbf is the same estimate: its band holds the deficit's in lbf, and the
+        # schedule's thrust trim's error besides.
         fn_sigma = np.array(shown["Fn"]["sigma"], float)
-        np.testing.assert_allclose(
-            fn_sigma / np.array(shown["Fn"]["value"], float),
-            np.array(deficit["sigma"], float) / (100.0 - np.array(deficit["value"], float)),
-            rtol=1e-3)
+        assert np.all(
+            fn_sigma / np.array(shown["Fn"]["value"], float)
+            >= (1.0 - 1e-3) * np.array(deficit["sigma"], float)
+            / (100.0 - np.array(deficit["value"], float)))
     assert engines >= 4
     rms = {name: float(np.sqrt(np.mean(np.concatenate(e) ** 2))) for name, e in errors.items()}
-    z = np.abs(np.concatenate(scaled))
-    one, two = float(np.mean(z <= 1.0)), float(np.mean(z <= 2.0))
+    cover = {}
+    for name, z in scaled.items():
+        z = np.abs(np.concatenate(z))
+        cover[name] = (float(np.mean(z <= 1.0)), float(np.mean(z <= 2.0)))
     report = (", ".join(f"{n} {rms[n]:.2f} (bound {bounds[n]})" for n in bounds)
-              + f"; thrust-deficit 1-sigma coverage {one:.2f}, 2-sigma {two:.2f}")
+              + "; 1-sigma / 2-sigma coverage: "
+              + ", ".join(f"{n} {a:.2f}/{b:.2f}" for n, (a, b) in cover.items()))
     print(f"\ndesign {design_id}: {report}")
     for name, bound in bounds.items():
         assert rms[name] <= bound, report
-    assert COVERAGE_ONE_SIGMA[0] <= one <= COVERAGE_ONE_SIGMA[1], report
-    assert two >= COVERAGE_TWO_SIGMA, report
+    assert set(BOUNDS) <= set(cover), report
+    for name, (one, two) in cover.items():
+        assert one >= COVERAGE_ONE_SIGMA[0], f"{name}: {report}"
+        assert two >= COVERAGE_TWO_SIGMA, f"{name}: {report}"
+    # Calibrated on three fleets of five engines, scored on a fifth: a band may be wide for
+    # this one fleet (the stall margins' and bypass ratio's errors differ twofold between such
+    # fleets), not for most figures. bench/bench_uncertainty.py scores the demo's calibration
+    # on fleets of the demo's size against the issue's 55-85 %.
+    assert float(np.median([one for one, _two in cover.values()])) <= COVERAGE_ONE_SIGMA[1], report
 
 
 def test_engineering_figures_follow_the_simulators_truth(
