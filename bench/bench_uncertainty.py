@@ -12,6 +12,11 @@ correction, inverse-variance mean, calibrated gain; percent per year) against th
 truth, next to the issue's targets. A slope the calibration finds unobservable is printed as
 such and left out of the worst slope error.
 
+The engine page's other bands are scored on the same fleets, fleet by fleet against the same
+band (``figure_band``): each aux output in percent (beside the filter's own sigma, what the page
+showed before), its value in engineering units, each tuner against V* h of the true health, and
+the smoothed deltas and EGT margin.
+
 The slopes' 1-sigma (the pieces' noise, the error common to a fleet and the calibrated gain's
 own standard error, times the calibrated scale, ``estimation.uncertainty.fleet_slope``) is
 scored over the seeds: the fraction of the scoring fleets whose true slope lies within +-1
@@ -107,6 +112,26 @@ def per_fleet_band(calib: uncertainty.Calibration,
     every_change = int(np.all(change_ok[:, shown], axis=1).sum()) if shown.any() else n
     lines.append(f"  fleets with every shown level in the band: {every}/{n}; every shown change: "
                  f"{every_change}/{n}")
+    return "\n".join(lines)
+
+
+def figure_band(rows: list[dict[str, tuple[float, float, float]]]) -> str:
+    """The engine page's other bands (aux outputs in percent, their values in engineering
+    units, the deltas and EGT margin) fleet by fleet against the issue's band, with the
+    filter's own sigma (what the aux group showed before) beside the aux outputs."""
+    n = len(rows)
+    lines = [f"the engine page's other figures, the band per fleet (1-sigma 55-85 %, 2-sigma "
+             f">= 85 %) over {n} scoring fleets:"]
+    every = np.ones(n, bool)
+    for name in rows[0] if rows else ():
+        c1, c2, f1 = (np.array([r[name][i] for r in rows]) for i in range(3))
+        ok = (c1 >= 0.55) & (c1 <= 0.85) & (c2 >= 0.85)
+        every &= ok
+        before = (f"; the filter's own sigma {np.nanmin(f1):.2f}-{np.nanmax(f1):.2f}"
+                  if np.isfinite(f1).any() else "")
+        lines.append(f"  {name:12s} in band on {int(ok.sum())}/{n} (1-sigma {c1.min():.2f}-"
+                     f"{c1.max():.2f}, 2-sigma min {c2.min():.2f}){before}")
+    lines.append(f"  fleets with every figure in the band: {int(every.sum())}/{n}")
     return "\n".join(lines)
 
 
@@ -232,7 +257,7 @@ def main() -> None:
               + (", ".join(calib.source["level_corrected"]) or "none"))
         print("shown: " + ", ".join(n for n, o in zip(calib.names, calib.observable,
                                                       strict=True) if o))
-        slope_rows, covers, fleet_rows = [], [], []
+        slope_rows, covers, fleet_rows, figure_rows = [], [], [], []
         for seed, test_fleet in zip(test_seeds, test_fleets, strict=True):
             sc = health_uncertainty.score(est, calib, *test_fleet)
             covers.append((sc.cover1, sc.cover2, sc.change_cover1, sc.change_cover2))
@@ -255,9 +280,11 @@ def main() -> None:
             assert sc.fleet_level_rms is not None and sc.fleet_raw_rms is not None
             assert sc.fleet_spread_ratio is not None
             fleet_rows.append((sc.fleet_level_rms, sc.fleet_raw_rms, sc.fleet_spread_ratio))
+            figure_rows.append(sc.figures)
             print(_common.load_line())
         print(per_fleet_band(calib, covers))
         print(fleet_average(calib, fleet_rows))
+        print(figure_band(figure_rows))
         print(f"fleet-average slopes over the {len(test_seeds)} scoring fleets (1-sigma with the "
               "gain's standard error; the peer: without it):")
         print(slope_coverage(calib.names, slope_rows))

@@ -221,11 +221,19 @@ class Calibration:
     # carries besides z's honest sigma: the trim's error against the nominal engine solved at
     # the record's condition, fitted on the values' errors as ``fit_model_std`` does.
     aux_scale: np.ndarray | None = None
-    trim_std: np.ndarray | None = None
+    aux_trim_std: np.ndarray | None = None
+    aux_spread: np.ndarray | None = None  # kappa of each aux output, as the level's (None: 0)
     # Measured figures (the engine type's smoothed deltas and EGT margin, each in its unit):
     # their whole 1-sigma, fitted like aux_std with no filter variance; empty: not calibrated.
     delta_names: tuple[str, ...] = ()
     delta_std: np.ndarray | None = None
+    # The tuners (q_hat against V* h of the true health): their filter variance's scale and
+    # model error, as the aux outputs', the model error growing with the record's distance
+    # from nominal as the level's (None: 1, 0 and 0; empty: not calibrated).
+    tuner_names: tuple[str, ...] = ()
+    tuner_std: np.ndarray | None = None
+    tuner_scale: np.ndarray | None = None
+    tuner_spread: np.ndarray | None = None  # kappa, as the level's (None: 0)
     # Fleet-average slope: gain g_k, noise a_k and common error c_k (module docstring); None:
     # 1, unknown and 0.
     slope_gain: np.ndarray | None = None
@@ -287,13 +295,18 @@ class Calibration:
             raise DimensionError(f"Incompatible dimensions of aux_std; expected "
                                  f"({len(self.aux_names)},) but found {aux_std.shape}")
         object.__setattr__(self, "aux_std", aux_std)
-        for name, fill in (("aux_scale", 1.0), ("trim_std", 0.0)):
+        object.__setattr__(self, "tuner_names", tuple(self.tuner_names))
+        for name, fill, held in (("aux_scale", 1.0, self.aux_names),
+                                 ("aux_spread", 0.0, self.aux_names),
+                                 ("aux_trim_std", 0.0, self.aux_names),
+                                 ("tuner_std", 0.0, self.tuner_names),
+                                 ("tuner_scale", 1.0, self.tuner_names),
+                                 ("tuner_spread", 0.0, self.tuner_names)):
             value = getattr(self, name)
-            value = np.full(len(self.aux_names), fill) if value is None else np.asarray(
-                value, float)
-            if value.shape != (len(self.aux_names),):
+            value = np.full(len(held), fill) if value is None else np.asarray(value, float)
+            if value.shape != (len(held),):
                 raise DimensionError(f"Incompatible dimensions of {name}; expected "
-                                     f"({len(self.aux_names)},) but found {value.shape}")
+                                     f"({len(held)},) but found {value.shape}")
             object.__setattr__(self, name, value)
         object.__setattr__(self, "delta_names", tuple(self.delta_names))
         delta_std = np.asarray(np.zeros(0) if self.delta_std is None else self.delta_std, float)
@@ -380,25 +393,26 @@ class Calibration:
         value = float(np.asarray(self.delta_std)[self.delta_names.index(name)])
         return value if np.isfinite(value) else None
 
-    def aux_sigma(self, names: Sequence[str], filter_std: np.ndarray) -> np.ndarray:
+    def aux_sigma(self, names: Sequence[str], filter_std: np.ndarray,
+                  d: np.ndarray) -> np.ndarray:
         """The honest 1-sigma [N, nz] of aux estimates named ``names`` with the filter's
-        1-sigma filter_std [N, nz]: the filter's, scaled by f, and the calibrated model error
-        (percent of trim) in quadrature; an output the calibration does not hold keeps the
-        filter's."""
-        s = np.array([self.aux_model_std(n) or 0.0 for n in names], float)
-        f = self._aux_field(self.aux_scale, names, 1.0)
-        return np.sqrt(np.square(f * np.asarray(filter_std, float)) + np.square(s))
+        1-sigma filter_std [N, nz] at records at distance d [N] from nominal (``spread``):
+        sqrt((f sigma_f)^2 + s^2 + (kappa d)^2), percent of trim; an output the calibration
+        does not hold keeps the filter's."""
+        return _model_sigma(self.aux_names, self.aux_std, self.aux_scale, self.aux_spread,
+                            names, filter_std, d)
+
+    def tuner_sigma(self, names: Sequence[str], filter_std: np.ndarray,
+                    d: np.ndarray) -> np.ndarray:
+        """The honest 1-sigma [N, m] of the tuners named ``names`` with the filter's 1-sigma
+        filter_std [N, m] at records at distance d [N] from nominal (their ``spread``):
+        sqrt((f sigma_f)^2 + s^2 + (kappa d)^2)."""
+        return _model_sigma(self.tuner_names, self.tuner_std, self.tuner_scale,
+                            self.tuner_spread, names, filter_std, d)
 
     def trim_sigma(self, names: Sequence[str]) -> np.ndarray:
         """[nz] s_trim of each aux output (percent of trim; 0: not held)."""
-        return self._aux_field(self.trim_std, names, 0.0)
-
-    def _aux_field(self, values: np.ndarray | None, names: Sequence[str],
-                   missing: float) -> np.ndarray:
-        held = np.asarray(values, float)
-        out = np.array([held[self.aux_names.index(n)] if n in self.aux_names else missing
-                        for n in names], float)
-        return np.where(np.isfinite(out), out, missing)
+        return _by_name(self.aux_names, self.aux_trim_std, names, 0.0)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form (``fleethealth.uncertainty-calibration/1``; NaN as null)."""
@@ -420,7 +434,12 @@ class Calibration:
             "aux_names": list(self.aux_names),
             "aux_std": listed(np.asarray(self.aux_std)),
             "aux_scale": listed(np.asarray(self.aux_scale)),
-            "trim_std": listed(np.asarray(self.trim_std)),
+            "aux_trim_std": listed(np.asarray(self.aux_trim_std)),
+            "aux_spread": listed(np.asarray(self.aux_spread)),
+            "tuner_names": list(self.tuner_names),
+            "tuner_std": listed(np.asarray(self.tuner_std)),
+            "tuner_scale": listed(np.asarray(self.tuner_scale)),
+            "tuner_spread": listed(np.asarray(self.tuner_spread)),
             "delta_names": list(self.delta_names),
             "delta_std": listed(np.asarray(self.delta_std)),
             "slope_gain": listed(np.asarray(self.slope_gain)),
@@ -452,7 +471,12 @@ class Calibration:
             aux_names=tuple(d.get("aux_names", ())),
             aux_std=arr("aux_std") if "aux_std" in d else None,
             aux_scale=arr("aux_scale") if "aux_scale" in d else None,
-            trim_std=arr("trim_std") if "trim_std" in d else None,
+            aux_trim_std=arr("aux_trim_std") if "aux_trim_std" in d else None,
+            aux_spread=arr("aux_spread") if "aux_spread" in d else None,
+            tuner_names=tuple(d.get("tuner_names", ())),
+            tuner_std=arr("tuner_std") if "tuner_std" in d else None,
+            tuner_scale=arr("tuner_scale") if "tuner_scale" in d else None,
+            tuner_spread=arr("tuner_spread") if "tuner_spread" in d else None,
             delta_names=tuple(d.get("delta_names", ())),
             delta_std=arr("delta_std") if "delta_std" in d else None,
             slope_gain=arr("slope_gain") if "slope_gain" in d else None,
@@ -475,6 +499,27 @@ class Calibration:
         wherever a slope is shown (False: stored before it was, recalibrate)."""
         shown = np.asarray(self.observable) & np.isfinite(np.asarray(self.slope_gain))
         return bool(np.all(np.isfinite(np.asarray(self.slope_gain_std))[shown]))
+
+
+def _model_sigma(held: Sequence[str], std: np.ndarray | None, scale: np.ndarray | None,
+                 kappa: np.ndarray | None, names: Sequence[str], filter_std: np.ndarray,
+                 d: np.ndarray) -> np.ndarray:
+    """sqrt((f sigma_f)^2 + s^2 + (kappa d)^2) [N, k] of outputs ``names`` from the fitted s,
+    f and kappa of the ``held`` ones (a name not held: the filter's sigma)."""
+    s = _by_name(held, std, names, 0.0)
+    f = _by_name(held, scale, names, 1.0)
+    k = _by_name(held, kappa, names, 0.0)
+    return np.sqrt(np.square(f * np.asarray(filter_std, float)) + np.square(s)
+                   + np.square(k * np.asarray(d, float)[..., None]))
+
+
+def _by_name(held: Sequence[str], values: np.ndarray | None, names: Sequence[str],
+             missing: float) -> np.ndarray:
+    """[len(names)] the values of ``held`` names in the order of ``names``; ``missing`` for a
+    name not held or a value not finite."""
+    v = np.asarray(values, float)
+    out = np.array([v[held.index(n)] if n in held else missing for n in names], float)
+    return np.where(np.isfinite(out), out, missing)
 
 
 def _correction_columns(p: int) -> np.ndarray:

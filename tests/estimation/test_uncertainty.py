@@ -388,14 +388,17 @@ def test_calibration_json_round_trip() -> None:
         slope_error=np.array([np.nan, -0.1]), bias2=np.array([0.01, 1.0]),
         drift=np.array([0.0, 0.05]), observable=np.array([True, False]),
         source={"seed": 1, "design": "svd:6"}, aux_names=("Fn", "SM_HPC"),
-        aux_std=np.array([0.3, np.nan]), slope_gain=np.array([np.nan, 1.1]),
+        aux_std=np.array([0.3, np.nan]), aux_scale=np.array([0.5, 1.0]),
+        aux_trim_std=np.array([0.2, 0.0]), delta_names=("dEGT",), delta_std=np.array([2.5]),
+        slope_gain=np.array([np.nan, 1.1]),
         slope_noise=np.array([0.02, 0.03]), slope_gain_std=np.array([np.nan, 0.07]),
         slope_correction=np.array([[0.1, 0.2], [0.0, -0.3]]), slope_scale=np.array([0.8, 0.8]),
     )
     back = unc.Calibration.from_dict(json.loads(json.dumps(cal.to_dict())))
     assert back.names == cal.names and back.source == cal.source
     for name in ("level_std", "change_std", "slope_error", "bias2", "drift", "observable",
-                 "aux_std", "slope_gain", "slope_noise", "slope_gain_std", "slope_correction",
+                 "aux_std", "aux_scale", "aux_trim_std", "delta_std", "slope_gain",
+                 "slope_noise", "slope_gain_std", "slope_correction",
                  "slope_scale"):
         np.testing.assert_array_equal(getattr(back, name), getattr(cal, name))
     # A document from before the slope correction: none (A = 0) and a scale of 1, so its
@@ -416,11 +419,25 @@ def test_calibration_json_round_trip() -> None:
     assert not stale_cal.slope_sigma_known
     assert back.aux_model_std("Fn") == 0.3
     assert back.aux_model_std("SM_HPC") is None and back.aux_model_std("T40") is None
+    assert back.delta_names == ("dEGT",) and back.delta_model_std("dEGT") == 2.5
+    assert back.delta_model_std("dWf") is None
+    # The aux outputs' honest sigma: the filter's scaled by f, and s in quadrature; an output
+    # the calibration does not hold keeps the filter's.
+    np.testing.assert_allclose(
+        back.aux_sigma(("Fn", "SM_HPC", "T40"), np.array([[0.8, 1.0, 2.0]]), np.array([1.0])),
+        [[np.hypot(0.4, 0.3), 1.0, 2.0]])
+    np.testing.assert_array_equal(back.trim_sigma(("SM_HPC", "Fn", "BPR")), [0.0, 0.2, 0.0])
     # A document from before the aux outputs were calibrated: none of them is.
     old = {k: v for k, v in cal.to_dict().items()
            if not k.startswith("aux_") and not k.startswith("slope_g")
            and not k.startswith("slope_n")}
     assert unc.Calibration.from_dict(old).aux_model_std("Fn") is None
+    np.testing.assert_array_equal(
+        unc.Calibration.from_dict(old).aux_sigma(("Fn",), np.array([[0.8]]), np.array([2.0])),
+        [[0.8]])
+    assert unc.Calibration.from_dict(old).delta_model_std("dEGT") is not None  # kept
+    no_deltas = {k: v for k, v in old.items() if not k.startswith("delta_")}
+    assert unc.Calibration.from_dict(no_deltas).delta_model_std("dEGT") is None
     # ... and from before the slope was calibrated: gain 1, noise unknown.
     before = unc.Calibration.from_dict(old)
     assert np.asarray(before.slope_gain).tolist() == [1.0, 1.0]

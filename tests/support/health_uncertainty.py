@@ -19,7 +19,7 @@ a parameter whose slope the calibration finds unobservable is reported as such
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -78,6 +78,9 @@ class Score:
     fleet_level_rms: np.ndarray | None = None
     fleet_raw_rms: np.ndarray | None = None
     fleet_spread_ratio: np.ndarray | None = None
+    # The engine page's other figures (``figures``): name -> (1-sigma, 2-sigma coverage of the
+    # band shown, 1-sigma coverage of the filter's own sigma or NaN).
+    figures: dict[str, tuple[float, float, float]] = field(default_factory=dict)
 
     @property
     def slope_error(self) -> np.ndarray:
@@ -152,6 +155,7 @@ def score(
     fleet_rms, raw_rms, spread_ratio = fleet_average_errors(
         tr, np.asarray(calib.level_correction))
     cov = uncertainty.coverage
+    aux = tuple(est.layout.aux)
     return Score(
         names=calib.names, observable=calib.observable,
         cover1=cov(st["level_err"], sigma, 1.0), cover2=cov(st["level_err"], sigma, 2.0),
@@ -165,7 +169,47 @@ def score(
         slope_true=slope_true, slope_shown=slope_shown,
         records=int(st["level_err"].shape[0]), segments=len(segs), pieces=len(pieces.spans),
         fleet_level_rms=fleet_rms, fleet_raw_rms=raw_rms, fleet_spread_ratio=spread_ratio,
+        figures=figures(calib, aux, tuple(est.layout.tuners),
+                        calibration.figure_errors(plan, tr, aux, vstar=est.vstar)) if aux else {},
     )
+
+
+def figures(calib: uncertainty.Calibration, aux: tuple[str, ...], tuners: tuple[str, ...],
+            fe: calibration.FigureErrors) -> dict[str, tuple[float, float, float]]:
+    """Coverage of the bands the engine page draws besides the health's, as the trend forms
+    them: each aux output in percent (``Calibration.aux_sigma``; the filter's own sigma beside
+    it), its value in engineering units (z's error and the schedule trim's, with the trim's
+    model error: ``performance.engineering_sigma``), the measured figures (deltas, EGT
+    margin) and the tuners against V* h (``Calibration.tuner_sigma``, the filter's beside)."""
+    cov = uncertainty.coverage
+    out = {}
+    filter_std = np.sqrt(fe.aux_var)
+    z_sigma = calib.aux_sigma(aux, filter_std, fe.d)
+    value_sigma = np.hypot(z_sigma, calib.trim_sigma(aux))
+    value_err = fe.aux_err + fe.trim_err
+    for k, name in enumerate(aux):
+        out[f"{name} %"] = (float(cov(fe.aux_err[:, k:k + 1], z_sigma[:, k:k + 1])[0]),
+                            float(cov(fe.aux_err[:, k:k + 1], z_sigma[:, k:k + 1], 2.0)[0]),
+                            float(cov(fe.aux_err[:, k:k + 1], filter_std[:, k:k + 1])[0]))
+        out[f"{name} value"] = (
+            float(cov(value_err[:, k:k + 1], value_sigma[:, k:k + 1])[0]),
+            float(cov(value_err[:, k:k + 1], value_sigma[:, k:k + 1], 2.0)[0]), np.nan)
+    if fe.tuner_err.size:
+        q_filter = np.sqrt(fe.tuner_var)
+        q_sigma = calib.tuner_sigma(tuners, q_filter, fe.d)
+        for k, name in enumerate(tuners):
+            e = fe.tuner_err[:, k:k + 1]
+            out[f"tuner {name}"] = (float(cov(e, q_sigma[:, k:k + 1])[0]),
+                                    float(cov(e, q_sigma[:, k:k + 1], 2.0)[0]),
+                                    float(cov(e, q_filter[:, k:k + 1])[0]))
+    for k, name in enumerate(calibration.DELTA_FIGURES):
+        std = calib.delta_model_std(name)
+        if std is None or not len(fe.delta_err):
+            continue
+        sigma = np.full((len(fe.delta_err), 1), std)
+        err = fe.delta_err[:, k:k + 1]
+        out[name] = (float(cov(err, sigma)[0]), float(cov(err, sigma, 2.0)[0]), np.nan)
+    return out
 
 
 def fleet_average_errors(

@@ -137,6 +137,8 @@ class HealthTrack:
     epoch: np.ndarray | None = None
     resets: np.ndarray | None = None
     measured: Mapping[str, np.ndarray] | None = None  # the deltas' sensors (``EngineData``)
+    q_hat: np.ndarray | None = None  # [S, m] the tuners, with their filter 1-sigma
+    q_sigma: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -247,7 +249,7 @@ def tracks(
             out.append(HealthTrack(data.esn, rounds, flights > settle, values[:, s["h"]],
                                    values[:, s["h_sigma"]], h_true, values[:, s["z"]],
                                    values[:, s["z_sigma"]], data.run.conditions, t, resets,
-                                   data.measured))
+                                   data.measured, values[:, s["q"]], values[:, s["q_sigma"]]))
     return out
 
 
@@ -263,6 +265,11 @@ class FigureErrors:
     aux_var: np.ndarray
     trim_err: np.ndarray
     delta_err: np.ndarray
+    d: np.ndarray = field(default_factory=lambda: np.empty(0))  # [N] the records' ``spread``
+    # The tuners against V* h of the true health, with their filter variance ([N, m] each;
+    # empty without V*).
+    tuner_err: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
+    tuner_var: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
 
 
 # The measured figures of the engine page whose model error the calibration fits (their
@@ -272,18 +279,19 @@ DELTA_FIGURES = ("egt_margin", *(name for name, _sensor, _unit in DELTA_SENSORS)
 
 def figure_errors(
     plan: FleetPlan, track_list: Sequence[HealthTrack], names: Sequence[str],
-    every: int = AUX_EVERY,
+    every: int = AUX_EVERY, vstar: np.ndarray | None = None,
 ) -> FigureErrors:
     """``FigureErrors`` of the tracks: the truth is the steady state of each record's true
     health (``FleetPlan.health``, actuator biases included) at its condition and power
     setting, against the nominal engine's there, and at the EGT margin's reference condition
     (the deltas as the page computes them: over every record of the track, smoothed, against
-    the schedule's baseline)."""
+    the schedule's baseline); given the design's V* [m, p], the tuners against V* h of the
+    true health in the layout's order."""
     idx = [AUX_NAMES.index(n) for n in names]
     schedule = estimator.builtin_schedule()
     ref = egt_reference(schedule)
     t48 = SENSOR_NAMES.index(EGT_SENSOR)
-    errs, variances, trim_errs, delta_errs = [], [], [], []
+    errs, variances, trim_errs, delta_errs, q_errs, q_vars, ds = [], [], [], [], [], [], []
     for t in track_list:
         if t.z_hat is None or t.z_sigma is None or t.conditions is None:
             continue
@@ -303,6 +311,11 @@ def figure_errors(
         z_true = 100.0 * (true.aux[:, idx] / nominal.aux[:, idx] - 1.0)
         errs.append(t.z_hat[rows] - z_true)
         variances.append(t.z_sigma[rows] ** 2)
+        ds.append(uncertainty.spread(t.h_hat[rows]))
+        if (vstar is not None and t.q_hat is not None and t.q_sigma is not None
+                and np.shape(vstar)[1] == t.h_true.shape[1]):
+            q_errs.append(t.q_hat[rows] - t.h_true[rows] @ np.asarray(vstar).T)
+            q_vars.append(t.q_sigma[rows] ** 2)
         trims = estimator.schedule_trims(schedule, c)
         trim_errs.append(np.stack([100.0 * (trims[n] / nominal.aux[:, k] - 1.0)
                                    if n in trims else np.full(len(rows), np.nan)
@@ -329,7 +342,9 @@ def figure_errors(
         return FigureErrors(empty, empty, empty, np.empty((0, len(DELTA_FIGURES))))
     return FigureErrors(np.concatenate(errs), np.concatenate(variances),
                         np.concatenate(trim_errs), np.concatenate(delta_errs) if delta_errs
-                        else np.empty((0, len(DELTA_FIGURES))))
+                        else np.empty((0, len(DELTA_FIGURES))), np.concatenate(ds),
+                        *((np.concatenate(q_errs), np.concatenate(q_vars))
+                          if len(q_errs) == len(errs) else ()))
 
 
 def segments(plan: FleetPlan, track_list: Sequence[HealthTrack]) -> list[Segment]:
@@ -456,7 +471,7 @@ def calibration_fleet(
     track_list = tracks(est, plan, snaps)
     aux = tuple(est.layout.aux)
     if aux and all(n in AUX_NAMES for n in aux):
-        figures = figure_errors(plan, track_list, aux)
+        figures = figure_errors(plan, track_list, aux, vstar=est.vstar)
     else:
         empty = np.empty((0, len(aux)))
         figures = FigureErrors(empty, empty, empty, np.empty((0, len(DELTA_FIGURES))))
@@ -478,7 +493,8 @@ def calibrate(
         filtered.append(calibration_fleet(est, plan, snaps))
         if progress is not None:
             progress((k + 1) / len(fleets), f"filtered calibration fleet {k + 1}")
-    return fit(filtered, tuple(est.layout.health), tuple(est.layout.aux), design=design,
+    return fit(filtered, tuple(est.layout.health), tuple(est.layout.aux),
+               tuners=tuple(est.layout.tuners), design=design,
                prior_var=prior_var, seeds=seeds, reduction=reduction,
                slope_tolerance=slope_tolerance, one_sigma=one_sigma, two_sigma=two_sigma,
                flights=fleets[0][0].config.n_flights if fleets else 0,
@@ -487,7 +503,8 @@ def calibrate(
 
 def fit(
     fleets: Sequence[CalibrationFleet], names: tuple[str, ...], aux: tuple[str, ...] = (),
-    design: str = "", prior_var: float = PRIOR_VAR, seeds: Sequence[int] | None = None,
+    tuners: tuple[str, ...] = (), design: str = "", prior_var: float = PRIOR_VAR,
+    seeds: Sequence[int] | None = None,
     reduction: float = REDUCTION, slope_tolerance: float = SLOPE_TOLERANCE,
     one_sigma: float = uncertainty.ONE_SIGMA_TARGET,
     two_sigma: float = uncertainty.TWO_SIGMA_TARGET, flights: int = 0, engines: int = 0,
@@ -515,8 +532,10 @@ def fit(
     B_hs = [f.bias_matrix for f in fleets]
     aux_err = [f.figures.aux_err for f in fleets if len(f.figures.aux_err)]
     aux_var = [f.figures.aux_var for f in fleets if len(f.figures.aux_err)]
+    aux_d = [f.figures.d for f in fleets if len(f.figures.aux_err)]
     trim_err = [f.figures.trim_err for f in fleets if len(f.figures.aux_err)]
     delta_err = [f.figures.delta_err for f in fleets if len(f.figures.delta_err)]
+    with_tuners = [f.figures for f in fleets if f.figures.tuner_err.size]
     B_h = np.mean(B_hs, axis=0)
     p = B_h.shape[0]
     bias2 = uncertainty.analytic_bias2(B_h, fleet_prior(segs))
@@ -572,26 +591,39 @@ def fit(
               & (cover2.min(axis=0) >= BAND_TWO_SIGMA))
     if len(per_fleet) > 1:
         shown &= stable
-    aux_std = aux_scale = trim_std = None
+    aux_std = aux_scale = aux_spread = aux_trim_std = None
     if aux_err:
         # The aux outputs' sigma as the level's: the filter's scaled where it alone
-        # over-covers, then the model error on top.
-        err, var = np.concatenate(aux_err), np.concatenate(aux_var)
+        # over-covers, then the model error on top, growing away from nominal.
+        err, var, d = np.concatenate(aux_err), np.concatenate(aux_var), np.concatenate(aux_d)
         aux_scale = uncertainty.fit_filter_scale(err, var, one_sigma)
-        aux_std = uncertainty.fit_model_std(err, aux_scale**2 * var, one_sigma, two_sigma)
+        aux_std, aux_spread = uncertainty.fit_model_spread(err, aux_scale**2 * var, d,
+                                                           one_sigma, two_sigma)
         # A value in engineering units (trim (1 + z / 100)) errs by z's error and its trim's:
         # what its honest z sigma does not hold of that is the trim's term.
-        honest = aux_scale**2 * var + np.square(np.nan_to_num(aux_std))
-        trim_std = uncertainty.fit_model_std(err + np.concatenate(trim_err), honest, one_sigma,
+        honest = (aux_scale**2 * var + np.square(np.nan_to_num(aux_std))
+                  + np.square(aux_spread * d[:, None]))
+        aux_trim_std = uncertainty.fit_model_std(err + np.concatenate(trim_err), honest, one_sigma,
                                              two_sigma)
+    tuner_std = tuner_scale = tuner_spread = None
+    if with_tuners:  # the tuners' sigma as the aux outputs', growing away from nominal
+        err = np.concatenate([f.tuner_err for f in with_tuners])
+        var = np.concatenate([f.tuner_var for f in with_tuners])
+        tuner_scale = uncertainty.fit_filter_scale(err, var, one_sigma)
+        tuner_std, tuner_spread = uncertainty.fit_model_spread(
+            err, tuner_scale**2 * var, np.concatenate([f.d for f in with_tuners]),
+            one_sigma, two_sigma)
     delta_std = None
     if delta_err:  # measured figures: no filter variance, the whole error is the model's
         err = np.concatenate(delta_err)
         delta_std = uncertainty.fit_model_std(err, np.zeros_like(err), one_sigma, two_sigma)
     return uncertainty.Calibration(
         aux_names=aux if aux_std is not None else (), aux_std=aux_std, aux_scale=aux_scale,
-        trim_std=trim_std,
+        aux_spread=aux_spread,
+        aux_trim_std=aux_trim_std,
         delta_names=DELTA_FIGURES if delta_std is not None else (), delta_std=delta_std,
+        tuner_names=tuners if tuner_std is not None else (), tuner_std=tuner_std,
+        tuner_scale=tuner_scale, tuner_spread=tuner_spread,
         names=names, level_std=level_std, change_std=change_std,
         slope_error=slope_error, bias2=bias2, drift=drift, observable=shown, bias_scale=scale,
         slope_gain=sc.gain, slope_noise=sc.noise, slope_common=sc.common,

@@ -160,7 +160,7 @@ def engineering_sigma(
     z_sigma: np.ndarray,
     records: RecordConditions,
     delta_std: Mapping[str, float] | None = None,
-    trim_std: Mapping[str, float] | None = None,
+    aux_trim_std: Mapping[str, float] | None = None,
     trims: Mapping[str, np.ndarray] | None = None,
 ) -> dict[str, np.ndarray]:
     """1-sigma [n] of each series of ``engineering_units`` that has one, in its unit.
@@ -168,7 +168,7 @@ def engineering_sigma(
     The estimated ones (thrust, stall margins, T40, bypass ratio and their changes) from the
     aux estimates' 1-sigma z_sigma [n, n_aux] (percent of the record's trim; honest when the
     trend has made it so with the design's calibration, ``Calibration.aux_sigma``); a value
-    (not a change) also carries its trim's interpolation error (``trim_std``, percent, name ->
+    (not a change) also carries its trim's interpolation error (``aux_trim_std``, percent, name ->
     1-sigma: ``Calibration.trim_sigma``) in quadrature. The
     measured ones (the smoothed deltas and the EGT margin) from the calibrated ``delta_std``
     (name -> 1-sigma of a settled record), grown over a trend's first records as the
@@ -188,7 +188,7 @@ def engineering_sigma(
         return np.asarray(z_sigma[:, aux.index(name)], float)
 
     def value(name: str, sz: np.ndarray) -> np.ndarray:  # the value's, in its unit
-        return trims[name] * np.hypot(sz, (trim_std or {}).get(name, 0.0)) / 100.0
+        return trims[name] * np.hypot(sz, (aux_trim_std or {}).get(name, 0.0)) / 100.0
 
     sz = of(THRUST)
     if sz is not None:

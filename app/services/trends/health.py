@@ -5,11 +5,11 @@ design's calibration (``designs.calibration``: stored in the design's result und
 ``"uncertainty"``), each record's health sigma becomes the honest one of
 ``estimation.uncertainty`` (``level_sigma``: analytic bias, filter variance and calibrated model
 error), and a parameter the calibration finds unobservable comes back as nulls, listed in the
-group's ``unobservable``. The aux outputs' sigma (thrust, stall margins, T40, bypass ratio) takes
-the model error the calibration fitted for each on the same fleets, so that the aux group and the
-engineering units drawn from it (``trends.performance``) carry honest bands too. Without a
-calibration (a design of an imported model) the filter's sigma is shown and the group says
-``"uncalibrated"``.
+group's ``unobservable``. The aux outputs' sigma (thrust, stall margins, T40, bypass ratio) and
+the tuners' take the scale and model error the calibration fitted for each on the same fleets, so
+that the tuners, the aux group and the engineering units drawn from it (``trends.performance``)
+carry honest bands too. Without a calibration (a design of an imported model) the filter's
+sigma is shown and the group says ``"uncalibrated"``.
 
 The change view (``health=change``) shows h_hat(t) - h_hat(0) against the engine's baseline
 record 0: the first settled record (``BASELINE_SETTLE_RECORDS`` records on) after the
@@ -87,11 +87,11 @@ def apply(
     calib: uncertainty.Calibration | None, view: HealthView,
     epoch: np.ndarray | None = None, phase: list[str] | None = None,
     resets: np.ndarray | None = None, settle: int = BASELINE_SETTLE_RECORDS,
-    aux_names: tuple[str, ...] = (),
+    aux_names: tuple[str, ...] = (), tuner_names: tuple[str, ...] = (),
 ) -> tuple[np.ndarray, HealthMeta]:
     """The health columns of ``values`` [n, width] (a new float64 array) in ``view``, and the
-    aux outputs' (``aux_names``) 1-sigma made honest by the calibration's model error
-    (``Calibration.aux_sigma``).
+    aux outputs' (``aux_names``) and tuners' (``tuner_names``) 1-sigma made honest by the
+    calibration (``Calibration.aux_sigma``, ``Calibration.tuner_sigma``).
 
     Level: the calibrated level and its honest sigma per record (``Calibration.level``).
     Change: the calibrated h_hat - h_hat[b] and its sigma (``Calibration.change``), c the
@@ -100,7 +100,7 @@ def apply(
     """
     out = np.array(values, dtype=np.float64)
     h_cols, s_cols = layout_slices["h"], layout_slices["h_sigma"]
-    h, f = out[:, h_cols], out[:, s_cols]
+    h, f = out[:, h_cols].copy(), out[:, s_cols].copy()
     p = len(names)
     hidden = np.zeros(p, bool)
     on = calib.on(names) if calib is not None else None
@@ -131,7 +131,10 @@ def apply(
     out[:, s_cols] = new_s
     if calib is not None and aux_names and "z_sigma" in layout_slices:
         z_cols = layout_slices["z_sigma"]
-        out[:, z_cols] = calib.aux_sigma(aux_names, out[:, z_cols])
+        out[:, z_cols] = calib.aux_sigma(aux_names, out[:, z_cols], uncertainty.spread(h))
+    if calib is not None and tuner_names and "q_sigma" in layout_slices:
+        q_cols = layout_slices["q_sigma"]
+        out[:, q_cols] = calib.tuner_sigma(tuner_names, out[:, q_cols], uncertainty.spread(h))
     meta = HealthMeta(view, "uncalibrated" if calib is None else "calibrated",
                       tuple(n for n, x in zip(names, hidden, strict=True) if x), baselines)
     return out, meta

@@ -555,7 +555,7 @@ def engine_trend(
         values, meta = health_view.apply(
             data.values, data.layout.slices(), data.layout.names("health"), calib,
             "change" if health == "change" else "level", data.epoch, data.phase, resets,
-            settle, data.layout.names("aux"),
+            settle, data.layout.names("aux"), data.layout.names("tuners"),
         )
         data = replace(data, values=values)
         if health == "change" and start is not None:

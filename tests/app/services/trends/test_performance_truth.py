@@ -45,6 +45,7 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy.orm import Session
 
+from app.models import EstimatorDesign
 from app.services.demo import fleet as demo
 from app.services.demo.simulation_files import snapshot_table
 from app.services.designs import calibration, engine_models
@@ -89,6 +90,7 @@ COVERAGE_ONE_SIGMA = (0.5, 0.95)
 DESIGNS = (demo.ACTIVE_DESIGN, ("subset", 8))
 LOOSER = {("subset", 8): {"thrust_deficit": 0.8, "SM_LPC": 1.2, "SM_HPC": 2.0}}
 COVERAGE_TWO_SIGMA = 0.85
+TUNER_TWO_SIGMA = 0.7
 
 
 @pytest.fixture(scope="module")
@@ -152,7 +154,7 @@ def _seed(session: Session, schedule: EngineSchedule, plan: FleetPlan,
 
 
 def _truth(schedule: EngineSchedule, plan: FleetPlan, snaps: Snapshots, esn: str,
-           times: np.ndarray) -> dict[str, np.ndarray]:
+           times: np.ndarray, est: estimator.SnapshotEstimator) -> dict[str, np.ndarray]:
     """The true figures of engine ``esn`` at its records recorded at ``times`` [s]."""
     keep = np.flatnonzero((snaps.esn == esn)
                           & np.isin(snaps.phase.astype(str), ["takeoff", "cruise"]))
@@ -189,13 +191,19 @@ def _truth(schedule: EngineSchedule, plan: FleetPlan, snaps: Snapshots, esn: str
         out[name] = 100.0 * (true.sensors[:, k] / nominal.sensors[:, k] - 1.0)
     for k, name in enumerate(AUX_NAMES):  # the aux group: percent of the nominal engine's
         out[f"aux.{name}"] = 100.0 * (true.aux[:, k] / nominal.aux[:, k] - 1.0)
+    # The tuners: V* h of the true health (in the design's order of health parameters).
+    columns = [list(plan.health_names).index(n) for n in est.layout.health]
+    tuners = health[:, columns] @ est.vstar.T
+    for k, name in enumerate(est.layout.tuners):
+        out[f"tuner.{name}"] = tuners[:, k]
     return out
 
 
 def _score(client: TestClient, key: str, ids: dict[str, int], design_id: int,
            bounds: dict[str, float], schedule: EngineSchedule, plan: FleetPlan,
-           snaps: Snapshots) -> None:
-    """Every engine's trend under ``design_id`` through the API against the truth."""
+           snaps: Snapshots, est: estimator.SnapshotEstimator) -> None:
+    """Every engine's trend under ``design_id`` (``est``) through the API against the
+    truth."""
     errors: dict[str, list[np.ndarray]] = {name: [] for name in BOUNDS}
     scaled: dict[str, list[np.ndarray]] = {}  # each banded figure's error over its 1-sigma
     engines = 0
@@ -210,14 +218,14 @@ def _score(client: TestClient, key: str, ids: dict[str, int], design_id: int,
                           for t in trend["time"]])
         group = next(g for g in trend["groups"] if g["key"] == "performance")
         shown = {s["name"]: s for s in group["series"]}
-        truth = _truth(schedule, plan, snaps, esn, np.round(times))
+        truth = _truth(schedule, plan, snaps, esn, np.round(times), est)
         settled = slice(SETTLE, None)
         for name in BOUNDS:
             value = np.array(shown[name]["value"], dtype=float)
             errors[name].append((value - truth[name])[settled])
         deficit = shown["thrust_deficit"]
-        aux = {f"aux.{s['name']}": s for g in trend["groups"] if g["key"] == "aux"
-               for s in g["series"]}
+        aux = {f"{g['key'].rstrip('s')}.{s['name']}": s for g in trend["groups"]
+               if g["key"] in ("aux", "tuners") for s in g["series"]}
         for name, series in {**shown, **aux}.items():
             if name not in truth:
                 continue
@@ -246,7 +254,11 @@ def _score(client: TestClient, key: str, ids: dict[str, int], design_id: int,
     assert set(BOUNDS) <= set(cover), report
     for name, (one, two) in cover.items():
         assert one >= COVERAGE_ONE_SIGMA[0], f"{name}: {report}"
-        assert two >= COVERAGE_TWO_SIGMA, f"{name}: {report}"
+        # The tuners' errors are their engines' (faults, rigging) more than any other
+        # figure's: on five engines a tuner's 2-sigma is a draw (0.75-1.00 here; on fleets of
+        # the demo's size >= 0.83, bench_uncertainty.py).
+        assert two >= (TUNER_TWO_SIGMA if name.startswith("tuner.") else COVERAGE_TWO_SIGMA), (
+            f"{name}: {report}")
     # Calibrated on three fleets of five engines, scored on a fifth: a band may be wide for
     # this one fleet (the stall margins' and bypass ratio's errors differ twofold between such
     # fleets), not for most figures. bench/bench_uncertainty.py scores the demo's calibration
@@ -265,5 +277,6 @@ def test_engineering_figures_follow_the_simulators_truth(
         if k:  # the next design estimated as after its activation
             designs.activate_design(session, operator_id=operator_id, design_id=design_id)
             snapshots_store.catch_up(session, operator_id)
+        est = estimator.estimator_for_design(session, session.get(EstimatorDesign, design_id))
         _score(client, key, ids, design_id, {**BOUNDS, **LOOSER.get(design, {})}, schedule,
-               plan, snaps)
+               plan, snaps, est)
