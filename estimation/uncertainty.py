@@ -289,31 +289,24 @@ class Calibration:
             object.__setattr__(self, name, value)
         object.__setattr__(self, "names", tuple(self.names))
         object.__setattr__(self, "source", dict(self.source))
-        object.__setattr__(self, "aux_names", tuple(self.aux_names))
-        aux_std = np.asarray(np.zeros(0) if self.aux_std is None else self.aux_std, float)
-        if aux_std.shape != (len(self.aux_names),):
-            raise DimensionError(f"Incompatible dimensions of aux_std; expected "
-                                 f"({len(self.aux_names)},) but found {aux_std.shape}")
-        object.__setattr__(self, "aux_std", aux_std)
-        object.__setattr__(self, "tuner_names", tuple(self.tuner_names))
-        for name, fill, held in (("aux_scale", 1.0, self.aux_names),
+        # The outputs' fields, one value per name of their group (None: the fill; NaN in
+        # aux_std or delta_std: that one not calibrated).
+        for group in ("aux_names", "tuner_names", "delta_names"):
+            object.__setattr__(self, group, tuple(getattr(self, group)))
+        for name, fill, held in (("aux_std", np.nan, self.aux_names),
+                                 ("aux_scale", 1.0, self.aux_names),
                                  ("aux_spread", 0.0, self.aux_names),
                                  ("aux_trim_std", 0.0, self.aux_names),
                                  ("tuner_std", 0.0, self.tuner_names),
                                  ("tuner_scale", 1.0, self.tuner_names),
-                                 ("tuner_spread", 0.0, self.tuner_names)):
+                                 ("tuner_spread", 0.0, self.tuner_names),
+                                 ("delta_std", np.nan, self.delta_names)):
             value = getattr(self, name)
             value = np.full(len(held), fill) if value is None else np.asarray(value, float)
             if value.shape != (len(held),):
                 raise DimensionError(f"Incompatible dimensions of {name}; expected "
                                      f"({len(held)},) but found {value.shape}")
             object.__setattr__(self, name, value)
-        object.__setattr__(self, "delta_names", tuple(self.delta_names))
-        delta_std = np.asarray(np.zeros(0) if self.delta_std is None else self.delta_std, float)
-        if delta_std.shape != (len(self.delta_names),):
-            raise DimensionError(f"Incompatible dimensions of delta_std; expected "
-                                 f"({len(self.delta_names)},) but found {delta_std.shape}")
-        object.__setattr__(self, "delta_std", delta_std)
 
     def on(self, names: Sequence[str]) -> Calibration:
         """The calibration in the order of ``names``; a name it does not hold gets no model
