@@ -162,6 +162,10 @@ class OpenEventBrief(BaseModel):
 class LimitCheck(BaseModel):
     limit: str
     value: float
+    sigma: float | None = Field(
+        default=None,
+        description="1-sigma of the value, in its unit, where the design's calibration gives "
+        "one (the worst health parameter's, the thrust deficit's, the EGT margin's)")
     unit: str
     amber: float
     red: float

@@ -25,6 +25,25 @@ DELTA_SENSORS = (("dEGT", "T48", "degC"), ("dWf", "Wf", "%"), ("dN2", "Nc", "%")
                  ("dN1", "Nf", "%"))
 EGT_SENSOR = "T48"
 SMOOTHING = 0.1  # weight of each new record in the exponential filter (~10 flights)
+# The fleet status's EGT margin: from the median dEGT of an engine's last EGT_WINDOW records
+# (raw, not smoothed), the figure its severity checks and the fleet page draws.
+STATUS_EGT_MARGIN = "status_egt_margin"
+EGT_WINDOW = 20
+
+
+def window_medians(values: np.ndarray, window: int = EGT_WINDOW) -> np.ndarray:
+    """[n] the median of each record's last ``window`` values (itself included; fewer at the
+    start), as the fleet status takes the EGT margin's dEGT."""
+    values = np.asarray(values, float)
+    n = len(values)
+    out = np.empty(n)
+    head = min(n, window - 1)
+    for i in range(head):
+        out[i] = np.median(values[: i + 1])
+    if n >= window:
+        out[window - 1:] = np.median(
+            np.lib.stride_tricks.sliding_window_view(values, window), axis=1)
+    return out
 
 
 def egt_delta(t48: np.ndarray, baseline: np.ndarray, theta: np.ndarray) -> np.ndarray:
@@ -84,7 +103,9 @@ def smoothed_deltas(
     return [(name, unit, smoothed[:, j]) for j, (name, unit, _d) in enumerate(raw)]
 
 
-def reference_egt(d_egt: np.ndarray, egt_reference: float, theta_reference: float) -> np.ndarray:
+def reference_egt(
+    d_egt: np.ndarray | float, egt_reference: float, theta_reference: float,
+) -> np.ndarray:
     """EGT at the reference condition of engines with the smoothed dEGT [K]: the nominal
     engine's there (``egt_reference``, any temperature unit of kelvin steps) plus dEGT
     uncorrected to the reference's theta2."""

@@ -129,8 +129,8 @@ async function loadStatus() {
 }
 
 // The EGT margin of each engine of the page that has one (the status's egt_margin check),
-// worst at the top, coloured by its level, with the amber and red limits as lines where every
-// engine's type has the same.
+// worst at the top, coloured by its level, ±1σ where the design is calibrated, with the amber
+// and red limits as lines where every engine's type has the same.
 async function drawEgtMargins() {
   const LEVEL_COLOUR = { red: "#D55E00", amber: "#E69F00", normal: "#009E73" };
   const rows = engines.map((e) => ({ e, c: (e.checks || []).find((c) => c.limit === "egt_margin") }))
@@ -151,7 +151,10 @@ async function drawEgtMargins() {
     type: "bar", orientation: "h", name: "EGT margin",
     y: rows.map((r) => `${r.e.esn}${r.e.tail ? ` (${r.e.tail} #${r.e.position})` : ""}`),
     x: rows.map((r) => r.c.value), marker: { color: rows.map((r) => LEVEL_COLOUR[r.c.level] || "#999999") },
-    customdata: rows.map((r) => r.c.reason), hovertemplate: "%{customdata}<extra></extra>",
+    // ±1σ where the design's calibration gives one (the figure scored against the simulator).
+    error_x: { type: "data", array: rows.map((r) => r.c.sigma ?? 0), visible: rows.some((r) => r.c.sigma != null), color: "#333333", thickness: 1.2, width: 3 },
+    customdata: rows.map((r) => (r.c.sigma != null ? `${r.c.reason} (±${fmtNum(r.c.sigma, 1)} °C, 1σ)` : r.c.reason)),
+    hovertemplate: "%{customdata}<extra></extra>",
     meta: { role: "egt-margin" },
   }], layout({
     height, hovermode: "closest", showlegend: false,

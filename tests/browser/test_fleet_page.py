@@ -12,6 +12,7 @@ import pytest
 from app.db import transaction
 from app.models import EstimatorDesign
 from app.services.designs.calibration import BASELINE_SETTLE_RECORDS
+from estimation.engine.deltas import STATUS_EGT_MARGIN
 from estimation.uncertainty import YEAR_S, Calibration
 from tests.app.services.trends.test_trends import (
     LAYOUT,
@@ -89,6 +90,9 @@ def test_fleet_status_lists_every_engine_and_plots_deterioration(
     colours = {"red": "#D55E00", "amber": "#E69F00", "normal": "#009E73"}
     assert bars["colour"] == [colours[margins[label.split(" ")[0]]["level"]]
                               for label in bars["y"]]
+    # The seeded design is not calibrated: no 1-sigma, no error bars.
+    assert all(c["sigma"] is None for c in margins.values())
+    assert not page.evaluate("document.querySelector('#egt-plot').data[0].error_x.visible")
     screenshot(page, "fleet-status")
     # Every plot exports its data as CSV from the mode bar: one row per plotted point.
     page.hover("#deterioration")
@@ -259,3 +263,41 @@ def test_engine_page_draws_the_calibrated_level_the_api_gives(
     assert "Calibrated on the built-in engine's simulator" in notes
     assert "Not observable with this design" in notes
     assert console.unexpected() == []
+
+
+def test_egt_margins_carry_the_calibrated_sigma(page: Any, server: Server,
+                                                console: Console) -> None:
+    """With the active design calibrated, each EGT margin bar has its 1-sigma error bar and
+    says it in its hover, as the status gives it (the calibration's fit of the status's EGT
+    margin against the simulator's truth)."""
+    design_id = server.seeded.design_ids[0]
+    with transaction(server.factory) as session:
+        design = session.get(EstimatorDesign, design_id)
+        assert design is not None
+        before = design.result
+        design.result = {**(before or {}), "uncertainty": Calibration(
+            names=("fan_eff",), level_std=np.zeros(1), change_std=np.zeros(1),
+            slope_error=np.zeros(1), bias2=np.zeros(1), drift=np.zeros(1),
+            observable=np.ones(1, bool), delta_names=(STATUS_EGT_MARGIN,),
+            delta_std=np.array([3.25])).to_dict()}
+    try:
+        sign_in(page, server.seeded.key, "/")
+        page.wait_for_function("document.querySelector('#egt-plot').data?.length === 1")
+        status = httpx.get(f"{server.base_url}/api/v1/fleet/status",
+                           headers={"X-API-Key": server.seeded.key}).json()
+        margins = [c for e in status["engines"] for c in e["checks"]
+                   if c["limit"] == "egt_margin"]
+        assert margins and all(c["sigma"] == 3.25 for c in margins)
+        bars = page.evaluate("(() => { const t = document.querySelector('#egt-plot').data[0];"
+                             " return {error: t.error_x, hover: t.customdata}; })()")
+        assert bars["error"]["visible"] and bars["error"]["array"] == [3.25] * len(margins)
+        assert all(text.endswith("(±3.2 °C, 1σ)") or text.endswith("(±3.3 °C, 1σ)")
+                   for text in bars["hover"])
+        screenshot(page, "fleet-egt-margin-sigma")
+    finally:
+        with transaction(server.factory) as session:
+            design = session.get(EstimatorDesign, design_id)
+            assert design is not None
+            design.result = before
+    assert console.unexpected() == []
+

@@ -39,10 +39,12 @@ from estimation.engine.atmosphere import RANKINE, flight_condition
 from estimation.engine.deltas import (
     DELTA_SENSORS,
     EGT_SENSOR,
+    STATUS_EGT_MARGIN,
     egt_delta,
     egt_reference,
     reference_egt,
     smoothed_deltas,
+    window_medians,
 )
 from estimation.engine.errors import EngineConvergenceError
 from estimation.engine.fleet import FleetConfig, FleetPlan, Snapshots, fleet_snapshots, plan_fleet
@@ -272,9 +274,10 @@ class FigureErrors:
     tuner_var: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
 
 
-# The measured figures of the engine page whose model error the calibration fits (their
-# units: K, %, %, %, K).
-DELTA_FIGURES = ("egt_margin", *(name for name, _sensor, _unit in DELTA_SENSORS))
+# The measured figures whose model error the calibration fits: the engine page's EGT margin and
+# deltas (K, K, %, %, %) and the fleet status's EGT margin (K).
+DELTA_FIGURES = ("egt_margin", *(name for name, _sensor, _unit in DELTA_SENSORS),
+                 STATUS_EGT_MARGIN)
 
 
 def figure_errors(
@@ -324,8 +327,8 @@ def figure_errors(
             continue
         theta = flight_condition(t.conditions[:, 0], t.conditions[:, 1],
                                  t.conditions[:, 2]).theta
-        shown = dict((name, v) for name, _u, v in smoothed_deltas(
-            t.measured, estimator.baseline_trims(t.conditions, schedule), theta))
+        baseline = estimator.baseline_trims(t.conditions, schedule)
+        shown = dict((name, v) for name, _u, v in smoothed_deltas(t.measured, baseline, theta))
         truth = {"egt_margin": -at_ref.sensors[:, t48] / RANKINE}  # redline 0, in K steps
         for name, sensor, _unit in DELTA_SENSORS:
             k = SENSOR_NAMES.index(sensor)
@@ -334,6 +337,10 @@ def figure_errors(
                            else 100.0 * (true.sensors[:, k] / nominal.sensors[:, k] - 1.0))
         if "dEGT" in shown:
             shown["egt_margin"] = -reference_egt(shown["dEGT"], ref.t48_k, ref.theta)
+        if EGT_SENSOR in t.measured:  # the status's: the median of the last raw dEGTs
+            raw = egt_delta(t.measured[EGT_SENSOR], baseline[EGT_SENSOR], theta)
+            shown[STATUS_EGT_MARGIN] = -reference_egt(window_medians(raw), ref.t48_k, ref.theta)
+        truth[STATUS_EGT_MARGIN] = truth["egt_margin"]
         delta_errs.append(np.stack(
             [shown[n][rows] - truth[n] if n in shown else np.full(len(rows), np.nan)
              for n in DELTA_FIGURES], axis=1))

@@ -30,10 +30,12 @@ UNIT_TEXT = {"degC": " °C", "%": " %", "%/100 records": " %/100 records"}
 
 @dataclass(frozen=True)
 class LimitValue:
-    """An engine's value for one limit; ``detail`` names what it is (a health parameter)."""
+    """An engine's value for one limit; ``detail`` names what it is (a health parameter);
+    ``sigma`` its 1-sigma where the design's calibration gives one (None: not known)."""
 
     value: float
     detail: str | None = None
+    sigma: float | None = None
 
 
 @dataclass(frozen=True)
@@ -46,9 +48,11 @@ class Check:
     level: str
     exceedance: float
     reason: str
+    sigma: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
-        return {"limit": self.limit, "value": round(self.value, 3), "unit": self.unit,
+        return {"limit": self.limit, "value": round(self.value, 3),
+                "sigma": None if self.sigma is None else round(self.sigma, 3), "unit": self.unit,
                 "amber": self.amber, "red": self.red, "level": self.level,
                 "reason": self.reason}
 
@@ -78,7 +82,7 @@ def check(limit: str, levels: Mapping[str, Any], value: LimitValue) -> Check:
     else:
         relation = ">" if worse == "above" else "<"
         reason = f"{name} {value.value:.1f}{u} {relation} {level} {bound:g}{u}"
-    return Check(limit, value.value, unit, amber, red, level, exceedance, reason)
+    return Check(limit, value.value, unit, amber, red, level, exceedance, reason, value.sigma)
 
 
 @dataclass(frozen=True)

@@ -58,6 +58,7 @@ from app.services.fleet.service import current_placements
 from app.services.fleet.severity import LEVELS, LimitValue, rank, severity
 from app.services.snapshots import egt, estimator
 from estimation import uncertainty
+from estimation.engine.deltas import STATUS_EGT_MARGIN, reference_egt
 from estimation.engine.schedule import EngineSchedule
 
 WATCH_PERCENT = 1.5
@@ -178,6 +179,7 @@ class Summary:
     thrust_deficit: float | None
     health: np.ndarray
     aux: np.ndarray
+    thrust_sigma: float | None = None  # the thrust deficit's 1-sigma, as the engine page's
 
     @property
     def worst_name(self) -> str | None:
@@ -217,13 +219,19 @@ def _summaries(
         h, h_sigma = shown_level(layout, calibrations.get(design_id), values[:, s["h"]],
                                  values[:, s["h_sigma"]])
         z = values[:, s["z"]]
+        k = thrust_index(layout.aux)
+        calib = calibrations.get(design_id)
+        thrust_sigma = None
+        if k is not None:
+            z_sigma = values[:, s["z_sigma"]][:, k:k + 1]
+            thrust_sigma = (z_sigma if calib is None else calib.aux_sigma(
+                (layout.aux[k],), z_sigma, uncertainty.spread(values[:, s["h"]])))[:, 0].tolist()
         n_health = h.shape[1]
         abs_h = np.nan_to_num(np.abs(h))
         # The same tests as ``health_summary`` and the watch rule, row by row.
         watch = np.any((abs_h > WATCH_PERCENT) & (abs_h > WATCH_SIGMAS * np.nan_to_num(h_sigma)),
                        axis=1)
         worst = _worst(h) if n_health else None
-        k = thrust_index(layout.aux)
         health_rounded, aux_rounded = np.round(h, 4), np.round(z, 4)
         if worst is not None:
             picked = np.arange(len(members))
@@ -241,6 +249,7 @@ def _summaries(
                 round(worst_sigmas[r], 4) if found else None,
                 None if thrust is None else round(thrust[r], 4),
                 health_rounded[r], aux_rounded[r],
+                None if thrust_sigma is None else round(thrust_sigma[r], 4),
             )
             out[i] = (summary, bool(watch[r]))
     return out
@@ -266,9 +275,11 @@ def _limit_values(
             continue
         values = out[i]
         if summary.worst_value is not None:
-            values["health_change"] = LimitValue(abs(summary.worst_value), summary.worst_name)
+            values["health_change"] = LimitValue(abs(summary.worst_value), summary.worst_name,
+                                                 summary.worst_sigma)
         if summary.thrust_deficit is not None:
-            values["thrust_deficit"] = LimitValue(summary.thrust_deficit)
+            values["thrust_deficit"] = LimitValue(summary.thrust_deficit,
+                                                  sigma=summary.thrust_sigma)
         if i in rates:
             values["rate_of_change"] = rates[i]
         if row.design_id in builtin:
@@ -279,8 +290,12 @@ def _limit_values(
             ref = performance.type_reference(schedule)
             for i, median in _egt_medians(session, operator_id, rows, egt_rows,
                                           schedule).items():
-                margin = redlines[i] - (ref.egt_reference_c + median * ref.theta_reference)
-                out[i]["egt_margin"] = LimitValue(margin)
+                margin = redlines[i] - reference_egt(median, ref.egt_reference_c,
+                                                     ref.theta_reference)
+                calib = calibrations.get(rows[i].design_id)
+                out[i]["egt_margin"] = LimitValue(
+                    float(margin), sigma=None if calib is None
+                    else calib.delta_model_std(STATUS_EGT_MARGIN))
     return out
 
 

@@ -30,10 +30,9 @@ from app.models import EngineModel, EstimatorDesign, Snapshot
 from app.models.estimates import EgtWindow, Estimate, FilterState
 from app.services.snapshots.estimator import baseline_trims, builtin_schedule_for_design
 from estimation.engine.atmosphere import flight_condition
-from estimation.engine.deltas import egt_delta
+from estimation.engine.deltas import EGT_WINDOW, egt_delta
 from estimation.engine.schedule import EngineSchedule
 
-EGT_WINDOW = 20
 BATCH = 256  # engines whose windows are taken together by ``rebuild``
 
 

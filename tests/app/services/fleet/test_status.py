@@ -7,6 +7,7 @@ from dataclasses import replace
 from datetime import UTC, datetime, timedelta
 
 import numpy as np
+import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy.orm import Session
 
@@ -333,6 +334,8 @@ def test_status_reads_the_calibrated_level_the_engine_page_shows(
     s = LAYOUT.slices()
     v[:, s["h"]] = [-1.0, -2.0, -9.0]  # layout: hpc_eff, hpc_flow, fan_eff
     v[:, s["h_sigma"]] = 0.2
+    v[:, s["z"]] = [-2.0, 1.0]  # Fn, SmHPC: a 2 % thrust deficit
+    v[:, s["z_sigma"]] = [0.3, 0.5]
     add_estimates(session, fleet, engine, aircraft, v,
                   [T0 + timedelta(days=k) for k in range(3)])
     calib = Calibration(
@@ -341,6 +344,7 @@ def test_status_reads_the_calibrated_level_the_engine_page_shows(
         drift=np.zeros(3), observable=np.array([True, True, False]),
         level_correction=np.array([[0.0, 0.0, 0.0, 0.0], [-0.5, 0.0, 1.0, 0.0],
                                    [0.0, 0.0, 0.0, 0.0]]),
+        aux_names=("Fn",), aux_std=np.array([0.4]),
     )
     fleet.design.result = {"format": "fleethealth.design/1"}
     calibration.store_calibration(session, fleet.design, calib)
@@ -361,3 +365,12 @@ def test_status_reads_the_calibrated_level_the_engine_page_shows(
     assert reference["health"] == health["health"]
     checks = {c["limit"]: c["value"] for c in body["engines"][0]["checks"]}
     assert checks["health_change"] == round(abs(hpc_eff), 3)  # not fan_eff's 9 %: hidden
+    # Each check's 1-sigma is the engine page's: the worst parameter's honest sigma, and the
+    # thrust deficit's filter sigma with the calibrated model error in quadrature.
+    sigmas = {c["limit"]: c["sigma"] for c in body["engines"][0]["checks"]}
+    assert sigmas["health_change"] == pytest.approx(health["worst_health_sigma"], abs=1e-3)
+    z_sigma = float(as_stored(v)[-1, s["z_sigma"]][0])
+    assert sigmas["thrust_deficit"] == pytest.approx(np.hypot(z_sigma, 0.4), abs=1e-3)
+    aux = next(g for g in trend["groups"] if g["key"] == "aux")
+    fn = next(series for series in aux["series"] if series["name"] == "Fn")
+    assert fn["sigma"][-1] == pytest.approx(sigmas["thrust_deficit"], abs=1e-3)

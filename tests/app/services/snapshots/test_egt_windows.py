@@ -16,10 +16,14 @@ import pytest
 from sqlalchemy import Connection, delete, event, select, update
 from sqlalchemy.orm import Session
 
+from app.models import EstimatorDesign
 from app.models.estimates import EgtWindow, FilterState
+from app.services.designs import calibration
 from app.services.fleet import status
 from app.services.snapshots import estimator
+from estimation.engine.deltas import STATUS_EGT_MARGIN
 from estimation.engine.schedule import EngineSchedule
+from estimation.uncertainty import Calibration
 from tests.support.builtin_fleet import coarse_schedule, seed_fleet, upload
 
 
@@ -108,3 +112,19 @@ def test_status_from_kept_egt_windows_equals_the_status_from_records(
         last_recorded_at=datetime(2000, 1, 1, tzinfo=UTC)))
     assert shown() == margin
     assert status.fleet_status(session, operator_id) == from_records(session, operator_id)
+    # Without a calibration the margin has no 1-sigma; with one, the status's EGT margin's
+    # (the calibration's fit of the median of the last raw dEGTs against the truth).
+    item = next(e for e in status.fleet_status(session, operator_id)["engines"]
+                if e["engine_id"] == engine["engine_id"])
+    assert next(c for c in item["checks"] if c["limit"] == "egt_margin")["sigma"] is None
+    design = session.get(EstimatorDesign, engine["design_id"])
+    assert design is not None
+    calibration.store_calibration(session, design, Calibration(
+        names=("fan_eff",), level_std=np.zeros(1), change_std=np.zeros(1),
+        slope_error=np.zeros(1), bias2=np.zeros(1), drift=np.zeros(1),
+        observable=np.ones(1, bool),
+        delta_names=(STATUS_EGT_MARGIN,), delta_std=np.array([3.25])))
+    item = next(e for e in status.fleet_status(session, operator_id)["engines"]
+                if e["engine_id"] == engine["engine_id"])
+    check = next(c for c in item["checks"] if c["limit"] == "egt_margin")
+    assert check["sigma"] == 3.25 and check["value"] == pytest.approx(margin, abs=1e-3)
