@@ -46,14 +46,18 @@ class TrendGroup(BaseModel):
     view: Literal["level", "change"] | None = Field(
         None, description="health: levels, or the change since the engine's baseline"
     )
-    uncertainty: Literal["calibrated", "uncalibrated"] | None = Field(
+    uncertainty: Literal["calibrated", "uncalibrated", "recalibrate"] | None = Field(
         None,
         description=(
-            "health: calibrated: values are the calibrated level or change (the estimate "
-            "corrected by the design's calibration on the simulated nonlinear engine) and "
-            "sigma is the honest one (bias, filter and the design's calibrated model error); "
-            "uncalibrated: the filter's estimate and its own sigma (no calibration stored with "
-            "the design)"
+            "What the sigma is. health: calibrated: values are the calibrated level or change "
+            "(the estimate corrected by the design's calibration on the simulated nonlinear "
+            "engine) and sigma is the honest one (bias, filter and the design's calibrated "
+            "model error); uncalibrated: the filter's estimate and its own sigma (no "
+            "calibration stored with the design). tuners, aux, performance: calibrated: every "
+            "sigma is the one calibrated against the simulator; uncalibrated: the filter's own "
+            "(the measured figures have none); recalibrate: the design was calibrated before "
+            "these were, so their sigma is the filter's own (the measured figures have none) "
+            "until it is calibrated again"
         ),
     )
     unobservable: list[str] | None = Field(

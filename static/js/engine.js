@@ -39,6 +39,12 @@ const PERFORMANCE_PANELS = [
   { key: "perf-bpr", title: "Bypass ratio (estimated), per flight phase", ylabel: "Bypass ratio", series: ["BPR"], byPhase: true },
 ];
 const UNIT_LABELS = { degC: "°C", pts: "margin points" };
+// What a tuners, aux or performance band is (the API's group ``uncertainty``).
+const BAND_NOTES = {
+  calibrated: "Band: the 1-sigma calibrated against the built-in engine's simulator (filter, model error and, away from nominal, its growth).",
+  uncalibrated: "Band: the filter's own 1-sigma (the design has no calibrated model error); measured figures have none.",
+  recalibrate: "Band: the filter's own 1-sigma (measured figures: none): the design was calibrated before these figures were; calibrate it again for their honest bands.",
+};
 
 // A series split by flight phase: the records of each phase (a bucket mixing phases has none),
 // with their indices into the trend's points (``idx``).
@@ -60,6 +66,7 @@ function performancePanels() {
     series: group.series.filter((s) => panel.series.includes(s.name)).map((s) => ({ ...s, unit: UNIT_LABELS[s.unit] || s.unit }))
       .flatMap((s) => (panel.byPhase ? byPhase(s) : [s])),
     limits: (group.limits || []).filter((l) => panel.series.includes(l.series)),
+    uncertainty: group.uncertainty,
   })).filter((panel) => panel.series.length);
 }
 
@@ -153,6 +160,10 @@ function draw() {
       if (group.uncertainty === "uncalibrated") notes.push("Band: the filter's own 1-sigma (the design has no calibrated model error).");
       if (group.uncertainty === "calibrated") notes.push("Calibrated on the built-in engine's simulator: the estimate corrected for how this design reads the engine; band: the honest 1-sigma (bias, filter and model error).");
       if (group.view === "change") notes.push("Change since the engine's baseline (first settled records after installation or shop visit).");
+    } else if (BAND_NOTES[group.uncertainty] && (!group.key.startsWith("perf-") || group.uncertainty !== "calibrated")) {
+      // Tuners and aux outputs say what their band is; a performance panel only when it is
+      // not the calibrated one.
+      notes.push(BAND_NOTES[group.uncertainty]);
     }
     const titled = typeof TITLES[group.key] === "function" ? TITLES[group.key](group) : TITLES[group.key];
     const title = group.key === "health" && group.view === "change" ? "Health parameters: change since baseline" : group.title || titled || group.label;

@@ -81,6 +81,13 @@ def test_trend_plots_every_group_with_bands_markers_and_units(
             f"document.querySelector('#plot-{group['key']}').layout.yaxis.title.text"
         )
         assert f"[{group['series'][0]['unit']}]" in title or "dimensionless" in title
+    # The seeded design is not calibrated: the tuners' card says its band is the filter's,
+    # and so does each performance panel (whose measured figures have none).
+    states = {g["key"]: g.get("uncertainty") for g in api["groups"]}
+    assert states["tuners"] == states["performance"] == "uncalibrated"
+    note = "Band: the filter's own 1-sigma (the design has no calibrated model error)"
+    assert note in page.locator("#plot-tuners").locator("xpath=..").inner_text()
+    assert note in page.locator("#plot-perf-egt").locator("xpath=..").inner_text()
     health = next(g for g in api["groups"] if g["key"] == "health")
     assert health["view"] == "change"
     assert "change since baseline" in page.inner_text("#plots section:first-child h2")

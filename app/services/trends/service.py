@@ -59,6 +59,7 @@ from app.services.encoding.pgcopy import PG_EPOCH_US
 from app.services.snapshots import estimator
 from app.services.trends import health as health_view
 from app.services.trends.performance import performance_group
+from estimation import uncertainty
 
 # Why a trend has no ``performance`` group (a design of another engine type than the built-in).
 PERFORMANCE_NOTE = (
@@ -390,6 +391,17 @@ def _encoded(matrix: np.ndarray) -> list[Any]:
     return [RawJSON(text) for text in json_numbers.float_rows(matrix, 4)]
 
 
+def band_state(calib: uncertainty.Calibration | None, group: str) -> str:
+    """What the bands of a tuners, aux or performance group are (``TrendGroup.uncertainty``):
+    calibrated, uncalibrated (no calibration), or recalibrate (a calibration stored before
+    the group's figures were calibrated)."""
+    if calib is None:
+        return "uncalibrated"
+    held = {"tuners": calib.tuner_names, "aux": calib.aux_names,
+            "performance": calib.delta_names}[group]
+    return "calibrated" if held else "recalibrate"
+
+
 def trend_groups(
     data: TrendData, starts: np.ndarray | None, columns_of: Any = _lists
 ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
@@ -590,12 +602,15 @@ def engine_trend(
             for group in groups:
                 if group["key"] == "health":
                     group.update(meta.to_dict())
+                elif group["key"] in ("tuners", "aux"):
+                    group["uncertainty"] = band_state(calib, group["key"])
         assert target.design_id is not None
         extra = performance_group(
             session, target.engine_id, target.design_id, data.layout, data.epoch, data.values,
             starts, columns_of, calib,
         )
         if extra is not None:
+            extra["uncertainty"] = band_state(calib, "performance")
             groups.append(extra)
         elif estimator.builtin_schedule_for_design(session, target.design_id) is None:
             out["performance_note"] = PERFORMANCE_NOTE

@@ -374,3 +374,8 @@ def test_status_reads_the_calibrated_level_the_engine_page_shows(
     aux = next(g for g in trend["groups"] if g["key"] == "aux")
     fn = next(series for series in aux["series"] if series["name"] == "Fn")
     assert fn["sigma"][-1] == pytest.approx(sigmas["thrust_deficit"], abs=1e-3)
+    # The trend says what each band is: the aux outputs calibrated; the tuners not, by a
+    # calibration stored before they were.
+    states = {g["key"]: g.get("uncertainty") for g in trend["groups"]}
+    assert states["health"] == states["aux"] == "calibrated"
+    assert states["tuners"] == "recalibrate"
