@@ -115,7 +115,8 @@ async function column(id, side) {
       h("dt", {}, "Sensors"), h("dd", {}, (result.sensors || design.spec.sensors || []).join(", ")),
       h("dt", {}, "SSEE (theory)"), h("dd", {}, `health ${fmtNum(design.ssee_health, 3)} %² · aux ${fmtNum(design.ssee_aux, 3)}`),
       h("dt", {}, "Monte Carlo"), h("dd", {}, mc ? `${mc.n_cases} cases, SSEE ${fmtNum(mc.ssee_health, 3)} %² (theory ${fmtNum(mc.ssee_health_theory, 3)}), ${fmtTime(evaluation.finished_at)}`
-        : h("span", {}, "not evaluated yet ", h("button", { type: "button", class: "secondary", onclick: () => evaluate(design.id) }, "Run evaluation")))));
+        : h("span", {}, "not evaluated yet ", h("button", { type: "button", class: "secondary", onclick: () => evaluate(design.id) }, "Run evaluation"))),
+      ...calibrationRow(design, result.uncertainty)));
   if (design.status !== "ready" || !theory) {
     card.append(h("p", { class: "notice" }, `Design is ${design.status}${design.failure ? `: ${design.failure}` : ""}.`));
     return card;
@@ -206,6 +207,40 @@ async function watchJob(job, label) {
     if (["succeeded", "failed", "cancelled"].includes(job.status)) return job;
     await new Promise((r) => setTimeout(r, 1000));
     job = await api(`/api/v1/jobs/${job.id}`);
+  }
+}
+
+// The design's calibration against the built-in engine's simulator (what makes the trends'
+// bands honest): how it was made, or why the bands are the filter's own, with a button that
+// runs it (built-in engine designs only: the others have no simulator).
+function calibrationRow(design, cal) {
+  const model = models.find((m) => m.id === design.engine_model_id);
+  if (!model || model.source !== "builtin" || design.status !== "ready") return [];
+  const button = (text) => h("button", { type: "button", class: "secondary run-calibration", onclick: () => calibrate(design.id) }, text);
+  let text;
+  if (!cal) text = h("span", { class: "calibration-state" }, "not calibrated: the trends show the filter's own 1-sigma ");
+  else {
+    const src = cal.source || {};
+    const made = `${(src.seeds || []).length || "?"} simulated fleets, ${src.engines ?? "?"} engines, ${src.records ?? "?"} records`;
+    const complete = (cal.tuner_names || []).length && (cal.delta_names || []).length;
+    text = complete
+      ? h("span", { class: "calibration-state" }, `calibrated on ${made}: every band of the engine page `)
+      : h("span", { class: "calibration-state" }, `calibrated on ${made} before the tuners', EGT margin's and deltas' bands were: calibrate again for them `);
+  }
+  return [h("dt", {}, "Calibration"), h("dd", {}, text, button(cal ? "Calibrate again" : "Calibrate against the simulator"))];
+}
+
+async function calibrate(designId) {
+  const message = $("#create-message");
+  message.replaceChildren();
+  try {
+    const job = await api("/api/v1/jobs", { method: "POST", body: { kind: "calibrate_design", parameters: { design_id: designId } } });
+    const done = await watchJob(job, `Calibration of design ${designId} on simulated fleets`);
+    if (done.status !== "succeeded") showError(message, new Error(done.error || `calibration ${done.status}`), "Calibration");
+    cache.delete(designId);
+    await compare();
+  } catch (err) {
+    showError(message, err, "Calibration");
   }
 }
 

@@ -152,3 +152,64 @@ def test_create_a_design_and_watch_its_evaluation(
     error = page.wait_for_selector("#create-message .error")
     assert "tuners" in error.inner_text() and "422" in error.inner_text()
     assert console.unexpected("422") == []
+
+
+def test_calibration_state_and_the_button_that_runs_it(
+    page: Any, server: Server, console: Console
+) -> None:
+    """A built-in engine design's card says whether it is calibrated against the simulator
+    (and whether before the engine page's other bands were) and runs the calibration job from
+    its button."""
+    from app.models import EstimatorDesign
+    from estimation.uncertainty import Calibration
+
+    design_id = server.seeded.design_ids[0]
+
+    def state() -> str:
+        page.goto(f"/designs.html?a={design_id}")
+        page.wait_for_selector("#design-a .calibration-state")
+        text: str = page.inner_text("#design-a .calibration-state")
+        return text
+
+    sign_in(page, server.seeded.key, f"/designs.html?a={design_id}")
+    assert state().startswith("not calibrated")
+    assert page.inner_text("#design-a .run-calibration") == "Calibrate against the simulator"
+    one = {"names": ("fan_eff",), "level_std": np.zeros(1), "change_std": np.zeros(1),
+           "slope_error": np.zeros(1), "bias2": np.zeros(1), "drift": np.zeros(1),
+           "observable": np.ones(1, bool)}
+    with transaction(server.factory) as session:
+        design = session.get(EstimatorDesign, design_id)
+        assert design is not None
+        before = design.result
+        old = Calibration(**one, source={"seeds": [1, 2], "engines": 38, "records": 9000})
+        design.result = {**(before or {}), "uncertainty": old.to_dict()}
+    try:
+        text = state()
+        assert text.startswith("calibrated on 2 simulated fleets, 38 engines, 9000 records before")
+        assert "calibrate again" in text
+        with transaction(server.factory) as session:
+            design = session.get(EstimatorDesign, design_id)
+            assert design is not None
+            full = Calibration(**one, source={"seeds": [1, 2], "engines": 38, "records": 9000},
+                               tuner_names=("q1",), tuner_std=np.ones(1),
+                               delta_names=("dEGT",), delta_std=np.ones(1))
+            design.result = {**(before or {}), "uncertainty": full.to_dict()}
+        assert "every band of the engine page" in state()
+        # The button queues the calibration job, watched with its progress (cancelled here: a
+        # real calibration takes minutes).
+        page.click("#design-a .run-calibration")
+        page.wait_for_selector("#job progress, #job .progress")
+        with transaction(server.factory) as session:
+            job = session.query(Job).filter(Job.kind == "calibrate_design").order_by(
+                Job.id.desc()).first()
+            assert job is not None and job.parameters["design_id"] == design_id
+            job_id = job.id
+        api_post = page.request.post(f"/api/v1/jobs/{job_id}/cancel",
+                                     headers={"X-API-Key": server.seeded.key})
+        assert api_post.ok
+        page.wait_for_function("document.querySelector('#job').innerText.includes('cancel')")
+    finally:
+        with transaction(server.factory) as session:
+            design = session.get(EstimatorDesign, design_id)
+            assert design is not None
+            design.result = before
