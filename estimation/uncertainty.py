@@ -374,17 +374,11 @@ class Calibration:
 
     def aux_model_std(self, name: str) -> float | None:
         """s of one aux output (percent of trim); None when it was not calibrated."""
-        if name not in self.aux_names:
-            return None
-        value = float(np.asarray(self.aux_std)[self.aux_names.index(name)])
-        return value if np.isfinite(value) else None
+        return _held_value(self.aux_names, self.aux_std, name)
 
     def delta_model_std(self, name: str) -> float | None:
         """1-sigma of one measured figure (its unit); None when it was not calibrated."""
-        if name not in self.delta_names:
-            return None
-        value = float(np.asarray(self.delta_std)[self.delta_names.index(name)])
-        return value if np.isfinite(value) else None
+        return _held_value(self.delta_names, self.delta_std, name)
 
     def aux_sigma(self, names: Sequence[str], filter_std: np.ndarray,
                   d: np.ndarray) -> np.ndarray:
@@ -403,9 +397,12 @@ class Calibration:
         return _model_sigma(self.tuner_names, self.tuner_std, self.tuner_scale,
                             self.tuner_spread, names, filter_std, d)
 
-    def trim_sigma(self, names: Sequence[str]) -> np.ndarray:
-        """[nz] s_trim of each aux output (percent of trim; 0: not held)."""
-        return _by_name(self.aux_names, self.aux_trim_std, names, 0.0)
+    def value_sigma(self, names: Sequence[str], z_sigma: np.ndarray) -> np.ndarray:
+        """1-sigma [N, nz] (percent of trim) of the values in engineering units, trim (1 + z /
+        100), of the aux outputs ``names`` whose honest z sigma is z_sigma [N, nz]
+        (``aux_sigma``): with their trim's model error s_trim in quadrature (0: not held)."""
+        return np.hypot(np.asarray(z_sigma, float),
+                        _by_name(self.aux_names, self.aux_trim_std, names, 0.0))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form (``fleethealth.uncertainty-calibration/1``; NaN as null)."""
@@ -504,6 +501,14 @@ def _model_sigma(held: Sequence[str], std: np.ndarray | None, scale: np.ndarray 
     k = _by_name(held, kappa, names, 0.0)
     return np.sqrt(np.square(f * np.asarray(filter_std, float)) + np.square(s)
                    + np.square(k * np.asarray(d, float)[..., None]))
+
+
+def _held_value(held: Sequence[str], values: np.ndarray | None, name: str) -> float | None:
+    """The value of ``name`` among ``held``; None when not held or not finite."""
+    if name not in held:
+        return None
+    value = float(np.asarray(values)[held.index(name)])
+    return value if np.isfinite(value) else None
 
 
 def _by_name(held: Sequence[str], values: np.ndarray | None, names: Sequence[str],
@@ -1148,6 +1153,20 @@ def fit_model_spread(
         s_out = np.where(better, s, s_out)
         kappa_out = np.where(better, kappa, kappa_out)
     return s_out, kappa_out
+
+
+def fit_output_sigma(
+    err: np.ndarray, filter_var: np.ndarray, d: np.ndarray,
+    one_sigma: float = ONE_SIGMA_TARGET, two_sigma: float = TWO_SIGMA_TARGET,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(f, s, kappa) [k] of outputs other than the level (aux outputs, tuners) with errors
+    err [N, k], filter variance filter_var [N, k] at records at distance d [N] from nominal:
+    the filter variance's scale where it alone over-covers (``fit_filter_scale``), then the
+    model error and its spread on top (``fit_model_spread``), as the level's."""
+    f = fit_filter_scale(err, filter_var, one_sigma)
+    s, kappa = fit_model_spread(err, f**2 * np.asarray(filter_var, float), d, one_sigma,
+                                two_sigma)
+    return f, s, kappa
 
 
 def fit_filter_scale(

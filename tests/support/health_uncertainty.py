@@ -185,7 +185,7 @@ def figures(calib: uncertainty.Calibration, aux: tuple[str, ...], tuners: tuple[
     out = {}
     filter_std = np.sqrt(fe.aux_var)
     z_sigma = calib.aux_sigma(aux, filter_std, fe.d)
-    value_sigma = np.hypot(z_sigma, calib.trim_sigma(aux))
+    value_sigma = calib.value_sigma(aux, z_sigma)
     value_err = fe.aux_err + fe.trim_err
     for k, name in enumerate(aux):
         out[f"{name} %"] = (float(cov(fe.aux_err[:, k:k + 1], z_sigma[:, k:k + 1])[0]),

@@ -603,9 +603,8 @@ def fit(
         # The aux outputs' sigma as the level's: the filter's scaled where it alone
         # over-covers, then the model error on top, growing away from nominal.
         err, var, d = np.concatenate(aux_err), np.concatenate(aux_var), np.concatenate(aux_d)
-        aux_scale = uncertainty.fit_filter_scale(err, var, one_sigma)
-        aux_std, aux_spread = uncertainty.fit_model_spread(err, aux_scale**2 * var, d,
-                                                           one_sigma, two_sigma)
+        aux_scale, aux_std, aux_spread = uncertainty.fit_output_sigma(err, var, d, one_sigma,
+                                                                      two_sigma)
         # A value in engineering units (trim (1 + z / 100)) errs by z's error and its trim's:
         # what its honest z sigma does not hold of that is the trim's term.
         honest = (aux_scale**2 * var + np.square(np.nan_to_num(aux_std))
@@ -614,12 +613,10 @@ def fit(
                                              two_sigma)
     tuner_std = tuner_scale = tuner_spread = None
     if with_tuners:  # the tuners' sigma as the aux outputs', growing away from nominal
-        err = np.concatenate([f.tuner_err for f in with_tuners])
-        var = np.concatenate([f.tuner_var for f in with_tuners])
-        tuner_scale = uncertainty.fit_filter_scale(err, var, one_sigma)
-        tuner_std, tuner_spread = uncertainty.fit_model_spread(
-            err, tuner_scale**2 * var, np.concatenate([f.d for f in with_tuners]),
-            one_sigma, two_sigma)
+        tuner_scale, tuner_std, tuner_spread = uncertainty.fit_output_sigma(
+            np.concatenate([f.tuner_err for f in with_tuners]),
+            np.concatenate([f.tuner_var for f in with_tuners]),
+            np.concatenate([f.d for f in with_tuners]), one_sigma, two_sigma)
     delta_std = None
     if delta_err:  # measured figures: no filter variance, the whole error is the model's
         err = np.concatenate(delta_err)

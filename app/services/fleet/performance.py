@@ -160,7 +160,7 @@ def engineering_sigma(
     z_sigma: np.ndarray,
     records: RecordConditions,
     delta_std: Mapping[str, float] | None = None,
-    aux_trim_std: Mapping[str, float] | None = None,
+    value_sigma: np.ndarray | None = None,
     trims: Mapping[str, np.ndarray] | None = None,
 ) -> dict[str, np.ndarray]:
     """1-sigma [n] of each series of ``engineering_units`` that has one, in its unit.
@@ -168,11 +168,11 @@ def engineering_sigma(
     The estimated ones (thrust, stall margins, T40, bypass ratio and their changes) from the
     aux estimates' 1-sigma z_sigma [n, n_aux] (percent of the record's trim; honest when the
     trend has made it so with the design's calibration, ``Calibration.aux_sigma``); a value
-    (not a change) also carries its trim's interpolation error (``aux_trim_std``, percent, name ->
-    1-sigma: ``Calibration.trim_sigma``) in quadrature. The
-    measured ones (the smoothed deltas and the EGT margin) from the calibrated ``delta_std``
-    (name -> 1-sigma of a settled record), grown over a trend's first records as the
-    smoothing's noise is (``deltas.smoothing_growth``); without it they have none.
+    (not a change) from ``value_sigma`` [n, n_aux] (percent of trim, which holds its trim's
+    interpolation error too: ``Calibration.value_sigma``; None: z_sigma). The measured ones
+    (the smoothed deltas and the EGT margin) from the calibrated ``delta_std`` (name ->
+    1-sigma of a settled record), grown over a trend's first records as the smoothing's noise
+    is (``deltas.smoothing_growth``); without it they have none.
     """
     n = len(records.conditions)
     out: dict[str, np.ndarray] = {}
@@ -182,30 +182,32 @@ def engineering_sigma(
         trims = schedule_trims(schedule, records.conditions)
     aux = list(layout.aux)
 
-    def of(name: str) -> np.ndarray | None:
+    values = z_sigma if value_sigma is None else value_sigma
+
+    def of(name: str, sigma: np.ndarray) -> np.ndarray | None:  # percent of trim
         if name not in aux or name not in trims:
             return None
-        return np.asarray(z_sigma[:, aux.index(name)], float)
+        return np.asarray(sigma[:, aux.index(name)], float)
 
-    def value(name: str, sz: np.ndarray) -> np.ndarray:  # the value's, in its unit
-        return trims[name] * np.hypot(sz, (aux_trim_std or {}).get(name, 0.0)) / 100.0
+    def unit(name: str, sigma: np.ndarray) -> np.ndarray:  # percent of trim -> its unit
+        return trims[name] * sigma / 100.0
 
-    sz = of(THRUST)
-    if sz is not None:
-        fn = value(THRUST, sz)
+    sz, sv = of(THRUST, z_sigma), of(THRUST, values)
+    if sz is not None and sv is not None:
+        fn = unit(THRUST, sv)
         out.update(Fn=fn, Fn_rated=100.0 * fn / type_reference(schedule).rated_thrust_lbf,
                    thrust_deficit=sz)
     for name in MARGINS:
-        sm = of(name)
-        if sm is not None:
-            out[name] = value(name, sm)
-            out[f"{name}_change"] = trims[name] * sm / 100.0
-    s40 = of(TURBINE_INLET)
+        sm, sv = of(name, z_sigma), of(name, values)
+        if sm is not None and sv is not None:
+            out[name] = unit(name, sv)
+            out[f"{name}_change"] = unit(name, sm)
+    s40 = of(TURBINE_INLET, z_sigma)
     if s40 is not None:
-        out["T40_change"] = trims[TURBINE_INLET] * s40 / 100.0 / RANKINE_PER_KELVIN
-    sb = of(BYPASS_RATIO)
+        out["T40_change"] = unit(TURBINE_INLET, s40) / RANKINE_PER_KELVIN
+    sb = of(BYPASS_RATIO, values)
     if sb is not None:
-        out["BPR"] = value(BYPASS_RATIO, sb)
+        out["BPR"] = unit(BYPASS_RATIO, sb)
     growth = smoothing_growth(n)
     for name, std in (delta_std or {}).items():
         sensor = DELTA_SOURCES.get(name)

@@ -70,15 +70,14 @@ def performance_group(
     )
     if not series:
         return None
-    delta_std = aux_trim_std = None
+    z_sigma = np.asarray(values[:, layout.slices()["z_sigma"]], dtype=float)
+    delta_std = value_sigma = None
     if calibration is not None:
         delta_std = {name: std for name in calibration.delta_names
                      if (std := calibration.delta_model_std(name)) is not None}
-        aux_trim_std = dict(zip(layout.aux, calibration.trim_sigma(layout.aux).tolist(),
-                            strict=True))
+        value_sigma = calibration.value_sigma(layout.aux, z_sigma)
     sigmas = performance.engineering_sigma(
-        schedule, layout, np.asarray(values[:, layout.slices()["z_sigma"]], dtype=float), records,
-        delta_std, aux_trim_std, trims,
+        schedule, layout, z_sigma, records, delta_std, value_sigma, trims,
     )
     matrix = np.stack([v for _n, _u, v in series], axis=1)
     banded = [j for j, (name, _u, _v) in enumerate(series) if name in sigmas]
