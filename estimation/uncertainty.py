@@ -142,6 +142,9 @@ TWO_SIGMA_TARGET = 0.96
 # A tuner direction is resolved when its information per record is at least this fraction of
 # the largest one (below, the filter's random walk forgets faster than it learns).
 MIN_INFORMATION = 1e-4
+# The fleet status's rate of change compares an engine's latest level with the one this many
+# records before it (``Calibration.rate``).
+RATE_WINDOW = 50
 
 
 def snapshot_bias_matrix(
@@ -257,6 +260,13 @@ class Calibration:
     # (None: 1).
     slope_correction: np.ndarray | None = None
     slope_scale: np.ndarray | None = None
+    # The rate of change (the calibrated level's change over ``RATE_WINDOW`` records): its
+    # filter variance's scale f, model error s and spread kappa [p], fitted as the aux
+    # outputs' (``fit_output_sigma``); None: not calibrated (a calibration stored before
+    # them), the change's sigma over the window instead.
+    rate_std: np.ndarray | None = None
+    rate_scale: np.ndarray | None = None
+    rate_spread: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         p = len(self.names)
@@ -287,6 +297,15 @@ class Calibration:
                 raise DimensionError(f"Incompatible dimensions of {name}; expected {shape} but "
                                      f"found {value.shape}")
             object.__setattr__(self, name, value)
+        rate = (self.rate_std, self.rate_scale, self.rate_spread)
+        if any(x is not None for x in rate):
+            for name, fill in (("rate_std", 0.0), ("rate_scale", 1.0), ("rate_spread", 0.0)):
+                value = getattr(self, name)
+                value = np.full(p, fill) if value is None else np.asarray(value, float)
+                if value.shape != (p,):
+                    raise DimensionError(f"Incompatible dimensions of {name}; expected ({p},) "
+                                         f"but found {value.shape}")
+                object.__setattr__(self, name, value)
         object.__setattr__(self, "names", tuple(self.names))
         object.__setattr__(self, "source", dict(self.source))
         # The outputs' fields, one value per name of their group (None: the fill; NaN in
@@ -347,7 +366,10 @@ class Calibration:
             observable=pick(self.observable, True), bias_scale=pick(self.bias_scale, 1.0),
             slope_gain=pick(self.slope_gain, 1.0), slope_noise=pick(self.slope_noise, np.nan),
             slope_common=pick(self.slope_common, 0.0),
-            slope_gain_std=pick(self.slope_gain_std, 0.0))
+            slope_gain_std=pick(self.slope_gain_std, 0.0),
+            rate_std=None if self.rate_std is None else pick(self.rate_std, 0.0),
+            rate_scale=None if self.rate_scale is None else pick(self.rate_scale, 1.0),
+            rate_spread=None if self.rate_spread is None else pick(self.rate_spread, 0.0))
 
     def level(self, h_hat: np.ndarray, filter_std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The calibrated level and its honest 1-sigma [N, p] of estimates h_hat [N, p] with
@@ -371,6 +393,24 @@ class Calibration:
         return (correct_change(h_hat, h_hat0, np.asarray(self.level_correction)),
                 change_sigma(f * filter_std, f * filter_std0, kcycles, self.drift,
                              self.change_std))
+
+    def rate(
+        self, h_hat: np.ndarray, h_hat0: np.ndarray, filter_std: np.ndarray,
+        filter_std0: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The calibrated change and its 1-sigma [N, p] over ``RATE_WINDOW`` records, from the
+        estimates h_hat0 to h_hat [N, p] with the filter's 1-sigma filter_std0 and filter_std:
+        sqrt(f^2 (sigma_f^2 + sigma_f0^2) + s^2 + (kappa d)^2), d the later record's
+        ``spread``; not calibrated, the change's sigma (``change``, no drift over so short a
+        span), which holds more than the level's errors between two records so close."""
+        if self.rate_std is None:
+            return self.change(h_hat, h_hat0, filter_std, filter_std0,
+                               np.zeros(np.shape(h_hat)[:-1]))
+        names = self.names
+        both = np.hypot(np.asarray(filter_std, float), np.asarray(filter_std0, float))
+        return (correct_change(h_hat, h_hat0, np.asarray(self.level_correction)),
+                _model_sigma(names, self.rate_std, self.rate_scale, self.rate_spread, names,
+                             both, spread(h_hat)))
 
     def aux_model_std(self, name: str) -> float | None:
         """s of one aux output (percent of trim); None when it was not calibrated."""
@@ -442,6 +482,10 @@ class Calibration:
             "change_scale": listed(np.asarray(self.change_scale)),
             "slope_correction": [listed(row) for row in np.asarray(self.slope_correction)],
             "slope_scale": listed(np.asarray(self.slope_scale)),
+            **({} if self.rate_std is None else {
+                "rate_std": listed(np.asarray(self.rate_std)),
+                "rate_scale": listed(np.asarray(self.rate_scale)),
+                "rate_spread": listed(np.asarray(self.rate_spread))}),
         }
 
     @classmethod
@@ -481,6 +525,9 @@ class Calibration:
             slope_correction=np.array(d["slope_correction"], float)
             if "slope_correction" in d else None,
             slope_scale=arr("slope_scale") if "slope_scale" in d else None,
+            rate_std=arr("rate_std") if "rate_std" in d else None,
+            rate_scale=arr("rate_scale") if "rate_scale" in d else None,
+            rate_spread=arr("rate_spread") if "rate_spread" in d else None,
         )
 
     @property

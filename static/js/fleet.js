@@ -24,15 +24,32 @@ function columns() {
     { key: "last_data", label: "Last data", value: (e) => coverage.get(e.engine_id)?.last_data ?? e.last_data, cell: lastDataCell },
     // Severity rank from the API: red, amber, normal, then by how far past the type's limits.
     { key: "rank", label: "State", value: (e) => -(e.rank ?? 1e9), cell: (e) => badge(e.state) },
-    { key: "reason", label: "Reason", value: (e) => e.reason || "", cell: (e) => e.reason || h("span", { class: "muted" }, "within limits") },
+    { key: "reason", label: "Reason", value: (e) => e.reason || "",
+      cell: (e) => h("span", { title: checksText(e) }, e.reason || h("span", { class: "muted" }, "within limits")) },
     { key: "worst", label: "Largest health level from nominal [%]", value: (e) => (e.health ? Math.abs(e.health.worst_health_value ?? 0) : null),
       cell: (e) => (e.health && e.health.worst_health ? `${e.health.worst_health} ${fmtNum(e.health.worst_health_value)} ± ${fmtNum(e.health.worst_health_sigma)}` : "–") },
-    { key: "thrust", label: "Thrust deficit [%]", numeric: true, value: (e) => e.health?.thrust_deficit ?? null, cell: (e) => fmtNum(e.health?.thrust_deficit) },
+    { key: "thrust", label: "Thrust deficit [%]", numeric: true, value: (e) => e.health?.thrust_deficit ?? null, cell: (e) => withSigma(e.health?.thrust_deficit, check(e, "thrust_deficit")?.sigma) },
     { key: "n_records", label: "Records", numeric: true },
     { key: "open_events", label: "Active events", numeric: true,
       cell: (e) => (e.latest_event ? h("span", {}, `${e.open_events} `, h("a", { href: `/events.html?id=${e.latest_event.id}` },
         `${e.latest_event.fault || e.latest_event.kind} ${fmtTime(e.latest_event.detected_at).slice(0, 10)}`)) : String(e.open_events)) },
   ];
+}
+
+function check(e, limit) {
+  return (e.checks || []).find((c) => c.limit === limit);
+}
+
+function withSigma(value, sigma) {
+  if (value === null || value === undefined) return "–";
+  return sigma !== null && sigma !== undefined ? `${fmtNum(value)} ± ${fmtNum(sigma)}` : fmtNum(value);
+}
+
+// Every limit check of the engine, its value with its 1-sigma where the design is calibrated:
+// the reason cell's tooltip.
+function checksText(e) {
+  const unit = (u) => (u === "degC" ? "°C" : u);
+  return (e.checks || []).map((c) => `${c.limit.replaceAll("_", " ")}: ${withSigma(c.value, c.sigma)} ${unit(c.unit)} (${c.level}; amber ${c.amber}, red ${c.red})`).join("\n");
 }
 
 function overdueBadge() {

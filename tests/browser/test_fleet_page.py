@@ -279,7 +279,7 @@ def test_egt_margins_carry_the_calibrated_sigma(page: Any, server: Server,
             names=("fan_eff",), level_std=np.zeros(1), change_std=np.zeros(1),
             slope_error=np.zeros(1), bias2=np.zeros(1), drift=np.zeros(1),
             observable=np.ones(1, bool), delta_names=(STATUS_EGT_MARGIN,),
-            delta_std=np.array([3.25])).to_dict()}
+            delta_std=np.array([3.25]), aux_names=("Fn",), aux_std=np.array([0.4])).to_dict()}
     try:
         sign_in(page, server.seeded.key, "/")
         page.wait_for_function("document.querySelector('#egt-plot').data?.length === 1")
@@ -293,6 +293,26 @@ def test_egt_margins_carry_the_calibrated_sigma(page: Any, server: Server,
         assert bars["error"]["visible"] and bars["error"]["array"] == [3.25] * len(margins)
         assert all(text.endswith("(±3.2 °C, 1σ)") or text.endswith("(±3.3 °C, 1σ)")
                    for text in bars["hover"])
+        # The table's thrust deficit with its 1-sigma, and every check with its own in the
+        # reason's tooltip, as the status gives them.
+        by_esn = {e["esn"]: e for e in status["engines"]}
+        thrusts = 0
+        for row in page.locator("#table tbody tr").all():
+            cells = row.locator("td").all_inner_texts()
+            engine = by_esn[cells[0]]
+            checks = {c["limit"]: c for c in engine["checks"]}
+            thrust = checks.get("thrust_deficit")
+            if thrust is not None:
+                thrusts += 1
+                assert thrust["sigma"] is not None and thrust["sigma"] >= 0.4
+                value, sigma = (float(x) for x in cells[8].split("±"))
+                assert value == pytest.approx(engine["health"]["thrust_deficit"], abs=0.006)
+                assert sigma == pytest.approx(thrust["sigma"], abs=0.006)
+            tip = row.locator("td:nth-child(7) span").first.get_attribute("title") or ""
+            assert len(tip.splitlines()) == len(checks)
+            if "egt_margin" in checks:
+                assert "± 3.25 °C" in tip
+        assert thrusts, "the seeded engines have a thrust deficit"
         screenshot(page, "fleet-egt-margin-sigma")
     finally:
         with transaction(server.factory) as session:

@@ -685,3 +685,45 @@ def test_calibrated_level_round_trips_and_reorders() -> None:
     level, sigma = plain.level(h, np.full_like(h, 0.3))
     np.testing.assert_array_equal(level, h)
     np.testing.assert_allclose(sigma, np.sqrt(0.3**2 + np.array([[0.1, 0.2]]) ** 2))
+
+
+def test_rate_sigma_round_trips_reorders_and_falls_back_to_the_change() -> None:
+    """The rate of change's 1-sigma: the filter's at both ends scaled by f, s and kappa d in
+    quadrature (d the later record's spread); kept through JSON and ``on``; a calibration
+    stored before it gives the change's sigma over the window (no drift)."""
+    base = dict(names=("a", "b"), level_std=np.array([0.1, 0.2]),
+                change_std=np.array([0.05, 0.3]), slope_error=np.zeros(2), bias2=np.zeros(2),
+                drift=np.array([1.0, 1.0]), observable=np.array([True, True]),
+                change_scale=np.array([0.5, 1.0]),
+                level_correction=np.array([[0.2, 0.0, 0.0, 0.0, 0.0, 0.0],
+                                           [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]]))
+    cal = unc.Calibration(**base, rate_std=np.array([0.02, 0.04]),
+                          rate_scale=np.array([0.6, 0.9]), rate_spread=np.array([0.1, 0.0]))
+    back = unc.Calibration.from_dict(json.loads(json.dumps(cal.to_dict())))
+    for name in ("rate_std", "rate_scale", "rate_spread"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(cal, name))
+    h, h0 = np.array([[1.0, -2.0]]), np.array([[0.5, -1.0]])
+    sf, sf0 = np.array([[0.3, 0.2]]), np.array([[0.4, 0.1]])
+    change, sigma = back.rate(h, h0, sf, sf0)
+    d = unc.spread(h)[0]
+    both = np.hypot(sf, sf0)[0]
+    np.testing.assert_allclose(change, back.change(h, h0, sf, sf0, np.zeros(1))[0])
+    np.testing.assert_allclose(sigma[0], np.sqrt((np.array([0.6, 0.9]) * both) ** 2
+                                                 + np.array([0.02, 0.04]) ** 2
+                                                 + (np.array([0.1, 0.0]) * d) ** 2))
+    # In another order, with a name it does not hold (the filter's alone: f 1, s and kappa 0).
+    on = back.on(("b", "c", "a"))
+    _, sigma_on = on.rate(h[:, [1, 0, 0]], h0[:, [1, 0, 0]], sf[:, [1, 0, 0]],
+                          sf0[:, [1, 0, 0]])
+    d_on = unc.spread(h[:, [1, 0, 0]])[0]
+    np.testing.assert_allclose(sigma_on[0], [np.hypot(0.9 * both[1], 0.04),
+                                             both[0],
+                                             np.sqrt((0.6 * both[0]) ** 2 + 0.02**2
+                                                     + (0.1 * d_on) ** 2)])
+    # Stored before the rate was calibrated: the change's sigma, no drift over the window.
+    old = unc.Calibration.from_dict({k: v for k, v in cal.to_dict().items()
+                                     if not k.startswith("rate_")})
+    assert old.rate_std is None
+    np.testing.assert_allclose(old.rate(h, h0, sf, sf0)[1],
+                               np.sqrt((np.array([0.5, 1.0]) ** 2) * (sf**2 + sf0**2)
+                                       + np.array([0.05, 0.3]) ** 2))

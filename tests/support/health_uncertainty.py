@@ -169,9 +169,31 @@ def score(
         slope_true=slope_true, slope_shown=slope_shown,
         records=int(st["level_err"].shape[0]), segments=len(segs), pieces=len(pieces.spans),
         fleet_level_rms=fleet_rms, fleet_raw_rms=raw_rms, fleet_spread_ratio=spread_ratio,
-        figures=figures(calib, aux, tuple(est.layout.tuners),
-                        calibration.figure_errors(plan, tr, aux, vstar=est.vstar)) if aux else {},
+        figures={**(figures(calib, aux, tuple(est.layout.tuners),
+                            calibration.figure_errors(plan, tr, aux, vstar=est.vstar))
+                    if aux else {}), **rate_figures(calib, segs)},
     )
+
+
+def rate_figures(calib: uncertainty.Calibration,
+                 segs: list[Segment]) -> dict[str, tuple[float, float, float]]:
+    """Coverage of the fleet status's rate of change (``app.services.fleet.status``): the
+    change of each shown parameter's calibrated level over ``uncertainty.RATE_WINDOW`` records
+    with its 1-sigma (``Calibration.rate``), against the true change over the same records,
+    over every settled record of the segments with one that many records before it."""
+    w = uncertainty.RATE_WINDOW
+    long = [s for s in segs if len(s.kcycles) > w]
+    if not long:
+        return {}
+    pairs = [calib.rate(s.h_hat[w:], s.h_hat[:-w], s.h_sigma[w:], s.h_sigma[:-w])
+             for s in long]
+    err = np.concatenate([dh - (s.h_true[w:] - s.h_true[:-w])
+                          for (dh, _), s in zip(pairs, long, strict=True)])
+    sigma = np.concatenate([sg for _, sg in pairs])
+    cov = uncertainty.coverage
+    c1, c2 = cov(err, sigma, 1.0), cov(err, sigma, 2.0)
+    return {f"rate {name}": (float(c1[k]), float(c2[k]), np.nan)
+            for k, name in enumerate(calib.names) if calib.observable[k]}
 
 
 def figures(calib: uncertainty.Calibration, aux: tuple[str, ...], tuners: tuple[str, ...],

@@ -59,6 +59,11 @@ def test_calibrated_uncertainty_on_an_independent_seed(schedule: EngineSchedule)
     assert np.all(sc.cover1[shown] >= 0.55), sc.report()
     assert np.all(sc.cover2[shown] >= 0.85), sc.report()
     assert np.sqrt(np.mean(sc.change_rms[shown] ** 2)) <= 0.5, sc.report()
+    # The fleet status's rate of change (the calibrated level's change over RATE_WINDOW
+    # records) with its own calibrated sigma: every shown parameter's, in the issue's band.
+    rates = {n: c for n, c in sc.figures.items() if n.startswith("rate ")}
+    assert len(rates) == int(shown.sum()), rates
+    assert all(0.55 <= one <= 0.85 and two >= 0.85 for one, two, _ in rates.values()), rates
     # The fleet page's monthly fleet-average level: with one calibration fleet no level
     # correction is fitted, so it is the estimates' plain mean, within 0.5 % of the truth here,
     # with the spread over engines near the true one.

@@ -412,6 +412,25 @@ def stack(segs: Sequence[Segment], drift: np.ndarray,
             "change_var": d_var}
 
 
+def rate_errors(
+    segs: Sequence[Segment], raw: Sequence[Segment], window: int = uncertainty.RATE_WINDOW,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The fleet status's rate of change on the calibration records: the change of the level
+    ``segs`` hold (calibrated) over ``window`` records against the truth's [N, p], the
+    filter's variance at both ends [N, p], and the later record's ``spread`` of the estimates
+    as filtered, ``raw`` [N], over every record of a segment with one ``window`` records
+    before it."""
+    pairs = [(s, r) for s, r in zip(segs, raw, strict=True) if len(s.kcycles) > window]
+    if not pairs:
+        p = segs[0].h_hat.shape[1] if segs else 0
+        return np.empty((0, p)), np.empty((0, p)), np.empty(0)
+    err = np.concatenate([(s.h_hat[window:] - s.h_hat[:-window])
+                          - (s.h_true[window:] - s.h_true[:-window]) for s, _ in pairs])
+    var = np.concatenate([s.h_sigma[window:] ** 2 + s.h_sigma[:-window] ** 2 for s, _ in pairs])
+    d = np.concatenate([uncertainty.spread(r.h_hat[window:]) for _, r in pairs])
+    return err, var, d
+
+
 def slopes(segs: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray]:
     """The fleet's mean deterioration rate [p], percent per 1000 cycles, of h_hat and of the
     true h over the segments long enough (each segment's least-squares slope, averaged; NaN
@@ -556,6 +575,7 @@ def fit(
     fit = uncertainty.fit_level_correction(
         h_hat, h_hat - np.concatenate([s.h_true for s in segs]), rows)
     corrected = np.any(fit.matrix != 0.0, axis=1)
+    raw_segs = segs
     segs = [Segment(s.kcycles, uncertainty.correct_level(s.h_hat, fit.without(k)), s.h_sigma,
                     s.h_true) for s, k in zip(segs, fleet_of, strict=True)]
     slope_hat, slope_true = slopes(segs)
@@ -617,6 +637,12 @@ def fit(
             np.concatenate([f.tuner_err for f in with_tuners]),
             np.concatenate([f.tuner_var for f in with_tuners]),
             np.concatenate([f.d for f in with_tuners]), one_sigma, two_sigma)
+    # The rate of change's sigma, as the aux outputs': the filter's at both ends scaled, then
+    # the model error on top.
+    rate_err, rate_var, rate_d = rate_errors(segs, raw_segs)
+    rate_scale, rate_std, rate_spread = (
+        uncertainty.fit_output_sigma(rate_err, rate_var, rate_d, one_sigma, two_sigma)
+        if len(rate_err) else (None, None, None))
     delta_std = None
     if delta_err:  # measured figures: no filter variance, the whole error is the model's
         err = np.concatenate(delta_err)
@@ -634,6 +660,7 @@ def fit(
         slope_gain_std=sc.gain_std, level_correction=fit.matrix, level_spread=level_spread,
         filter_scale=filter_scale, change_scale=change_scale,
         slope_correction=sc.correction, slope_scale=sc.scale,
+        rate_std=rate_std, rate_scale=rate_scale, rate_spread=rate_spread,
         source={"design": design, "seeds": None if seeds is None else list(seeds),
                 "engines": engines, "flights": flights,
                 "records": int(st["level_err"].shape[0]), "segments": len(segs),

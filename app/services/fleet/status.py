@@ -60,13 +60,13 @@ from app.services.snapshots import egt, estimator
 from estimation import uncertainty
 from estimation.engine.deltas import STATUS_EGT_MARGIN, reference_egt
 from estimation.engine.schedule import EngineSchedule
+from estimation.uncertainty import RATE_WINDOW
 
 WATCH_PERCENT = 1.5
 WATCH_SIGMAS = 3.0
 # The EGT margin of the status is the median dEGT over an engine's last EGT_WINDOW records
-# (``app.services.snapshots.egt``); the rate of change compares the latest health estimate
-# with the one RATE_WINDOW records back, per 100 records.
-RATE_WINDOW = 50
+# (``app.services.snapshots.egt``); the rate of change compares the latest health level with
+# the one RATE_WINDOW records back, per 100 records.
 STATE_OF_LEVEL = {"red": "alert", "amber": "watch", "normal": "normal"}
 THRUST_NAMES = ("fn", "thrust", "f_n")
 
@@ -316,18 +316,28 @@ def _rates(
             key = (id(layout), row.design_id)
             by_layout.setdefault(key, (layout, row.design_id, []))[2].append(i)
     out: dict[int, LimitValue] = {}
+    per_100 = 100.0 / RATE_WINDOW
     for layout, design_id, members in by_layout.values():
         old = layout.decode_blobs([rows[i].old_packed for i in members])
         s = layout.slices()
-        h_old, _ = shown_level(layout, calibrations.get(design_id), old[:, s["h"]],
-                               old[:, s["h_sigma"]])
+        calib = calibrations.get(design_id)
+        h_old, _ = shown_level(layout, calib, old[:, s["h"]], old[:, s["h_sigma"]])
         h_now = np.stack([summary.health for i in members
                           if (summary := summaries[i][0]) is not None])
-        change = np.abs(h_now - h_old) * 100.0 / RATE_WINDOW
+        change = np.abs(h_now - h_old) * per_100
         worst = _worst(change)
+        # The calibrated change's 1-sigma over the window (NaN: not known).
+        sigma = np.full_like(change, np.nan)
+        if calib is not None:
+            now = layout.decode_blobs([rows[i].packed for i in members])
+            sigma = calib.on(layout.health).rate(now[:, s["h"]], old[:, s["h"]],
+                                                 now[:, s["h_sigma"]], old[:, s["h_sigma"]])[1]
         for r, i in enumerate(members):
-            if worst[r] >= 0:
-                out[i] = LimitValue(float(change[r, worst[r]]), layout.health[int(worst[r])])
+            k = int(worst[r])
+            if k >= 0:
+                known = bool(np.isfinite(sigma[r, k]))
+                out[i] = LimitValue(float(change[r, k]), layout.health[k],
+                                    float(sigma[r, k] * per_100) if known else None)
     return out
 
 

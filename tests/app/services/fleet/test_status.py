@@ -15,7 +15,7 @@ from app.models import EngineType, Installation, MaintenanceAction
 from app.models.estimates import Event
 from app.services.fleet import slopes, status
 from app.services.fleet.severity import LimitValue, severity
-from estimation.uncertainty import YEAR_S, Calibration, correct_level
+from estimation.uncertainty import YEAR_S, Calibration, correct_level, spread
 from tests.app.services.trends.test_trends import (
     LAYOUT,
     T0,
@@ -379,3 +379,62 @@ def test_status_reads_the_calibrated_level_the_engine_page_shows(
     states = {g["key"]: g.get("uncertainty") for g in trend["groups"]}
     assert states["health"] == states["aux"] == "calibrated"
     assert states["tuners"] == "recalibrate"
+
+
+def test_rate_of_change_carries_the_calibrated_change_sigma(
+    client: TestClient, session: Session
+) -> None:
+    """The rate of change is the largest change of the shown level over the last RATE_WINDOW
+    records per 100 records; with a calibrated design it carries that change's 1-sigma (the
+    calibrated change between the two records, ``Calibration.rate``), per 100 records too;
+    without one, none."""
+    from app.services.designs import calibration
+    from estimation.uncertainty import RATE_WINDOW
+
+    fleet = make_fleet(session, "Status Rate Air")
+    aircraft = add_aircraft(session, fleet, "F-RATE")
+    engine = add_engine(session, fleet, "RATE-1")
+    n = RATE_WINDOW + 3
+    s = LAYOUT.slices()
+    v = np.zeros((n, LAYOUT.width))
+    v[:, s["h"]] = np.linspace(0.0, 1.0, n)[:, None] * [-1.0, -3.0, -0.5]
+    v[:, s["h_sigma"]] = np.linspace(0.4, 0.2, n)[:, None]
+    add_estimates(session, fleet, engine, aircraft, v, [T0 + timedelta(days=k) for k in range(n)])
+    session.commit()
+
+    def rate_check() -> dict[str, object]:
+        body = client.get("/api/v1/fleet/status", headers={"X-API-Key": fleet.key}).json()
+        return next(c for c in body["engines"][0]["checks"] if c["limit"] == "rate_of_change")
+
+    stored = as_stored(v)
+    now, old = stored[-1], stored[-1 - RATE_WINDOW]
+    plain = rate_check()
+    assert plain["sigma"] is None  # no calibration: no honest sigma to give
+    assert plain["value"] == pytest.approx(abs(now[s["h"]][1] - old[s["h"]][1]) * 100 / RATE_WINDOW,
+                                           abs=2e-3)
+    calib = Calibration(
+        names=("hpc_eff", "hpc_flow", "fan_eff"), level_std=np.full(3, 0.1),
+        change_std=np.array([0.05, 0.15, 0.1]), slope_error=np.zeros(3), bias2=np.zeros(3),
+        drift=np.full(3, 0.3), observable=np.array([True, True, False]),
+        change_scale=np.array([1.0, 0.5, 1.0]),
+    )
+    fleet.design.result = {"format": "fleethealth.design/1"}
+    calibration.store_calibration(session, fleet.design, calib)
+    session.commit()
+    check = rate_check()
+    # hpc_flow the worst change; its sigma: the change's over the window (no drift over it).
+    sigma = np.sqrt(0.5**2 * (now[s["h_sigma"]][1] ** 2 + old[s["h_sigma"]][1] ** 2) + 0.15**2)
+    assert check["value"] == pytest.approx(plain["value"], abs=2e-3)
+    assert check["sigma"] == pytest.approx(sigma * 100 / RATE_WINDOW, abs=2e-3)
+    assert "hpc_flow" in check["reason"]
+    # Calibrated on the rate itself (``Calibration.rate``): the filter's sigma at both ends
+    # scaled, its model error and spread with the latest record's distance from nominal.
+    fitted = replace(calib, rate_std=np.array([0.01, 0.03, 0.02]),
+                     rate_scale=np.array([0.8, 0.2, 1.0]), rate_spread=np.array([0.0, 0.1, 0.0]))
+    calibration.store_calibration(session, fleet.design, fitted)
+    session.commit()
+    check = rate_check()
+    both = np.hypot(now[s["h_sigma"]][1], old[s["h_sigma"]][1])
+    d = float(spread(now[s["h"]][None])[0])
+    sigma = np.sqrt((0.2 * both) ** 2 + 0.03**2 + (0.1 * d) ** 2)
+    assert check["sigma"] == pytest.approx(sigma * 100 / RATE_WINDOW, abs=2e-3)
