@@ -255,6 +255,8 @@ def main() -> None:
                                            strict=True) if v is not None))
         print("level correction (calibrated level) on: "
               + (", ".join(calib.source["level_corrected"]) or "none"))
+        print("aux outputs corrected on the health estimates (calibrated): "
+              + (", ".join(calib.source.get("aux_corrected", [])) or "none"))
         print("shown: " + ", ".join(n for n, o in zip(calib.names, calib.observable,
                                                       strict=True) if o))
         slope_rows, covers, fleet_rows, figure_rows = [], [], [], []

@@ -267,6 +267,11 @@ class Calibration:
     rate_std: np.ndarray | None = None
     rate_scale: np.ndarray | None = None
     rate_spread: np.ndarray | None = None
+    # The calibrated aux outputs: a correction C_z [n_aux, correction_width(p)] of each aux
+    # output (percent of trim) on the regressors of the health estimates, as the level's
+    # (``fit_level_correction``; a row of zeros: that output as estimated); None: none (a
+    # calibration stored before it).
+    aux_correction: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         p = len(self.names)
@@ -306,6 +311,13 @@ class Calibration:
                     raise DimensionError(f"Incompatible dimensions of {name}; expected ({p},) "
                                          f"but found {value.shape}")
                 object.__setattr__(self, name, value)
+        if self.aux_correction is not None:
+            value = np.asarray(self.aux_correction, float)
+            shape = (len(self.aux_names), correction_width(p))
+            if value.shape != shape:
+                raise DimensionError(f"Incompatible dimensions of aux_correction; expected "
+                                     f"{shape} but found {value.shape}")
+            object.__setattr__(self, "aux_correction", value)
         object.__setattr__(self, "names", tuple(self.names))
         object.__setattr__(self, "source", dict(self.source))
         # The outputs' fields, one value per name of their group (None: the fill; NaN in
@@ -340,22 +352,17 @@ class Calibration:
             out[held] = np.asarray(values)[index[held]]
             return out
 
-        # Columns of the correction: the constant, one per name, one per pair of names
-        # (``correction_design``); a name the calibration does not hold is no regressor.
         q = len(index)
-        C = np.asarray(self.level_correction)
-        column = _correction_columns(len(self.names))
-        correction = np.zeros((q, correction_width(q)))
         rows = np.flatnonzero(held)
-        new_column = _correction_columns(q)
-        correction[rows, 0] = C[index[rows], 0]
+        correction = np.zeros((q, correction_width(q)))
+        correction[rows] = _on_regressors(np.asarray(self.level_correction)[index[rows]],
+                                          index)
         slope_correction = np.zeros((q, q))
         A = np.asarray(self.slope_correction)
         for j in rows:
-            correction[rows, 1 + j] = C[index[rows], 1 + index[j]]
             slope_correction[rows, j] = A[index[rows], index[j]]
-            for i in rows[rows <= j]:
-                correction[rows, new_column[i, j]] = C[index[rows], column[index[i], index[j]]]
+        aux_correction = (None if self.aux_correction is None
+                          else _on_regressors(np.asarray(self.aux_correction), index))
         return replace(
             self, names=tuple(names), level_std=pick(self.level_std, 0.0),
             level_correction=correction, level_spread=pick(self.level_spread, 0.0),
@@ -369,7 +376,8 @@ class Calibration:
             slope_gain_std=pick(self.slope_gain_std, 0.0),
             rate_std=None if self.rate_std is None else pick(self.rate_std, 0.0),
             rate_scale=None if self.rate_scale is None else pick(self.rate_scale, 1.0),
-            rate_spread=None if self.rate_spread is None else pick(self.rate_spread, 0.0))
+            rate_spread=None if self.rate_spread is None else pick(self.rate_spread, 0.0),
+            aux_correction=aux_correction)
 
     def level(self, h_hat: np.ndarray, filter_std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The calibrated level and its honest 1-sigma [N, p] of estimates h_hat [N, p] with
@@ -419,6 +427,22 @@ class Calibration:
     def delta_model_std(self, name: str) -> float | None:
         """1-sigma of one measured figure (its unit); None when it was not calibrated."""
         return _held_value(self.delta_names, self.delta_std, name)
+
+    def aux_level(self, names: Sequence[str], z_hat: np.ndarray,
+                  h_hat: np.ndarray) -> np.ndarray:
+        """The calibrated aux outputs [N, k] (percent of trim) named ``names`` of the
+        estimates z_hat [N, k] at the health estimates h_hat [N, p] (in this calibration's
+        order: ``on``): ``correct_outputs`` with each output's row of ``aux_correction``; an
+        output it does not hold, or without a correction, as estimated."""
+        z_hat = np.asarray(z_hat, float)
+        if self.aux_correction is None:
+            return z_hat.copy()
+        where = {n: k for k, n in enumerate(self.aux_names)}
+        C = np.zeros((len(names), self.aux_correction.shape[1]))
+        for j, name in enumerate(names):
+            if name in where:
+                C[j] = self.aux_correction[where[name]]
+        return correct_outputs(z_hat, h_hat, C)
 
     def aux_sigma(self, names: Sequence[str], filter_std: np.ndarray,
                   d: np.ndarray) -> np.ndarray:
@@ -482,6 +506,8 @@ class Calibration:
             "change_scale": listed(np.asarray(self.change_scale)),
             "slope_correction": [listed(row) for row in np.asarray(self.slope_correction)],
             "slope_scale": listed(np.asarray(self.slope_scale)),
+            **({} if self.aux_correction is None else {
+                "aux_correction": [listed(row) for row in np.asarray(self.aux_correction)]}),
             **({} if self.rate_std is None else {
                 "rate_std": listed(np.asarray(self.rate_std)),
                 "rate_scale": listed(np.asarray(self.rate_scale)),
@@ -528,6 +554,8 @@ class Calibration:
             rate_std=arr("rate_std") if "rate_std" in d else None,
             rate_scale=arr("rate_scale") if "rate_scale" in d else None,
             rate_spread=arr("rate_spread") if "rate_spread" in d else None,
+            aux_correction=np.array(d["aux_correction"], float).reshape(
+                len(d.get("aux_names", ())), -1) if "aux_correction" in d else None,
         )
 
     @property
@@ -565,6 +593,35 @@ def _by_name(held: Sequence[str], values: np.ndarray | None, names: Sequence[str
     v = np.asarray(values, float)
     out = np.array([v[held.index(n)] if n in held else missing for n in names], float)
     return np.where(np.isfinite(out), out, missing)
+
+
+def _on_regressors(C: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """Rows of a correction C [r, correction_width(p)] on the regressors of p health
+    parameters, taken onto those of the q parameters whose index among the p is ``index``
+    [q] (-1: not held, no regressor): the constant, one column per name, one per pair of
+    names (``correction_design``)."""
+    q = len(index)
+    out = np.zeros((C.shape[0], correction_width(q)))
+    if not C.size:
+        return out
+    column = _correction_columns(correction_p(C.shape[1]))
+    new_column = _correction_columns(q)
+    held = np.flatnonzero(index >= 0)
+    out[:, 0] = C[:, 0]
+    for j in held:
+        out[:, 1 + j] = C[:, 1 + index[j]]
+        for i in held[held <= j]:
+            out[:, new_column[i, j]] = C[:, column[index[i], index[j]]]
+    return out
+
+
+def correction_p(width: int) -> int:
+    """The number of parameters p whose correction has ``width`` = 1 + p + p (p + 1) / 2
+    columns (``correction_width``)."""
+    p = int(round((-3.0 + np.sqrt(9.0 + 8.0 * (width - 1))) / 2.0))
+    if correction_width(p) != width:
+        raise DimensionError(f"no number of parameters has a correction {width} wide")
+    return p
 
 
 def _correction_columns(p: int) -> np.ndarray:
@@ -1040,12 +1097,42 @@ def correct_level(h_hat: np.ndarray, correction: np.ndarray) -> np.ndarray:
     """The calibrated level [N, p]: h_hat - X C^T for the correction C [p, w] on the
     regressors X of ``correction_design`` (w = 1 + p: the straight part alone); a row of
     zeros leaves its parameter as estimated."""
+    return correct_outputs(h_hat, h_hat, correction)
+
+
+def correct_outputs(values: np.ndarray, h_hat: np.ndarray, correction: np.ndarray) -> np.ndarray:
+    """values [N, q] - X C^T: estimates corrected by C [q, w] on the regressors X of
+    ``correction_design`` of the health estimates h_hat [N, p] (the level's, and the aux
+    outputs' in the engine's units' percent); a row of zeros leaves its value as estimated."""
     h_hat = np.asarray(h_hat, float)
     correction = np.asarray(correction, float)
     p = h_hat.shape[-1]
     if correction.shape[-1] > 1 + p and not np.any(correction[:, 1 + p:]):
         correction = correction[:, :1 + p]  # no row curved: the products are not formed
-    return h_hat - correction_design(h_hat, correction.shape[-1] > 1 + p) @ correction.T
+    return (np.asarray(values, float)
+            - correction_design(h_hat, correction.shape[-1] > 1 + p) @ correction.T)
+
+
+def fleet_outputs(
+    values: np.ndarray, mean: np.ndarray, products: np.ndarray,
+    correction: np.ndarray | None, names: Sequence[str], held: Sequence[str],
+) -> np.ndarray:
+    """The mean over engines [T, k] of the calibrated outputs ``names`` (the aux outputs,
+    ``Calibration.aux_level``) of engines whose outputs average values [T, k] and whose health
+    estimates average mean [T, p] with products averaging products [T, p (p + 1) / 2]: exact,
+    the correction being linear in the regressors; C [len(held), w] of the outputs ``held``
+    (None: none, the values as they are)."""
+    values = np.asarray(values, float)
+    if correction is None:
+        return values.copy()
+    C = np.asarray(correction, float)
+    rows = {n: k for k, n in enumerate(held)}
+    picked = np.zeros((len(names), C.shape[1]))
+    for j, name in enumerate(names):
+        if name in rows:
+            picked[j] = C[rows[name]]
+    regressors = np.concatenate([np.ones(values.shape[:-1] + (1,)), mean, products], axis=-1)
+    return values - regressors[..., : picked.shape[1]] @ picked.T
 
 
 def fleet_level(
@@ -1120,7 +1207,8 @@ def fit_level_correction(
 ) -> LevelCorrection:
     """The level's correction (module docstring, "Calibrated level").
 
-    h_hat [N, p] and err = h_hat - h [N, p] on the calibration records, fleet [N] the
+    h_hat [N, p] and err = h_hat - h [N, p] (or the errors of q other outputs [N, q], the aux
+    outputs', corrected on the same regressors) on the calibration records, fleet [N] the
     calibration fleet of each. Row k of C is the least-squares fit of err_k on the
     regressors of ``correction_design`` over all fleets (the least-norm one over the
     directions they span, ``CORRECTION_RCOND``): on [1, h_hat] (straight), or also on
@@ -1132,14 +1220,15 @@ def fit_level_correction(
     """
     err = np.asarray(err, float)
     fleet = np.asarray(fleet)
-    p = err.shape[1]
+    q = err.shape[1]  # the outputs corrected: the level's p, or the aux outputs
+    p = np.shape(h_hat)[1]
     width = correction_width(p)
     X = correction_design(h_hat)
     groups = np.unique(fleet)
     ok = np.all(np.isfinite(X), axis=1) & np.all(np.isfinite(err), axis=1)
     if len(groups) < 2 or not ok.any():
-        return LevelCorrection(np.zeros((p, width)), groups, np.zeros((len(groups), p, width)),
-                               np.zeros(p, bool))
+        return LevelCorrection(np.zeros((q, width)), groups, np.zeros((len(groups), q, width)),
+                               np.zeros(q, bool))
 
     # The regressors at unit mean square, so that the least squares' cut of the directions the
     # estimates do not span (``CORRECTION_RCOND``) weighs estimates and products alike.
@@ -1147,13 +1236,13 @@ def fit_level_correction(
     scale[scale == 0.0] = 1.0
     Z = X / scale
 
-    def fitted(rows: np.ndarray, columns: int) -> np.ndarray:  # [p, width], zero padded
-        out = np.zeros((p, width))
+    def fitted(rows: np.ndarray, columns: int) -> np.ndarray:  # [q, width], zero padded
+        out = np.zeros((q, width))
         W = np.linalg.lstsq(Z[rows, :columns], err[rows], rcond=CORRECTION_RCOND)[0]
         out[:, :columns] = (W / scale[:columns, None]).T
         return out
 
-    left_out = {w: np.zeros((len(groups), p, width)) for w in (1 + p, width)}
+    left_out = {w: np.zeros((len(groups), q, width)) for w in (1 + p, width)}
     rms = {}
     for w, outs in left_out.items():
         residual = err.copy()

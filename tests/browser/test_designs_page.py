@@ -190,9 +190,18 @@ def test_calibration_state_and_the_button_that_runs_it(
         with transaction(server.factory) as session:
             design = session.get(EstimatorDesign, design_id)
             assert design is not None
-            full = Calibration(**one, source={"seeds": [1, 2], "engines": 38, "records": 9000},
-                               tuner_names=("q1",), tuner_std=np.ones(1),
-                               delta_names=("dEGT",), delta_std=np.ones(1))
+            kw = dict(source={"seeds": [1, 2], "engines": 38, "records": 9000},
+                      tuner_names=("q1",), tuner_std=np.ones(1), delta_names=("dEGT",),
+                      delta_std=np.ones(1), aux_names=("Fn",), aux_std=np.ones(1))
+            # Before the calibrated aux outputs and the rate of change's sigma: again.
+            design.result = {**(before or {}),
+                             "uncertainty": Calibration(**one, **kw).to_dict()}
+        assert "calibrate again" in state()
+        with transaction(server.factory) as session:
+            design = session.get(EstimatorDesign, design_id)
+            assert design is not None
+            full = Calibration(**one, **kw, aux_correction=np.zeros((1, 3)),
+                               rate_std=np.zeros(1))
             design.result = {**(before or {}), "uncertainty": full.to_dict()}
         assert "every band of the engine page" in state()
         # The button queues the calibration job, watched with its progress (cancelled here: a

@@ -727,3 +727,52 @@ def test_rate_sigma_round_trips_reorders_and_falls_back_to_the_change() -> None:
     np.testing.assert_allclose(old.rate(h, h0, sf, sf0)[1],
                                np.sqrt((np.array([0.5, 1.0]) ** 2) * (sf**2 + sf0**2)
                                        + np.array([0.05, 0.3]) ** 2))
+
+
+def test_aux_outputs_corrected_on_the_health_estimates() -> None:
+    """The calibrated aux outputs: an aux error that is a function of the health estimates
+    (a stall margin's rigging shows in them) is fitted across fleets
+    (``fit_level_correction`` with other outputs than the level's), taken off by
+    ``Calibration.aux_level`` in any order of the health names, kept through JSON, and the
+    fleet page's mean of it is the engines' mean of the calibrated outputs
+    (``fleet_outputs``)."""
+    rng = np.random.default_rng(3)
+    n, fleets = 3000, 4
+    h = rng.normal(size=(n, 3))
+    err = np.stack([0.5 + 2.0 * h[:, 0] - h[:, 2] + 0.3 * h[:, 1] * h[:, 2],
+                    0.01 * rng.normal(size=n)], axis=1) + 0.05 * rng.normal(size=(n, 2))
+    fit = unc.fit_level_correction(h, err, np.arange(n) % fleets)
+    assert fit.matrix.shape == (2, unc.correction_width(3))
+    assert not np.any(fit.matrix[1])  # noise alone: not corrected
+    corrected = unc.correct_outputs(err, h, fit.matrix)
+    assert np.sqrt(np.mean(corrected[:, 0] ** 2)) < 0.06 < np.sqrt(np.mean(err[:, 0] ** 2)) / 10
+    base = dict(level_std=np.zeros(3), change_std=np.zeros(3), slope_error=np.zeros(3),
+                bias2=np.zeros(3), drift=np.zeros(3), observable=np.ones(3, bool))
+    cal = unc.Calibration(names=("a", "b", "c"), **base, aux_names=("SM", "Fn"),
+                          aux_std=np.zeros(2), aux_correction=fit.matrix)
+    back = unc.Calibration.from_dict(json.loads(json.dumps(cal.to_dict())))
+    np.testing.assert_array_equal(back.aux_correction, cal.aux_correction)
+    z = rng.normal(size=(n, 2))
+    want = unc.correct_outputs(z, h, fit.matrix)
+    np.testing.assert_allclose(back.aux_level(("SM", "Fn"), z, h), want)
+    # Outputs in another order, one it does not hold (as estimated); health names reordered
+    # with one it does not hold (no regressor): the same values.
+    order = back.on(("c", "x", "a", "b"))
+    h_order = np.stack([h[:, 2], rng.normal(size=n), h[:, 0], h[:, 1]], axis=1)
+    z3 = np.stack([z[:, 1], z[:, 0], z[:, 0]], axis=1)
+    np.testing.assert_allclose(order.aux_level(("Fn", "SM", "T40"), z3, h_order),
+                               np.stack([want[:, 1], want[:, 0], z[:, 0]], axis=1),
+                               atol=1e-12)
+    # Stored before it: the outputs as estimated.
+    old = unc.Calibration.from_dict({k: v for k, v in cal.to_dict().items()
+                                     if k != "aux_correction"})
+    np.testing.assert_array_equal(old.aux_level(("SM",), z[:, :1], h), z[:, :1])
+    # The fleet page: engines' period means of z, h and h's products give the mean of each
+    # engine's calibrated outputs at its own means.
+    engines = rng.normal(size=(7, 3))
+    z_engines = rng.normal(size=(7, 2))
+    got = unc.fleet_outputs(z_engines.mean(axis=0)[None], engines.mean(axis=0)[None],
+                            unc.pair_products(engines).mean(axis=0)[None], fit.matrix,
+                            ("Fn", "SM"), ("SM", "Fn"))
+    np.testing.assert_allclose(  # z_engines' columns are Fn, SM: the matrix's rows reversed
+        got[0], unc.correct_outputs(z_engines, engines, fit.matrix[::-1]).mean(axis=0))

@@ -99,6 +99,9 @@ YEAR_SLOPE_FLOOR = 0.05
 CALIBRATION_SEEDS = (20260102, 20260103, 20260104, 20260105, 20260106, 20260107,
                      20260109, 20260110, 20260111, 20260112, 20260113, 20260114)
 CALIBRATION_AIRCRAFT = 8
+# The aux outputs are corrected on the health estimates (``fit``) only with at least this many
+# calibration fleets.
+MIN_AUX_CORRECTION_FLEETS = 6
 CALIBRATION_FLIGHTS = 730
 # The aux outputs' model error is fitted on every AUX_EVERY-th settled record (each needs two
 # steady-state solves; consecutive records of an engine carry nearly the same error).
@@ -272,6 +275,9 @@ class FigureErrors:
     # empty without V*).
     tuner_err: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
     tuner_var: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
+    # The records' health estimates as filtered [N, p]: the regressors of the aux outputs'
+    # correction (``uncertainty.fit_level_correction``).
+    h_hat: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
 
 
 # The measured figures whose model error the calibration fits: the engine page's EGT margin and
@@ -295,6 +301,7 @@ def figure_errors(
     ref = egt_reference(schedule)
     t48 = SENSOR_NAMES.index(EGT_SENSOR)
     errs, variances, trim_errs, delta_errs, q_errs, q_vars, ds = [], [], [], [], [], [], []
+    hs = []
     for t in track_list:
         if t.z_hat is None or t.z_sigma is None or t.conditions is None:
             continue
@@ -315,6 +322,7 @@ def figure_errors(
         errs.append(t.z_hat[rows] - z_true)
         variances.append(t.z_sigma[rows] ** 2)
         ds.append(uncertainty.spread(t.h_hat[rows]))
+        hs.append(t.h_hat[rows])
         if (vstar is not None and t.q_hat is not None and t.q_sigma is not None
                 and np.shape(vstar)[1] == t.h_true.shape[1]):
             q_errs.append(t.q_hat[rows] - t.h_true[rows] @ np.asarray(vstar).T)
@@ -347,11 +355,13 @@ def figure_errors(
     if not errs:
         empty = np.empty((0, len(idx)))
         return FigureErrors(empty, empty, empty, np.empty((0, len(DELTA_FIGURES))))
+    with_tuners = len(q_errs) == len(errs)
     return FigureErrors(np.concatenate(errs), np.concatenate(variances),
                         np.concatenate(trim_errs), np.concatenate(delta_errs) if delta_errs
                         else np.empty((0, len(DELTA_FIGURES))), np.concatenate(ds),
-                        *((np.concatenate(q_errs), np.concatenate(q_vars))
-                          if len(q_errs) == len(errs) else ()))
+                        tuner_err=np.concatenate(q_errs) if with_tuners else np.empty((0, 0)),
+                        tuner_var=np.concatenate(q_vars) if with_tuners else np.empty((0, 0)),
+                        h_hat=np.concatenate(hs))
 
 
 def segments(plan: FleetPlan, track_list: Sequence[HealthTrack]) -> list[Segment]:
@@ -556,10 +566,11 @@ def fit(
     fleet_of = [k for k, f in enumerate(fleets) for _ in f.segments]
     pieces = [f.pieces for f in fleets]
     B_hs = [f.bias_matrix for f in fleets]
-    aux_err = [f.figures.aux_err for f in fleets if len(f.figures.aux_err)]
-    aux_var = [f.figures.aux_var for f in fleets if len(f.figures.aux_err)]
-    aux_d = [f.figures.d for f in fleets if len(f.figures.aux_err)]
-    trim_err = [f.figures.trim_err for f in fleets if len(f.figures.aux_err)]
+    with_aux = [f.figures for f in fleets if len(f.figures.aux_err)]
+    aux_err = [f.aux_err for f in with_aux]
+    aux_var = [f.aux_var for f in with_aux]
+    aux_d = [f.d for f in with_aux]
+    trim_err = [f.trim_err for f in with_aux]
     delta_err = [f.figures.delta_err for f in fleets if len(f.figures.delta_err)]
     with_tuners = [f.figures for f in fleets if f.figures.tuner_err.size]
     B_h = np.mean(B_hs, axis=0)
@@ -618,8 +629,23 @@ def fit(
               & (cover2.min(axis=0) >= BAND_TWO_SIGMA))
     if len(per_fleet) > 1:
         shown &= stable
-    aux_std = aux_scale = aux_spread = aux_trim_std = None
+    aux_std = aux_scale = aux_spread = aux_trim_std = aux_correction = None
     if aux_err:
+        # The calibrated aux outputs, as the level: corrected on the health estimates where
+        # that cuts their error across the fleets, each calibration record by the correction
+        # its own fleet did not feed.
+        # Fewer fleets than MIN_AUX_CORRECTION_FLEETS cannot vouch for it (their
+        # cross-validation fits a few dozen regressors on a handful of engines): as estimated
+        # (a correction of zeros, which says the calibration looked).
+        aux_correction = np.zeros((len(aux), uncertainty.correction_width(p)))
+        if len(aux_err) >= MIN_AUX_CORRECTION_FLEETS:
+            aux_fleet = np.concatenate([np.full(len(e), k) for k, e in enumerate(aux_err)])
+            aux_h = np.concatenate([f.h_hat for f in with_aux])
+            aux_fit = uncertainty.fit_level_correction(aux_h, np.concatenate(aux_err),
+                                                       aux_fleet)
+            aux_correction = aux_fit.matrix
+            aux_err = [uncertainty.correct_outputs(e, f.h_hat, aux_fit.without(k))
+                       for k, (e, f) in enumerate(zip(aux_err, with_aux, strict=True))]
         # The aux outputs' sigma as the level's: the filter's scaled where it alone
         # over-covers, then the model error on top, growing away from nominal.
         err, var, d = np.concatenate(aux_err), np.concatenate(aux_var), np.concatenate(aux_d)
@@ -650,7 +676,7 @@ def fit(
     return uncertainty.Calibration(
         aux_names=aux if aux_std is not None else (), aux_std=aux_std, aux_scale=aux_scale,
         aux_spread=aux_spread,
-        aux_trim_std=aux_trim_std,
+        aux_trim_std=aux_trim_std, aux_correction=aux_correction,
         delta_names=DELTA_FIGURES if delta_std is not None else (), delta_std=delta_std,
         tuner_names=tuners if tuner_std is not None else (), tuner_std=tuner_std,
         tuner_scale=tuner_scale, tuner_spread=tuner_spread,
@@ -679,6 +705,8 @@ def fit(
                 "two_sigma": two_sigma,
                 "level_corrected": [n for n, c in zip(names, corrected, strict=True) if c],
                 "level_curved": [n for n, c in zip(names, fit.curved, strict=True) if c],
+                "aux_corrected": [n for n, row in zip(aux, aux_correction, strict=True)
+                                  if np.any(row != 0.0)] if aux_correction is not None else [],
                 "fleet_cover1_min": [round(float(x), 3) for x in cover1.min(axis=0)],
                 "fleet_cover1_max": [round(float(x), 3) for x in cover1.max(axis=0)],
                 "fleet_cover2_min": [round(float(x), 3) for x in cover2.min(axis=0)]},

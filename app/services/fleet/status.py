@@ -94,6 +94,17 @@ def shown_level(
     return np.where(hidden, np.nan, level), np.where(hidden, np.nan, sigma)
 
 
+def shown_aux(
+    layout: EstimateLayout, calib: uncertainty.Calibration | None, z: np.ndarray, h: np.ndarray,
+) -> np.ndarray:
+    """The aux outputs [..., n_aux] that the engine page shows for estimates z with the health
+    estimates h: with the design's calibration, calibrated (``Calibration.aux_level``);
+    without, as stored."""
+    if calib is None:
+        return np.asarray(z, float)
+    return calib.on(layout.health).aux_level(layout.aux, z, h)
+
+
 def _worst(h: np.ndarray) -> np.ndarray:
     """Index [n] of the largest |h| of each row [n, p], unobservable (NaN) ones left out; -1
     where every one is."""
@@ -116,7 +127,7 @@ def health_summary(
     tests compare the two)."""
     s = layout.slices()
     h, h_sigma = shown_level(layout, calib, values[s["h"]][None], values[s["h_sigma"]][None])
-    z = values[s["z"]]
+    z = shown_aux(layout, calib, values[s["z"]][None], values[s["h"]][None])[0]
     found = int(_worst(h)[0]) if h.shape[1] else -1
     worst = None if found < 0 else found
     k = thrust_index(layout.aux)
@@ -218,9 +229,9 @@ def _summaries(
         s = layout.slices()
         h, h_sigma = shown_level(layout, calibrations.get(design_id), values[:, s["h"]],
                                  values[:, s["h_sigma"]])
-        z = values[:, s["z"]]
-        k = thrust_index(layout.aux)
         calib = calibrations.get(design_id)
+        z = shown_aux(layout, calib, values[:, s["z"]], values[:, s["h"]])
+        k = thrust_index(layout.aux)
         thrust_sigma = None
         if k is not None:
             z_sigma = values[:, s["z_sigma"]][:, k:k + 1]
@@ -634,6 +645,9 @@ def fleet_deterioration(
                                                         correction)
         aux = mean[:, p:]
         aux_spread = np.sqrt(np.maximum(moments[:, pairs:] - aux**2, 0.0))
+        if on is not None:  # the calibrated aux outputs' mean (the spread: the estimates')
+            aux = uncertainty.fleet_outputs(aux, mean[:, :p], moments[:, :pairs],
+                                            on.aux_correction, layout.aux, on.aux_names)
         # A parameter the design's calibration finds unobservable: nulls, named (as the
         # engine trend's health group has it), not a fleet average of what it cannot see.
         hidden = np.zeros(p, bool) if on is None else ~np.asarray(on.observable, bool)

@@ -89,9 +89,10 @@ def apply(
     resets: np.ndarray | None = None, settle: int = BASELINE_SETTLE_RECORDS,
     aux_names: tuple[str, ...] = (), tuner_names: tuple[str, ...] = (),
 ) -> tuple[np.ndarray, HealthMeta]:
-    """The health columns of ``values`` [n, width] (a new float64 array) in ``view``, and the
-    aux outputs' (``aux_names``) and tuners' (``tuner_names``) 1-sigma made honest by the
-    calibration (``Calibration.aux_sigma``, ``Calibration.tuner_sigma``).
+    """The health columns of ``values`` [n, width] (a new float64 array) in ``view``, the aux
+    outputs (``aux_names``) calibrated (``Calibration.aux_level``) and their and the tuners'
+    (``tuner_names``) 1-sigma made honest by the calibration (``Calibration.aux_sigma``,
+    ``Calibration.tuner_sigma``).
 
     Level: the calibrated level and its honest sigma per record (``Calibration.level``).
     Change: the calibrated h_hat - h_hat[b] and its sigma (``Calibration.change``), c the
@@ -129,6 +130,9 @@ def apply(
     new_s = np.where(hidden, np.nan, new_s)
     out[:, h_cols] = new_h
     out[:, s_cols] = new_s
+    if on is not None and aux_names and "z" in layout_slices:  # the calibrated aux outputs
+        z_cols = layout_slices["z"]
+        out[:, z_cols] = on.aux_level(aux_names, out[:, z_cols], h)
     if calib is not None and aux_names and "z_sigma" in layout_slices:
         z_cols = layout_slices["z_sigma"]
         out[:, z_cols] = calib.aux_sigma(aux_names, out[:, z_cols], uncertainty.spread(h))

@@ -397,7 +397,9 @@ def band_state(calib: uncertainty.Calibration | None, group: str) -> str:
     the group's figures were calibrated)."""
     if calib is None:
         return "uncalibrated"
-    held = {"tuners": calib.tuner_names, "aux": calib.aux_names,
+    held = {"tuners": calib.tuner_names,
+            # the aux outputs: their sigma and their calibrated values
+            "aux": calib.aux_names if calib.aux_correction is not None else (),
             "performance": calib.delta_names}[group]
     return "calibrated" if held else "recalibrate"
 

@@ -92,13 +92,14 @@ def test_deterioration_is_the_mean_over_engines_of_engine_means(session: Session
     aircraft = add_aircraft(session, fleet, "F-AVG")
     rng = np.random.default_rng(6)
     start = datetime(2026, 3, 1, tzinfo=UTC)
-    per_engine = []
+    per_engine, per_engine_aux = [], []
     for i, n in enumerate((40, 10)):  # a busy engine must not outweigh a quiet one
         engine = add_engine(session, fleet, f"A{i}")
         v = rng.normal(size=(n, LAYOUT.width))
         times = [start + timedelta(hours=12 * k) for k in range(n)]  # March only
         add_estimates(session, fleet, engine, aircraft, v, times)
         per_engine.append(as_stored(v)[:, LAYOUT.slices()["h"]].mean(0))
+        per_engine_aux.append(as_stored(v)[:, LAYOUT.slices()["z"]].mean(0))
     out = status.fleet_deterioration(session, fleet.operator_id, "month")
     group = out["groups"][0]
     assert group["time"] == ["2026-03-01T00:00:00Z"] and group["n_engines"] == [2]
@@ -109,14 +110,25 @@ def test_deterioration_is_the_mean_over_engines_of_engine_means(session: Session
     np.testing.assert_allclose([s["sigma"][0] for s in group["health"]], spread, atol=1e-4)
     assert group["unobservable"] == []
     # With a calibration that finds fan_eff unobservable: nulls, named; the rest as before.
+    # The calibrated aux outputs too: SmHPC less 0.2 + 0.3 hpc_flow h_hpc_eff, the mean over
+    # engines of each engine's calibrated output at its own means.
+    aux_correction = np.zeros((1, 10))
+    aux_correction[0, 0] = 0.2
+    aux_correction[0, 8] = 0.3  # the hpc_eff * hpc_flow column in the calibration's order
     calib = Calibration(
         names=("fan_eff", "hpc_eff", "hpc_flow"), level_std=np.zeros(3), change_std=np.zeros(3),
         slope_error=np.zeros(3), bias2=np.zeros(3), drift=np.zeros(3),
-        observable=np.array([False, True, True]),
+        observable=np.array([False, True, True]), aux_names=("SmHPC",), aux_std=np.zeros(1),
+        aux_correction=aux_correction,
     )
     fleet.design.result = {"uncertainty": calib.to_dict()}
     session.flush()
     group = status.fleet_deterioration(session, fleet.operator_id, "month")["groups"][0]
+    h_engines = np.array(per_engine)  # layout order: hpc_eff, hpc_flow, fan_eff
+    sm = np.array(per_engine_aux)[:, 1] - (0.2 + 0.3 * h_engines[:, 0] * h_engines[:, 1])
+    aux = {s["name"]: s["mean"][0] for s in group["aux"]}
+    assert aux["SmHPC"] == pytest.approx(sm.mean(), abs=1e-4)
+    assert aux["Fn"] == pytest.approx(np.mean(per_engine_aux, axis=0)[0], abs=1e-4)
     assert group["unobservable"] == ["fan_eff"]
     fan = next(s for s in group["health"] if s["name"] == "fan_eff")
     assert fan["mean"] == [None] and fan["sigma"] == [None]
@@ -345,6 +357,8 @@ def test_status_reads_the_calibrated_level_the_engine_page_shows(
         level_correction=np.array([[0.0, 0.0, 0.0, 0.0], [-0.5, 0.0, 1.0, 0.0],
                                    [0.0, 0.0, 0.0, 0.0]]),
         aux_names=("Fn",), aux_std=np.array([0.4]),
+        # The calibrated thrust: 1 + 0.5 h_hpc_eff off the estimate.
+        aux_correction=np.array([[1.0, 0.5] + [0.0] * 8]),
     )
     fleet.design.result = {"format": "fleethealth.design/1"}
     calibration.store_calibration(session, fleet.design, calib)
@@ -374,6 +388,13 @@ def test_status_reads_the_calibrated_level_the_engine_page_shows(
     aux = next(g for g in trend["groups"] if g["key"] == "aux")
     fn = next(series for series in aux["series"] if series["name"] == "Fn")
     assert fn["sigma"][-1] == pytest.approx(sigmas["thrust_deficit"], abs=1e-3)
+    # The thrust the status ranks by is the calibrated one the engine page shows:
+    # -2 - (1 + 0.5 (-1)) = -2.5 %, a 2.5 % deficit.
+    fn_stored = float(as_stored(v)[-1, s["z"]][0])
+    assert fn["value"][-1] == pytest.approx(fn_stored - (1.0 + 0.5 * hpc_eff), abs=1e-3)
+    assert health["thrust_deficit"] == pytest.approx(-fn["value"][-1], abs=1e-3)
+    assert health["thrust_deficit"] == pytest.approx(2.5, abs=2e-3)
+    assert reference["thrust_deficit"] == health["thrust_deficit"]
     # The trend says what each band is: the aux outputs calibrated; the tuners not, by a
     # calibration stored before they were.
     states = {g["key"]: g.get("uncertainty") for g in trend["groups"]}
