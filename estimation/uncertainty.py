@@ -1114,17 +1114,23 @@ def correct_outputs(values: np.ndarray, h_hat: np.ndarray, correction: np.ndarra
 
 
 def fleet_outputs(
-    values: np.ndarray, mean: np.ndarray, products: np.ndarray,
-    correction: np.ndarray | None, names: Sequence[str], held: Sequence[str],
-) -> np.ndarray:
-    """The mean over engines [T, k] of the calibrated outputs ``names`` (the aux outputs,
-    ``Calibration.aux_level``) of engines whose outputs average values [T, k] and whose health
-    estimates average mean [T, p] with products averaging products [T, p (p + 1) / 2]: exact,
-    the correction being linear in the regressors; C [len(held), w] of the outputs ``held``
-    (None: none, the values as they are)."""
+    values: np.ndarray, squares: np.ndarray, cross: np.ndarray | None, mean: np.ndarray,
+    products: np.ndarray, correction: np.ndarray | None, names: Sequence[str],
+    held: Sequence[str],
+) -> tuple[np.ndarray, np.ndarray]:
+    """The mean and spread over engines [T, k] of the calibrated outputs ``names`` (the aux
+    outputs, ``Calibration.aux_level``) of engines whose outputs average values [T, k] with
+    squares averaging squares [T, k] and products with their health estimates averaging cross
+    [T, k, p] (None: not kept), and whose health estimates average mean [T, p] with products
+    averaging products [T, p (p + 1) / 2]; C [len(held), w] corrects the outputs ``held``
+    (None: none). The mean is exact (the correction is linear in the regressors); the spread
+    carries the engines' covariance of outputs and health through the correction's Jacobian at
+    the mean, as ``fleet_level``'s (exact for a straight correction). Without a correction, or
+    without the cross moments, the outputs' own mean and standard deviation."""
     values = np.asarray(values, float)
+    spread = np.sqrt(np.maximum(np.asarray(squares, float) - values**2, 0.0))
     if correction is None:
-        return values.copy()
+        return values.copy(), spread
     C = np.asarray(correction, float)
     rows = {n: k for k, n in enumerate(held)}
     picked = np.zeros((len(names), C.shape[1]))
@@ -1132,7 +1138,40 @@ def fleet_outputs(
         if name in rows:
             picked[j] = C[rows[name]]
     regressors = np.concatenate([np.ones(values.shape[:-1] + (1,)), mean, products], axis=-1)
-    return values - regressors[..., : picked.shape[1]] @ picked.T
+    level = values - regressors[..., : picked.shape[1]] @ picked.T
+    if cross is None:
+        return level, spread
+    jacobian = _correction_jacobian(picked, mean)  # [T, k, p]
+    cov_h = _covariance(mean, products)
+    cov_zh = np.asarray(cross, float) - values[..., :, None] * mean[..., None, :]
+    variance = (spread**2 - 2.0 * np.einsum("...kl,...kl->...k", jacobian, cov_zh)
+                + np.einsum("...kl,...lm,...km->...k", jacobian, cov_h, jacobian))
+    return level, np.sqrt(np.maximum(variance, 0.0))
+
+
+def _covariance(mean: np.ndarray, products: np.ndarray) -> np.ndarray:
+    """[..., p, p]: the covariance of values whose mean is mean [..., p] and whose products
+    (i <= j, ``pairs`` order) average products [..., p (p + 1) / 2]."""
+    p = mean.shape[-1]
+    second = np.zeros(mean.shape[:-1] + (p, p))
+    i, j = pairs(p)
+    second[..., i, j] = products
+    second[..., j, i] = products
+    return second - mean[..., :, None] * mean[..., None, :]
+
+
+def _correction_jacobian(C: np.ndarray, mean: np.ndarray) -> np.ndarray:
+    """d (x(h) C^T) / d h [..., r, p] of a correction C [r, w] on the regressors of
+    ``correction_design`` at the health estimates mean [..., p]."""
+    p = mean.shape[-1]
+    jacobian = np.broadcast_to(C[:, 1 : 1 + p], mean.shape[:-1] + C[:, :1].shape[:1] + (p,)).copy()
+    if C.shape[-1] > 1 + p:
+        i, j = pairs(p)
+        curved = C[:, 1 + p :]  # [r, pairs]
+        for k, (a, b) in enumerate(zip(i, j, strict=True)):
+            jacobian[..., :, a] += curved[:, k] * mean[..., b, None]
+            jacobian[..., :, b] += curved[:, k] * mean[..., a, None]
+    return jacobian
 
 
 def fleet_level(
@@ -1150,20 +1189,11 @@ def fleet_level(
     products = np.asarray(products, float)
     C = np.asarray(correction, float)
     p = mean.shape[-1]
-    i, j = pairs(p)
     regressors = np.concatenate([np.ones(mean.shape[:-1] + (1,)), mean, products], axis=-1)
     level = mean - regressors[..., : C.shape[-1]] @ C.T
-    second = np.zeros(mean.shape[:-1] + (p, p))
-    second[..., i, j] = products
-    second[..., j, i] = products
-    covariance = second - mean[..., :, None] * mean[..., None, :]
-    # d level / d h = I - C_h - sum over products of C_ij d(h_i h_j)/dh at the mean.
-    jacobian = np.broadcast_to(np.eye(p) - C[:, 1 : 1 + p], mean.shape[:-1] + (p, p)).copy()
-    if C.shape[-1] > 1 + p:
-        curved = C[:, 1 + p :]  # [p, pairs]
-        for k, (a, b) in enumerate(zip(i, j, strict=True)):
-            jacobian[..., :, a] -= curved[:, k] * mean[..., b, None]
-            jacobian[..., :, b] -= curved[:, k] * mean[..., a, None]
+    covariance = _covariance(mean, products)
+    # d level / d h = I - d (x(h) C^T) / d h at the mean.
+    jacobian = np.eye(p) - _correction_jacobian(C, mean)
     variance = np.einsum("...kl,...lm,...km->...k", jacobian, covariance, jacobian)
     return level, np.sqrt(np.maximum(variance, 0.0))
 

@@ -131,9 +131,10 @@ class FleetPeriod(Base):
     """A design's fleet over one week or month: how many engines have estimates in it, and the
     sums over those engines of their period means (``sums``: health then auxiliary values) and
     of those means' second moments (``squares``: the products of the health values, i <= j,
-    then the squares of the auxiliary values; ``buckets.second_moments``), little-endian
-    float64, so that the fleet deterioration reads one row per period, whatever the fleet's
-    size, and can calibrate the health means and their spread. Kept by the pipeline with the
+    the squares of the auxiliary values, then each auxiliary value times each health value;
+    ``buckets.second_moments``), little-endian float64, so that the fleet deterioration reads
+    one row per period, whatever the fleet's size, and can calibrate the health and auxiliary
+    means and their spread. Kept by the pipeline with the
     engines' periods (``DeteriorationBucket``): each rewrite of an engine's period takes its
     old mean out and puts its new one in."""
 

@@ -9,14 +9,13 @@ engine pages and the fleet status show the design's calibrated level (a correcti
 straight or curved in the estimates). A fleet period now sums, besides each engine's period
 mean, the products of its health values (i <= j) in place of their squares, so that the
 fleet deterioration applies the calibration to the fleet's means and to their spread
-(``app.services.snapshots.buckets.second_moments``). No column changes: the squares' blobs
-are rewritten from the engines' periods; downgrade writes the squares back.
+(``app.services.snapshots.buckets.second_moments``; the form of this revision, which 0023
+extends, is ``_form_0022``). No column changes: the squares' blobs are rewritten from the
+engines' periods; downgrade writes the squares back.
 """
-import json
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import numpy as np
-import sqlalchemy as sa
 from alembic import op
 from sqlalchemy.orm import Session
 
@@ -26,28 +25,20 @@ branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 
 
-def _rewrite(moments: Callable[[np.ndarray, int], np.ndarray] | None) -> None:
-    from app.models.estimates import EstimateLayout
-    from app.services.snapshots.buckets import rebuild_fleet, second_moments
+def _form_0022(mean: np.ndarray, p: int) -> np.ndarray:
+    """The health values' products (i <= j), then the aux values' squares."""
+    from estimation.uncertainty import pair_products
 
-    session = Session(bind=op.get_bind())
-    designs = session.execute(sa.text(
-        "SELECT DISTINCT design_id FROM fleet_periods ORDER BY design_id")).scalars().all()
-    for design_id in designs:
-        layout = session.execute(sa.text(
-            "SELECT layout FROM filter_states WHERE design_id = :d LIMIT 1"), {"d": design_id}
-        ).scalar()
-        if layout is None:
-            continue
-        doc = layout if isinstance(layout, dict) else json.loads(layout)
-        rebuild_fleet(session, design_id=design_id, p=len(EstimateLayout.from_dict(doc).health),
-                      moments=moments or second_moments)
-    session.flush()
+    return np.concatenate([pair_products(mean[..., :p]), np.square(mean[..., p:])], axis=-1)
 
 
 def upgrade() -> None:
-    _rewrite(None)
+    from app.services.snapshots.buckets import rebuild_fleets
+
+    rebuild_fleets(Session(bind=op.get_bind()), _form_0022)
 
 
 def downgrade() -> None:
-    _rewrite(lambda mean, p: np.square(mean))
+    from app.services.snapshots.buckets import rebuild_fleets
+
+    rebuild_fleets(Session(bind=op.get_bind()), lambda mean, p: np.square(mean))

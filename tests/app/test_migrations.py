@@ -17,6 +17,7 @@ from app.migrate import downgrade, upgrade
 from app.models import Base, DeteriorationBucket, EgtWindow, Engine, FilterState, FleetPeriod
 from app.services.snapshots import estimator
 from app.services.trends.service import load_trend_data
+from estimation.uncertainty import pair_products
 from tests.app.services.trends.test_trends import (
     LAYOUT,
     add_aircraft,
@@ -136,6 +137,19 @@ def test_migration_0013_fills_the_deterioration_periods_from_stored_estimates(
                 means = np.array(buckets[(row.period, row.start)])
                 np.testing.assert_allclose(np.frombuffer(row.squares, "<f8"),
                                            np.square(means).sum(0), rtol=1e-12)
+        upgrade(url)
+        assert periods() == kept
+        # 0023: the aux-by-health moments follow; back at 0022, the health products and the
+        # aux squares alone.
+        downgrade(url, "0022")
+        p = len(LAYOUT.health)
+        with factory() as session:
+            for row in session.scalars(select(FleetPeriod)):
+                means = np.array(buckets[(row.period, row.start)])
+                np.testing.assert_allclose(
+                    np.frombuffer(row.squares, "<f8"),
+                    np.concatenate([pair_products(means[:, :p]), np.square(means[:, p:])],
+                                   axis=1).sum(0), rtol=1e-12)
         upgrade(url)
         assert periods() == kept
         # ... and they are the periods of the stored estimates, computed here on their own.

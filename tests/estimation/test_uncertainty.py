@@ -767,12 +767,28 @@ def test_aux_outputs_corrected_on_the_health_estimates() -> None:
     old = unc.Calibration.from_dict({k: v for k, v in cal.to_dict().items()
                                      if k != "aux_correction"})
     np.testing.assert_array_equal(old.aux_level(("SM",), z[:, :1], h), z[:, :1])
-    # The fleet page: engines' period means of z, h and h's products give the mean of each
-    # engine's calibrated outputs at its own means.
+    # The fleet page: the engines' period means of z and h, and the means of their second
+    # moments (h's products, z's squares, z times h), give the mean of each engine's
+    # calibrated outputs at its own means, and, for a straight correction, their spread.
     engines = rng.normal(size=(7, 3))
-    z_engines = rng.normal(size=(7, 2))
-    got = unc.fleet_outputs(z_engines.mean(axis=0)[None], engines.mean(axis=0)[None],
-                            unc.pair_products(engines).mean(axis=0)[None], fit.matrix,
-                            ("Fn", "SM"), ("SM", "Fn"))
-    np.testing.assert_allclose(  # z_engines' columns are Fn, SM: the matrix's rows reversed
-        got[0], unc.correct_outputs(z_engines, engines, fit.matrix[::-1]).mean(axis=0))
+    z_engines = rng.normal(size=(7, 2))  # columns Fn, SM: the matrix's rows reversed
+
+    def fleet(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return unc.fleet_outputs(
+            z_engines.mean(axis=0)[None], np.square(z_engines).mean(axis=0)[None],
+            (z_engines[:, :, None] * engines[:, None, :]).mean(axis=0)[None],
+            engines.mean(axis=0)[None], unc.pair_products(engines).mean(axis=0)[None], C,
+            ("Fn", "SM"), ("SM", "Fn"))
+
+    mean, _ = fleet(fit.matrix)
+    np.testing.assert_allclose(
+        mean[0], unc.correct_outputs(z_engines, engines, fit.matrix[::-1]).mean(axis=0))
+    straight = fit.matrix.copy()
+    straight[:, 4:] = 0.0
+    mean, spread = fleet(straight)
+    corrected = unc.correct_outputs(z_engines, engines, straight[::-1])
+    np.testing.assert_allclose(mean[0], corrected.mean(axis=0))
+    np.testing.assert_allclose(spread[0], corrected.std(axis=0))
+    # Without a correction: the outputs' own mean and spread.
+    mean, spread = fleet(np.zeros_like(straight))
+    np.testing.assert_allclose(spread[0], z_engines.std(axis=0))

@@ -643,11 +643,15 @@ def fleet_deterioration(
         correction = np.zeros((p, 1 + p)) if on is None else np.asarray(on.level_correction)
         health, health_spread = uncertainty.fleet_level(mean[:, :p], moments[:, :pairs],
                                                         correction)
-        aux = mean[:, p:]
-        aux_spread = np.sqrt(np.maximum(moments[:, pairs:] - aux**2, 0.0))
-        if on is not None:  # the calibrated aux outputs' mean (the spread: the estimates')
-            aux = uncertainty.fleet_outputs(aux, mean[:, :p], moments[:, :pairs],
-                                            on.aux_correction, layout.aux, on.aux_names)
+        # The aux outputs: calibrated as the engine pages show them, their spread over
+        # engines through the engines' aux-by-health moments.
+        n_aux = len(layout.aux)
+        cross = (moments[:, pairs + n_aux:].reshape(len(rows), n_aux, p)
+                 if moments.shape[1] == pairs + n_aux + n_aux * p else None)
+        aux, aux_spread = uncertainty.fleet_outputs(
+            mean[:, p:], moments[:, pairs:pairs + n_aux], cross, mean[:, :p],
+            moments[:, :pairs], None if on is None else on.aux_correction, layout.aux,
+            () if on is None else on.aux_names)
         # A parameter the design's calibration finds unobservable: nulls, named (as the
         # engine trend's health group has it), not a fleet average of what it cannot see.
         hidden = np.zeros(p, bool) if on is None else ~np.asarray(on.observable, bool)

@@ -12,12 +12,13 @@ equal those of a full scan of the estimates.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
 from typing import cast
 
 import numpy as np
-from sqlalchemy import Table, and_, delete, func, insert, or_, select
+from sqlalchemy import Table, and_, delete, func, insert, or_, select, text
 from sqlalchemy.orm import Session
 
 from app.models.estimates import DeteriorationBucket, Estimate, EstimateLayout, FleetPeriod
@@ -290,10 +291,13 @@ def second_moments(mean: np.ndarray, p: int) -> np.ndarray:
     """What a fleet period sums of one engine's period mean [..., p + n_aux] besides the mean
     itself: the products of its health values (``uncertainty.pair_products``: the regressors
     of the calibrated level's curved correction and the fleet's covariance of the health
-    values), then the squares of its auxiliary values. With one health value, the squares of
-    every value."""
+    values), the squares of its auxiliary values, then each auxiliary value times each health
+    value (aux-major, [n_aux, p]: the covariance that carries the calibrated aux outputs'
+    spread over engines, ``uncertainty.fleet_outputs``)."""
     mean = np.asarray(mean, float)
-    return np.concatenate([pair_products(mean[..., :p]), np.square(mean[..., p:])], axis=-1)
+    h, z = mean[..., :p], mean[..., p:]
+    cross = (z[..., :, None] * h[..., None, :]).reshape(mean.shape[:-1] + (-1,))
+    return np.concatenate([pair_products(h), np.square(z), cross], axis=-1)
 
 
 def _blob(values: np.ndarray) -> bytes:
@@ -323,6 +327,25 @@ def rebuild(session: Session, *, operator_id: int, design_id: int, layout: Estim
                            decode([r[1] for r in stored])))
     refresh(session, operator_id=operator_id, design_id=design_id, layout=layout,
             collected=collector)
+
+
+def rebuild_fleets(
+    session: Session, moments: Callable[[np.ndarray, int], np.ndarray] = second_moments,
+) -> None:
+    """Recompute every design's fleet periods from its engines' periods (``rebuild_fleet``),
+    each engine's mean's moments by ``moments``: a migration passes the form of its time."""
+    designs = session.execute(text(
+        "SELECT DISTINCT design_id FROM fleet_periods ORDER BY design_id")).scalars().all()
+    for design_id in designs:
+        layout = session.execute(text(
+            "SELECT layout FROM filter_states WHERE design_id = :d LIMIT 1"), {"d": design_id}
+        ).scalar()
+        if layout is None:
+            continue
+        doc = layout if isinstance(layout, dict) else json.loads(layout)
+        rebuild_fleet(session, design_id=design_id, p=len(EstimateLayout.from_dict(doc).health),
+                      moments=moments)
+    session.flush()
 
 
 def rebuild_fleet(

@@ -110,11 +110,11 @@ def test_deterioration_is_the_mean_over_engines_of_engine_means(session: Session
     np.testing.assert_allclose([s["sigma"][0] for s in group["health"]], spread, atol=1e-4)
     assert group["unobservable"] == []
     # With a calibration that finds fan_eff unobservable: nulls, named; the rest as before.
-    # The calibrated aux outputs too: SmHPC less 0.2 + 0.3 hpc_flow h_hpc_eff, the mean over
-    # engines of each engine's calibrated output at its own means.
+    # The calibrated aux outputs too: SmHPC less 0.2 + 0.3 h_hpc_flow, the mean and spread
+    # over engines of each engine's calibrated output at its own means.
     aux_correction = np.zeros((1, 10))
     aux_correction[0, 0] = 0.2
-    aux_correction[0, 8] = 0.3  # the hpc_eff * hpc_flow column in the calibration's order
+    aux_correction[0, 3] = 0.3  # hpc_flow's column in the calibration's order
     calib = Calibration(
         names=("fan_eff", "hpc_eff", "hpc_flow"), level_std=np.zeros(3), change_std=np.zeros(3),
         slope_error=np.zeros(3), bias2=np.zeros(3), drift=np.zeros(3),
@@ -125,10 +125,11 @@ def test_deterioration_is_the_mean_over_engines_of_engine_means(session: Session
     session.flush()
     group = status.fleet_deterioration(session, fleet.operator_id, "month")["groups"][0]
     h_engines = np.array(per_engine)  # layout order: hpc_eff, hpc_flow, fan_eff
-    sm = np.array(per_engine_aux)[:, 1] - (0.2 + 0.3 * h_engines[:, 0] * h_engines[:, 1])
-    aux = {s["name"]: s["mean"][0] for s in group["aux"]}
-    assert aux["SmHPC"] == pytest.approx(sm.mean(), abs=1e-4)
-    assert aux["Fn"] == pytest.approx(np.mean(per_engine_aux, axis=0)[0], abs=1e-4)
+    sm = np.array(per_engine_aux)[:, 1] - (0.2 + 0.3 * h_engines[:, 1])
+    aux = {s["name"]: (s["mean"][0], s["sigma"][0]) for s in group["aux"]}
+    assert aux["SmHPC"] == pytest.approx((sm.mean(), sm.std()), abs=1e-4)
+    fn = np.array(per_engine_aux)[:, 0]  # not corrected
+    assert aux["Fn"] == pytest.approx((fn.mean(), fn.std()), abs=1e-4)
     assert group["unobservable"] == ["fan_eff"]
     fan = next(s for s in group["health"] if s["name"] == "fan_eff")
     assert fan["mean"] == [None] and fan["sigma"] == [None]
