@@ -155,6 +155,21 @@ def fleet_average(calib: uncertainty.Calibration,
     return "\n".join(lines)
 
 
+def fleet_aux_average(aux: tuple[str, ...],
+                      rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> str:
+    """The fleet page's monthly fleet-average aux outputs against the truth, over the scoring
+    fleets: the worst fleet's RMS over months, calibrated (what the page shows) and as
+    estimated (the page before), and the spread over engines shown against the true one."""
+    level, raw, ratio = (np.array([r[i] for r in rows]) for i in range(3))
+    lines = ["fleet-average aux outputs per month (the fleet page) against the truth, RMS over "
+             "months, worst fleet [% of nominal]: calibrated / as estimated; spread over engines "
+             "shown / true (median over fleets)"]
+    for k, n in enumerate(aux):
+        lines.append(f"  {n:10s} {level[:, k].max():5.2f} / {raw[:, k].max():5.2f}   "
+                     f"spread {np.median(ratio[:, k]):4.2f}")
+    return "\n".join(lines)
+
+
 def rotations(pieces: list[uncertainty.TrendPieces], observable: np.ndarray, k: int,
               draws: int, names: tuple[str, ...]) -> str:
     """Coverage over ``draws`` random sets of ``k`` calibration fleets from ``pieces``, each
@@ -259,7 +274,7 @@ def main() -> None:
               + (", ".join(calib.source.get("aux_corrected", [])) or "none"))
         print("shown: " + ", ".join(n for n, o in zip(calib.names, calib.observable,
                                                       strict=True) if o))
-        slope_rows, covers, fleet_rows, figure_rows = [], [], [], []
+        slope_rows, covers, fleet_rows, figure_rows, fleet_aux_rows = [], [], [], [], []
         for seed, test_fleet in zip(test_seeds, test_fleets, strict=True):
             sc = health_uncertainty.score(est, calib, *test_fleet)
             covers.append((sc.cover1, sc.cover2, sc.change_cover1, sc.change_cover2))
@@ -282,10 +297,16 @@ def main() -> None:
             assert sc.fleet_level_rms is not None and sc.fleet_raw_rms is not None
             assert sc.fleet_spread_ratio is not None
             fleet_rows.append((sc.fleet_level_rms, sc.fleet_raw_rms, sc.fleet_spread_ratio))
+            if sc.fleet_aux_rms is not None:
+                assert sc.fleet_aux_raw_rms is not None and sc.fleet_aux_spread_ratio is not None
+                fleet_aux_rows.append((sc.fleet_aux_rms, sc.fleet_aux_raw_rms,
+                                       sc.fleet_aux_spread_ratio))
             figure_rows.append(sc.figures)
             print(_common.load_line())
         print(per_fleet_band(calib, covers))
         print(fleet_average(calib, fleet_rows))
+        if fleet_aux_rows:
+            print(fleet_aux_average(tuple(est.layout.aux), fleet_aux_rows))
         print(figure_band(figure_rows))
         print(f"fleet-average slopes over the {len(test_seeds)} scoring fleets (1-sigma with the "
               "gain's standard error; the peer: without it):")

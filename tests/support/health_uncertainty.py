@@ -78,6 +78,11 @@ class Score:
     fleet_level_rms: np.ndarray | None = None
     fleet_raw_rms: np.ndarray | None = None
     fleet_spread_ratio: np.ndarray | None = None
+    # The same for the fleet page's monthly aux outputs (``fleet_aux_errors``) [n_aux]; None
+    # without aux outputs.
+    fleet_aux_rms: np.ndarray | None = None
+    fleet_aux_raw_rms: np.ndarray | None = None
+    fleet_aux_spread_ratio: np.ndarray | None = None
     # The engine page's other figures (``figures``): name -> (1-sigma, 2-sigma coverage of the
     # band shown, 1-sigma coverage of the filter's own sigma or NaN).
     figures: dict[str, tuple[float, float, float]] = field(default_factory=dict)
@@ -156,6 +161,8 @@ def score(
         tr, np.asarray(calib.level_correction))
     cov = uncertainty.coverage
     aux = tuple(est.layout.aux)
+    fe = calibration.figure_errors(plan, tr, aux, vstar=est.vstar) if aux else None
+    fleet_aux = fleet_aux_errors(calib, aux, fe) if fe is not None else (None, None, None)
     return Score(
         names=calib.names, observable=calib.observable,
         cover1=cov(st["level_err"], sigma, 1.0), cover2=cov(st["level_err"], sigma, 2.0),
@@ -169,10 +176,46 @@ def score(
         slope_true=slope_true, slope_shown=slope_shown,
         records=int(st["level_err"].shape[0]), segments=len(segs), pieces=len(pieces.spans),
         fleet_level_rms=fleet_rms, fleet_raw_rms=raw_rms, fleet_spread_ratio=spread_ratio,
-        figures={**(figures(calib, aux, tuple(est.layout.tuners),
-                            calibration.figure_errors(plan, tr, aux, vstar=est.vstar))
-                    if aux else {}), **rate_figures(calib, segs)},
+        fleet_aux_rms=fleet_aux[0], fleet_aux_raw_rms=fleet_aux[1],
+        fleet_aux_spread_ratio=fleet_aux[2],
+        figures={**(figures(calib, aux, tuple(est.layout.tuners), fe) if fe is not None
+                    else {}), **rate_figures(calib, segs)},
     )
+
+
+def fleet_aux_errors(
+    calib: uncertainty.Calibration, aux: tuple[str, ...], fe: calibration.FigureErrors,
+    period: str = "month",
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The fleet page's monthly fleet-average aux outputs (percent of the nominal engine's
+    value) as the product forms them (each engine's period means of its aux and health
+    estimates and their moments, ``uncertainty.fleet_outputs`` with the calibration's
+    correction), on the records ``fe`` holds, against the fleet average of the engines' true
+    means over the same records: RMS error over periods [n_aux] calibrated and as estimated,
+    and the RMS ratio of the spread over engines shown to the true one."""
+    z_hat = fe.aux_err + fe.aux_true
+    starts = buckets.period_starts(fe.epoch, period)
+    errs, raws, shown, true_spread = [], [], [], []
+    for start in np.unique(starts):
+        keys = fe.engine[starts == start]
+        engines = np.unique(keys)
+        at = np.flatnonzero(starts == start)
+        z = np.array([z_hat[at[keys == e]].mean(0) for e in engines])
+        h = np.array([fe.h_hat[at[keys == e]].mean(0) for e in engines])
+        true = np.array([fe.aux_true[at[keys == e]].mean(0) for e in engines])
+        mean, spread = uncertainty.fleet_outputs(
+            z.mean(0), np.square(z).mean(0), (z[:, :, None] * h[:, None, :]).mean(0),
+            h.mean(0), uncertainty.pair_products(h).mean(0), calib.aux_correction, aux,
+            calib.aux_names)
+        errs.append(mean - true.mean(0))
+        raws.append(z.mean(0) - true.mean(0))
+        shown.append(spread)
+        true_spread.append(true.std(0))
+
+    def rms(x: list[np.ndarray]) -> np.ndarray:
+        return np.sqrt(np.mean(np.square(np.array(x)), axis=0))
+
+    return rms(errs), rms(raws), rms(shown) / rms(true_spread)
 
 
 def rate_figures(calib: uncertainty.Calibration,

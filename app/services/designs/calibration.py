@@ -278,6 +278,12 @@ class FigureErrors:
     # The records' health estimates as filtered [N, p]: the regressors of the aux outputs'
     # correction (``uncertainty.fit_level_correction``).
     h_hat: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
+    # The aux outputs' truth [N, nz] (percent of the nominal engine's value), and each record's
+    # time [N] (epoch seconds) and engine (its index in the plan's ESNs) [N]: the fleet
+    # page's monthly means are scored on them.
+    aux_true: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
+    epoch: np.ndarray = field(default_factory=lambda: np.empty(0))
+    engine: np.ndarray = field(default_factory=lambda: np.empty(0, int))
 
 
 # The measured figures whose model error the calibration fits: the engine page's EGT margin and
@@ -301,7 +307,7 @@ def figure_errors(
     ref = egt_reference(schedule)
     t48 = SENSOR_NAMES.index(EGT_SENSOR)
     errs, variances, trim_errs, delta_errs, q_errs, q_vars, ds = [], [], [], [], [], [], []
-    hs = []
+    hs, trues, epochs, engines = [], [], [], []
     for t in track_list:
         if t.z_hat is None or t.z_sigma is None or t.conditions is None:
             continue
@@ -320,6 +326,9 @@ def figure_errors(
             continue  # an engine the solver cannot hold there: no truth to score against
         z_true = 100.0 * (true.aux[:, idx] / nominal.aux[:, idx] - 1.0)
         errs.append(t.z_hat[rows] - z_true)
+        trues.append(z_true)
+        epochs.append(t.epoch[rows] if t.epoch is not None else np.full(len(rows), np.nan))
+        engines.append(np.full(len(rows), plan.esns.index(t.esn)))
         variances.append(t.z_sigma[rows] ** 2)
         ds.append(uncertainty.spread(t.h_hat[rows]))
         hs.append(t.h_hat[rows])
@@ -361,7 +370,8 @@ def figure_errors(
                         else np.empty((0, len(DELTA_FIGURES))), np.concatenate(ds),
                         tuner_err=np.concatenate(q_errs) if with_tuners else np.empty((0, 0)),
                         tuner_var=np.concatenate(q_vars) if with_tuners else np.empty((0, 0)),
-                        h_hat=np.concatenate(hs))
+                        h_hat=np.concatenate(hs), aux_true=np.concatenate(trues),
+                        epoch=np.concatenate(epochs), engine=np.concatenate(engines))
 
 
 def segments(plan: FleetPlan, track_list: Sequence[HealthTrack]) -> list[Segment]:
