@@ -135,36 +135,17 @@ def figure_band(rows: list[dict[str, tuple[float, float, float]]]) -> str:
     return "\n".join(lines)
 
 
-def fleet_average(calib: uncertainty.Calibration,
+def fleet_average(what: str, unit: str, names: tuple[str, ...], shown: np.ndarray,
                   rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> str:
-    """The fleet page's monthly fleet-average level of the shown parameters against the
+    """The fleet page's monthly fleet average of ``what`` (the shown ``names``) against the
     truth, over the scoring fleets: the worst fleet's RMS over months, calibrated (what the page
     shows) and as estimated (the page before), and the spread over engines shown against the
     true spread."""
-    shown = np.asarray(calib.observable, bool)
-    level = np.array([r[0] for r in rows])[:, shown]
-    raw = np.array([r[1] for r in rows])[:, shown]
-    ratio = np.array([r[2] for r in rows])[:, shown]
-    names = [n for n, o in zip(calib.names, shown, strict=True) if o]
-    lines = ["fleet-average level per month (the fleet page) against the truth, RMS over months, "
-             "worst fleet [%]: calibrated / as estimated; spread over engines shown / true "
-             "(median over fleets)"]
-    for k, n in enumerate(names):
-        lines.append(f"  {n:10s} {level[:, k].max():5.2f} / {raw[:, k].max():5.2f}   "
-                     f"spread {np.median(ratio[:, k]):4.2f}")
-    return "\n".join(lines)
-
-
-def fleet_aux_average(aux: tuple[str, ...],
-                      rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> str:
-    """The fleet page's monthly fleet-average aux outputs against the truth, over the scoring
-    fleets: the worst fleet's RMS over months, calibrated (what the page shows) and as
-    estimated (the page before), and the spread over engines shown against the true one."""
-    level, raw, ratio = (np.array([r[i] for r in rows]) for i in range(3))
-    lines = ["fleet-average aux outputs per month (the fleet page) against the truth, RMS over "
-             "months, worst fleet [% of nominal]: calibrated / as estimated; spread over engines "
+    level, raw, ratio = (np.array([r[i] for r in rows])[:, shown] for i in range(3))
+    lines = [f"fleet-average {what} per month (the fleet page) against the truth, RMS over "
+             f"months, worst fleet [{unit}]: calibrated / as estimated; spread over engines "
              "shown / true (median over fleets)"]
-    for k, n in enumerate(aux):
+    for k, n in enumerate(n for n, o in zip(names, shown, strict=True) if o):
         lines.append(f"  {n:10s} {level[:, k].max():5.2f} / {raw[:, k].max():5.2f}   "
                      f"spread {np.median(ratio[:, k]):4.2f}")
     return "\n".join(lines)
@@ -304,9 +285,12 @@ def main() -> None:
             figure_rows.append(sc.figures)
             print(_common.load_line())
         print(per_fleet_band(calib, covers))
-        print(fleet_average(calib, fleet_rows))
+        print(fleet_average("level", "%", calib.names, np.asarray(calib.observable, bool),
+                            fleet_rows))
         if fleet_aux_rows:
-            print(fleet_aux_average(tuple(est.layout.aux), fleet_aux_rows))
+            aux = tuple(est.layout.aux)
+            print(fleet_average("aux outputs", "% of nominal", aux, np.ones(len(aux), bool),
+                                fleet_aux_rows))
         print(figure_band(figure_rows))
         print(f"fleet-average slopes over the {len(test_seeds)} scoring fleets (1-sigma with the "
               "gain's standard error; the peer: without it):")

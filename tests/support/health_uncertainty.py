@@ -195,7 +195,7 @@ def fleet_aux_errors(
     and the RMS ratio of the spread over engines shown to the true one."""
     z_hat = fe.aux_err + fe.aux_true
     starts = buckets.period_starts(fe.epoch, period)
-    errs, raws, shown, true_spread = [], [], [], []
+    periods = []
     for start in np.unique(starts):
         keys = fe.engine[starts == start]
         engines = np.unique(keys)
@@ -207,15 +207,8 @@ def fleet_aux_errors(
             z.mean(0), np.square(z).mean(0), (z[:, :, None] * h[:, None, :]).mean(0),
             h.mean(0), uncertainty.pair_products(h).mean(0), calib.aux_correction, aux,
             calib.aux_names)
-        errs.append(mean - true.mean(0))
-        raws.append(z.mean(0) - true.mean(0))
-        shown.append(spread)
-        true_spread.append(true.std(0))
-
-    def rms(x: list[np.ndarray]) -> np.ndarray:
-        return np.sqrt(np.mean(np.square(np.array(x)), axis=0))
-
-    return rms(errs), rms(raws), rms(shown) / rms(true_spread)
+        periods.append((mean, z.mean(0), spread, true))
+    return _against_truth(periods)
 
 
 def rate_figures(calib: uncertainty.Calibration,
@@ -296,20 +289,29 @@ def fleet_average_errors(
             mine = starts == start
             per.setdefault(float(start), []).append((track.h_hat[mine].mean(0),
                                                      track.h_true[mine].mean(0)))
-    errs, raws, shown, true_spread = [], [], [], []
+    periods = []
     for start in sorted(per):
         hat = np.array([h for h, _ in per[start]])
         true = np.array([t for _, t in per[start]])
         level, spread = uncertainty.fleet_level(
             hat.mean(0), uncertainty.pair_products(hat).mean(0), correction)
-        errs.append(level - true.mean(0))
-        raws.append(hat.mean(0) - true.mean(0))
-        shown.append(spread)
-        true_spread.append(true.std(0))
+        periods.append((level, hat.mean(0), spread, true))
+    return _against_truth(periods)
+
+
+def _against_truth(
+    periods: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per period, the fleet page's figure [k], the estimates' plain mean [k], the spread over
+    engines shown [k] and the engines' true means [engines, k]: the RMS over periods of the
+    figure's and of the plain mean's error against the fleet average of the true means, and
+    the RMS ratio of the spread shown to the true one."""
     def rms(x: list[np.ndarray]) -> np.ndarray:
         return np.sqrt(np.mean(np.square(np.array(x)), axis=0))
 
-    return rms(errs), rms(raws), rms(shown) / rms(true_spread)
+    return (rms([f - t.mean(0) for f, _, _, t in periods]),
+            rms([m - t.mean(0) for _, m, _, t in periods]),
+            rms([s for _, _, s, _ in periods]) / rms([t.std(0) for _, _, _, t in periods]))
 
 
 @dataclass(frozen=True)
