@@ -67,6 +67,15 @@ class TrendGroup(BaseModel):
         None, description="change view: times of the baseline records the changes start from"
     )
     limits: list[LimitLine] | None = Field(None, description="limit lines (performance group)")
+    aux_corrected: list[str] | None = Field(
+        None,
+        description=(
+            "aux and performance groups: the aux outputs whose values are calibrated (the "
+            "estimate corrected on the health estimates by the design's calibration on the "
+            "simulated nonlinear engine); the figures in engineering units derived from them "
+            "(thrust, stall margins, T40, bypass ratio) are too"
+        ),
+    )
 
 
 class InstallationMarker(BaseModel):

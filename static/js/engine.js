@@ -39,6 +39,9 @@ const PERFORMANCE_PANELS = [
   { key: "perf-bpr", title: "Bypass ratio (estimated), per flight phase", ylabel: "Bypass ratio", series: ["BPR"], byPhase: true },
 ];
 const UNIT_LABELS = { degC: "°C", pts: "margin points" };
+// The aux output each estimated performance series comes from.
+const AUX_OF = { Fn: "Fn", Fn_rated: "Fn", thrust_deficit: "Fn", SM_fan: "SM_fan", SM_LPC: "SM_LPC", SM_HPC: "SM_HPC",
+  SM_fan_change: "SM_fan", SM_LPC_change: "SM_LPC", SM_HPC_change: "SM_HPC", T40_change: "T40", BPR: "BPR" };
 // What a tuners, aux or performance band is (the API's group ``uncertainty``).
 const BAND_NOTES = {
   calibrated: "Band: the 1-sigma calibrated against the built-in engine's simulator (filter, model error and, away from nominal, its growth).",
@@ -67,6 +70,8 @@ function performancePanels() {
       .flatMap((s) => (panel.byPhase ? byPhase(s) : [s])),
     limits: (group.limits || []).filter((l) => panel.series.includes(l.series)),
     uncertainty: group.uncertainty,
+    // Estimated from aux outputs the calibration corrects (the measured figures are not).
+    corrected: panel.series.some((name) => (group.aux_corrected || []).includes(AUX_OF[name])),
   })).filter((panel) => panel.series.length);
 }
 
@@ -164,6 +169,9 @@ function draw() {
       // Tuners and aux outputs say what their band is; a performance panel only when it is
       // not the calibrated one.
       notes.push(BAND_NOTES[group.uncertainty]);
+    }
+    if (group.corrected || (group.key === "aux" && (group.aux_corrected || []).length)) {
+      notes.push("Calibrated on the built-in engine's simulator: the estimate corrected for how this design reads the engine.");
     }
     const titled = typeof TITLES[group.key] === "function" ? TITLES[group.key](group) : TITLES[group.key];
     const title = group.key === "health" && group.view === "change" ? "Health parameters: change since baseline" : group.title || titled || group.label;

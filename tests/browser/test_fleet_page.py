@@ -20,6 +20,7 @@ from tests.app.services.trends.test_trends import (
     add_aircraft,
     add_engine,
     add_estimates,
+    as_stored,
     make_fleet,
 )
 from tests.browser.conftest import Console, Server, screenshot, sign_in, traces
@@ -226,6 +227,9 @@ def test_engine_page_draws_the_calibrated_level_the_api_gives(
             drift=np.zeros(3), observable=np.array([True, True, False]),
             level_correction=np.array([[0.1, 0.5, 0.0, 0.0], [0.0, 0.0, -0.5, 0.0],
                                        [0.0, 0.0, 0.0, 0.0]]),
+            # Fn calibrated (0.3 off its estimate), SmHPC not.
+            aux_names=("Fn", "SmHPC"), aux_std=np.full(2, 0.1),
+            aux_correction=np.array([[0.3] + [0.0] * 9, [0.0] * 10]),
         )
         design = session.get(EstimatorDesign, fleet.design.id)
         assert design is not None
@@ -262,6 +266,15 @@ def test_engine_page_draws_the_calibrated_level_the_api_gives(
         page.inner_text("body")
     assert "Calibrated on the built-in engine's simulator" in notes
     assert "Not observable with this design" in notes
+    # The aux outputs: the API names the calibrated ones, the plot draws their calibrated
+    # values, and its card says so.
+    aux = next(g for g in api["groups"] if g["key"] == "aux")
+    assert aux["aux_corrected"] == ["Fn"]
+    fn = next(s for s in aux["series"] if s["name"] == "Fn")["value"]
+    assert fn[-1] == pytest.approx(float(as_stored(v)[-1, LAYOUT.slices()["z"]][0]) - 0.3,
+                                   abs=1e-3)
+    card = page.locator("#plot-aux").locator("xpath=..").inner_text()
+    assert "the estimate corrected for how this design reads the engine" in card
     assert console.unexpected() == []
 
 

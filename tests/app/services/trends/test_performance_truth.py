@@ -228,6 +228,8 @@ def _score(client: TestClient, key: str, ids: dict[str, int], design_id: int,
         times = np.array([datetime.fromisoformat(t.replace("Z", "+00:00")).timestamp()
                           for t in trend["time"]])
         group = next(g for g in trend["groups"] if g["key"] == "performance")
+        # Calibrated on eight fleets: the stall margins are shown corrected, and say so.
+        assert {"SM_LPC", "SM_HPC"} <= set(group["aux_corrected"]), group["aux_corrected"]
         shown = {s["name"]: s for s in group["series"]}
         truth = _truth(schedule, plan, snaps, esn, np.round(times), est)
         settled = slice(SETTLE, None)
