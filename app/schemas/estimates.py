@@ -67,13 +67,13 @@ class TrendGroup(BaseModel):
         None, description="change view: times of the baseline records the changes start from"
     )
     limits: list[LimitLine] | None = Field(None, description="limit lines (performance group)")
-    aux_corrected: list[str] | None = Field(
+    calibrated_series: list[str] | None = Field(
         None,
         description=(
-            "aux and performance groups: the aux outputs whose values are calibrated (the "
-            "estimate corrected on the health estimates by the design's calibration on the "
-            "simulated nonlinear engine); the figures in engineering units derived from them "
-            "(thrust, stall margins, T40, bypass ratio) are too"
+            "aux and performance groups: the series whose values are calibrated (estimated "
+            "from an aux output that the design's calibration on the simulated nonlinear "
+            "engine corrects on the health estimates: thrust, stall margins, T40, bypass "
+            "ratio); the others are as estimated or measured"
         ),
     )
 

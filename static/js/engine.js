@@ -39,9 +39,6 @@ const PERFORMANCE_PANELS = [
   { key: "perf-bpr", title: "Bypass ratio (estimated), per flight phase", ylabel: "Bypass ratio", series: ["BPR"], byPhase: true },
 ];
 const UNIT_LABELS = { degC: "°C", pts: "margin points" };
-// The aux output each estimated performance series comes from.
-const AUX_OF = { Fn: "Fn", Fn_rated: "Fn", thrust_deficit: "Fn", SM_fan: "SM_fan", SM_LPC: "SM_LPC", SM_HPC: "SM_HPC",
-  SM_fan_change: "SM_fan", SM_LPC_change: "SM_LPC", SM_HPC_change: "SM_HPC", T40_change: "T40", BPR: "BPR" };
 // What a tuners, aux or performance band is (the API's group ``uncertainty``).
 const BAND_NOTES = {
   calibrated: "Band: the 1-sigma calibrated against the built-in engine's simulator (filter, model error and, away from nominal, its growth).",
@@ -71,7 +68,7 @@ function performancePanels() {
     limits: (group.limits || []).filter((l) => panel.series.includes(l.series)),
     uncertainty: group.uncertainty,
     // Estimated from aux outputs the calibration corrects (the measured figures are not).
-    corrected: panel.series.some((name) => (group.aux_corrected || []).includes(AUX_OF[name])),
+    corrected: panel.series.some((name) => (group.calibrated_series || []).includes(name)),
   })).filter((panel) => panel.series.length);
 }
 
@@ -170,7 +167,7 @@ function draw() {
       // not the calibrated one.
       notes.push(BAND_NOTES[group.uncertainty]);
     }
-    if (group.corrected || (group.key === "aux" && (group.aux_corrected || []).length)) {
+    if (group.corrected || (group.key === "aux" && (group.calibrated_series || []).length)) {
       notes.push("Calibrated on the built-in engine's simulator: the estimate corrected for how this design reads the engine.");
     }
     const titled = typeof TITLES[group.key] === "function" ? TITLES[group.key](group) : TITLES[group.key];

@@ -269,7 +269,7 @@ def test_engine_page_draws_the_calibrated_level_the_api_gives(
     # The aux outputs: the API names the calibrated ones, the plot draws their calibrated
     # values, and its card says so.
     aux = next(g for g in api["groups"] if g["key"] == "aux")
-    assert aux["aux_corrected"] == ["Fn"]
+    assert aux["calibrated_series"] == ["Fn"]
     fn = next(s for s in aux["series"] if s["name"] == "Fn")["value"]
     assert fn[-1] == pytest.approx(float(as_stored(v)[-1, LAYOUT.slices()["z"]][0]) - 0.3,
                                    abs=1e-3)

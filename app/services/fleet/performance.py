@@ -59,6 +59,10 @@ MARGINS = ("SM_fan", "SM_LPC", "SM_HPC")
 THRUST = "Fn"
 TURBINE_INLET = "T40"  # estimated (not measured): its change from the nominal engine, K
 BYPASS_RATIO = "BPR"
+# The series of ``engineering_units`` estimated from each aux output.
+SERIES_OF_AUX = {THRUST: ("Fn", "Fn_rated", "thrust_deficit"),
+                 **{m: (m, f"{m}_change") for m in MARGINS},
+                 TURBINE_INLET: ("T40_change",), BYPASS_RATIO: ("BPR",)}
 # Schedule axes order: alt [ft], mach, power [%], dtamb [K].
 RATED_CONDITION = (0.0, 0.0, 100.0, 0.0)
 RANKINE_PER_KELVIN = 1.8

@@ -56,6 +56,7 @@ from app.services.designs import calibration
 from app.services.encoding import json_numbers
 from app.services.encoding.json_numbers import RawJSON
 from app.services.encoding.pgcopy import PG_EPOCH_US
+from app.services.fleet.performance import SERIES_OF_AUX
 from app.services.snapshots import estimator
 from app.services.trends import health as health_view
 from app.services.trends.performance import performance_group
@@ -616,7 +617,7 @@ def engine_trend(
                 elif group["key"] in ("tuners", "aux"):
                     group["uncertainty"] = band_state(calib, group["key"])
                 if group["key"] == "aux":
-                    group["aux_corrected"] = aux_corrected(calib)
+                    group["calibrated_series"] = aux_corrected(calib)
         assert target.design_id is not None
         extra = performance_group(
             session, target.engine_id, target.design_id, data.layout, data.epoch, data.values,
@@ -624,7 +625,9 @@ def engine_trend(
         )
         if extra is not None:
             extra["uncertainty"] = band_state(calib, "performance")
-            extra["aux_corrected"] = aux_corrected(calib)
+            extra["calibrated_series"] = [
+                series for name in aux_corrected(calib)
+                for series in SERIES_OF_AUX.get(name, ())]
             groups.append(extra)
         elif estimator.builtin_schedule_for_design(session, target.design_id) is None:
             out["performance_note"] = PERFORMANCE_NOTE

@@ -229,7 +229,8 @@ def _score(client: TestClient, key: str, ids: dict[str, int], design_id: int,
                           for t in trend["time"]])
         group = next(g for g in trend["groups"] if g["key"] == "performance")
         # Calibrated on eight fleets: the stall margins are shown corrected, and say so.
-        assert {"SM_LPC", "SM_HPC"} <= set(group["aux_corrected"]), group["aux_corrected"]
+        assert {"SM_LPC", "SM_HPC", "SM_LPC_change"} <= set(group["calibrated_series"]), (
+            group["calibrated_series"])
         shown = {s["name"]: s for s in group["series"]}
         truth = _truth(schedule, plan, snaps, esn, np.round(times), est)
         settled = slice(SETTLE, None)
