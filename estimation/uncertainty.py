@@ -435,14 +435,28 @@ class Calibration:
         order: ``on``): ``correct_outputs`` with each output's row of ``aux_correction``; an
         output it does not hold, or without a correction, as estimated."""
         z_hat = np.asarray(z_hat, float)
+        C = self.aux_rows(names)
+        return z_hat.copy() if C is None else correct_outputs(z_hat, h_hat, C)
+
+    def aux_rows(self, names: Sequence[str]) -> np.ndarray | None:
+        """The rows of ``aux_correction`` of the aux outputs ``names`` [k, w] (zeros for one it
+        does not hold); None without a correction (a calibration stored before it)."""
         if self.aux_correction is None:
-            return z_hat.copy()
+            return None
         where = {n: k for k, n in enumerate(self.aux_names)}
         C = np.zeros((len(names), self.aux_correction.shape[1]))
         for j, name in enumerate(names):
             if name in where:
                 C[j] = self.aux_correction[where[name]]
-        return correct_outputs(z_hat, h_hat, C)
+        return C
+
+    @property
+    def aux_corrected(self) -> list[str]:
+        """The aux outputs whose values it corrects (a row of ``aux_correction`` not zero)."""
+        if self.aux_correction is None:
+            return []
+        return [name for name, row in zip(self.aux_names, self.aux_correction, strict=True)
+                if np.any(row != 0.0)]
 
     def aux_sigma(self, names: Sequence[str], filter_std: np.ndarray,
                   d: np.ndarray) -> np.ndarray:
@@ -1115,15 +1129,14 @@ def correct_outputs(values: np.ndarray, h_hat: np.ndarray, correction: np.ndarra
 
 def fleet_outputs(
     values: np.ndarray, squares: np.ndarray, cross: np.ndarray | None, mean: np.ndarray,
-    products: np.ndarray, correction: np.ndarray | None, names: Sequence[str],
-    held: Sequence[str],
+    products: np.ndarray, correction: np.ndarray | None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The mean and spread over engines [T, k] of the calibrated outputs ``names`` (the aux
-    outputs, ``Calibration.aux_level``) of engines whose outputs average values [T, k] with
-    squares averaging squares [T, k] and products with their health estimates averaging cross
+    """The mean and spread over engines [T, k] of the calibrated outputs (the aux outputs,
+    ``Calibration.aux_level``) of engines whose outputs average values [T, k] with squares
+    averaging squares [T, k] and products with their health estimates averaging cross
     [T, k, p] (None: not kept), and whose health estimates average mean [T, p] with products
-    averaging products [T, p (p + 1) / 2]; C [len(held), w] corrects the outputs ``held``
-    (None: none). The mean is exact (the correction is linear in the regressors); the spread
+    averaging products [T, p (p + 1) / 2]; correction C [k, w] (``Calibration.aux_rows``;
+    None: none). The mean is exact (the correction is linear in the regressors); the spread
     carries the engines' covariance of outputs and health through the correction's Jacobian at
     the mean, as ``fleet_level``'s (exact for a straight correction). Without a correction, or
     without the cross moments, the outputs' own mean and standard deviation."""
@@ -1132,16 +1145,11 @@ def fleet_outputs(
     if correction is None:
         return values.copy(), spread
     C = np.asarray(correction, float)
-    rows = {n: k for k, n in enumerate(held)}
-    picked = np.zeros((len(names), C.shape[1]))
-    for j, name in enumerate(names):
-        if name in rows:
-            picked[j] = C[rows[name]]
     regressors = np.concatenate([np.ones(values.shape[:-1] + (1,)), mean, products], axis=-1)
-    level = values - regressors[..., : picked.shape[1]] @ picked.T
+    level = values - regressors[..., : C.shape[1]] @ C.T
     if cross is None:
         return level, spread
-    jacobian = _correction_jacobian(picked, mean)  # [T, k, p]
+    jacobian = _correction_jacobian(C, mean)  # [T, k, p]
     cov_h = _covariance(mean, products)
     cov_zh = np.asarray(cross, float) - values[..., :, None] * mean[..., None, :]
     variance = (spread**2 - 2.0 * np.einsum("...kl,...kl->...k", jacobian, cov_zh)
@@ -1164,7 +1172,7 @@ def _correction_jacobian(C: np.ndarray, mean: np.ndarray) -> np.ndarray:
     """d (x(h) C^T) / d h [..., r, p] of a correction C [r, w] on the regressors of
     ``correction_design`` at the health estimates mean [..., p]."""
     p = mean.shape[-1]
-    jacobian = np.broadcast_to(C[:, 1 : 1 + p], mean.shape[:-1] + C[:, :1].shape[:1] + (p,)).copy()
+    jacobian = np.broadcast_to(C[:, 1 : 1 + p], mean.shape[:-1] + (C.shape[0], p)).copy()
     if C.shape[-1] > 1 + p:
         i, j = pairs(p)
         curved = C[:, 1 + p :]  # [r, pairs]
@@ -1234,6 +1242,7 @@ class LevelCorrection:
 def fit_level_correction(
     h_hat: np.ndarray, err: np.ndarray, fleet: np.ndarray,
     min_gain: float = MIN_CORRECTION_GAIN, min_curve_gain: float = MIN_CURVE_GAIN,
+    min_fleets: int = 2,
 ) -> LevelCorrection:
     """The level's correction (module docstring, "Calibrated level").
 
@@ -1246,7 +1255,8 @@ def fit_level_correction(
     one left out, cuts the straight fit's RMS error by at least ``min_curve_gain``. A row is
     kept where its fit so cross-validated cuts the RMS error by at least ``min_gain`` (pooled
     over the left-out fleets); zeros elsewhere, and everywhere with fewer than two fleets
-    (nothing to cross-validate).
+    (nothing to cross-validate) or than ``min_fleets`` (too few for the cross-validation to
+    vouch for its coefficients).
     """
     err = np.asarray(err, float)
     fleet = np.asarray(fleet)
@@ -1256,7 +1266,7 @@ def fit_level_correction(
     X = correction_design(h_hat)
     groups = np.unique(fleet)
     ok = np.all(np.isfinite(X), axis=1) & np.all(np.isfinite(err), axis=1)
-    if len(groups) < 2 or not ok.any():
+    if len(groups) < max(2, min_fleets) or not ok.any():
         return LevelCorrection(np.zeros((q, width)), groups, np.zeros((len(groups), q, width)),
                                np.zeros(q, bool))
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -763,10 +764,12 @@ def test_aux_outputs_corrected_on_the_health_estimates() -> None:
     np.testing.assert_allclose(order.aux_level(("Fn", "SM", "T40"), z3, h_order),
                                np.stack([want[:, 1], want[:, 0], z[:, 0]], axis=1),
                                atol=1e-12)
+    assert back.aux_corrected == ["SM"]  # Fn's row is zeros: as estimated
     # Stored before it: the outputs as estimated.
     old = unc.Calibration.from_dict({k: v for k, v in cal.to_dict().items()
                                      if k != "aux_correction"})
     np.testing.assert_array_equal(old.aux_level(("SM",), z[:, :1], h), z[:, :1])
+    assert old.aux_rows(("SM",)) is None and old.aux_corrected == []
     # The fleet page: the engines' period means of z and h, and the means of their second
     # moments (h's products, z's squares, z times h), give the mean of each engine's
     # calibrated outputs at its own means, and, for a straight correction, their spread.
@@ -777,8 +780,8 @@ def test_aux_outputs_corrected_on_the_health_estimates() -> None:
         return unc.fleet_outputs(
             z_engines.mean(axis=0)[None], np.square(z_engines).mean(axis=0)[None],
             (z_engines[:, :, None] * engines[:, None, :]).mean(axis=0)[None],
-            engines.mean(axis=0)[None], unc.pair_products(engines).mean(axis=0)[None], C,
-            ("Fn", "SM"), ("SM", "Fn"))
+            engines.mean(axis=0)[None], unc.pair_products(engines).mean(axis=0)[None],
+            replace(back, aux_correction=C).aux_rows(("Fn", "SM")))
 
     mean, _ = fleet(fit.matrix)
     np.testing.assert_allclose(

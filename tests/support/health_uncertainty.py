@@ -205,8 +205,7 @@ def fleet_aux_errors(
         true = np.array([fe.aux_true[at[keys == e]].mean(0) for e in engines])
         mean, spread = uncertainty.fleet_outputs(
             z.mean(0), np.square(z).mean(0), (z[:, :, None] * h[:, None, :]).mean(0),
-            h.mean(0), uncertainty.pair_products(h).mean(0), calib.aux_correction, aux,
-            calib.aux_names)
+            h.mean(0), uncertainty.pair_products(h).mean(0), calib.aux_rows(aux))
         periods.append((mean, z.mean(0), spread, true))
     return _against_truth(periods)
 

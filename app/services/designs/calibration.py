@@ -645,17 +645,15 @@ def fit(
         # that cuts their error across the fleets, each calibration record by the correction
         # its own fleet did not feed.
         # Fewer fleets than MIN_AUX_CORRECTION_FLEETS cannot vouch for it (their
-        # cross-validation fits a few dozen regressors on a handful of engines): as estimated
-        # (a correction of zeros, which says the calibration looked).
-        aux_correction = np.zeros((len(aux), uncertainty.correction_width(p)))
-        if len(aux_err) >= MIN_AUX_CORRECTION_FLEETS:
-            aux_fleet = np.concatenate([np.full(len(e), k) for k, e in enumerate(aux_err)])
-            aux_h = np.concatenate([f.h_hat for f in with_aux])
-            aux_fit = uncertainty.fit_level_correction(aux_h, np.concatenate(aux_err),
-                                                       aux_fleet)
-            aux_correction = aux_fit.matrix
-            aux_err = [uncertainty.correct_outputs(e, f.h_hat, aux_fit.without(k))
-                       for k, (e, f) in enumerate(zip(aux_err, with_aux, strict=True))]
+        # cross-validation fits a few dozen regressors on a handful of engines): zeros, the
+        # outputs as estimated (a correction that says the calibration looked).
+        aux_fleet = np.concatenate([np.full(len(e), k) for k, e in enumerate(aux_err)])
+        aux_fit = uncertainty.fit_level_correction(
+            np.concatenate([f.h_hat for f in with_aux]), np.concatenate(aux_err), aux_fleet,
+            min_fleets=MIN_AUX_CORRECTION_FLEETS)
+        aux_correction = aux_fit.matrix
+        aux_err = [uncertainty.correct_outputs(e, f.h_hat, aux_fit.without(k))
+                   for k, (e, f) in enumerate(zip(aux_err, with_aux, strict=True))]
         # The aux outputs' sigma as the level's: the filter's scaled where it alone
         # over-covers, then the model error on top, growing away from nominal.
         err, var, d = np.concatenate(aux_err), np.concatenate(aux_var), np.concatenate(aux_d)
@@ -716,7 +714,7 @@ def fit(
                 "level_corrected": [n for n, c in zip(names, corrected, strict=True) if c],
                 "level_curved": [n for n, c in zip(names, fit.curved, strict=True) if c],
                 "aux_corrected": [n for n, row in zip(aux, aux_correction, strict=True)
-                                  if np.any(row != 0.0)] if aux_correction is not None else [],
+                                  if np.any(row)] if aux_correction is not None else [],
                 "fleet_cover1_min": [round(float(x), 3) for x in cover1.min(axis=0)],
                 "fleet_cover1_max": [round(float(x), 3) for x in cover1.max(axis=0)],
                 "fleet_cover2_min": [round(float(x), 3) for x in cover2.min(axis=0)]},

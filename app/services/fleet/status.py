@@ -650,8 +650,7 @@ def fleet_deterioration(
                  if moments.shape[1] == pairs + n_aux + n_aux * p else None)
         aux, aux_spread = uncertainty.fleet_outputs(
             mean[:, p:], moments[:, pairs:pairs + n_aux], cross, mean[:, :p],
-            moments[:, :pairs], None if on is None else on.aux_correction, layout.aux,
-            () if on is None else on.aux_names)
+            moments[:, :pairs], None if on is None else on.aux_rows(layout.aux))
         # A parameter the design's calibration finds unobservable: nulls, named (as the
         # engine trend's health group has it), not a fleet average of what it cannot see.
         hidden = np.zeros(p, bool) if on is None else ~np.asarray(on.observable, bool)

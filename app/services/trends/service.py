@@ -392,15 +392,6 @@ def _encoded(matrix: np.ndarray) -> list[Any]:
     return [RawJSON(text) for text in json_numbers.float_rows(matrix, 4)]
 
 
-def aux_corrected(calib: uncertainty.Calibration | None) -> list[str]:
-    """The aux outputs whose values the trend shows calibrated (``Calibration.aux_level``: a
-    row of the correction that is not zero)."""
-    if calib is None or calib.aux_correction is None:
-        return []
-    return [name for name, row in zip(calib.aux_names, calib.aux_correction, strict=True)
-            if np.any(row != 0.0)]
-
-
 def band_state(calib: uncertainty.Calibration | None, group: str) -> str:
     """What the bands of a tuners, aux or performance group are (``TrendGroup.uncertainty``):
     calibrated, uncalibrated (no calibration), or recalibrate (a calibration stored before
@@ -617,7 +608,7 @@ def engine_trend(
                 elif group["key"] in ("tuners", "aux"):
                     group["uncertainty"] = band_state(calib, group["key"])
                 if group["key"] == "aux":
-                    group["calibrated_series"] = aux_corrected(calib)
+                    group["calibrated_series"] = [] if calib is None else calib.aux_corrected
         assert target.design_id is not None
         extra = performance_group(
             session, target.engine_id, target.design_id, data.layout, data.epoch, data.values,
@@ -626,7 +617,7 @@ def engine_trend(
         if extra is not None:
             extra["uncertainty"] = band_state(calib, "performance")
             extra["calibrated_series"] = [
-                series for name in aux_corrected(calib)
+                series for name in ([] if calib is None else calib.aux_corrected)
                 for series in SERIES_OF_AUX.get(name, ())]
             groups.append(extra)
         elif estimator.builtin_schedule_for_design(session, target.design_id) is None:
