@@ -255,6 +255,13 @@ def main() -> None:
               + (", ".join(calib.source.get("aux_corrected", [])) or "none"))
         print("shown: " + ", ".join(n for n, o in zip(calib.names, calib.observable,
                                                       strict=True) if o))
+        tuners = tuple(est.layout.tuners)
+        hidden = calib.tuner_hidden(tuners)
+        print("tuners shown (calibrated: V* times the calibrated level): "
+              + ", ".join(n + ("" if n in calib.tuners_corrected else " (as estimated)")
+                          for n, x in zip(tuners, hidden, strict=True) if not x)
+              + "; unobservable: "
+              + (", ".join(n for n, x in zip(tuners, hidden, strict=True) if x) or "none"))
         slope_rows, covers, fleet_rows, figure_rows, fleet_aux_rows = [], [], [], [], []
         for seed, test_fleet in zip(test_seeds, test_fleets, strict=True):
             sc = health_uncertainty.score(est, calib, *test_fleet)

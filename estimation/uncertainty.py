@@ -237,6 +237,12 @@ class Calibration:
     tuner_std: np.ndarray | None = None
     tuner_scale: np.ndarray | None = None
     tuner_spread: np.ndarray | None = None  # kappa, as the level's (None: 0)
+    # The calibrated tuners: the level's correction seen along the design's tuner directions,
+    # V* C [m, correction_width(p)] (q_hat - X (V* C)^T = V* times the calibrated level, as
+    # q_hat = V* h_hat), and which tuners are shown [m] bool (the level's rule on their own
+    # errors); None: the tuners as estimated, every one shown (a calibration stored before).
+    tuner_correction: np.ndarray | None = None
+    tuner_observable: np.ndarray | None = None
     # Fleet-average slope: gain g_k, noise a_k and common error c_k (module docstring); None:
     # 1, unknown and 0.
     slope_gain: np.ndarray | None = None
@@ -311,19 +317,28 @@ class Calibration:
                     raise DimensionError(f"Incompatible dimensions of {name}; expected ({p},) "
                                          f"but found {value.shape}")
                 object.__setattr__(self, name, value)
-        if self.aux_correction is not None:
-            value = np.asarray(self.aux_correction, float)
-            shape = (len(self.aux_names), correction_width(p))
-            if value.shape != shape:
-                raise DimensionError(f"Incompatible dimensions of aux_correction; expected "
-                                     f"{shape} but found {value.shape}")
-            object.__setattr__(self, "aux_correction", value)
         object.__setattr__(self, "names", tuple(self.names))
         object.__setattr__(self, "source", dict(self.source))
         # The outputs' fields, one value per name of their group (None: the fill; NaN in
         # aux_std or delta_std: that one not calibrated).
         for group in ("aux_names", "tuner_names", "delta_names"):
             object.__setattr__(self, group, tuple(getattr(self, group)))
+        for name, held in (("aux_correction", self.aux_names),
+                           ("tuner_correction", self.tuner_names)):
+            if getattr(self, name) is None:
+                continue
+            value = np.asarray(getattr(self, name), float)
+            shape = (len(held), correction_width(p))
+            if value.shape != shape:
+                raise DimensionError(f"Incompatible dimensions of {name}; expected "
+                                     f"{shape} but found {value.shape}")
+            object.__setattr__(self, name, value)
+        if self.tuner_observable is not None:
+            value = np.asarray(self.tuner_observable, bool)
+            if value.shape != (len(self.tuner_names),):
+                raise DimensionError(f"Incompatible dimensions of tuner_observable; expected "
+                                     f"({len(self.tuner_names)},) but found {value.shape}")
+            object.__setattr__(self, "tuner_observable", value)
         for name, fill, held in (("aux_std", np.nan, self.aux_names),
                                  ("aux_scale", 1.0, self.aux_names),
                                  ("aux_spread", 0.0, self.aux_names),
@@ -361,8 +376,9 @@ class Calibration:
         A = np.asarray(self.slope_correction)
         for j in rows:
             slope_correction[rows, j] = A[index[rows], index[j]]
-        aux_correction = (None if self.aux_correction is None
-                          else _on_regressors(np.asarray(self.aux_correction), index))
+        aux_correction, tuner_correction = (
+            None if C is None else _on_regressors(np.asarray(C), index)
+            for C in (self.aux_correction, self.tuner_correction))
         return replace(
             self, names=tuple(names), level_std=pick(self.level_std, 0.0),
             level_correction=correction, level_spread=pick(self.level_spread, 0.0),
@@ -377,7 +393,7 @@ class Calibration:
             rate_std=None if self.rate_std is None else pick(self.rate_std, 0.0),
             rate_scale=None if self.rate_scale is None else pick(self.rate_scale, 1.0),
             rate_spread=None if self.rate_spread is None else pick(self.rate_spread, 0.0),
-            aux_correction=aux_correction)
+            aux_correction=aux_correction, tuner_correction=tuner_correction)
 
     def level(self, h_hat: np.ndarray, filter_std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The calibrated level and its honest 1-sigma [N, p] of estimates h_hat [N, p] with
@@ -441,22 +457,35 @@ class Calibration:
     def aux_rows(self, names: Sequence[str]) -> np.ndarray | None:
         """The rows of ``aux_correction`` of the aux outputs ``names`` [k, w] (zeros for one it
         does not hold); None without a correction (a calibration stored before it)."""
-        if self.aux_correction is None:
-            return None
-        where = {n: k for k, n in enumerate(self.aux_names)}
-        C = np.zeros((len(names), self.aux_correction.shape[1]))
-        for j, name in enumerate(names):
-            if name in where:
-                C[j] = self.aux_correction[where[name]]
-        return C
+        return _rows(self.aux_names, self.aux_correction, names)
+
+    def tuner_level(self, names: Sequence[str], q_hat: np.ndarray,
+                    h_hat: np.ndarray) -> np.ndarray:
+        """The calibrated tuners [N, m] named ``names`` of the estimates q_hat [N, m] at the
+        health estimates h_hat [N, p] (in this calibration's order: ``on``): V* times the
+        calibrated level (``tuner_correction``); a tuner it does not hold, or without a
+        correction, as estimated."""
+        q_hat = np.asarray(q_hat, float)
+        C = _rows(self.tuner_names, self.tuner_correction, names)
+        return q_hat.copy() if C is None else correct_outputs(q_hat, h_hat, C)
+
+    def tuner_hidden(self, names: Sequence[str]) -> np.ndarray:
+        """[m] bool: the tuners named ``names`` the calibration finds unobservable (shown as
+        such, not as a number); one it does not hold, or a calibration stored before the
+        verdict, is shown."""
+        shown = (np.ones(len(self.tuner_names), bool) if self.tuner_observable is None
+                 else self.tuner_observable)
+        return ~_by_name(self.tuner_names, shown.astype(float), names, 1.0).astype(bool)
+
+    @property
+    def tuners_corrected(self) -> list[str]:
+        """The tuners whose values it corrects (a row of ``tuner_correction`` not zero)."""
+        return _corrected(self.tuner_names, self.tuner_correction)
 
     @property
     def aux_corrected(self) -> list[str]:
         """The aux outputs whose values it corrects (a row of ``aux_correction`` not zero)."""
-        if self.aux_correction is None:
-            return []
-        return [name for name, row in zip(self.aux_names, self.aux_correction, strict=True)
-                if np.any(row != 0.0)]
+        return _corrected(self.aux_names, self.aux_correction)
 
     def aux_sigma(self, names: Sequence[str], filter_std: np.ndarray,
                   d: np.ndarray) -> np.ndarray:
@@ -508,6 +537,11 @@ class Calibration:
             "tuner_std": listed(np.asarray(self.tuner_std)),
             "tuner_scale": listed(np.asarray(self.tuner_scale)),
             "tuner_spread": listed(np.asarray(self.tuner_spread)),
+            # null: the tuners as estimated (a design whose tuners span more than the health)
+            "tuner_correction": None if self.tuner_correction is None
+            else [listed(row) for row in self.tuner_correction],
+            "tuner_observable": None if self.tuner_observable is None
+            else [bool(x) for x in self.tuner_observable],
             "delta_names": list(self.delta_names),
             "delta_std": listed(np.asarray(self.delta_std)),
             "slope_gain": listed(np.asarray(self.slope_gain)),
@@ -570,6 +604,11 @@ class Calibration:
             rate_spread=arr("rate_spread") if "rate_spread" in d else None,
             aux_correction=np.array(d["aux_correction"], float).reshape(
                 len(d.get("aux_names", ())), -1) if "aux_correction" in d else None,
+            tuner_correction=np.array(d["tuner_correction"], float).reshape(
+                len(d.get("tuner_names", ())), -1)
+            if d.get("tuner_correction") is not None else None,
+            tuner_observable=np.array(d["tuner_observable"], bool)
+            if d.get("tuner_observable") is not None else None,
         )
 
     @property
@@ -590,6 +629,27 @@ def _model_sigma(held: Sequence[str], std: np.ndarray | None, scale: np.ndarray 
     k = _by_name(held, kappa, names, 0.0)
     return np.sqrt(np.square(f * np.asarray(filter_std, float)) + np.square(s)
                    + np.square(k * np.asarray(d, float)[..., None]))
+
+
+def _rows(held: Sequence[str], C: np.ndarray | None,
+          names: Sequence[str]) -> np.ndarray | None:
+    """The rows [k, w] of a correction C of the outputs ``held`` for the outputs ``names``
+    (zeros for one not held); None without a correction."""
+    if C is None:
+        return None
+    where = {n: k for k, n in enumerate(held)}
+    out = np.zeros((len(names), C.shape[1]))
+    for j, name in enumerate(names):
+        if name in where:
+            out[j] = C[where[name]]
+    return out
+
+
+def _corrected(held: Sequence[str], C: np.ndarray | None) -> list[str]:
+    """The outputs of ``held`` whose row of the correction C is not zero."""
+    if C is None:
+        return []
+    return [name for name, row in zip(held, C, strict=True) if np.any(row != 0.0)]
 
 
 def _held_value(held: Sequence[str], values: np.ndarray | None, name: str) -> float | None:

@@ -61,7 +61,8 @@ class TrendGroup(BaseModel):
         ),
     )
     unobservable: list[str] | None = Field(
-        None, description="health parameters the design cannot estimate: their values are null"
+        None, description=("health and tuners groups: the health parameters, or tuners, the "
+                           "design cannot estimate: their values are null")
     )
     baselines: list[datetime] | None = Field(
         None, description="change view: times of the baseline records the changes start from"
@@ -73,7 +74,9 @@ class TrendGroup(BaseModel):
             "aux and performance groups: the series whose values are calibrated (estimated "
             "from an aux output that the design's calibration on the simulated nonlinear "
             "engine corrects on the health estimates: thrust, stall margins, T40, bypass "
-            "ratio); the others are as estimated or measured"
+            "ratio); the others are as estimated or measured. tuners group: the tuners shown "
+            "as V* times the calibrated level (the health group's, seen along the design's "
+            "tuner directions)"
         ),
     )
 

@@ -224,10 +224,10 @@ function calibrationRow(design, cal) {
     const made = `${(src.seeds || []).length || "?"} simulated fleets, ${src.engines ?? "?"} engines, ${src.records ?? "?"} records`;
     // Each later part of the calibration (the tuners' and deltas' bands, the calibrated aux
     // outputs, the rate of change's sigma) is missing from one made before it.
-    const complete = (cal.tuner_names || []).length && (cal.delta_names || []).length && "aux_correction" in cal && "rate_std" in cal;
+    const complete = (cal.tuner_names || []).length && (cal.delta_names || []).length && "aux_correction" in cal && "rate_std" in cal && "tuner_correction" in cal;
     text = complete
       ? h("span", { class: "calibration-state" }, `calibrated on ${made}: every band of the engine page `)
-      : h("span", { class: "calibration-state" }, `calibrated on ${made} before every band of the engine page was (the tuners', deltas', the calibrated thrust and stall margins, the rate of change's): calibrate again for them `);
+      : h("span", { class: "calibration-state" }, `calibrated on ${made} before every band of the engine page was (the tuners', deltas', the calibrated tuners, thrust and stall margins, the rate of change's): calibrate again for them `);
   }
   return [h("dt", {}, "Calibration"), h("dd", {}, text, button(cal ? "Calibrate again" : "Calibrate against the simulator"))];
 }

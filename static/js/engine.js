@@ -167,7 +167,10 @@ function draw() {
       // not the calibrated one.
       notes.push(BAND_NOTES[group.uncertainty]);
     }
-    if (group.corrected || (group.key === "aux" && (group.calibrated_series || []).length)) {
+    if (group.key === "tuners" && hidden.size) notes.push(`Not observable with this design: ${[...hidden].map(label).join(", ")}.`);
+    if (group.key === "tuners" && (group.calibrated_series || []).length) {
+      notes.push("Calibrated on the built-in engine's simulator: the tuners of the calibrated health above, seen along the design's tuner directions.");
+    } else if (group.corrected || (group.key === "aux" && (group.calibrated_series || []).length)) {
       notes.push("Calibrated on the built-in engine's simulator: the estimate corrected for how this design reads the engine.");
     }
     const titled = typeof TITLES[group.key] === "function" ? TITLES[group.key](group) : TITLES[group.key];

@@ -230,6 +230,10 @@ def test_engine_page_draws_the_calibrated_level_the_api_gives(
             # Fn calibrated (0.3 off its estimate), SmHPC not.
             aux_names=("Fn", "SmHPC"), aux_std=np.full(2, 0.1),
             aux_correction=np.array([[0.3] + [0.0] * 9, [0.0] * 10]),
+            # q1 calibrated (0.2 off its estimate), q2 unobservable.
+            tuner_names=("q1", "q2"), tuner_std=np.full(2, 0.1),
+            tuner_correction=np.array([[0.2] + [0.0] * 9, [0.0] * 10]),
+            tuner_observable=np.array([True, False]),
         )
         design = session.get(EstimatorDesign, fleet.design.id)
         assert design is not None
@@ -275,6 +279,20 @@ def test_engine_page_draws_the_calibrated_level_the_api_gives(
                                    abs=1e-3)
     card = page.locator("#plot-aux").locator("xpath=..").inner_text()
     assert "the estimate corrected for how this design reads the engine" in card
+    # The tuners: the calibrated one drawn at its calibrated value, the unobservable one
+    # named on the card and not drawn.
+    tuners = next(g for g in api["groups"] if g["key"] == "tuners")
+    assert tuners["calibrated_series"] == ["q1"] and tuners["unobservable"] == ["q2"]
+    q1 = next(s for s in tuners["series"] if s["name"] == "q1")["value"]
+    assert q1[-1] == pytest.approx(float(as_stored(v)[-1, LAYOUT.slices()["q"]][0]) - 0.2,
+                                   abs=1e-3)
+    drawn_tuners = page.evaluate(
+        "document.querySelector('#plot-tuners').data"
+        ".filter((t) => t.meta && t.meta.role === 'line').map((t) => t.meta.code)")
+    assert drawn_tuners == ["q1"], drawn_tuners
+    card = page.locator("#plot-tuners").locator("xpath=..").inner_text()
+    assert "Not observable with this design" in card
+    assert "the tuners of the calibrated health above" in card
     assert console.unexpected() == []
 
 

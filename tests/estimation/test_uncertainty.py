@@ -795,3 +795,40 @@ def test_aux_outputs_corrected_on_the_health_estimates() -> None:
     # Without a correction: the outputs' own mean and spread.
     mean, spread = fleet(np.zeros_like(straight))
     np.testing.assert_allclose(spread[0], z_engines.std(axis=0))
+
+
+def test_calibrated_tuners_are_the_calibrated_level_along_the_tuner_directions() -> None:
+    """q_hat = V* h_hat, so q_hat - X (V* C)^T (``Calibration.tuner_level`` with the
+    ``tuner_correction`` V* C) is V* times the calibrated level, in any order of the tuners
+    and of the health names; kept through JSON with the tuners it hides; a calibration stored
+    before it shows the tuners as estimated, every one."""
+    rng = np.random.default_rng(5)
+    n, p = 400, 3
+    h_hat = rng.normal(size=(n, p))
+    C = rng.normal(size=(p, unc.correction_width(p)))
+    V = np.array([[1.0, 0.0, 0.0], [0.0, 0.6, 0.8]])  # a subset tuner and a combination
+    q_hat = h_hat @ V.T
+    base = dict(level_std=np.zeros(p), change_std=np.zeros(p), slope_error=np.zeros(p),
+                bias2=np.zeros(p), drift=np.zeros(p), observable=np.ones(p, bool),
+                level_correction=C)
+    cal = unc.Calibration(names=("a", "b", "c"), **base, tuner_names=("q1", "q2"),
+                          tuner_std=np.zeros(2), tuner_correction=V @ C,
+                          tuner_observable=np.array([True, False]))
+    back = unc.Calibration.from_dict(json.loads(json.dumps(cal.to_dict())))
+    level = unc.correct_level(h_hat, C)
+    np.testing.assert_allclose(back.tuner_level(("q1", "q2"), q_hat, h_hat), level @ V.T,
+                               atol=1e-12)
+    order = back.on(("c", "a", "b"))
+    q9 = rng.normal(size=(n, 1))  # a tuner it does not hold: as estimated
+    np.testing.assert_allclose(
+        order.tuner_level(("q2", "q1", "q9"), np.c_[q_hat[:, ::-1], q9], h_hat[:, [2, 0, 1]]),
+        np.c_[(level @ V.T)[:, ::-1], q9], atol=1e-12)
+    np.testing.assert_array_equal(back.tuner_hidden(("q2", "q1", "q9")), [True, False, False])
+    assert back.tuners_corrected == ["q1", "q2"]
+    old = unc.Calibration.from_dict({k: v for k, v in cal.to_dict().items()
+                                     if k not in ("tuner_correction", "tuner_observable")})
+    np.testing.assert_array_equal(old.tuner_level(("q1", "q2"), q_hat, h_hat), q_hat)
+    assert not old.tuner_hidden(("q1", "q2")).any() and old.tuners_corrected == []
+    with pytest.raises(DimensionError, match="tuner_correction"):
+        unc.Calibration(names=("a", "b", "c"), **base, tuner_names=("q1",),
+                        tuner_correction=V @ C)

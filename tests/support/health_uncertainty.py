@@ -237,7 +237,8 @@ def figures(calib: uncertainty.Calibration, aux: tuple[str, ...], tuners: tuple[
     them: each aux output in percent (``Calibration.aux_sigma``; the filter's own sigma beside
     it), its value in engineering units (z's error and the schedule trim's, with the trim's
     model error: ``performance.engineering_sigma``), the measured figures (deltas, EGT
-    margin) and the tuners against V* h (``Calibration.tuner_sigma``, the filter's beside)."""
+    margin) and the shown tuners, calibrated, against V* h (``Calibration.tuner_level``,
+    ``Calibration.tuner_sigma``; the filter's sigma beside on the tuners as estimated)."""
     cov = uncertainty.coverage
     out = {}
     filter_std = np.sqrt(fe.aux_var)
@@ -255,13 +256,19 @@ def figures(calib: uncertainty.Calibration, aux: tuple[str, ...], tuners: tuple[
             float(cov(value_err[:, k:k + 1], value_sigma[:, k:k + 1])[0]),
             float(cov(value_err[:, k:k + 1], value_sigma[:, k:k + 1], 2.0)[0]), np.nan)
     if fe.tuner_err.size:
+        # The calibrated tuners (the correction is additive, as the aux outputs'); the filter's
+        # own sigma beside them on the tuners as estimated; an unobservable one is not shown.
         q_filter = np.sqrt(fe.tuner_var)
         q_sigma = calib.tuner_sigma(tuners, q_filter, fe.d)
+        q_err = calib.tuner_level(tuners, fe.tuner_err, fe.h_hat)
+        hidden = calib.tuner_hidden(tuners)
         for k, name in enumerate(tuners):
-            e = fe.tuner_err[:, k:k + 1]
+            if hidden[k]:
+                continue
+            e = q_err[:, k:k + 1]
             out[f"tuner {name}"] = (float(cov(e, q_sigma[:, k:k + 1])[0]),
                                     float(cov(e, q_sigma[:, k:k + 1], 2.0)[0]),
-                                    float(cov(e, q_filter[:, k:k + 1])[0]))
+                                    float(cov(fe.tuner_err[:, k:k + 1], q_filter[:, k:k + 1])[0]))
     for k, name in enumerate(calibration.DELTA_FIGURES):
         std = calib.delta_model_std(name)
         if std is None or not len(fe.delta_err):

@@ -374,6 +374,55 @@ def figure_errors(
                         epoch=np.concatenate(epochs), engine=np.concatenate(engines))
 
 
+def fit_tuners(
+    fleets: Sequence[tuple[int, FigureErrors]], level: uncertainty.LevelCorrection,
+    vstar: np.ndarray | None, slope_hat: np.ndarray, slope_true: np.ndarray,
+    prior_var: float, reduction: float, slope_tolerance: float, one_sigma: float,
+    two_sigma: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """The calibrated tuners over the calibration ``fleets`` (each its index among the
+    level's fleets and its figures): (f, s, kappa) of their sigma as the aux outputs',
+    the correction V* C of the ``level``'s correction C, and which tuners are shown.
+
+    q_hat = V* h_hat, so V* times the calibrated level is q_hat - X (V* C)^T: the tuners the
+    page shows agree with the health it shows, each calibration record corrected by its
+    fleet's left-out C. A tuner is shown by the level's rule on its own errors: its honest
+    sigma at most ``reduction`` times the prior's along its direction, its mean rate V*
+    (slope_hat - slope_true) within ``slope_tolerance`` of V* slope_true, and its sigma in
+    the band on every calibration fleet alone. Without V* [m, p] (a design whose tuners span
+    more than the health, the actuator biases): the tuners as estimated, their sigma alone."""
+    err = [fe.tuner_err for _, fe in fleets]
+    p = fleets[0][1].h_hat.shape[1]
+    V = None if vstar is None else np.asarray(vstar, float)
+    correction = None
+    if V is not None and V.shape == (err[0].shape[1], p):
+        correction = V @ level.matrix
+        err = [uncertainty.correct_outputs(e, fe.h_hat, V @ level.without(k))
+               for e, (k, fe) in zip(err, fleets, strict=True)]
+    d = np.concatenate([fe.d for _, fe in fleets])
+    var = np.concatenate([fe.tuner_var for _, fe in fleets])
+    all_err = np.concatenate(err)
+    scale, std, spread = uncertainty.fit_output_sigma(all_err, var, d, one_sigma, two_sigma)
+    if correction is None or V is None:
+        return scale, std, spread, None, None
+    sigma = np.sqrt(scale**2 * var + np.square(std) + np.square(spread * d[:, None]))
+    bounds = np.cumsum([0, *(len(e) for e in err)])
+    cover = uncertainty.coverage
+    stable = np.ones(V.shape[0], bool)
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        one, two = cover(all_err[a:b], sigma[a:b], 1.0), cover(all_err[a:b], sigma[a:b], 2.0)
+        stable &= ((one >= BAND_ONE_SIGMA[0]) & (one <= BAND_ONE_SIGMA[1])
+                   & (two >= BAND_TWO_SIGMA))
+    true_rate = V @ np.nan_to_num(slope_true)
+    slope_error = (V @ np.nan_to_num(slope_hat - slope_true)) / np.maximum(
+        np.abs(true_rate), SLOPE_FLOOR)
+    shown = uncertainty.observable(
+        prior_var * np.sum(np.square(V), axis=1), np.zeros(V.shape[0]), np.zeros(V.shape[0]),
+        np.median(sigma, axis=0), slope_error=slope_error, reduction=reduction,
+        slope_tolerance=slope_tolerance)
+    return scale, std, spread, correction, shown & (stable if len(fleets) > 1 else True)
+
+
 def segments(plan: FleetPlan, track_list: Sequence[HealthTrack]) -> list[Segment]:
     """Split each track at the engine's shop visits and abrupt faults (a fault is a step the
     shift detector reports, not deterioration); keep each piece's settled records."""
@@ -540,7 +589,7 @@ def calibrate(
         if progress is not None:
             progress((k + 1) / len(fleets), f"filtered calibration fleet {k + 1}")
     return fit(filtered, tuple(est.layout.health), tuple(est.layout.aux),
-               tuners=tuple(est.layout.tuners), design=design,
+               tuners=tuple(est.layout.tuners), vstar=est.vstar, design=design,
                prior_var=prior_var, seeds=seeds, reduction=reduction,
                slope_tolerance=slope_tolerance, one_sigma=one_sigma, two_sigma=two_sigma,
                flights=fleets[0][0].config.n_flights if fleets else 0,
@@ -549,8 +598,8 @@ def calibrate(
 
 def fit(
     fleets: Sequence[CalibrationFleet], names: tuple[str, ...], aux: tuple[str, ...] = (),
-    tuners: tuple[str, ...] = (), design: str = "", prior_var: float = PRIOR_VAR,
-    seeds: Sequence[int] | None = None,
+    tuners: tuple[str, ...] = (), vstar: np.ndarray | None = None, design: str = "",
+    prior_var: float = PRIOR_VAR, seeds: Sequence[int] | None = None,
     reduction: float = REDUCTION, slope_tolerance: float = SLOPE_TOLERANCE,
     one_sigma: float = uncertainty.ONE_SIGMA_TARGET,
     two_sigma: float = uncertainty.TWO_SIGMA_TARGET, flights: int = 0, engines: int = 0,
@@ -582,7 +631,7 @@ def fit(
     aux_d = [f.d for f in with_aux]
     trim_err = [f.trim_err for f in with_aux]
     delta_err = [f.figures.delta_err for f in fleets if len(f.figures.delta_err)]
-    with_tuners = [f.figures for f in fleets if f.figures.tuner_err.size]
+    with_tuners = [(k, f.figures) for k, f in enumerate(fleets) if f.figures.tuner_err.size]
     B_h = np.mean(B_hs, axis=0)
     p = B_h.shape[0]
     bias2 = uncertainty.analytic_bias2(B_h, fleet_prior(segs))
@@ -665,12 +714,11 @@ def fit(
                   + np.square(aux_spread * d[:, None]))
         aux_trim_std = uncertainty.fit_model_std(err + np.concatenate(trim_err), honest, one_sigma,
                                              two_sigma)
-    tuner_std = tuner_scale = tuner_spread = None
-    if with_tuners:  # the tuners' sigma as the aux outputs', growing away from nominal
-        tuner_scale, tuner_std, tuner_spread = uncertainty.fit_output_sigma(
-            np.concatenate([f.tuner_err for f in with_tuners]),
-            np.concatenate([f.tuner_var for f in with_tuners]),
-            np.concatenate([f.d for f in with_tuners]), one_sigma, two_sigma)
+    tuner_std = tuner_scale = tuner_spread = tuner_correction = tuner_shown = None
+    if with_tuners:
+        tuner_scale, tuner_std, tuner_spread, tuner_correction, tuner_shown = fit_tuners(
+            with_tuners, fit, vstar, slope_hat, slope_true, prior_var, reduction,
+            slope_tolerance, one_sigma, two_sigma)
     # The rate of change's sigma, as the aux outputs': the filter's at both ends scaled, then
     # the model error on top.
     rate_err, rate_var, rate_d = rate_errors(segs, raw_segs)
@@ -687,8 +735,8 @@ def fit(
         aux_trim_std=aux_trim_std, aux_correction=aux_correction,
         delta_names=DELTA_FIGURES if delta_std is not None else (), delta_std=delta_std,
         tuner_names=tuners if tuner_std is not None else (), tuner_std=tuner_std,
-        tuner_scale=tuner_scale, tuner_spread=tuner_spread,
-        names=names, level_std=level_std, change_std=change_std,
+        tuner_scale=tuner_scale, tuner_spread=tuner_spread, tuner_correction=tuner_correction,
+        tuner_observable=tuner_shown, names=names, level_std=level_std, change_std=change_std,
         slope_error=slope_error, bias2=bias2, drift=drift, observable=shown, bias_scale=scale,
         slope_gain=sc.gain, slope_noise=sc.noise, slope_common=sc.common,
         slope_gain_std=sc.gain_std, level_correction=fit.matrix, level_spread=level_spread,

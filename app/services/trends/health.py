@@ -44,6 +44,10 @@ class HealthMeta:
     uncertainty: Literal["calibrated", "uncalibrated"]
     unobservable: tuple[str, ...]
     baselines: tuple[float, ...] = ()  # epoch seconds of the baseline records (change view)
+    # The tuners the calibration finds unobservable (nulls in the tuners group) and those it
+    # shows calibrated (V* times the calibrated level).
+    tuners_unobservable: tuple[str, ...] = ()
+    tuners_calibrated: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         return {"view": self.view, "uncertainty": self.uncertainty,
@@ -90,9 +94,10 @@ def apply(
     aux_names: tuple[str, ...] = (), tuner_names: tuple[str, ...] = (),
 ) -> tuple[np.ndarray, HealthMeta]:
     """The health columns of ``values`` [n, width] (a new float64 array) in ``view``, the aux
-    outputs (``aux_names``) calibrated (``Calibration.aux_level``) and their and the tuners'
-    (``tuner_names``) 1-sigma made honest by the calibration (``Calibration.aux_sigma``,
-    ``Calibration.tuner_sigma``).
+    outputs (``aux_names``) and the tuners (``tuner_names``) calibrated
+    (``Calibration.aux_level``, ``Calibration.tuner_level``), their 1-sigma made honest by the
+    calibration (``Calibration.aux_sigma``, ``Calibration.tuner_sigma``) and the tuners it
+    finds unobservable NaN (``HealthMeta.tuners_unobservable``).
 
     Level: the calibrated level and its honest sigma per record (``Calibration.level``).
     Change: the calibrated h_hat - h_hat[b] and its sigma (``Calibration.change``), c the
@@ -136,9 +141,19 @@ def apply(
     if calib is not None and aux_names and "z_sigma" in layout_slices:
         z_cols = layout_slices["z_sigma"]
         out[:, z_cols] = calib.aux_sigma(aux_names, out[:, z_cols], uncertainty.spread(h))
-    if calib is not None and tuner_names and "q_sigma" in layout_slices:
-        q_cols = layout_slices["q_sigma"]
-        out[:, q_cols] = calib.tuner_sigma(tuner_names, out[:, q_cols], uncertainty.spread(h))
+    tuners_hidden: tuple[str, ...] = ()
+    tuners_calibrated: tuple[str, ...] = ()
+    if on is not None and tuner_names and "q" in layout_slices and "q_sigma" in layout_slices:
+        # The tuners the page shows agree with its health: V* times the calibrated level.
+        q_cols, qs_cols = layout_slices["q"], layout_slices["q_sigma"]
+        gone = on.tuner_hidden(tuner_names)
+        q = on.tuner_level(tuner_names, out[:, q_cols], h)
+        q_sigma = on.tuner_sigma(tuner_names, out[:, qs_cols], uncertainty.spread(h))
+        out[:, q_cols] = np.where(gone, np.nan, q)
+        out[:, qs_cols] = np.where(gone, np.nan, q_sigma)
+        tuners_hidden = tuple(n for n, x in zip(tuner_names, gone, strict=True) if x)
+        tuners_calibrated = tuple(n for n in on.tuners_corrected if n not in tuners_hidden)
     meta = HealthMeta(view, "uncalibrated" if calib is None else "calibrated",
-                      tuple(n for n, x in zip(names, hidden, strict=True) if x), baselines)
+                      tuple(n for n, x in zip(names, hidden, strict=True) if x), baselines,
+                      tuners_hidden, tuners_calibrated)
     return out, meta

@@ -609,6 +609,9 @@ def engine_trend(
                     group["uncertainty"] = band_state(calib, group["key"])
                 if group["key"] == "aux":
                     group["calibrated_series"] = [] if calib is None else calib.aux_corrected
+                if group["key"] == "tuners":
+                    group["unobservable"] = list(meta.tuners_unobservable)
+                    group["calibrated_series"] = list(meta.tuners_calibrated)
         assert target.design_id is not None
         extra = performance_group(
             session, target.engine_id, target.design_id, data.layout, data.epoch, data.values,

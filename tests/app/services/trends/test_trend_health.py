@@ -4,6 +4,7 @@ compared with the same arithmetic done by hand on the stored numbers."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from datetime import datetime, timedelta
 
 import numpy as np
@@ -232,3 +233,40 @@ def test_calibrated_level_and_change_are_the_corrected_estimates(
         np.testing.assert_allclose(_column(_group(change.json()), name, "sigma")[base:SHOP_AT],
                                    d_sigma, atol=5e-4)
     assert np.all(np.isnan(_column(_group(level.json()), "fan_eff", "value")))
+
+
+def test_tuners_are_the_calibrated_level_along_their_directions(
+    client: TestClient, session: Session
+) -> None:
+    """With a calibration holding the tuners' correction V* C (in its own order of tuners and
+    of health names), the tuners group serves q - X (V* C)^T with the honest sigma, names the
+    tuners it shows calibrated, and serves the one it finds unobservable as nulls, named."""
+    V = np.array([[0.0, 1.0, 0.0], [0.6, 0.0, 0.8]])  # rows q2, q1 over fan_eff, hpc_eff, hpc_flow
+    C = np.asarray(CORRECTED.level_correction)
+    calib = replace(CORRECTED, tuner_names=("q2", "q1"), tuner_std=np.array([0.3, 0.1]),
+                    tuner_scale=np.array([0.5, 1.0]), tuner_spread=np.array([0.1, 0.0]),
+                    tuner_correction=V @ C, tuner_observable=np.array([True, False]))
+    fleet, engine, stored, _times = _setup(session, calibrated=False)
+    calibration.store_calibration(session, fleet.design, calib)
+    s = LAYOUT.slices()
+    h, q, qs = stored[:, s["h"]], stored[:, s["q"]], stored[:, s["q_sigma"]]
+    v = {n: h[:, j] for j, n in enumerate(LAYOUT.health)}
+    names = CORRECTED.names
+    row = (V @ C)[0]
+    fitted = (row[0] + sum(row[1 + i] * v[n] for i, n in enumerate(names))
+              + sum(row[4 + m] * v[names[a]] * v[names[b]]
+                    for m, (a, b) in enumerate(zip(*np.triu_indices(3), strict=True))))
+    r = client.get(f"/api/v1/engines/{engine.id}/trend", params={"max_points": 0},
+                   headers={"X-API-Key": fleet.key})
+    assert r.status_code == 200, r.text
+    group = next(g for g in r.json()["groups"] if g["key"] == "tuners")
+    assert group["uncertainty"] == "calibrated"
+    assert group["unobservable"] == ["q1"] and group["calibrated_series"] == ["q2"]
+    q2 = LAYOUT.tuners.index("q2")
+    np.testing.assert_allclose(_column(group, "q2", "value"), q[:, q2] - fitted, atol=5e-4)
+    d = np.sqrt(np.mean(h**2, axis=1))
+    np.testing.assert_allclose(_column(group, "q2", "sigma"),
+                               np.sqrt((0.5 * qs[:, q2]) ** 2 + 0.3**2 + (0.1 * d) ** 2),
+                               atol=5e-4)
+    assert np.all(np.isnan(_column(group, "q1", "value")))
+    assert np.all(np.isnan(_column(group, "q1", "sigma")))
