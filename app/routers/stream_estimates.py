@@ -81,5 +81,8 @@ def recording_estimates(
         names={g: list(layout.names(g)) for g in ("tuners", "health", "aux", "sensors")}
         if layout is not None else {},
         t_s=series.t_s.tolist(),
+        uncertainty=series.uncertainty,
+        unobservable=list(series.unobservable),
+        tuners_unobservable=list(series.tuners_unobservable),
         **out,
     )

@@ -26,6 +26,23 @@ class StreamEstimatesOut(BaseModel):
     z_hat: dict[str, list[float | None]]
     z_sigma: dict[str, list[float | None]]
     residual: dict[str, list[float | None]] = Field(description="innovation per sensor, % of trim")
+    uncertainty: str = Field(
+        "uncalibrated",
+        description=(
+            "what q_sigma and h_sigma are. calibrated: the design's stream calibration on the "
+            "built-in engine's simulated flights (h_hat and q_hat are then the calibrated "
+            "level and tuners, and the sigma the honest one: filter and model error); "
+            "uncalibrated: the stream filter's own 1-sigma (sensor noise alone, much narrower "
+            "than the real error); sensors: calibrated without this recording's sensor set, "
+            "so the filter's own 1-sigma"
+        ),
+    )
+    unobservable: list[str] = Field(
+        default_factory=list,
+        description="health parameters the calibration finds unobservable: their values are null")
+    tuners_unobservable: list[str] = Field(
+        default_factory=list,
+        description="tuners the calibration finds unobservable: their values are null")
 
 
 class TransientBiasFit(BaseModel):

@@ -66,6 +66,18 @@ function drawSamples(recording, text, shapes) {
   }));
 }
 
+// What the stream estimates' bands are (the API's ``uncertainty``).
+const STREAM_BANDS = {
+  calibrated: "Calibrated on the built-in engine's simulated flights: the estimates corrected for how this design reads the engine, bands the honest 1σ (filter and model error).",
+  uncalibrated: "Bands: the stream filter's own 1σ (sensor noise alone), much narrower than the real error; calibrate the design for honest bands.",
+  sensors: "Bands: the stream filter's own 1σ: this recording lacks a sensor the design's stream calibration used, so it does not apply.",
+};
+
+// The series of ``values`` ({name: [T]}) but those named in ``hidden``.
+function shownOnly(values, hidden) {
+  return Object.fromEntries(Object.entries(values).filter(([name]) => !hidden.includes(name)));
+}
+
 function bandPlot(div, t, values, sigmas, title, shapes) {
   const traces = Object.keys(values).flatMap((name, i) =>
     lineWithBand(t, { name, value: values[name], sigma: sigmas[name], unit: "%" }, i));
@@ -160,10 +172,13 @@ async function main() {
     if (!est.t_s.length) {
       $("#estimates-note").textContent = "Not estimated yet (the estimation job runs after each upload).";
     } else {
+      const hidden = [...(est.unobservable || []), ...(est.tuners_unobservable || [])];
       $("#estimates-note").textContent = `${est.n_samples_estimated} of ${est.n_samples} samples estimated under design #${est.design_id}; ` +
-        `means over ${fmtNum(est.window_s, 1)} s windows, bands ±1σ.`;
-      bandPlot($("#tuners-plot"), est.t_s, est.q_hat, est.q_sigma, "Tuners", shapes);
-      bandPlot($("#health-plot"), est.t_s, est.h_hat, est.h_sigma, "Health parameter change", shapes);
+        `means over ${fmtNum(est.window_s, 1)} s windows, bands ±1σ. ${STREAM_BANDS[est.uncertainty] || ""}` +
+        (hidden.length ? ` Not observable with this design: ${hidden.map(label).join(", ")}.` : "");
+      $("#estimates-note").dataset.uncertainty = est.uncertainty || "uncalibrated";
+      bandPlot($("#tuners-plot"), est.t_s, shownOnly(est.q_hat, hidden), est.q_sigma, "Tuners", shapes);
+      bandPlot($("#health-plot"), est.t_s, shownOnly(est.h_hat, hidden), est.h_sigma, "Health parameter change", shapes);
     }
     drawOptional(est, shapes);
   }

@@ -10,6 +10,7 @@ from sqlalchemy.orm import Session
 
 from app.services.designs import calibration
 from app.services.jobs.registry import Progress, registry
+from app.services.streams import calibration as stream_calibration
 
 
 class CalibrateDesign(BaseModel):
@@ -24,6 +25,17 @@ class CalibrateDesign(BaseModel):
                           description="aircraft per calibration fleet (two engines each)")
     flights: int = Field(calibration.CALIBRATION_FLIGHTS, ge=100, le=3000,
                          description="flights per aircraft")
+    streams: bool = Field(True, description=(
+        "also calibrate the stream estimates (the recording page) on whole flights of the "
+        "closed-loop transient simulator"))
+    stream_seeds: list[int] = Field(
+        default_factory=lambda: list(stream_calibration.SEEDS), min_length=1, max_length=16,
+        description="one simulated fleet of recorded flights per seed")
+    stream_aircraft: int = Field(stream_calibration.AIRCRAFT, ge=1, le=20,
+                                 description="aircraft per stream calibration fleet")
+    stream_duration_s: float | None = Field(
+        None, ge=300.0, le=2500.0,
+        description="seconds of each simulated flight (null: the whole 2500 s flight)")
 
 
 @registry.job(
@@ -38,14 +50,33 @@ def calibrate_design(
     data = calibration.calibration_input(
         session, operator_id=operator_id, design_id=parameters.design_id
     )
+    stream_est = (stream_calibration.calibration_input(
+        session, operator_id=operator_id, design_id=parameters.design_id)
+        if parameters.streams else None)
     # End the read transaction before the long run (SQLite: see design_evaluation).
     session.commit()
+    share = 0.6 if stream_est is not None else 1.0  # of the progress bar: the snapshots'
+
+    def snapshots_part(fraction: float, message: str | None = None) -> None:
+        progress(share * fraction, message)
+
+    def streams_part(fraction: float, message: str | None = None) -> None:
+        progress(share + (1.0 - share) * fraction, message)
+
     calib = calibration.run_calibration(
         data, seeds=parameters.seeds, aircraft=parameters.aircraft, flights=parameters.flights,
-        progress=progress,
+        progress=snapshots_part,
     )
+    stream_calib = (None if stream_est is None else stream_calibration.calibrate(
+        stream_est, seeds=parameters.stream_seeds, aircraft=parameters.stream_aircraft,
+        duration_s=parameters.stream_duration_s, design=data.name, progress=streams_part))
     design = calibration.get_design(session, operator_id=operator_id, design_id=data.design_id)
     stored = calibration.store_calibration(session, design, calib)
-    return {"design_id": data.design_id, "observable": [
+    out = {"design_id": data.design_id, "observable": [
         n for n, o in zip(stored["names"], stored["observable"], strict=True) if o
     ], "source": stored["source"]}
+    if stream_calib is not None:
+        streams = stream_calibration.store_calibration(session, design, stream_calib)
+        out["streams_observable"] = [
+            n for n, o in zip(streams["names"], streams["observable"], strict=True) if o]
+    return out

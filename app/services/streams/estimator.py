@@ -234,11 +234,18 @@ def estimator_for(
 ) -> StreamEstimator:
     """The stream estimator of a stored design for a recording carrying ``signals``: the
     design's sensors that the recording has (at least one)."""
-    if design.status != "ready" or design.result is None:
-        raise StreamEstimationError(f"design {design.id} is not ready")
     row = session.get(EngineModel, design.engine_model_id)
     if row is None:
         raise StreamEstimationError(f"design {design.id}: its engine model is missing")
+    return stream_estimator(design, row, signals)
+
+
+def stream_estimator(
+    design: EstimatorDesign, row: EngineModel, signals: Sequence[str]
+) -> StreamEstimator:
+    """``estimator_for`` of a design and its engine model (stored or not)."""
+    if design.status != "ready" or design.result is None:
+        raise StreamEstimationError(f"design {design.id} is not ready")
     result = design.result
     embedded = result.get("model")
     stream_filter = result.get("stream_filter") or (design.spec or {}).get(

@@ -109,6 +109,21 @@ def filter_piece(
     return rows, Carry(x_prev, u_prev, anchor, switches, ti_prev), captured
 
 
+def window_means(rows: np.ndarray, W: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The stored windows of ``filter_piece``'s rows [S, width]: each window's first sample
+    [n], its samples [n] and the means of its rows [n, width] over W samples at a time, each
+    over the finite values (a missing sensor has no residual there; NaN where none is)."""
+    S = rows.shape[0]
+    starts = np.arange(0, S, W)
+    counts = np.diff(np.append(starts, S))
+    finite = np.isfinite(rows)
+    sums = np.add.reduceat(np.where(finite, rows, 0.0), starts, axis=0)
+    seen = np.add.reduceat(finite.astype(np.int64), starts, axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        means = np.where(seen > 0, sums / np.maximum(seen, 1), np.nan)
+    return starts, counts, means
+
+
 def learning_residuals(
     est: StreamEstimator, dt: float, cond: np.ndarray, dy: np.ndarray, du: np.ndarray,
     x_ref: np.ndarray, ti_tau_s: float,

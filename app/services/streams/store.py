@@ -51,9 +51,10 @@ from app.models.estimates import EstimateLayout
 from app.models.stream_estimates import StreamEstimate, StreamFilterState
 from app.services import common
 from app.services.designs import service as designs
-from app.services.streams import recordings, samples
+from app.services.streams import calibration, recordings, samples
 from app.services.streams.estimator import StreamEstimationError, estimator_for
-from app.services.streams.run import Carry, filter_inputs, filter_piece
+from app.services.streams.run import Carry, filter_inputs, filter_piece, window_means
+from app.services.trends import health as health_view
 
 WINDOW_S = 1.0  # stored window length (seconds of recording)
 PIECE = 65_536  # samples filtered per pass (bounds memory; aligned on windows)
@@ -160,14 +161,7 @@ def estimate_one(
                                         capture if 0 <= capture < S else None)
         if got is not None:
             at_restart = got
-        starts = np.arange(0, S, W)
-        counts = np.diff(np.append(starts, S))
-        # Window means over the finite values (a missing sensor has no residual there).
-        finite = np.isfinite(rows)
-        sums = np.add.reduceat(np.where(finite, rows, 0.0), starts, axis=0)
-        seen = np.add.reduceat(finite.astype(np.int64), starts, axis=0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            means = np.where(seen > 0, sums / np.maximum(seen, 1), np.nan)
+        starts, counts, means = window_means(rows, W)
         blobs = est.layout.pack(means)
         w0 = (start + p0) // W
         session.execute(insert(StreamEstimate), [
@@ -268,6 +262,31 @@ class StreamSeries:
     n_estimated: int
     t_s: np.ndarray
     values: np.ndarray
+    # What the 1-sigma is (``calibrated``): calibrated, uncalibrated (the design has no stream
+    # calibration) or sensors (the recording lacks a sensor the calibration had); the health
+    # parameters and tuners the calibration finds unobservable (nulls).
+    uncertainty: str = "uncalibrated"
+    unobservable: tuple[str, ...] = ()
+    tuners_unobservable: tuple[str, ...] = ()
+
+
+def calibrated(
+    session: Session, design_id: int, layout: EstimateLayout, values: np.ndarray
+) -> tuple[np.ndarray, str, tuple[str, ...], tuple[str, ...]]:
+    """Stored windows [n, width] with the design's stream calibration
+    (``calibration.design_calibration``) applied as the engine trend applies the snapshot one
+    (``trends.health.apply``: the calibrated level and tuners, their honest 1-sigma, the
+    unobservable ones NaN): (values, what the sigma is, unobservable health parameters and
+    tuners). Without a calibration, or for a recording lacking a sensor it was fitted with,
+    the values as stored and the filter's own sigma."""
+    calib = calibration.design_calibration(session, design_id)
+    if calib is None:
+        return values, "uncalibrated", (), ()
+    if set(calib.source.get("sensors", ())) - set(layout.sensors):
+        return values, "sensors", (), ()
+    out, meta = health_view.apply(values, layout.slices(), tuple(layout.health), calib,
+                                  "level", tuner_names=tuple(layout.tuners))
+    return out, "calibrated", meta.unobservable, meta.tuners_unobservable
 
 
 def read_estimates(
@@ -298,6 +317,8 @@ def read_estimates(
     t = np.array([r[0] for r in got], float)
     n = np.array([r[1] for r in got], float)
     values = layout.unpack([r[2] for r in got]) if got else np.zeros((0, layout.width))
+    values, band, unobservable, tuners_unobservable = calibrated(session, state.design_id,
+                                                                 layout, values)
     window_s = state.window * float(recording.dt_s)
     if len(got) > max_points > 0:
         per = math.ceil(len(got) / max_points)
@@ -307,4 +328,4 @@ def read_estimates(
         t = t[starts]
         window_s *= per
     return StreamSeries(recording, state.design_id, layout, window_s, int(state.n_samples), t,
-                        values)
+                        values, band, unobservable, tuners_unobservable)

@@ -18,6 +18,7 @@ from app.services.designs import calibration, engine_models
 from app.services.designs import service as designs
 from app.services.fleet import service as fleet_service
 from app.services.snapshots import estimator
+from app.services.streams import calibration as stream_calibration
 from app.services.tenancy.service import create_operator
 from estimation.engine.schedule import EngineSchedule, build_schedule
 from estimation.uncertainty import Calibration
@@ -105,7 +106,8 @@ def test_the_calibration_job_stores_it_with_the_design(
     job = client.post(
         "/api/v1/jobs",
         json={"kind": "calibrate_design", "parameters": {
-            "design_id": design.id, "seeds": [5], "aircraft": 1, "flights": 200}},
+            "design_id": design.id, "seeds": [5], "aircraft": 1, "flights": 200,
+            "stream_seeds": [7, 8], "stream_aircraft": 1, "stream_duration_s": 400}},
         headers=tenant.headers(),
     )
     assert job.status_code == 202, job.text
@@ -113,4 +115,8 @@ def test_the_calibration_job_stores_it_with_the_design(
     session.expire_all()
     back = calibration.design_calibration(session, design.id)
     assert back is not None and back.source["seeds"] == [5]
+    # The stream estimates' calibration beside it, on the recorded flights of its own fleets.
+    streams = stream_calibration.design_calibration(session, design.id)
+    assert streams is not None and streams.source["seeds"] == [7, 8]
+    assert streams.source["windows"] > 0 and streams.names == back.names
 

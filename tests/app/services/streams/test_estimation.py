@@ -10,6 +10,7 @@ the same way whatever the chunking; another operator gets 404.
 from __future__ import annotations
 
 import io
+from dataclasses import replace
 from datetime import timedelta
 from typing import Any
 
@@ -27,9 +28,10 @@ from app.models import Engine, EngineModel, EstimatorDesign, Job
 from app.models.estimates import EstimateLayout
 from app.models.stream_estimates import StreamEstimate, StreamFilterState
 from app.services.snapshots import estimator
+from app.services.streams import calibration as stream_calibration
 from app.services.streams import estimator as stream_estimator
 from app.services.streams import store as stream_store
-from estimation import stream_filter
+from estimation import stream_filter, uncertainty
 from estimation.design import design_to_dict
 from estimation.engine.schedule import build_schedule
 from estimation.model import LinearModel
@@ -463,3 +465,59 @@ def test_uploads_and_live_chunks_queue_jobs_that_estimate_the_recording(
     assert kind.function(session, kind.validate(jobs[1].parameters), lambda *a: None,
                          operator_id=fleet_data.operator_id)["samples"] == 0
     assert len(_rows(session, live_id)) == 20
+
+
+def test_the_recording_estimates_carry_the_designs_stream_calibration(
+    client: TestClient, session: Session, fleet_data: Fleet, settings: Settings
+) -> None:
+    """Without a stream calibration the estimates say their band is the filter's own; with
+    one (``streams.calibration``), they are the calibrated level and tuners with the honest
+    1-sigma, the unobservable ones null and named; a recording lacking a sensor the
+    calibration used keeps the filter's own, and says why."""
+    model = _model()
+    document = _design_document(model)
+    design = _activate(session, fleet_data, model, document)
+    recording = _upload_file(client, fleet_data, _simulate(model, 400, Q_TRUE, seed=3), 2)
+    _estimate(session, settings, fleet_data, recording["id"])
+    url = f"/api/v1/streams/{recording['id']}/estimates"
+    query = {"max_points": 100_000}
+    before = client.get(url, params=query, headers=fleet_data.analyst).json()
+    assert before["uncertainty"] == "uncalibrated"
+    assert before["unobservable"] == [] and before["tuners_unobservable"] == []
+    names, tuners = tuple(before["names"]["health"]), tuple(before["names"]["tuners"])
+    p, m = len(names), len(tuners)
+    C = np.zeros((p, uncertainty.correction_width(p)))
+    C[:, 0] = 0.1 * np.arange(1, p + 1)  # a constant offset per parameter
+    V = np.asarray(document["vstar"])
+    calib = uncertainty.Calibration(
+        names=names, level_std=np.full(p, 0.3), change_std=np.zeros(p),
+        slope_error=np.zeros(p), bias2=np.zeros(p), drift=np.zeros(p),
+        observable=np.arange(p) < p - 1, level_correction=C, tuner_names=tuners,
+        tuner_std=np.full(m, 0.2), tuner_correction=V @ C, tuner_observable=np.arange(m) < m - 1,
+        source={"sensors": list(model.sensor_names)})
+    stream_calibration.store_calibration(session, design, calib)
+    after = client.get(url, params=query, headers=fleet_data.analyst).json()
+    assert after["uncertainty"] == "calibrated"
+    assert after["unobservable"] == [names[-1]] and after["tuners_unobservable"] == [tuners[-1]]
+
+    def column(body: dict[str, Any], key: str, name: str) -> np.ndarray:
+        return np.array([np.nan if v is None else v for v in body[key][name]], float)
+
+    for k, name in enumerate(names[:-1]):
+        np.testing.assert_allclose(column(after, "h_hat", name),
+                                   column(before, "h_hat", name) - C[k, 0], atol=1e-9)
+        np.testing.assert_allclose(column(after, "h_sigma", name),
+                                   np.hypot(column(before, "h_sigma", name), 0.3), atol=1e-9)
+    for k, name in enumerate(tuners[:-1]):
+        np.testing.assert_allclose(column(after, "q_hat", name),
+                                   column(before, "q_hat", name) - (V @ C)[k, 0], atol=1e-9)
+        np.testing.assert_allclose(column(after, "q_sigma", name),
+                                   np.hypot(column(before, "q_sigma", name), 0.2), atol=1e-9)
+    assert np.isnan(column(after, "h_hat", names[-1])).all()
+    assert np.isnan(column(after, "q_sigma", tuners[-1])).all()
+    # Calibrated with a sensor this recording lacks: the filter's own sigma, said so.
+    stream_calibration.store_calibration(session, design, replace(
+        calib, source={"sensors": [*model.sensor_names, "T25"]}))
+    other = client.get(url, params=query, headers=fleet_data.analyst).json()
+    assert other["uncertainty"] == "sensors" and other["unobservable"] == []
+    assert other["h_hat"] == before["h_hat"] and other["q_sigma"] == before["q_sigma"]

@@ -1,0 +1,223 @@
+"""The stream estimates' uncertainty (the recording page's tuners and health), calibrated on
+the built-in engine's simulated flights and stored with the design.
+
+The stream filter's 1-sigma is the steady-state covariance of the design's gain (``store``),
+which knows the sensor noise alone: over a flight at 10-20 Hz it is a few hundredths of a
+percent, while the estimate errs by tenths (the health the tuners do not span, the actuator
+biases, the linearisation between the schedule's anchors, the transients). On one simulated
+flight the filter's band held the true health in 0-9 % of the windows for six of the demo
+design's ten parameters.
+
+``calibrate`` measures the error the way the snapshot calibration does
+(``designs.calibration``): the product's stream filter (``run.filter_piece`` and the stored
+one-second windows, ``run.window_means``) over whole flights of the closed-loop transient
+simulator (``estimation.engine.fleet.stream_flights``: the engines of simulated fleets at
+several points of their year, with deterioration, actuator biases and faults), against each
+flight's true health. The same fits then give the recording page's figures:
+
+- the calibrated level: a correction of the estimates on their own regressors
+  (``uncertainty.fit_level_correction``), each fleet's windows corrected by the fit its fleet
+  did not feed;
+- its 1-sigma: the filter's scaled where it alone over-covers, then the model error and its
+  growth away from nominal (``uncertainty.fit_output_sigma``); no analytic bias term, as the
+  errors fitted on hold it;
+- a parameter shown by the level's rule (its sigma at most ``REDUCTION`` times the prior's,
+  its band held on every calibration fleet alone), the others null and named;
+- the tuners, V* times the calibrated level (``designs.calibration.fit_tuners``).
+
+It is stored in the design's result under ``RESULT_KEY`` with the sensors it was calibrated
+on: a recording without all of them keeps the filter's own sigma, said so.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from app.models import EstimatorDesign
+from app.services.demo.simulation_files import stream_table
+from app.services.demo.simulation_files import units as simulated_units
+from app.services.designs import calibration as designs_calibration
+from app.services.streams.estimator import StreamEstimator, estimator_for
+from app.services.streams.run import Carry, filter_inputs, filter_piece, window_means
+from estimation import uncertainty
+from estimation.engine.fleet import FleetConfig, StreamFlight, plan_fleet, stream_flights
+from estimation.engine.health import HEALTH_NAMES
+
+RESULT_KEY = "stream_uncertainty"
+# Calibration fleets: their engines' flights at four points of a year (young engines, worn
+# ones, a few faulted), recorded at 10 Hz, one-second windows as stored.
+SEEDS = (20260401, 20260402, 20260403, 20260404)
+AIRCRAFT = 4
+ROUNDS = (30, 250, 480, 720)
+RATE_HZ = 10.0
+WINDOW_S = 1.0
+
+ProgressFn = Callable[[float, str | None], None]
+
+
+@dataclass(frozen=True)
+class StreamWindows:
+    """One calibration fleet's estimated windows (the filter's output as stored) with their
+    truth: h_hat, the filter's h 1-sigma and the true health [W, p] in the design's order;
+    q_hat, its 1-sigma and V* h [W, m]."""
+
+    h_hat: np.ndarray
+    h_sigma: np.ndarray
+    h_true: np.ndarray
+    q_hat: np.ndarray
+    q_sigma: np.ndarray
+    q_true: np.ndarray
+
+
+def simulate(seed: int, aircraft: int = AIRCRAFT, rounds: Sequence[int] = ROUNDS,
+             rate_hz: float = RATE_HZ, duration_s: float | None = None) -> list[StreamFlight]:
+    """Whole flights (the first ``duration_s`` of each; None: all of it) of a demo-like
+    fleet's engines (``designs.calibration.simulate_fleet``'s fleet) in the ``rounds`` of its
+    year, from ``seed``."""
+    config = FleetConfig(n_aircraft=aircraft, n_flights=max(rounds) + 1, positions=2,
+                         flights_per_day=2.0, fault_rate=1.0 / 3000.0, faulted_removal=0.02)
+    plan_rng, stream_rng = np.random.default_rng(seed).spawn(2)
+    plan = plan_fleet(config, plan_rng)
+    return list(stream_flights(plan, stream_rng, rate_hz=rate_hz, duration_s=duration_s,
+                               rounds=list(rounds)))
+
+
+def stored_table(flight: StreamFlight) -> pa.Table:
+    """The flight as a recording stores it: the built-in engine's signals under their
+    catalogue names, in the units the simulator writes (the catalogue's)."""
+    table = stream_table(flight)
+    return table.rename_columns([name.split("[", 1)[0] for name in table.column_names])
+
+
+def flight_windows(est: StreamEstimator, flight: StreamFlight) -> np.ndarray:
+    """The stored windows [n, width] of one flight filtered from nominal (the engine's first
+    recording), as ``store.estimate_one`` stores them."""
+    table = stored_table(flight)
+    dt = float(flight.time_s[1] - flight.time_s[0])
+    cond, dy, du = filter_inputs(est, table)
+    start = Carry(np.zeros(est.n), np.zeros(du.shape[1]), None, 0)
+    rows, _, _ = filter_piece(est, dt, cond, dy, du, start)
+    return window_means(rows, max(1, round(WINDOW_S / dt)))[2]
+
+
+def fleet_windows(est: StreamEstimator, flights: Sequence[StreamFlight]) -> StreamWindows:
+    """``flight_windows`` of each flight, the estimated ones (a finite 1-sigma: not at ground
+    idle) lined up with the flight's true health."""
+    sl = est.layout.slices()
+    columns = [HEALTH_NAMES.index(n) for n in est.layout.health]
+    parts = []
+    for flight in flights:
+        rows = flight_windows(est, flight)
+        rows = rows[np.all(np.isfinite(rows[:, sl["h_sigma"]]), axis=1)]
+        truth = np.tile(np.asarray(flight.health, float)[columns], (len(rows), 1))
+        parts.append((rows, truth))
+    rows = np.concatenate([r for r, _ in parts])
+    h_true = np.concatenate([t for _, t in parts])
+    return StreamWindows(rows[:, sl["h"]], rows[:, sl["h_sigma"]], h_true, rows[:, sl["q"]],
+                         rows[:, sl["q_sigma"]], h_true @ np.asarray(est.vstar).T)
+
+
+def fit(fleets: Sequence[StreamWindows], names: tuple[str, ...], tuners: tuple[str, ...],
+        vstar: np.ndarray, sensors: tuple[str, ...], source: dict[str, object] | None = None,
+        ) -> uncertainty.Calibration:
+    """The stream estimates' calibration over the calibration ``fleets`` (module docstring)."""
+    p = len(names)
+    group = np.concatenate([np.full(len(f.h_hat), k) for k, f in enumerate(fleets)])
+    h_hat = np.concatenate([f.h_hat for f in fleets])
+    level = uncertainty.fit_level_correction(h_hat, h_hat - np.concatenate(
+        [f.h_true for f in fleets]), group)
+    err = np.concatenate([uncertainty.correct_level(f.h_hat, level.without(k)) - f.h_true
+                          for k, f in enumerate(fleets)])
+    var = np.square(np.concatenate([f.h_sigma for f in fleets]))
+    d = uncertainty.spread(h_hat)
+    scale, std, spread = uncertainty.fit_output_sigma(err, var, d)
+    sigma = np.sqrt(scale**2 * var + np.square(std) + np.square(spread * d[:, None]))
+    stable = np.ones(p, bool)
+    for k in range(len(fleets)):
+        mine = group == k
+        one = uncertainty.coverage(err[mine], sigma[mine], 1.0)
+        two = uncertainty.coverage(err[mine], sigma[mine], 2.0)
+        stable &= ((one >= designs_calibration.BAND_ONE_SIGMA[0])
+                   & (one <= designs_calibration.BAND_ONE_SIGMA[1])
+                   & (two >= designs_calibration.BAND_TWO_SIGMA))
+    shown = uncertainty.observable(
+        np.full(p, designs_calibration.PRIOR_VAR), np.zeros(p), np.zeros(p),
+        np.median(sigma, axis=0), reduction=designs_calibration.REDUCTION) & stable
+    figures = [(k, designs_calibration.FigureErrors(
+        np.empty((len(f.h_hat), 0)), np.empty((len(f.h_hat), 0)), np.empty((len(f.h_hat), 0)),
+        np.empty((len(f.h_hat), 0)), d=uncertainty.spread(f.h_hat), tuner_err=f.q_hat - f.q_true,
+        tuner_var=np.square(f.q_sigma), h_hat=f.h_hat)) for k, f in enumerate(fleets)]
+    nan = np.full(p, np.nan)
+    tuner_scale, tuner_std, tuner_spread, tuner_correction, tuner_shown = (
+        designs_calibration.fit_tuners(
+            figures, level, vstar, nan, nan, designs_calibration.PRIOR_VAR,
+            designs_calibration.REDUCTION, designs_calibration.SLOPE_TOLERANCE,
+            uncertainty.ONE_SIGMA_TARGET, uncertainty.TWO_SIGMA_TARGET))
+    zeros = np.zeros(p)
+    return uncertainty.Calibration(
+        names=names, level_std=std, change_std=zeros, slope_error=zeros, bias2=zeros,
+        drift=zeros, observable=shown, level_correction=level.matrix, level_spread=spread,
+        filter_scale=scale, tuner_names=tuners, tuner_std=tuner_std, tuner_scale=tuner_scale,
+        tuner_spread=tuner_spread, tuner_correction=tuner_correction,
+        tuner_observable=tuner_shown,
+        source={**(source or {}), "sensors": list(sensors), "windows": int(len(h_hat)),
+                "fleets": len(fleets)},
+    )
+
+
+def calibrate(
+    est: StreamEstimator, seeds: Sequence[int] = SEEDS, aircraft: int = AIRCRAFT,
+    rounds: Sequence[int] = ROUNDS, rate_hz: float = RATE_HZ,
+    duration_s: float | None = None, design: str = "", progress: ProgressFn | None = None,
+) -> uncertainty.Calibration:
+    """Simulate the calibration fleets' flights (``simulate``), filter them with ``est`` and
+    ``fit``."""
+    fleets = []
+    for k, seed in enumerate(seeds):
+        fleets.append(fleet_windows(est, simulate(seed, aircraft, rounds, rate_hz, duration_s)))
+        if progress is not None:
+            progress((k + 1) / len(seeds), f"filtered simulated flights of fleet {k + 1}")
+    layout = est.layout
+    return fit(fleets, tuple(layout.health), tuple(layout.tuners), np.asarray(est.vstar),
+               tuple(layout.sensors),
+               {"design": design, "seeds": list(seeds), "aircraft": aircraft,
+                "rounds": list(rounds), "rate_hz": rate_hz, "duration_s": duration_s})
+
+
+def calibration_input(session: Session, *, operator_id: int,
+                      design_id: int) -> StreamEstimator:
+    """The stream estimator of a ready design of the built-in engine for a recording of every
+    signal the simulator writes (``designs.calibration.calibration_input``'s checks: a design
+    of an imported model is a 409)."""
+    data = designs_calibration.calibration_input(session, operator_id=operator_id,
+                                                 design_id=design_id)
+    design = session.get(EstimatorDesign, data.design_id)
+    assert design is not None
+    return estimator_for(session, design, list(simulated_units()))
+
+
+def design_calibration(session: Session, design_id: int) -> uncertainty.Calibration | None:
+    """The design's stored stream calibration (None: uncalibrated); reads only that key."""
+    document = session.scalar(
+        select(EstimatorDesign.__table__.c.result[RESULT_KEY]).where(
+            EstimatorDesign.id == design_id)
+    )
+    if not isinstance(document, dict):
+        return None
+    return uncertainty.Calibration.from_dict(document)
+
+
+def store_calibration(session: Session, design: EstimatorDesign,
+                      calib: uncertainty.Calibration) -> dict[str, Any]:
+    """Put ``calib`` into the design's result document under ``RESULT_KEY``; flushed."""
+    document = calib.to_dict()
+    design.result = {**(design.result or {}), RESULT_KEY: document}
+    session.flush()
+    return document

@@ -1,0 +1,125 @@
+"""The recording page's bands against the truth: the stream filter's tuners and health.
+
+The demo's active design (and others by ``--designs``) is calibrated for streams
+(``streams.calibration.calibrate``: the product's stream filter over whole flights of the
+built-in engine's closed-loop transient simulator, the stored one-second windows) on the
+product's calibration fleets, then scored on other fleets' flights: per fleet and parameter,
+the share of estimated windows whose truth lies within +-1 and +-2 sigma, for the band the
+page drew before (the filter's own 1-sigma on the estimate as filtered) and for the calibrated
+one (the calibrated level, its sigma, unobservable parameters not shown); RMS error of both;
+the tuners against V* h the same way. Target: 1-sigma 55-85 % and 2-sigma >= 85 % on every
+fleet for every shown figure.
+
+Run: .venv/bin/python bench/bench_stream_uncertainty.py [--designs subset:10] [--seeds 4]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import _common  # noqa: F401  (pins BLAS threads)
+import numpy as np
+
+from app.models import EngineModel, EstimatorDesign
+from app.services.demo import fleet as demo
+from app.services.designs import service as designs
+from app.services.snapshots import estimator
+from app.services.streams import calibration
+from app.services.streams.estimator import StreamEstimator, stream_estimator
+from app.services.trends import health as health_view
+from estimation import uncertainty
+from estimation.model import MODEL_FORMAT, LinearModel
+
+SCORE_SEEDS = (20260501, 20260502, 20260503, 20260504, 20260505, 20260506)
+
+
+def design_stream_estimator(method: str, m: int) -> StreamEstimator:
+    """A demo design of the built-in engine as the product stores it, ready for streams."""
+    p = demo.DESIGN_POINT
+    model = estimator.builtin_schedule().model_at(p["alt"], p["mach"], p["power"])
+    sensors = [n for n in model.sensor_names if n != "Wf"]
+    spec = demo.design_spec(method, m, sensors)
+    result = designs.design_step(model, spec)
+    row = EngineModel(source="builtin", format=MODEL_FORMAT,
+                      content=LinearModel.from_dict(result["model"]).to_dict())
+    design = EstimatorDesign(id=0, status="ready", result=result, spec=spec)
+    signals = [*model.sensor_names, "VSV", "VBV"]
+    return stream_estimator(design, row, signals)
+
+
+def score(est: StreamEstimator, calib: uncertainty.Calibration,
+          windows: calibration.StreamWindows) -> dict[str, tuple[float, float, float, float]]:
+    """Per figure: (1-sigma, 2-sigma coverage, RMS) calibrated, and the filter's own 1-sigma
+    coverage as drawn before; unobservable figures left out."""
+    layout = est.layout
+    values = np.zeros((len(windows.h_hat), layout.width))
+    sl = layout.slices()
+    values[:, sl["h"]], values[:, sl["h_sigma"]] = windows.h_hat, windows.h_sigma
+    values[:, sl["q"]], values[:, sl["q_sigma"]] = windows.q_hat, windows.q_sigma
+    shown, meta = health_view.apply(values, sl, tuple(layout.health), calib, "level",
+                                    tuner_names=tuple(layout.tuners))
+    out = {}
+    for block, sigma_block, names, truth, raw, raw_sigma in (
+            ("h", "h_sigma", layout.health, windows.h_true, windows.h_hat, windows.h_sigma),
+            ("q", "q_sigma", layout.tuners, windows.q_true, windows.q_hat, windows.q_sigma)):
+        err = shown[:, sl[block]] - truth
+        sigma = shown[:, sl[sigma_block]]
+        for k, name in enumerate(names):
+            if np.isnan(err[:, k]).all():
+                continue  # unobservable: not shown
+            z = np.abs(err[:, k]) / sigma[:, k]
+            before = np.abs(raw[:, k] - truth[:, k]) / raw_sigma[:, k]
+            out[name] = (float(np.mean(z <= 1.0)), float(np.mean(z <= 2.0)),
+                         float(np.sqrt(np.mean(err[:, k] ** 2))), float(np.mean(before <= 1.0)))
+    del meta
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--designs", default="subset:10")
+    ap.add_argument("--calibrate-seeds", type=int, default=len(calibration.SEEDS))
+    ap.add_argument("--seeds", type=int, default=len(SCORE_SEEDS))
+    args = ap.parse_args()
+    print(_common.load_line())
+    for spec in args.designs.split(","):
+        method, m = spec.split(":")
+        est = design_stream_estimator(method, int(m))
+        started = time.monotonic()
+        calib = calibration.calibrate(est, seeds=calibration.SEEDS[:args.calibrate_seeds],
+                                      design=spec)
+        print(f"== {spec}: calibrated in {time.monotonic() - started:.0f} s on "
+              f"{calib.source['windows']} windows of {calib.source['fleets']} fleets "
+              f"({calibration.AIRCRAFT} aircraft, rounds {list(calibration.ROUNDS)}, "
+              f"{calibration.RATE_HZ:g} Hz)")
+        print("shown: " + ", ".join(n for n, o in zip(calib.names, calib.observable,
+                                                      strict=True) if o))
+        hidden = calib.tuner_hidden(calib.tuner_names)
+        print("tuners shown: " + ", ".join(n for n, x in zip(calib.tuner_names, hidden,
+                                                             strict=True) if not x))
+        rows = []
+        for seed in SCORE_SEEDS[:args.seeds]:
+            windows = calibration.fleet_windows(est, calibration.simulate(seed))
+            rows.append(score(est, calib, windows))
+            print(f"-- seed {seed}: {len(windows.h_hat)} windows; " + "; ".join(
+                f"{n} {a:.2f}/{b:.2f} rms {r:.2f} (before {f:.2f})"
+                for n, (a, b, r, f) in rows[-1].items()))
+            print(_common.load_line())
+        n = len(rows)
+        every = np.ones(n, bool)
+        print(f"per figure over {n} scoring fleets (1-sigma 55-85 %, 2-sigma >= 85 %):")
+        for name in rows[0]:
+            c1 = np.array([r[name][0] for r in rows])
+            c2 = np.array([r[name][1] for r in rows])
+            before = np.array([r[name][3] for r in rows])
+            ok = (c1 >= 0.55) & (c1 <= 0.85) & (c2 >= 0.85)
+            every &= ok
+            print(f"  {name:10s} in band on {int(ok.sum())}/{n} (1-sigma {c1.min():.2f}-"
+                  f"{c1.max():.2f}, 2-sigma min {c2.min():.2f}); the filter's own sigma "
+                  f"{before.min():.2f}-{before.max():.2f}")
+        print(f"  fleets with every shown figure in the band: {int(every.sum())}/{n}")
+
+
+if __name__ == "__main__":
+    main()
