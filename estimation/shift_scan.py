@@ -8,8 +8,8 @@ eq. 21-23). Those do not depend on the CUSUM's state between two resets, so they
 here for a whole run of records; the caller keeps only the alarm bookkeeping per record.
 
 Every record's figures are computed with the same operations in the same order as one record
-alone (sequential sums, one LAPACK inverse per record), so they do not depend on which records
-share a call: re-runs and split runs stay bit-identical.
+alone (sequential sums, one LAPACK Cholesky factorisation per record), so they do not depend on
+which records share a call: re-runs and split runs stay bit-identical.
 """
 
 from __future__ import annotations
@@ -17,6 +17,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+
+from estimation.stacked import batch_last, cholesky_lower, forward_substitute
 
 
 class LevelScan(NamedTuple):
@@ -51,11 +53,13 @@ def level_scan(shift: np.ndarray, P: np.ndarray, H: np.ndarray) -> LevelScan:
     """Level statistic and fault WSSR of K records at once.
 
     shift [K, m] (tuner estimate minus baseline), P [K, m, m] (filter covariance),
-    H [m, n_faults] (tuner change per library fault). With one inverse of P_k per record
-    (seed 002 eq. 21-23 with P^-1 formed once): for the 1 + n_faults right-hand sides it is
-    2-3 times faster than a solve, and P, a filter covariance, is well conditioned. A single
-    record goes through here too (``estimation.shift_detector``), so a record's figures do
-    not depend on the records it is computed with.
+    H [m, n_faults] (tuner change per library fault). With the Cholesky factor P_k = L L^T
+    of each record (``estimation.stacked``) and Y = L^-1 [shift, H], every figure of seed 002
+    eq. 21-23 is a sum over Y's rows: distance = |Y_s|^2, H_i^T P^-1 H_i = |Y_i|^2 and
+    H_i^T P^-1 shift = Y_i . Y_s; one LAPACK factorisation per record and a forward
+    substitution over all of them cost two thirds of one inverse per record. A single record goes
+    through here too (``estimation.shift_detector``), so a record's figures do not depend on
+    the records it is computed with.
     """
     shift = np.asarray(shift, float)
     P = np.asarray(P, float)
@@ -67,14 +71,25 @@ def level_scan(shift: np.ndarray, P: np.ndarray, H: np.ndarray) -> LevelScan:
     nf = H.shape[1]
     if K == 0:
         return LevelScan(np.zeros(0), np.zeros((0, nf)), np.zeros((0, nf)))
-    Pinv = np.linalg.inv(P)
-    # Matrix-vector products per record (stacked matmul: one record's sums whatever K is).
-    Pinv_s = np.matmul(Pinv, shift[:, :, None])[:, :, 0]
-    distance = np.matmul(shift[:, None, :], Pinv_s[:, :, None])[:, 0, 0]
+    with np.errstate(invalid="ignore"):
+        L = cholesky_lower(P)
+    if not np.isfinite(L).all():
+        raise np.linalg.LinAlgError("filter covariance not positive definite")
+    # Right-hand sides [m, 1 + n_faults, K]: the shift, then every fault's tuner change.
+    Y = np.empty((m, 1 + nf, K))
+    Y[:, 0] = shift.T
+    Y[:, 1:] = np.asarray(H, float)[:, :, None]
+    forward_substitute(batch_last(L), Y)
+    # Sums over Y's rows, row after row in order (each record's own).
+    squares = Y[0] * Y[0]  # [1 + nf, K]: distance, then H_i^T P^-1 H_i
+    cross = Y[0, 0] * Y[0, 1:]  # [nf, K]: H_i^T P^-1 shift
+    for k in range(1, m):
+        squares += Y[k] * Y[k]
+        cross += Y[k, 0] * Y[k, 1:]
+    distance = squares[0].copy()
     if nf == 0:
         return LevelScan(distance, np.zeros((K, 0)), np.zeros((K, 0)))
-    norm2 = np.einsum("ij,kij->kj", H, np.matmul(Pinv, H))  # H_i^T P^-1 H_i
-    proj = np.matmul(H.T[None], Pinv_s[:, :, None])[:, :, 0]  # H_i^T P^-1 shift
-    f = proj / norm2
+    proj = cross.T
+    f = proj / squares[1:].T
     wssr = np.maximum(distance[:, None] - proj * f, 0.0)
     return LevelScan(distance, wssr, f)

@@ -1,0 +1,51 @@
+"""Cholesky factors and triangular solves of stacks of small symmetric positive definite
+matrices (the filter's innovation covariances, the detector's tuner covariances).
+
+LAPACK's general solve and inverse on matrices of a dozen rows cost 2-3 us each, mostly per
+call; a stack of them is thousands. With the factor L of each matrix (one LAPACK ``potrf``,
+a third of that) only a forward substitution is left, and it runs as a dozen array
+operations over the whole stack with the stack on the last axis (``forward_substitute``).
+
+Every figure of a matrix is computed by the same operations in the same order whatever the
+other matrices of the stack, so results do not depend on how records are grouped.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+# numpy's own gufunc behind np.linalg.cholesky (numpy 1.26 and 2.x); None: the public one.
+_GUFUNC_CHOLESKY: Any = getattr(getattr(np.linalg, "_umath_linalg", None), "cholesky_lo", None)
+
+
+def cholesky_lower(a: np.ndarray) -> np.ndarray:
+    """The lower Cholesky factors [..., n, n] of symmetric positive definite matrices
+    [..., n, n], without the wrapper's checks and error state per call; a matrix that is not
+    positive definite gives NaN (an invalid-value warning unless the caller's error state
+    ignores it), which the caller checks once."""
+    if _GUFUNC_CHOLESKY is None:  # pragma: no cover - a numpy without the gufunc
+        try:
+            return np.linalg.cholesky(a)
+        except np.linalg.LinAlgError:
+            return np.full(np.shape(a), np.nan)
+    return _GUFUNC_CHOLESKY(a, signature="d->d")
+
+
+def batch_last(L: np.ndarray) -> np.ndarray:
+    """Factors [K, n, n] laid out [n, n, K] (contiguous), as ``forward_substitute`` takes
+    them."""
+    return np.ascontiguousarray(L.transpose(1, 2, 0))
+
+
+def forward_substitute(L: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """X <- L^-1 X in place for lower-triangular L, the stack last: L [n, n, K], X [n, r, K]
+    (r right-hand sides of each of K systems). Row by row, each solved row taken out of the
+    rows below it."""
+    n = L.shape[0]
+    for k in range(n):
+        X[k] /= L[k, k]
+        if k + 1 < n:
+            X[k + 1:] -= L[k + 1:, k, None, :] * X[k, None]
+    return X
