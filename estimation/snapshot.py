@@ -14,7 +14,7 @@ snapshot's update. Sensor noise is independent between sensors (diagonal R,
 as in the model format). With one operating condition for the whole fleet at a
 snapshot the update processes one sensor at a time on packed covariances (exact
 for diagonal R, no matrix inverse); with gains per engine it is one joint update
-per snapshot with a batched ny x ny solve. Both are vectorised over engines.
+per snapshot through batched ny x ny Cholesky factors. Both are vectorised over engines.
 
 Arrays are engine-major: dy [n_engines, n_snapshots, ny].
 """
@@ -30,9 +30,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from estimation.errors import DimensionError
-
-# numpy's own gufunc behind np.linalg.solve (numpy 1.26 and 2.x); None: the public solve.
-_GUFUNC_SOLVE: Any = getattr(getattr(np.linalg, "_umath_linalg", None), "solve", None)
+from estimation.stacked import batch_last, cholesky_lower, forward_substitute
 
 SNAPSHOT_STATE_FORMAT = "fleethealth.snapshot-state/1"
 
@@ -245,10 +243,12 @@ def snapshot_filter(
             return
         # Per-engine gains: one joint update per snapshot, batched over the block's engines.
         # K = P H^T (H P H^T + R)^-1 with a missing sensor's row of H zeroed (its column of K
-        # is then exactly zero): the same posterior as the scalar updates in turn, in a dozen
-        # array operations a snapshot instead of a dozen per sensor. Every product is taken
-        # per engine and snapshot as for that snapshot alone (stacked products, one LAPACK
-        # solve per matrix), so a record's numbers do not depend on its block or run.
+        # is then exactly zero): the same posterior as the scalar updates in turn, in a few
+        # dozen array operations a snapshot instead of a dozen per sensor. H P H^T + R is
+        # factored (one LAPACK Cholesky per matrix, cheaper than a general solve) and K applied
+        # through the factor (``estimation.stacked``). Every product is
+        # taken per engine and snapshot as for that snapshot alone (stacked products,
+        # elementwise substitution), so a record's numbers do not depend on its block or run.
         Bn = c1 - c0
         q = state.q_hat[c0:c1].copy()  # [Bn, m]; always a copy: the state is not mutated
         P = state.P[c0:c1].copy()  # [Bn, m, m]
@@ -311,10 +311,17 @@ def snapshot_filter(
                     PHt = P_j @ Hm.transpose(0, 2, 1)  # [nb, m, ny]
                     Sm = Hm @ PHt
                     Sm.reshape(nb, ny * ny)[:, :: ny + 1] += var_j  # + R on the diagonal
-                    Kt = _solve(Sm, PHt.transpose(0, 2, 1))  # K^T [nb, ny, m]
-                    resid = np.where(present, innov_j, 0.0)
-                    q_j += np.einsum("bim,bi->bm", Kt, resid)
-                    P_j -= PHt @ Kt
+                    # Y = L^-1 [H P, resid] with Sm = L L^T, engines last: q += Y_P^T Y_r
+                    # and P -= Y_P^T Y_P (K = P H^T Sm^-1 through the factor).
+                    Y = np.empty((ny, m + 1, nb))
+                    Y[:, :m] = PHt.transpose(2, 1, 0)
+                    Y[:, m] = np.where(present, innov_j, 0.0).T
+                    forward_substitute(batch_last(cholesky_lower(Sm)), Y)
+                    # [nb, ny, m + 1], laid out alike whatever nb (the products' BLAS use).
+                    Y_b = np.ascontiguousarray(Y.transpose(2, 0, 1))
+                    Y_P = Y_b[:, :, :m]
+                    q_j += (Y_b[:, None, :, m] @ Y_P)[:, 0]
+                    P_j -= Y_P.transpose(0, 2, 1) @ Y_P
                     np.add(P_j, P_j.transpose(0, 2, 1), out=sym_j)
                     np.multiply(0.5, sym_j, out=P_j)
                 q_blk[:, j] = q
@@ -349,21 +356,6 @@ def snapshot_filter(
     return SnapshotResult(
         q_res, P_res, q_res @ Vp.T, h_std, innov, SnapshotState(q_end, P_end)
     )
-
-
-def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``np.linalg.solve`` of stacked matrices [..., n, n] and right-hand sides [..., n, k]:
-    the same LAPACK solve per matrix, without the wrapper's checks and error state per call
-    (thousands of calls on a dozen small matrices each); a singular matrix gives NaN (an
-    invalid-value warning unless the caller's error state ignores it), which the caller
-    checks once."""
-    if _GUFUNC_SOLVE is None:  # pragma: no cover - a numpy without the gufunc
-        try:
-            return np.linalg.solve(a, b)
-        except np.linalg.LinAlgError:
-            return np.full(np.broadcast_shapes(a.shape[:-2], b.shape[:-2]) + b.shape[-2:],
-                           np.nan)
-    return _GUFUNC_SOLVE(a, b, signature="dd->d")
 
 
 class _PackedUpdate:

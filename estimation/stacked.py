@@ -44,8 +44,11 @@ def forward_substitute(L: np.ndarray, X: np.ndarray) -> np.ndarray:
     (r right-hand sides of each of K systems). Row by row, each solved row taken out of the
     rows below it."""
     n = L.shape[0]
+    terms = np.empty((max(n - 1, 0), *X.shape[1:]))
     for k in range(n):
         X[k] /= L[k, k]
         if k + 1 < n:
-            X[k + 1:] -= L[k + 1:, k, None, :] * X[k, None]
+            below = terms[: n - k - 1]
+            np.multiply(L[k + 1:, k, None, :], X[k, None], out=below)
+            X[k + 1:] -= below
     return X
