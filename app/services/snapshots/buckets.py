@@ -168,8 +168,7 @@ def refresh(
             keep = epoch[e] >= float(period_starts(np.array([first[e]]), period)[0])
             starts, counts, sums = period_sums(epoch[e][keep], values[e][keep], period)
             written.add(period, e, starts, counts, sums)
-            for start, n, total in zip(starts, counts, sums, strict=True):
-                change.add(period, float(start), total / n, +1)
+            change.add_many(period, starts, sums / counts[:, None], +1)
     written.insert(session)
     change.apply(session, operator_id=operator_id, design_id=design_id)
 
@@ -237,8 +236,18 @@ class FleetChange:
 
     def add(self, period: str, start: float, mean: np.ndarray, sign: int) -> None:
         """One engine's period mean going in (sign +1) or out (-1)."""
+        self._add(period, start, mean, second_moments(mean, self.p), sign)
+
+    def add_many(self, period: str, starts: np.ndarray, means: np.ndarray, sign: int) -> None:
+        """``add`` of one engine's periods starting at ``starts`` [k], means [k, width], their
+        second moments formed in one go (each row's products its own)."""
+        for start, mean, moments in zip(starts.tolist(), means, second_moments(means, self.p),
+                                        strict=True):
+            self._add(period, start, mean, moments, sign)
+
+    def _add(self, period: str, start: float, mean: np.ndarray, moments: np.ndarray,
+             sign: int) -> None:
         key = (period, start)
-        moments = second_moments(mean, self.p)
         got = self.delta.get(key)
         if got is None:  # the zeros made only for a new key
             got = (0, 0.0 * mean, 0.0 * moments)
