@@ -32,6 +32,8 @@ from estimation import uncertainty
 from estimation.model import MODEL_FORMAT, LinearModel
 
 SCORE_SEEDS = (20260501, 20260502, 20260503, 20260504, 20260505, 20260506)
+# A scoring fleet: the demo's twelve aircraft, their engines' flights in the calibration's rounds.
+SCORE_AIRCRAFT = 12
 
 
 def design_stream_estimator(method: str, m: int) -> StreamEstimator:
@@ -79,20 +81,20 @@ def score(est: StreamEstimator, calib: uncertainty.Calibration,
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--designs", default="subset:10")
-    ap.add_argument("--calibrate-seeds", type=int, default=len(calibration.SEEDS))
+    ap.add_argument("--calibrate-aircraft", type=int, default=calibration.AIRCRAFT)
     ap.add_argument("--seeds", type=int, default=len(SCORE_SEEDS))
+    ap.add_argument("--score-aircraft", type=int, default=SCORE_AIRCRAFT)
     args = ap.parse_args()
     print(_common.load_line())
     for spec in args.designs.split(","):
         method, m = spec.split(":")
         est = design_stream_estimator(method, int(m))
         started = time.monotonic()
-        calib = calibration.calibrate(est, seeds=calibration.SEEDS[:args.calibrate_seeds],
-                                      design=spec)
+        calib = calibration.calibrate(est, aircraft=args.calibrate_aircraft, design=spec)
         print(f"== {spec}: calibrated in {time.monotonic() - started:.0f} s on "
-              f"{calib.source['windows']} windows of {calib.source['fleets']} fleets "
-              f"({calibration.AIRCRAFT} aircraft, rounds {list(calibration.ROUNDS)}, "
-              f"{calibration.RATE_HZ:g} Hz)")
+              f"{calib.source['windows']} windows of {calib.source['flights']} flights "
+              f"({args.calibrate_aircraft} aircraft in {calib.source['groups']} groups, rounds "
+              f"{list(calibration.ROUNDS)}, {calibration.RATE_HZ:g} Hz)")
         print("shown: " + ", ".join(n for n, o in zip(calib.names, calib.observable,
                                                       strict=True) if o))
         hidden = calib.tuner_hidden(calib.tuner_names)
@@ -100,7 +102,8 @@ def main() -> None:
                                                              strict=True) if not x))
         rows = []
         for seed in SCORE_SEEDS[:args.seeds]:
-            windows = calibration.fleet_windows(est, calibration.simulate(seed))
+            windows = calibration.fleet_windows(
+                est, calibration.simulate(seed, aircraft=args.score_aircraft))
             rows.append(score(est, calib, windows))
             print(f"-- seed {seed}: {len(windows.h_hat)} windows; " + "; ".join(
                 f"{n} {a:.2f}/{b:.2f} rms {r:.2f} (before {f:.2f})"

@@ -116,7 +116,7 @@ async function column(id, side) {
       h("dt", {}, "SSEE (theory)"), h("dd", {}, `health ${fmtNum(design.ssee_health, 3)} %² · aux ${fmtNum(design.ssee_aux, 3)}`),
       h("dt", {}, "Monte Carlo"), h("dd", {}, mc ? `${mc.n_cases} cases, SSEE ${fmtNum(mc.ssee_health, 3)} %² (theory ${fmtNum(mc.ssee_health_theory, 3)}), ${fmtTime(evaluation.finished_at)}`
         : h("span", {}, "not evaluated yet ", h("button", { type: "button", class: "secondary", onclick: () => evaluate(design.id) }, "Run evaluation"))),
-      ...calibrationRow(design, result.uncertainty)));
+      ...calibrationRow(design, result.uncertainty, result.stream_uncertainty)));
   if (design.status !== "ready" || !theory) {
     card.append(h("p", { class: "notice" }, `Design is ${design.status}${design.failure ? `: ${design.failure}` : ""}.`));
     return card;
@@ -213,7 +213,7 @@ async function watchJob(job, label) {
 // The design's calibration against the built-in engine's simulator (what makes the trends'
 // bands honest): how it was made, or why the bands are the filter's own, with a button that
 // runs it (built-in engine designs only: the others have no simulator).
-function calibrationRow(design, cal) {
+function calibrationRow(design, cal, streams) {
   const model = models.find((m) => m.id === design.engine_model_id);
   if (!model || model.source !== "builtin" || design.status !== "ready") return [];
   const button = (text) => h("button", { type: "button", class: "secondary run-calibration", onclick: () => calibrate(design.id) }, text);
@@ -229,7 +229,14 @@ function calibrationRow(design, cal) {
       ? h("span", { class: "calibration-state" }, `calibrated on ${made}: every band of the engine page `)
       : h("span", { class: "calibration-state" }, `calibrated on ${made} before every band of the engine page was (the tuners', deltas', the calibrated tuners, thrust and stall margins, the rate of change's): calibrate again for them `);
   }
-  return [h("dt", {}, "Calibration"), h("dd", {}, text, button(cal ? "Calibrate again" : "Calibrate against the simulator"))];
+  // The recording page's bands: calibrated by the same job on simulated recorded flights.
+  const src = (streams && streams.source) || {};
+  const shown = streams ? streams.names.filter((_, i) => streams.observable[i]) : [];
+  const streamText = streams
+    ? `stream estimates calibrated on ${src.flights ?? "?"} simulated flights (${src.windows ?? "?"} windows): shown ${shown.length ? shown.map(label).join(", ") : "none"}`
+    : "stream estimates not calibrated: the recording page shows the stream filter's own 1-sigma";
+  return [h("dt", {}, "Calibration"), h("dd", {}, text, button(cal ? "Calibrate again" : "Calibrate against the simulator"),
+    h("br"), h("span", { class: "stream-calibration-state muted" }, streamText))];
 }
 
 async function calibrate(designId) {

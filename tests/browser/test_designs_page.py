@@ -204,6 +204,16 @@ def test_calibration_state_and_the_button_that_runs_it(
                                rate_std=np.zeros(1))
             design.result = {**(before or {}), "uncertainty": full.to_dict()}
         assert "every band of the engine page" in state()
+        streams = page.inner_text("#design-a .stream-calibration-state")
+        assert streams.startswith("stream estimates not calibrated"), streams
+        with transaction(server.factory) as session:
+            design = session.get(EstimatorDesign, design_id)
+            assert design is not None
+            stream = Calibration(**one, source={"flights": 256, "windows": 600000})
+            design.result = {**design.result, "stream_uncertainty": stream.to_dict()}
+        state()
+        streams = page.inner_text("#design-a .stream-calibration-state")
+        assert streams.startswith("stream estimates calibrated on 256 simulated flights"), streams
         # The button queues the calibration job, watched with its progress (cancelled here: a
         # real calibration takes minutes).
         page.click("#design-a .run-calibration")

@@ -11,8 +11,13 @@ from datetime import datetime, timedelta
 from typing import Any
 
 import httpx
+import numpy as np
 import pytest
 
+from app.db import transaction
+from app.models import EstimatorDesign
+from app.services.streams import calibration as stream_calibration
+from estimation.uncertainty import Calibration, correction_width
 from tests.browser.conftest import (
     Console,
     Server,
@@ -82,7 +87,46 @@ def test_recording_page_samples_estimates_events_and_links(
     # These estimates have neither a transient index nor a bias correction: said so.
     assert page.locator("#transient-absent").is_visible()
     assert page.locator("#bias-absent").is_visible()
+    # The seeded design has no stream calibration: the note says the bands are the filter's.
+    note = page.locator("#estimates-note")
+    assert note.get_attribute("data-uncertainty") == "uncalibrated"
+    assert "stream filter's own 1σ" in note.inner_text()
     screenshot(page, "recording")
+
+    # With a stream calibration (synthetic here: one health parameter and one tuner
+    # unobservable), the page draws the calibrated estimates, names what it hides and says
+    # what the bands are.
+    names, tuner_names = est["names"]["health"], est["names"]["tuners"]
+    p, m = len(names), len(tuner_names)
+    calib = Calibration(
+        names=tuple(names), level_std=np.full(p, 0.3), change_std=np.zeros(p),
+        slope_error=np.zeros(p), bias2=np.zeros(p), drift=np.zeros(p),
+        observable=np.arange(p) > 0, tuner_names=tuple(tuner_names), tuner_std=np.full(m, 0.2),
+        tuner_correction=np.zeros((m, correction_width(p))), tuner_observable=np.arange(m) > 0,
+        source={"sensors": est["names"]["sensors"]})
+    with transaction(server.factory) as session:
+        design = session.get(EstimatorDesign, est["design_id"])
+        assert design is not None
+        before = design.result
+        design.result = {**before, stream_calibration.RESULT_KEY: calib.to_dict()}
+    try:
+        page.reload()
+        page.wait_for_selector("body[data-ready=true]")
+        assert note.get_attribute("data-uncertainty") == "calibrated"
+        text = note.inner_text()
+        assert "Calibrated on the built-in engine's simulated flights" in text
+        assert "Not observable with this design" in text
+        drawn = [t["name"] for t in traces(page, "#health-plot") if t["role"] == "line"]
+        assert drawn == names[1:]
+        drawn = [t["name"] for t in traces(page, "#tuners-plot") if t["role"] == "line"]
+        assert drawn == tuner_names[1:]
+    finally:
+        with transaction(server.factory) as session:
+            design = session.get(EstimatorDesign, est["design_id"])
+            assert design is not None
+            design.result = before
+        page.reload()
+        page.wait_for_selector("body[data-ready=true]")
 
     # Estimates that carry them (seed 004's bias compensation) are drawn.
     def with_bias(route: Any) -> None:

@@ -28,11 +28,10 @@ class CalibrateDesign(BaseModel):
     streams: bool = Field(True, description=(
         "also calibrate the stream estimates (the recording page) on whole flights of the "
         "closed-loop transient simulator"))
-    stream_seeds: list[int] = Field(
-        default_factory=lambda: list(stream_calibration.SEEDS), min_length=1, max_length=16,
-        description="one simulated fleet of recorded flights per seed")
-    stream_aircraft: int = Field(stream_calibration.AIRCRAFT, ge=1, le=20,
-                                 description="aircraft per stream calibration fleet")
+    stream_seed: int = Field(stream_calibration.SEED,
+                             description="the simulated fleet of recorded flights")
+    stream_aircraft: int = Field(stream_calibration.AIRCRAFT, ge=2, le=64,
+                                 description="its aircraft (two engines each, four flights)")
     stream_duration_s: float | None = Field(
         None, ge=300.0, le=2500.0,
         description="seconds of each simulated flight (null: the whole 2500 s flight)")
@@ -68,7 +67,7 @@ def calibrate_design(
         progress=snapshots_part,
     )
     stream_calib = (None if stream_est is None else stream_calibration.calibrate(
-        stream_est, seeds=parameters.stream_seeds, aircraft=parameters.stream_aircraft,
+        stream_est, seed=parameters.stream_seed, aircraft=parameters.stream_aircraft,
         duration_s=parameters.stream_duration_s, design=data.name, progress=streams_part))
     design = calibration.get_design(session, operator_id=operator_id, design_id=data.design_id)
     stored = calibration.store_calibration(session, design, calib)

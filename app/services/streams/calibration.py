@@ -11,9 +11,10 @@ design's ten parameters.
 ``calibrate`` measures the error the way the snapshot calibration does
 (``designs.calibration``): the product's stream filter (``run.filter_piece`` and the stored
 one-second windows, ``run.window_means``) over whole flights of the closed-loop transient
-simulator (``estimation.engine.fleet.stream_flights``: the engines of simulated fleets at
-several points of their year, with deterioration, actuator biases and faults), against each
-flight's true health. The same fits then give the recording page's figures:
+simulator (``estimation.engine.fleet.stream_flights``: the engines of a simulated fleet at
+several points of their year, with deterioration, actuator biases and faults; its aircraft in
+groups, each a calibration fleet), against each flight's true health. The same fits then give
+the recording page's figures:
 
 - the calibrated level: a correction of the estimates on their own regressors
   (``uncertainty.fit_level_correction``), each fleet's windows corrected by the fit its fleet
@@ -51,12 +52,15 @@ from estimation.engine.fleet import FleetConfig, StreamFlight, plan_fleet, strea
 from estimation.engine.health import HEALTH_NAMES
 
 RESULT_KEY = "stream_uncertainty"
-# Calibration fleets: their engines' flights at four points of a year (young engines, worn
-# ones, a few faulted), recorded at 10 Hz, one-second windows as stored.
-SEEDS = (20260401, 20260402, 20260403, 20260404)
-AIRCRAFT = 4
+# The calibration fleet: its engines' flights at four points of a year (young engines, worn
+# ones, a few faulted), simulated in one batch (the transient simulator's cost is per time
+# step, nearly whatever the batch), recorded at 2 Hz, one-second windows as stored; its
+# aircraft in GROUPS groups, each fitted out of sample as a fleet of its own.
+SEED = 20260401
+AIRCRAFT = 32
+GROUPS = 8
 ROUNDS = (30, 250, 480, 720)
-RATE_HZ = 10.0
+RATE_HZ = 2.0
 WINDOW_S = 1.0
 
 ProgressFn = Callable[[float, str | None], None]
@@ -77,16 +81,27 @@ class StreamWindows:
 
 
 def simulate(seed: int, aircraft: int = AIRCRAFT, rounds: Sequence[int] = ROUNDS,
-             rate_hz: float = RATE_HZ, duration_s: float | None = None) -> list[StreamFlight]:
+             rate_hz: float = RATE_HZ, duration_s: float | None = None,
+             progress: Callable[[float], None] | None = None) -> list[StreamFlight]:
     """Whole flights (the first ``duration_s`` of each; None: all of it) of a demo-like
     fleet's engines (``designs.calibration.simulate_fleet``'s fleet) in the ``rounds`` of its
-    year, from ``seed``."""
+    year, from ``seed``, in aircraft order within each round."""
     config = FleetConfig(n_aircraft=aircraft, n_flights=max(rounds) + 1, positions=2,
                          flights_per_day=2.0, fault_rate=1.0 / 3000.0, faulted_removal=0.02)
     plan_rng, stream_rng = np.random.default_rng(seed).spawn(2)
     plan = plan_fleet(config, plan_rng)
     return list(stream_flights(plan, stream_rng, rate_hz=rate_hz, duration_s=duration_s,
-                               rounds=list(rounds)))
+                               rounds=list(rounds), on_progress=progress))
+
+
+def grouped(flights: Sequence[StreamFlight], groups: int) -> list[list[StreamFlight]]:
+    """The flights in ``groups`` groups of whole aircraft (an aircraft's engines, every
+    round, in one group): the calibration's fleets."""
+    tails = list(dict.fromkeys(f.tail for f in flights))
+    out: list[list[StreamFlight]] = [[] for _ in range(min(groups, len(tails)))]
+    for flight in flights:
+        out[tails.index(flight.tail) % len(out)].append(flight)
+    return out
 
 
 def stored_table(flight: StreamFlight) -> pa.Table:
@@ -173,22 +188,30 @@ def fit(fleets: Sequence[StreamWindows], names: tuple[str, ...], tuners: tuple[s
 
 
 def calibrate(
-    est: StreamEstimator, seeds: Sequence[int] = SEEDS, aircraft: int = AIRCRAFT,
+    est: StreamEstimator, seed: int = SEED, aircraft: int = AIRCRAFT, groups: int = GROUPS,
     rounds: Sequence[int] = ROUNDS, rate_hz: float = RATE_HZ,
     duration_s: float | None = None, design: str = "", progress: ProgressFn | None = None,
 ) -> uncertainty.Calibration:
-    """Simulate the calibration fleets' flights (``simulate``), filter them with ``est`` and
-    ``fit``."""
-    fleets = []
-    for k, seed in enumerate(seeds):
-        fleets.append(fleet_windows(est, simulate(seed, aircraft, rounds, rate_hz, duration_s)))
+    """Simulate the calibration fleet's flights (``simulate``), filter them with ``est`` in
+    ``groups`` groups of aircraft (``grouped``) and ``fit``."""
+
+    def simulated(fraction: float) -> None:
         if progress is not None:
-            progress((k + 1) / len(seeds), f"filtered simulated flights of fleet {k + 1}")
+            progress(0.85 * fraction, "simulating recorded flights")
+
+    flights = simulate(seed, aircraft, rounds, rate_hz, duration_s, simulated)
+    fleets = []
+    parts = grouped(flights, groups)
+    for k, part in enumerate(parts):
+        fleets.append(fleet_windows(est, part))
+        if progress is not None:
+            progress(0.85 + 0.15 * (k + 1) / len(parts), f"filtered flights of group {k + 1}")
     layout = est.layout
     return fit(fleets, tuple(layout.health), tuple(layout.tuners), np.asarray(est.vstar),
                tuple(layout.sensors),
-               {"design": design, "seeds": list(seeds), "aircraft": aircraft,
-                "rounds": list(rounds), "rate_hz": rate_hz, "duration_s": duration_s})
+               {"design": design, "seeds": [seed], "aircraft": aircraft, "groups": len(parts),
+                "flights": len(flights), "rounds": list(rounds), "rate_hz": rate_hz,
+                "duration_s": duration_s})
 
 
 def calibration_input(session: Session, *, operator_id: int,

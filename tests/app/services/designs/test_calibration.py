@@ -107,7 +107,7 @@ def test_the_calibration_job_stores_it_with_the_design(
         "/api/v1/jobs",
         json={"kind": "calibrate_design", "parameters": {
             "design_id": design.id, "seeds": [5], "aircraft": 1, "flights": 200,
-            "stream_seeds": [7, 8], "stream_aircraft": 1, "stream_duration_s": 400}},
+            "stream_seed": 7, "stream_aircraft": 2, "stream_duration_s": 400}},
         headers=tenant.headers(),
     )
     assert job.status_code == 202, job.text
@@ -115,8 +115,9 @@ def test_the_calibration_job_stores_it_with_the_design(
     session.expire_all()
     back = calibration.design_calibration(session, design.id)
     assert back is not None and back.source["seeds"] == [5]
-    # The stream estimates' calibration beside it, on the recorded flights of its own fleets.
+    # The stream estimates' calibration beside it, on recorded flights of a fleet of its own.
     streams = stream_calibration.design_calibration(session, design.id)
-    assert streams is not None and streams.source["seeds"] == [7, 8]
+    assert streams is not None and streams.source["seeds"] == [7]
+    assert streams.source["groups"] == 2 and streams.source["flights"] == 16
     assert streams.source["windows"] > 0 and streams.names == back.names
 
