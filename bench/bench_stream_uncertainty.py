@@ -21,61 +21,12 @@ import time
 import _common  # noqa: F401  (pins BLAS threads)
 import numpy as np
 
-from app.models import EngineModel, EstimatorDesign
-from app.services.demo import fleet as demo
-from app.services.designs import service as designs
-from app.services.snapshots import estimator
 from app.services.streams import calibration
-from app.services.streams.estimator import StreamEstimator, stream_estimator
-from app.services.trends import health as health_view
-from estimation import uncertainty
-from estimation.model import MODEL_FORMAT, LinearModel
+from tests.support.stream_uncertainty import design_stream_estimator, score
 
 SCORE_SEEDS = (20260501, 20260502, 20260503, 20260504, 20260505, 20260506)
 # A scoring fleet: the demo's twelve aircraft, their engines' flights in the calibration's rounds.
 SCORE_AIRCRAFT = 12
-
-
-def design_stream_estimator(method: str, m: int) -> StreamEstimator:
-    """A demo design of the built-in engine as the product stores it, ready for streams."""
-    p = demo.DESIGN_POINT
-    model = estimator.builtin_schedule().model_at(p["alt"], p["mach"], p["power"])
-    sensors = [n for n in model.sensor_names if n != "Wf"]
-    spec = demo.design_spec(method, m, sensors)
-    result = designs.design_step(model, spec)
-    row = EngineModel(source="builtin", format=MODEL_FORMAT,
-                      content=LinearModel.from_dict(result["model"]).to_dict())
-    design = EstimatorDesign(id=0, status="ready", result=result, spec=spec)
-    signals = [*model.sensor_names, "VSV", "VBV"]
-    return stream_estimator(design, row, signals)
-
-
-def score(est: StreamEstimator, calib: uncertainty.Calibration,
-          windows: calibration.StreamWindows) -> dict[str, tuple[float, float, float, float]]:
-    """Per figure: (1-sigma, 2-sigma coverage, RMS) calibrated, and the filter's own 1-sigma
-    coverage as drawn before; unobservable figures left out."""
-    layout = est.layout
-    values = np.zeros((len(windows.h_hat), layout.width))
-    sl = layout.slices()
-    values[:, sl["h"]], values[:, sl["h_sigma"]] = windows.h_hat, windows.h_sigma
-    values[:, sl["q"]], values[:, sl["q_sigma"]] = windows.q_hat, windows.q_sigma
-    shown, meta = health_view.apply(values, sl, tuple(layout.health), calib, "level",
-                                    tuner_names=tuple(layout.tuners))
-    out = {}
-    for block, sigma_block, names, truth, raw, raw_sigma in (
-            ("h", "h_sigma", layout.health, windows.h_true, windows.h_hat, windows.h_sigma),
-            ("q", "q_sigma", layout.tuners, windows.q_true, windows.q_hat, windows.q_sigma)):
-        err = shown[:, sl[block]] - truth
-        sigma = shown[:, sl[sigma_block]]
-        for k, name in enumerate(names):
-            if np.isnan(err[:, k]).all():
-                continue  # unobservable: not shown
-            z = np.abs(err[:, k]) / sigma[:, k]
-            before = np.abs(raw[:, k] - truth[:, k]) / raw_sigma[:, k]
-            out[name] = (float(np.mean(z <= 1.0)), float(np.mean(z <= 2.0)),
-                         float(np.sqrt(np.mean(err[:, k] ** 2))), float(np.mean(before <= 1.0)))
-    del meta
-    return out
 
 
 def main() -> None:
