@@ -769,10 +769,12 @@ def fit(
     )
 
 
-def design_calibration(session: Session, design_id: int) -> uncertainty.Calibration | None:
-    """The design's stored calibration (None: uncalibrated); reads only that key."""
+def design_calibration(session: Session, design_id: int,
+                       key: str = RESULT_KEY) -> uncertainty.Calibration | None:
+    """The design's stored calibration (None: uncalibrated); reads only that key (the
+    stream estimates' is another, ``streams.calibration.RESULT_KEY``)."""
     document = session.scalar(
-        select(EstimatorDesign.__table__.c.result[RESULT_KEY]).where(
+        select(EstimatorDesign.__table__.c.result[key]).where(
             EstimatorDesign.id == design_id)
     )
     if not isinstance(document, dict):
@@ -836,14 +838,15 @@ def calibrate_design(
 
 
 def store_calibration(
-    session: Session, design: EstimatorDesign, calib: uncertainty.Calibration
+    session: Session, design: EstimatorDesign, calib: uncertainty.Calibration,
+    key: str = RESULT_KEY,
 ) -> dict[str, Any]:
-    """Put ``calib`` into the design's result document (a new dict: the JSON column sees the
-    change); flushed."""
+    """Put ``calib`` into the design's result document under ``key`` (a new dict: the JSON
+    column sees the change); flushed."""
     if design.result is None:
         raise Conflict(f"design {design.id} is {design.status}: nothing to calibrate")
     document = calib.to_dict()
-    design.result = {**design.result, RESULT_KEY: document}
+    design.result = {**design.result, key: document}
     session.flush()
     return document
 

@@ -38,7 +38,6 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.models import EstimatorDesign
@@ -69,7 +68,7 @@ WINDOW_S = 1.0
 ONE_SIGMA = 0.70
 TWO_SIGMA = 0.93
 
-ProgressFn = Callable[[float, str | None], None]
+ProgressFn = designs_calibration.ProgressFn
 
 
 @dataclass(frozen=True)
@@ -234,20 +233,11 @@ def calibration_input(session: Session, *, operator_id: int,
 
 
 def design_calibration(session: Session, design_id: int) -> uncertainty.Calibration | None:
-    """The design's stored stream calibration (None: uncalibrated); reads only that key."""
-    document = session.scalar(
-        select(EstimatorDesign.__table__.c.result[RESULT_KEY]).where(
-            EstimatorDesign.id == design_id)
-    )
-    if not isinstance(document, dict):
-        return None
-    return uncertainty.Calibration.from_dict(document)
+    """The design's stored stream calibration (None: uncalibrated)."""
+    return designs_calibration.design_calibration(session, design_id, RESULT_KEY)
 
 
 def store_calibration(session: Session, design: EstimatorDesign,
                       calib: uncertainty.Calibration) -> dict[str, Any]:
     """Put ``calib`` into the design's result document under ``RESULT_KEY``; flushed."""
-    document = calib.to_dict()
-    design.result = {**(design.result or {}), RESULT_KEY: document}
-    session.flush()
-    return document
+    return designs_calibration.store_calibration(session, design, calib, RESULT_KEY)
