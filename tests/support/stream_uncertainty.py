@@ -41,7 +41,7 @@ def score(est: StreamEstimator, calib: uncertainty.Calibration,
     sl = layout.slices()
     values[:, sl["h"]], values[:, sl["h_sigma"]] = windows.h_hat, windows.h_sigma
     values[:, sl["q"]], values[:, sl["q_sigma"]] = windows.q_hat, windows.q_sigma
-    shown, meta = health_view.apply(values, sl, tuple(layout.health), calib, "level",
+    shown, _meta = health_view.apply(values, sl, tuple(layout.health), calib, "level",
                                     tuner_names=tuple(layout.tuners))
     out = {}
     for block, sigma_block, names, truth, raw, raw_sigma in (
@@ -56,5 +56,4 @@ def score(est: StreamEstimator, calib: uncertainty.Calibration,
             before = np.abs(raw[:, k] - truth[:, k]) / raw_sigma[:, k]
             out[name] = (float(np.mean(z <= 1.0)), float(np.mean(z <= 2.0)),
                          float(np.sqrt(np.mean(err[:, k] ** 2))), float(np.mean(before <= 1.0)))
-    del meta
     return out

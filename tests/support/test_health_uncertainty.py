@@ -161,7 +161,7 @@ def test_calibrated_aux_outputs_nearer_the_truth_on_both_pages(schedule: EngineS
     plan, snaps = _fleet(12)
     sc = health_uncertainty.score(est, calib, plan, snaps)
     fe = calibration.figure_errors(plan, health_accuracy.tracks(est, plan, snaps),
-                                   tuple(est.layout.aux))
+                                   tuple(est.layout.aux), vstar=est.vstar)
     aux = tuple(est.layout.aux)
     after = calib.aux_level(aux, fe.aux_err, fe.h_hat)
     for name in ("SM_LPC", "SM_HPC"):
@@ -180,8 +180,6 @@ def test_calibrated_aux_outputs_nearer_the_truth_on_both_pages(schedule: EngineS
     # parameters), nearer V* h than as estimated; the ones the sensors cannot observe are
     # hidden, the others' band holds the truth.
     tuners = tuple(est.layout.tuners)
-    fe = calibration.figure_errors(plan, health_accuracy.tracks(est, plan, snaps), aux,
-                                   vstar=est.vstar)
     q_after = calib.tuner_level(tuners, fe.tuner_err, fe.h_hat)
     hidden = calib.tuner_hidden(tuners)
     assert calib.tuners_corrected and 0 < hidden.sum() < len(tuners), hidden

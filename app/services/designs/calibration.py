@@ -374,6 +374,26 @@ def figure_errors(
                         epoch=np.concatenate(epochs), engine=np.concatenate(engines))
 
 
+def fleet_coverage(err: np.ndarray, sigma: np.ndarray,
+                   fleet: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The shares [G, k] of the errors err [N, k] within 1-sigma and within 2-sigma of sigma
+    [N, k] on each of the G calibration fleets alone (fleet [N]: the records' fleet)."""
+    groups = np.unique(fleet)
+
+    def shares(width: float) -> np.ndarray:
+        return np.array([uncertainty.coverage(err[fleet == g], sigma[fleet == g], width)
+                         for g in groups])
+
+    return shares(1.0), shares(2.0)
+
+
+def in_band(cover1: np.ndarray, cover2: np.ndarray) -> np.ndarray:
+    """[k] bool: ``fleet_coverage``'s shares within the issue's band (``BAND_ONE_SIGMA``,
+    ``BAND_TWO_SIGMA``) on every fleet."""
+    return ((cover1.min(axis=0) >= BAND_ONE_SIGMA[0]) & (cover1.max(axis=0) <= BAND_ONE_SIGMA[1])
+            & (cover2.min(axis=0) >= BAND_TWO_SIGMA))
+
+
 def fit_tuners(
     fleets: Sequence[tuple[int, FigureErrors]], level: uncertainty.LevelCorrection,
     vstar: np.ndarray | None, slope_hat: np.ndarray, slope_true: np.ndarray,
@@ -406,13 +426,8 @@ def fit_tuners(
     if correction is None or V is None:
         return scale, std, spread, None, None
     sigma = np.sqrt(scale**2 * var + np.square(std) + np.square(spread * d[:, None]))
-    bounds = np.cumsum([0, *(len(e) for e in err)])
-    cover = uncertainty.coverage
-    stable = np.ones(V.shape[0], bool)
-    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
-        one, two = cover(all_err[a:b], sigma[a:b], 1.0), cover(all_err[a:b], sigma[a:b], 2.0)
-        stable &= ((one >= BAND_ONE_SIGMA[0]) & (one <= BAND_ONE_SIGMA[1])
-                   & (two >= BAND_TWO_SIGMA))
+    stable = in_band(*fleet_coverage(all_err, sigma, np.concatenate(
+        [np.full(len(e), k) for e, (k, _) in zip(err, fleets, strict=True)])))
     true_rate = V @ np.nan_to_num(slope_true)
     slope_error = (V @ np.nan_to_num(slope_hat - slope_true)) / np.maximum(
         np.abs(true_rate), SLOPE_FLOOR)
@@ -679,15 +694,9 @@ def fit(
     sc = uncertainty.fit_fleet_slope(pieces, YEAR_SLOPE_FLOOR, slope_tolerance, correct=True)
     # Coverage of the pooled sigma on each fleet alone (BAND_ONE_SIGMA, BAND_TWO_SIGMA).
     sigma = np.sqrt(base_var + level_std**2 + (level_spread * d[:, None]) ** 2)
-    per_fleet = [(uncertainty.coverage(st["level_err"][rows == k], sigma[rows == k], 1.0),
-                  uncertainty.coverage(st["level_err"][rows == k], sigma[rows == k], 2.0))
-                 for k in np.unique(rows)]
-    cover1 = np.array([c1 for c1, _ in per_fleet])
-    cover2 = np.array([c2 for _, c2 in per_fleet])
-    stable = ((cover1.min(axis=0) >= BAND_ONE_SIGMA[0]) & (cover1.max(axis=0) <= BAND_ONE_SIGMA[1])
-              & (cover2.min(axis=0) >= BAND_TWO_SIGMA))
-    if len(per_fleet) > 1:
-        shown &= stable
+    cover1, cover2 = fleet_coverage(st["level_err"], sigma, rows)
+    if len(cover1) > 1:
+        shown &= in_band(cover1, cover2)
     aux_std = aux_scale = aux_spread = aux_trim_std = aux_correction = None
     if aux_err:
         # The calibrated aux outputs, as the level: corrected on the health estimates where

@@ -160,14 +160,7 @@ def fit(fleets: Sequence[StreamWindows], names: tuple[str, ...], tuners: tuple[s
     d = uncertainty.spread(h_hat)
     scale, std, spread = uncertainty.fit_output_sigma(err, var, d, one_sigma, two_sigma)
     sigma = np.sqrt(scale**2 * var + np.square(std) + np.square(spread * d[:, None]))
-    stable = np.ones(p, bool)
-    for k in range(len(fleets)):
-        mine = group == k
-        one = uncertainty.coverage(err[mine], sigma[mine], 1.0)
-        two = uncertainty.coverage(err[mine], sigma[mine], 2.0)
-        stable &= ((one >= designs_calibration.BAND_ONE_SIGMA[0])
-                   & (one <= designs_calibration.BAND_ONE_SIGMA[1])
-                   & (two >= designs_calibration.BAND_TWO_SIGMA))
+    stable = designs_calibration.in_band(*designs_calibration.fleet_coverage(err, sigma, group))
     shown = uncertainty.observable(
         np.full(p, designs_calibration.PRIOR_VAR), np.zeros(p), np.zeros(p),
         np.median(sigma, axis=0), reduction=designs_calibration.REDUCTION) & stable
