@@ -74,11 +74,14 @@ def serve(
         from app.services.demo.fleet import ensure_demo_fleet
 
         ensure_demo_fleet(make_sessionmaker(engine), echo=typer.echo)
-        from app.jobs.demo import queue_demo_evaluations
+        from app.jobs.demo import queue_demo_evaluations, queue_demo_stream_calibration
 
         with transaction(make_sessionmaker(engine)) as session:
             if queue_demo_evaluations(session) and jobs:
                 typer.echo("demo designs: Monte Carlo evaluations queued (see the jobs page)")
+            if queue_demo_stream_calibration(session) is not None and jobs:
+                typer.echo("demo design: its stream estimates' calibration queued (see the "
+                           "jobs page)")
     base = f"http://{host}:{port}"
     typer.echo(f"fleethealth dashboard: {base}/")
     typer.echo(f"API documentation:     {base}/docs")

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlalchemy.orm import Session
 
 from app.services.designs import calibration
@@ -25,6 +25,9 @@ class CalibrateDesign(BaseModel):
                           description="aircraft per calibration fleet (two engines each)")
     flights: int = Field(calibration.CALIBRATION_FLIGHTS, ge=100, le=3000,
                          description="flights per aircraft")
+    snapshots: bool = Field(True, description=(
+        "calibrate the snapshot estimates (the engine and fleet pages); false keeps the stored "
+        "snapshot calibration and calibrates the stream estimates alone"))
     streams: bool = Field(True, description=(
         "also calibrate the stream estimates (the recording page) on whole flights of the "
         "closed-loop transient simulator"))
@@ -35,6 +38,12 @@ class CalibrateDesign(BaseModel):
     stream_duration_s: float | None = Field(
         None, ge=300.0, le=2500.0,
         description="seconds of each simulated flight (null: the whole 2500 s flight)")
+
+    @model_validator(mode="after")
+    def _something_to_calibrate(self) -> CalibrateDesign:
+        if not (self.snapshots or self.streams):
+            raise ValueError("nothing to calibrate: snapshots and streams are both false")
+        return self
 
 
 @registry.job(
@@ -54,7 +63,8 @@ def calibrate_design(
         if parameters.streams else None)
     # End the read transaction before the long run (SQLite: see design_evaluation).
     session.commit()
-    share = 0.6 if stream_est is not None else 1.0  # of the progress bar: the snapshots'
+    # The snapshots' share of the progress bar.
+    share = 0.0 if not parameters.snapshots else 0.6 if stream_est is not None else 1.0
 
     def snapshots_part(fraction: float, message: str | None = None) -> None:
         progress(share * fraction, message)
@@ -65,15 +75,17 @@ def calibrate_design(
     calib = calibration.run_calibration(
         data, seeds=parameters.seeds, aircraft=parameters.aircraft, flights=parameters.flights,
         progress=snapshots_part,
-    )
+    ) if parameters.snapshots else None
     stream_calib = (None if stream_est is None else stream_calibration.calibrate(
         stream_est, seed=parameters.stream_seed, aircraft=parameters.stream_aircraft,
         duration_s=parameters.stream_duration_s, design=data.name, progress=streams_part))
     design = calibration.get_design(session, operator_id=operator_id, design_id=data.design_id)
-    stored = calibration.store_calibration(session, design, calib)
-    out = {"design_id": data.design_id, "observable": [
-        n for n, o in zip(stored["names"], stored["observable"], strict=True) if o
-    ], "source": stored["source"]}
+    out: dict[str, Any] = {"design_id": data.design_id}
+    if calib is not None:
+        stored = calibration.store_calibration(session, design, calib)
+        out["observable"] = [
+            n for n, o in zip(stored["names"], stored["observable"], strict=True) if o]
+        out["source"] = stored["source"]
     if stream_calib is not None:
         streams = stream_calibration.store_calibration(session, design, stream_calib)
         out["streams_observable"] = [

@@ -8,11 +8,12 @@ import uuid
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.errors import Conflict
 from app.jobs.runner import run_pending
-from app.models import EngineModel, EstimatorDesign
+from app.models import EngineModel, EstimatorDesign, Job
 from app.services.demo import fleet as demo_fleet
 from app.services.designs import calibration, engine_models
 from app.services.designs import service as designs
@@ -121,3 +122,22 @@ def test_the_calibration_job_stores_it_with_the_design(
     assert streams.source["groups"] == 2 and streams.source["flights"] == 16
     assert streams.source["windows"] > 0 and streams.names == back.names
 
+
+
+def test_a_calibration_of_nothing_is_refused(
+    client: TestClient, session: Session, coarse_schedule: EngineSchedule,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(estimator, "builtin_schedule", lambda: coarse_schedule)
+    tenant = make_tenant(session, "Calibration Nothing Air")
+    design = _design(session, coarse_schedule, tenant.operator_id)
+    session.commit()
+    reply = client.post(
+        "/api/v1/jobs",
+        json={"kind": "calibrate_design", "parameters": {
+            "design_id": design.id, "snapshots": False, "streams": False}},
+        headers=tenant.headers(),
+    )
+    assert reply.status_code == 422, reply.text
+    assert "nothing to calibrate" in reply.text
+    assert session.scalars(select(Job).where(Job.operator_id == tenant.operator_id)).all() == []
