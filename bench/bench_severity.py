@@ -7,9 +7,12 @@ design calibrated) on a throw-away database (``--backend``, dropped after; the b
 schedule read from ``--cache``), or read from a database that holds it (``--url``). The bench
 regenerates the demo's fleet plan from its seed (cheap: no snapshots) and compares each engine's
 status with its true health after the last round: the take-off dEGT on an ISA+15 K day
-(corrected, over theta2 there, like the status's) and the thrust change at take-off power, both
-from the steady-state solver. Engines removed before the end (their last data is older) are
-compared against a health they no longer had when last reported. BLAS threads pinned (one).
+(corrected, over theta2 there, like the status's), and the thrust deficit where the status
+states it, at its latest record's own condition and power setting (altitude, Mach, ambient
+temperature and power of the snapshot it estimated), both from the steady-state solver; the
+take-off thrust change is printed beside it for reference. Engines removed before the end
+(their last data is older) are compared against a health they no longer had when last
+reported. BLAS threads pinned (one).
 
     .venv/bin/python bench/bench_severity.py [--backend sqlite] [--url URL]
 """
@@ -22,6 +25,7 @@ import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import _common
 import numpy as np
@@ -29,7 +33,7 @@ from sqlalchemy import select
 
 from app.db import make_engine, make_sessionmaker, transaction
 from app.migrate import upgrade
-from app.models import Operator
+from app.models import Engine, Operator
 from app.services.demo import fleet as demo
 from app.services.demo.operator import DEMO_OPERATOR, ensure_demo_operator
 from app.services.fleet import performance, status
@@ -94,27 +98,54 @@ def report(url: str) -> None:
     ref = performance.type_reference(builtin_schedule())
     by_esn = {e["esn"]: e for e in engines}
     last = max(e["last_data"] for e in engines if e["last_data"] is not None)
-    print("\nesn         true dEGT  status dEGT   true thrust  status thrust   (TO, ISA+15)")
-    errors = []
-    for k, esn in enumerate(plan.esns):
-        e = by_esn.get(esn)
-        checks = {c["limit"]: c["value"] for c in (e or {}).get("checks", [])}
-        if "egt_margin" not in checks:
-            continue
-        redline = 1100.0  # the built-in type's default
-        # Corrected (over theta2 at the reference, ISA+15 K), as the status's dEGT is.
-        d_true = (true.sensors[k, 7] - nominal.sensors[0, 7]) / 1.8 / ref.theta_reference
-        d_status = (redline - checks["egt_margin"] - ref.egt_reference_c) / ref.theta_reference
-        fn_true = 100.0 * (1.0 - true.aux[k, 0] / nominal.aux[0, 0])
-        current = (last - e["last_data"]).days < 2  # type: ignore[index]
-        if current:
-            errors.append(d_status - d_true)
-        print(f"{esn}  {d_true:9.1f}  {d_status:11.1f}   {fn_true:11.1f}  "
-              f"{checks.get('thrust_deficit', float('nan')):13.1f}"
-              f"{'' if current else '   (removed: last data older)'}")
-    err = np.abs(errors)
+    print("\nesn         true dEGT  status dEGT   true thrust  status thrust   true thrust"
+          "\n            (TO, ISA+15, corrected)   (latest record's condition)   (TO, ISA+15)")
+    errors, thrust_errors = [], []
+    with factory() as session:
+        for k, esn in enumerate(plan.esns):
+            e = by_esn.get(esn)
+            checks = {c["limit"]: c["value"] for c in (e or {}).get("checks", [])}
+            if e is None or "egt_margin" not in checks:
+                continue
+            redline = 1100.0  # the built-in type's default
+            # Corrected (over theta2 at the reference, ISA+15 K), as the status's dEGT is.
+            d_true = (true.sensors[k, 7] - nominal.sensors[0, 7]) / 1.8 / ref.theta_reference
+            d_status = (redline - checks["egt_margin"] - ref.egt_reference_c) / ref.theta_reference
+            fn_takeoff = 100.0 * (1.0 - true.aux[k, 0] / nominal.aux[0, 0])
+            fn_true = latest_thrust_deficit(session, operator_id, esn, e, health[k])
+            fn_status = checks.get("thrust_deficit", float("nan"))
+            current = (last - e["last_data"]).days < 2
+            if current:
+                errors.append(d_status - d_true)
+                thrust_errors.append(fn_status - fn_true)
+            print(f"{esn}  {d_true:9.1f}  {d_status:11.1f}   {fn_true:11.2f}  {fn_status:13.2f}"
+                  f"   {fn_takeoff:11.1f}{'' if current else '   (removed: last data older)'}")
+    err, fn_err = np.abs(errors), np.abs(np.asarray(thrust_errors))
+    fn_err = fn_err[np.isfinite(fn_err)]
     print(f"\ndEGT, status against truth over {len(err)} engines with current data: "
           f"median |error| {np.median(err):.1f} K, largest {err.max():.1f} K")
+    print(f"thrust deficit at the latest record's condition, status against truth over "
+          f"{len(fn_err)} engines: median |error| {np.median(fn_err):.2f} points, largest "
+          f"{fn_err.max():.2f}")
+
+
+def latest_thrust_deficit(session: Any, operator_id: int, esn: str, e: dict[str, Any],
+                          health: np.ndarray) -> float:
+    """The true thrust deficit [%] at the condition and power setting of the snapshot whose
+    estimate the status shows (``health`` the engine's true health): 100 (1 - Fn / Fn_nominal)
+    from the steady-state solver, NaN without that snapshot."""
+    engine_id = session.scalar(select(Engine.id).where(Engine.operator_id == operator_id,
+                                                       Engine.esn == esn))
+    if engine_id is None or not e.get("health"):
+        return float("nan")
+    epoch = np.array([e["health"]["recorded_at"].timestamp()])
+    cond = performance.record_conditions(session, engine_id, epoch).conditions[0]
+    if not np.all(np.isfinite(cond)):
+        return float("nan")
+    env, power = cond[None, :3], np.array([cond[3]])
+    fn = steady_state(env, power=power, health=health[None, :]).aux[0, 0]
+    fn_nominal = steady_state(env, power=power).aux[0, 0]
+    return float(100.0 * (1.0 - fn / fn_nominal))
 
 
 if __name__ == "__main__":
