@@ -204,7 +204,10 @@ def calibrate(
     for k, part in enumerate(parts):
         fleets.append(fleet_windows(est, part))
         if progress is not None:
-            progress(0.85 + 0.15 * (k + 1) / len(parts), f"filtered flights of group {k + 1}")
+            progress(0.85 + 0.1 * (k + 1) / len(parts), f"filtered flights of group {k + 1}")
+    if progress is not None:
+        progress(0.95, "fitting the calibration on "
+                 f"{sum(len(f.h_hat) for f in fleets):,} windows of {len(flights)} flights")
     layout = est.layout
     return fit(fleets, tuple(layout.health), tuple(layout.tuners), np.asarray(est.vstar),
                tuple(layout.sensors),
