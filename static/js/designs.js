@@ -102,7 +102,7 @@ function healthBars(div, health) {
   }));
 }
 
-async function column(id, side) {
+async function column(id, side, calibrating) {
   const card = h("section", { class: "card", id: `design-${side}` });
   const [design, evaluation] = await details(id);
   const result = design.result || {};
@@ -116,7 +116,7 @@ async function column(id, side) {
       h("dt", {}, "SSEE (theory)"), h("dd", {}, `health ${fmtNum(design.ssee_health, 3)} %² · aux ${fmtNum(design.ssee_aux, 3)}`),
       h("dt", {}, "Monte Carlo"), h("dd", {}, mc ? `${mc.n_cases} cases, SSEE ${fmtNum(mc.ssee_health, 3)} %² (theory ${fmtNum(mc.ssee_health_theory, 3)}), ${fmtTime(evaluation.finished_at)}`
         : h("span", {}, "not evaluated yet ", h("button", { type: "button", class: "secondary", onclick: () => evaluate(design.id) }, "Run evaluation"))),
-      ...calibrationRow(design, result.uncertainty, result.stream_uncertainty)));
+      ...calibrationRow(design, result.uncertainty, result.stream_uncertainty, calibrating.get(design.id))));
   if (design.status !== "ready" || !theory) {
     card.append(h("p", { class: "notice" }, `Design is ${design.status}${design.failure ? `: ${design.failure}` : ""}.`));
     return card;
@@ -186,10 +186,11 @@ async function compare() {
   history.replaceState(null, "", `/designs.html?a=${a}&b=${b}`);
   const compareDiv = $("#compare");
   const cards = [];
+  const calibrating = await activeCalibrations();
   for (const [id, side] of [[a, "a"], [b, "b"]]) {
     if (!id) continue;
     try {
-      cards.push(await column(Number(id), side));
+      cards.push(await column(Number(id), side, calibrating));
     } catch (err) {
       const card = h("section", { class: "card" });
       showError(card, err, `Design ${id}`);
@@ -198,6 +199,31 @@ async function compare() {
   }
   compareDiv.replaceChildren(...cards);
   await Promise.all(cards.map((c) => c.draw && c.draw()));
+  const shown = [...calibrating.values()].find((job) => [Number(a), Number(b)].includes(job.parameters.design_id));
+  if (shown && !following.has(shown.id)) follow(shown);
+}
+
+// Calibration jobs queued or running, by design id (the newest of each).
+async function activeCalibrations() {
+  const out = new Map();
+  let jobs;
+  try {
+    jobs = await api("/api/v1/jobs", { query: { kind: "calibrate_design", status: ["queued", "running"] } });
+  } catch {
+    return out; // the page works without: the button stays
+  }
+  for (const job of jobs.items) if (!out.has(job.parameters.design_id)) out.set(job.parameters.design_id, job);
+  return out;
+}
+
+// Watch a calibration job someone else started, then show what it stored.
+const following = new Set();
+async function follow(job) {
+  following.add(job.id);
+  const done = await watchJob(job, `Calibration of design ${job.parameters.design_id} on simulated fleets`);
+  following.delete(job.id);
+  cache.delete(job.parameters.design_id);
+  if (done.status === "succeeded") await compare();
 }
 
 async function watchJob(job, label) {
@@ -213,10 +239,14 @@ async function watchJob(job, label) {
 // The design's calibration against the built-in engine's simulator (what makes the trends'
 // bands honest): how it was made, or why the bands are the filter's own, with a button that
 // runs it (built-in engine designs only: the others have no simulator).
-function calibrationRow(design, cal, streams) {
+function calibrationRow(design, cal, streams, running) {
   const model = models.find((m) => m.id === design.engine_model_id);
   if (!model || model.source !== "builtin" || design.status !== "ready") return [];
-  const button = (text) => h("button", { type: "button", class: "secondary run-calibration", onclick: () => calibrate(design.id) }, text);
+  // A calibration job of this design queued or running (the demo's first start queues one):
+  // its progress shows in the job box, and no second one is offered.
+  const button = (text) => running
+    ? h("span", { class: "calibration-running muted" }, ` calibration job #${running.id} ${running.status} (${fmtNum(100 * (running.progress || 0), 0)} %): see its progress above`)
+    : h("button", { type: "button", class: "secondary run-calibration", onclick: () => calibrate(design.id) }, text);
   let text;
   if (!cal) text = h("span", { class: "calibration-state" }, "not calibrated: the trends show the filter's own 1-sigma ");
   else {

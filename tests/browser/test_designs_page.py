@@ -227,8 +227,36 @@ def test_calibration_state_and_the_button_that_runs_it(
                                      headers={"X-API-Key": server.seeded.key})
         assert api_post.ok
         page.wait_for_function("document.querySelector('#job').innerText.includes('cancel')")
+        # A calibration someone else started (the demo's first start queues one): the card
+        # names it instead of offering a second, the job box follows it, and its end shows
+        # what it stored.
+        with transaction(server.factory) as session:
+            design = session.get(EstimatorDesign, design_id)
+            assert design is not None
+            running = Job(operator_id=design.operator_id, kind="calibrate_design",
+                          parameters={"design_id": design_id, "snapshots": False},
+                          checksum="browser-test", status="running", progress=0.4,
+                          message="simulating recorded flights")
+            session.add(running)
+            session.flush()
+            running_id = running.id
+        state()
+        page.wait_for_selector("#design-a .calibration-running")
+        text = page.inner_text("#design-a .calibration-running")
+        assert f"#{running_id} running (40 %)" in text, text
+        assert page.query_selector("#design-a .run-calibration") is None
+        page.wait_for_function(
+            "document.querySelector('#job').innerText.includes('simulating recorded flights')")
+        with transaction(server.factory) as session:
+            job = session.get(Job, running_id)
+            assert job is not None
+            job.status, job.progress = "succeeded", 1.0
+        page.wait_for_selector("#design-a .run-calibration")
+        assert page.query_selector("#design-a .calibration-running") is None
     finally:
         with transaction(server.factory) as session:
             design = session.get(EstimatorDesign, design_id)
             assert design is not None
             design.result = before
+            for job in session.query(Job).filter(Job.checksum == "browser-test"):
+                session.delete(job)
