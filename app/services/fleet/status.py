@@ -191,6 +191,10 @@ class Summary:
     health: np.ndarray
     aux: np.ndarray
     thrust_sigma: float | None = None  # the thrust deficit's 1-sigma, as the engine page's
+    # The health and its 1-sigma as estimated (before the calibration: what the rate of
+    # change's sigma is taken from), so the latest estimate is decoded once.
+    h_estimated: np.ndarray | None = None
+    h_sigma_estimated: np.ndarray | None = None
 
     @property
     def worst_name(self) -> str | None:
@@ -261,6 +265,7 @@ def _summaries(
                 None if thrust is None else round(thrust[r], 4),
                 health_rounded[r], aux_rounded[r],
                 None if thrust_sigma is None else round(thrust_sigma[r], 4),
+                values[r, s["h"]], values[r, s["h_sigma"]],
             )
             out[i] = (summary, bool(watch[r]))
     return out
@@ -340,9 +345,11 @@ def _rates(
         # The calibrated change's 1-sigma over the window (NaN: not known).
         sigma = np.full_like(change, np.nan)
         if calib is not None:
-            now = layout.decode_blobs([rows[i].packed for i in members])
-            sigma = calib.on(layout.health).rate(now[:, s["h"]], old[:, s["h"]],
-                                                 now[:, s["h_sigma"]], old[:, s["h_sigma"]])[1]
+            now = [summary for i in members if (summary := summaries[i][0]) is not None]
+            h_now_est = np.stack([np.asarray(n.h_estimated) for n in now])
+            sigma_now = np.stack([np.asarray(n.h_sigma_estimated) for n in now])
+            sigma = calib.on(layout.health).rate(h_now_est, old[:, s["h"]], sigma_now,
+                                                 old[:, s["h_sigma"]])[1]
         for r, i in enumerate(members):
             k = int(worst[r])
             if k >= 0:

@@ -3,34 +3,52 @@ only they: the snapshot calibration stays as the first start stored it."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
-from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.jobs.demo import queue_demo_stream_calibration
 from app.jobs.runner import run_pending
-from app.models import EstimatorDesign, Job
+from app.models import Job
 from app.services.demo import fleet as demo
 from app.services.demo.operator import DEMO_OPERATOR
-from app.services.designs import calibration
+from app.services.designs import calibration, engine_models
+from app.services.designs import service as designs
+from app.services.fleet import service as fleet_service
 from app.services.snapshots import estimator
 from app.services.streams import calibration as stream_calibration
 from app.services.tenancy import service as tenancy
+from estimation.uncertainty import Calibration
 from tests.support.builtin_fleet import coarse_schedule
 
 
 def test_the_active_demo_design_gets_its_stream_calibration_once(
     session: Session, session_factory: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(estimator, "builtin_schedule", coarse_schedule)
+    schedule = coarse_schedule()
+    monkeypatch.setattr(estimator, "builtin_schedule", lambda: schedule)
     operator = tenancy.create_operator(session, name=DEMO_OPERATOR)
-    _type_id, design_id = demo._designs(session, operator.id, lambda _m: None)
-    snapshots = calibration.calibrate_design(
-        session, operator_id=operator.id, design_id=design_id, seeds=(5,), aircraft=1,
-        flights=200)
+    engine_type = fleet_service.create_engine_type(
+        session, operator_id=operator.id, name=demo.ENGINE_TYPE, description="")
+    model = schedule.model_at(*demo.DESIGN_POINT.values())
+    row, _ = engine_models.register_builtin_model(
+        session, operator_id=operator.id, engine_type_id=engine_type.id, name="cruise",
+        model=model)
+    spec = demo.design_spec("subset", 8, [n for n in model.sensor_names if n != "Wf"])
+    for name, active in (("spare", False), ("active", True)):
+        design = designs.run_design(session, designs.create_design(
+            session, operator_id=operator.id, engine_model_id=row.id, name=name, spec=spec),
+            designs.design_step)
+        design.active = active
+        session.flush()
+    design_id = design.id
+    # The snapshots' calibration the first start stored (its numbers do not matter here).
+    one = {"names": ("fan_eff",), "level_std": np.ones(1), "change_std": np.zeros(1),
+           "slope_error": np.zeros(1), "bias2": np.zeros(1), "drift": np.zeros(1),
+           "observable": np.ones(1, bool)}
+    snapshots = calibration.store_calibration(
+        session, design, Calibration(**one, source={"seeds": [5]}))
     session.commit()
-    assert session.scalars(select(EstimatorDesign.id).where(
-        EstimatorDesign.operator_id == operator.id, EstimatorDesign.active)).all() == [design_id]
 
     job_id = queue_demo_stream_calibration(session)
     session.commit()
@@ -42,7 +60,7 @@ def test_the_active_demo_design_gets_its_stream_calibration_once(
     assert queue_demo_stream_calibration(session) == job_id  # still queued: the same job
 
     # The job as queued calibrates 32 aircraft over whole flights (minutes): shrunk here.
-    job.parameters = {**job.parameters, "stream_aircraft": 2, "stream_duration_s": 400}
+    job.parameters = {**job.parameters, "stream_aircraft": 2, "stream_duration_s": 300}
     session.commit()
     assert run_pending(session_factory) == [job_id]
     session.expire_all()
