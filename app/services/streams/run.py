@@ -6,6 +6,7 @@ constant-gain EKF on the built-in nonlinear engine over the samples in engine un
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -45,6 +46,18 @@ class Carry:
     switches: int
     ti: float = 0.0  # low-passed transient index (docs/math.md section 7)
     plant: dict[str, Any] | None = None
+
+
+def recording_start(n: int, nx: int, n_inputs: int,
+                    previous_end: Sequence[float] | np.ndarray | None = None) -> Carry:
+    """The filter state before a recording's first sample, as every recording of an engine
+    starts: the tuners where the engine's previous recording under the design ended
+    (``previous_end``, its x_hat after the last sample; None, or of another length: nominal),
+    the engine states at zero deviation, no anchor."""
+    x = np.zeros(n)
+    if previous_end is not None and len(previous_end) == n:
+        x[nx:] = np.asarray(previous_end, float)[nx:]
+    return Carry(x, np.zeros(n_inputs), None, 0)
 
 
 def filter_piece(

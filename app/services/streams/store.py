@@ -53,7 +53,13 @@ from app.services import common
 from app.services.designs import service as designs
 from app.services.streams import calibration, recordings, samples
 from app.services.streams.estimator import StreamEstimationError, estimator_for
-from app.services.streams.run import Carry, filter_inputs, filter_piece, window_means
+from app.services.streams.run import (
+    Carry,
+    filter_inputs,
+    filter_piece,
+    recording_start,
+    window_means,
+)
 from app.services.trends import health as health_view
 
 WINDOW_S = 1.0  # stored window length (seconds of recording)
@@ -77,8 +83,8 @@ def _json_floats(values: np.ndarray) -> list[float | None]:
 
 def _initial_x(session: Session, recording: StreamRecording, design_id: int, n: int,
                nx: int) -> list[float]:
-    """x_hat before the first sample: the tuners at the end of the engine's previous
-    recording under the design, spool states at zero deviation."""
+    """x_hat before the first sample (``run.recording_start``): the tuners at the end of the
+    engine's previous recording under the design, spool states at zero deviation."""
     previous = session.scalar(
         select(StreamFilterState)
         .where(StreamFilterState.engine_id == recording.engine_id,
@@ -87,12 +93,8 @@ def _initial_x(session: Session, recording: StreamRecording, design_id: int, n: 
         .order_by(StreamFilterState.started_at.desc())
         .limit(1)
     )
-    x = [0.0] * n
-    if previous is not None:
-        end = previous.state.get("x_end", [])
-        if len(end) == n:
-            x[nx:] = [float(v) for v in end[nx:]]
-    return x
+    end = None if previous is None else previous.state.get("x_end")
+    return recording_start(n, nx, 0, end).x.tolist()
 
 
 def estimate_one(
