@@ -30,7 +30,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from estimation.errors import DimensionError
-from estimation.stacked import batch_last, cholesky_lower, forward_substitute
+from estimation.stacked import SubstitutionPlan, cholesky_lower
 
 SNAPSHOT_STATE_FORMAT = "fleethealth.snapshot-state/1"
 
@@ -273,6 +273,8 @@ def snapshot_filter(
         ends = (np.where(live.any(axis=1), S - np.argmax(live[:, ::-1], axis=1), 0) if S
                 else np.zeros(Bn, dtype=np.int64))
         updated = np.zeros(S, dtype=np.int64)  # engines updated at each step: a prefix
+        # The forward substitution's buffers and views per number of engines updated.
+        plans: dict[int, SubstitutionPlan] = {}
         for b in np.flatnonzero(ends):
             updated[: ends[b]] = b + 1
         # A singular H P H^T + R leaves NaN (raised below, as numpy's solve raises), not a
@@ -313,10 +315,14 @@ def snapshot_filter(
                     Sm.reshape(nb, ny * ny)[:, :: ny + 1] += var_j  # + R on the diagonal
                     # Y = L^-1 [H P, resid] with Sm = L L^T, engines last: q += Y_P^T Y_r
                     # and P -= Y_P^T Y_P (K = P H^T Sm^-1 through the factor).
-                    Y = np.empty((ny, m + 1, nb))
+                    plan = plans.get(nb)
+                    if plan is None:
+                        plan = plans[nb] = SubstitutionPlan(ny, m + 1, nb)
+                    Y = plan.X
                     Y[:, :m] = PHt.transpose(2, 1, 0)
-                    Y[:, m] = np.where(present, innov_j, 0.0).T
-                    forward_substitute(batch_last(cholesky_lower(Sm)), Y)
+                    np.copyto(Y[:, m], np.where(present, innov_j, 0.0).T)
+                    np.copyto(plan.L, cholesky_lower(Sm).transpose(1, 2, 0))
+                    plan.run()
                     # [nb, ny, m + 1], laid out alike whatever nb (the products' BLAS use).
                     Y_b = np.ascontiguousarray(Y.transpose(2, 0, 1))
                     Y_P = Y_b[:, :, :m]

@@ -52,3 +52,32 @@ def forward_substitute(L: np.ndarray, X: np.ndarray) -> np.ndarray:
             np.multiply(L[k + 1:, k, None, :], X[k, None], out=below)
             X[k + 1:] -= below
     return X
+
+
+class SubstitutionPlan:
+    """``forward_substitute`` of one shape done again and again on the same two buffers (the
+    filter's step after step): ``L`` [n, n, K] and ``X`` [n, r, K], written by the caller
+    before each ``run``. The views of every row's operations are made once, so a small stack
+    costs its arithmetic, not the indexing (the same operations in the same order: the same
+    numbers)."""
+
+    def __init__(self, n: int, r: int, K: int):
+        self.L = np.empty((n, n, K))
+        self.X = np.empty((n, r, K))
+        terms = np.empty((max(n - 1, 0), r, K))
+        L, X = self.L, self.X
+        self._rows = [(X[k], L[k, k]) for k in range(n)]
+        self._below = [(L[k + 1:, k, None, :], X[k, None], terms[: n - k - 1], X[k + 1:])
+                       for k in range(n - 1)]
+
+    def run(self) -> np.ndarray:
+        """X <- L^-1 X in place, as ``forward_substitute``; returns X."""
+        divide, multiply, subtract = np.divide, np.multiply, np.subtract
+        below = self._below
+        for k, (row, pivot) in enumerate(self._rows):
+            divide(row, pivot, out=row)
+            if k < len(below):
+                column, solved, terms, rest = below[k]
+                multiply(column, solved, out=terms)
+                subtract(rest, terms, out=rest)
+        return self.X
