@@ -273,8 +273,8 @@ def snapshot_filter(
         ends = (np.where(live.any(axis=1), S - np.argmax(live[:, ::-1], axis=1), 0) if S
                 else np.zeros(Bn, dtype=np.int64))
         updated = np.zeros(S, dtype=np.int64)  # engines updated at each step: a prefix
-        # The forward substitution's buffers and views per number of engines updated.
-        plans: dict[int, SubstitutionPlan] = {}
+        # The update's buffers and views per number of engines updated (``_StepSpace``).
+        spaces: dict[int, _StepSpace] = {}
         for b in np.flatnonzero(ends):
             updated[: ends[b]] = b + 1
         # A singular H P H^T + R leaves NaN (raised below, as numpy's solve raises), not a
@@ -308,26 +308,28 @@ def snapshot_filter(
                     dy_j, var_j, innov_j = dy_b[:nb, j], var_b[:nb, j], innov_blk[:nb, j]
                     HV, Hm, present = HV[:nb], Hm[:nb], present[:nb]
                 if nb:
+                    ws = spaces.get(nb)
+                    if ws is None:
+                        ws = spaces[nb] = _StepSpace(nb, m, ny)
                     P_j += walk_j
-                    np.subtract(dy_j, np.einsum("bim,bm->bi", HV, q_j), out=innov_j)
-                    PHt = P_j @ Hm.transpose(0, 2, 1)  # [nb, m, ny]
-                    Sm = Hm @ PHt
-                    Sm.reshape(nb, ny * ny)[:, :: ny + 1] += var_j  # + R on the diagonal
+                    np.subtract(dy_j, np.einsum("bim,bm->bi", HV, q_j, out=ws.Hq), out=innov_j)
+                    PHt = np.matmul(P_j, Hm.transpose(0, 2, 1), out=ws.PHt)  # [nb, m, ny]
+                    Sm = np.matmul(Hm, PHt, out=ws.Sm)
+                    np.add(ws.Sm_diag, var_j, out=ws.Sm_diag)  # + R on the diagonal
                     # Y = L^-1 [H P, resid] with Sm = L L^T, engines last: q += Y_P^T Y_r
                     # and P -= Y_P^T Y_P (K = P H^T Sm^-1 through the factor).
-                    plan = plans.get(nb)
-                    if plan is None:
-                        plan = plans[nb] = SubstitutionPlan(ny, m + 1, nb)
+                    plan = ws.plan
                     Y = plan.X
                     Y[:, :m] = PHt.transpose(2, 1, 0)
                     np.copyto(Y[:, m], np.where(present, innov_j, 0.0).T)
-                    np.copyto(plan.L, cholesky_lower(Sm).transpose(1, 2, 0))
+                    cholesky_lower(Sm, out=plan.L_stack)
                     plan.run()
                     # [nb, ny, m + 1], laid out alike whatever nb (the products' BLAS use).
-                    Y_b = np.ascontiguousarray(Y.transpose(2, 0, 1))
+                    Y_b = ws.Y_b
+                    np.copyto(Y_b, Y.transpose(2, 0, 1))
                     Y_P = Y_b[:, :, :m]
-                    q_j += (Y_b[:, None, :, m] @ Y_P)[:, 0]
-                    P_j -= Y_P.transpose(0, 2, 1) @ Y_P
+                    q_j += np.matmul(Y_b[:, None, :, m], Y_P, out=ws.dq)[:, 0]
+                    P_j -= np.matmul(Y_P.transpose(0, 2, 1), Y_P, out=ws.dP)
                     np.add(P_j, P_j.transpose(0, 2, 1), out=sym_j)
                     np.multiply(0.5, sym_j, out=P_j)
                 q_blk[:, j] = q
@@ -362,6 +364,24 @@ def snapshot_filter(
     return SnapshotResult(
         q_res, P_res, q_res @ Vp.T, h_std, innov, SnapshotState(q_end, P_end)
     )
+
+
+class _StepSpace:
+    """The per-engine update's working arrays for nb engines, written snapshot after snapshot
+    (products into them with ``out``: the same products, no allocation a snapshot): P H^T
+    [nb, m, ny], the innovation covariance [nb, ny, ny] and its diagonal, the forward
+    substitution (``SubstitutionPlan``), its result engines first [nb, ny, m + 1], the
+    changes of q [nb, 1, m] and P [nb, m, m], and the predicted deviations H V*^+ q [nb, ny]."""
+
+    def __init__(self, nb: int, m: int, ny: int):
+        self.Hq = np.empty((nb, ny))
+        self.PHt = np.empty((nb, m, ny))
+        self.Sm = np.empty((nb, ny, ny))
+        self.Sm_diag = self.Sm.reshape(nb, ny * ny)[:, :: ny + 1]
+        self.plan = SubstitutionPlan(ny, m + 1, nb)
+        self.Y_b = np.empty((nb, ny, m + 1))
+        self.dq = np.empty((nb, 1, m))
+        self.dP = np.empty((nb, m, m))
 
 
 class _PackedUpdate:

@@ -20,17 +20,24 @@ import numpy as np
 _GUFUNC_CHOLESKY: Any = getattr(getattr(np.linalg, "_umath_linalg", None), "cholesky_lo", None)
 
 
-def cholesky_lower(a: np.ndarray) -> np.ndarray:
+def cholesky_lower(a: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """The lower Cholesky factors [..., n, n] of symmetric positive definite matrices
     [..., n, n], without the wrapper's checks and error state per call; a matrix that is not
     positive definite gives NaN (an invalid-value warning unless the caller's error state
-    ignores it), which the caller checks once."""
+    ignores it), which the caller checks once. ``out``: where to write them (any strides,
+    for instance a ``SubstitutionPlan``'s L seen as [K, n, n])."""
     if _GUFUNC_CHOLESKY is None:  # pragma: no cover - a numpy without the gufunc
         try:
-            return np.linalg.cholesky(a)
+            L = np.linalg.cholesky(a)
         except np.linalg.LinAlgError:
-            return np.full(np.shape(a), np.nan)
-    return _GUFUNC_CHOLESKY(a, signature="d->d")
+            L = np.full(np.shape(a), np.nan)
+        if out is None:
+            return L
+        out[...] = L
+        return out
+    if out is None:
+        return _GUFUNC_CHOLESKY(a, signature="d->d")
+    return _GUFUNC_CHOLESKY(a, signature="d->d", out=out)
 
 
 def batch_last(L: np.ndarray) -> np.ndarray:
@@ -56,13 +63,15 @@ def forward_substitute(L: np.ndarray, X: np.ndarray) -> np.ndarray:
 
 class SubstitutionPlan:
     """``forward_substitute`` of one shape done again and again on the same two buffers (the
-    filter's step after step): ``L`` [n, n, K] and ``X`` [n, r, K], written by the caller
-    before each ``run``. The views of every row's operations are made once, so a small stack
+    filter's step after step): ``L`` [n, n, K] (``L_stack``: the same seen as [K, n, n],
+    where ``cholesky_lower`` writes) and ``X`` [n, r, K], written by the caller before each
+    ``run``. The views of every row's operations are made once, so a small stack
     costs its arithmetic, not the indexing (the same operations in the same order: the same
     numbers)."""
 
     def __init__(self, n: int, r: int, K: int):
         self.L = np.empty((n, n, K))
+        self.L_stack = self.L.transpose(2, 0, 1)  # the same memory seen as [K, n, n]
         self.X = np.empty((n, r, K))
         terms = np.empty((max(n - 1, 0), r, K))
         L, X = self.L, self.X
