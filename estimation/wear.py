@@ -571,9 +571,8 @@ def calibrated_threshold(
     pos = (1.0 - p[use]) * (N - 1)
     lo = np.floor(pos).astype(int)
     hi = np.minimum(lo + 1, N - 1)
-    rows = cal.maxima[use]
-    j = np.arange(len(use))
-    q = rows[j, lo] + (pos - lo) * (rows[j, hi] - rows[j, lo])
+    at_lo, at_hi = cal.maxima[use, lo], cal.maxima[use, hi]  # the two maxima each needs
+    q = at_lo + (pos - lo) * (at_hi - at_lo)
     return float(q.max())
 
 
