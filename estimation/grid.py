@@ -86,12 +86,17 @@ def corner_sums(indices: np.ndarray, weights: np.ndarray, flat: np.ndarray) -> n
     of K queries and values over the nodes flat [n_nodes, F]: one sparse product (each query a
     row of its C weights), a single pass over the values instead of one gathered copy per
     corner. Each row's sum runs over its corners in order, as the formula reads, so a query's
-    value does not depend on the other queries of the call."""
+    value does not depend on the other queries of the call (nor on the other columns)."""
+    return np.asarray(corner_rows(indices, weights, flat.shape[0]) @ flat)
+
+
+def corner_rows(indices: np.ndarray, weights: np.ndarray, n_nodes: int) -> sparse.csr_matrix:
+    """The sparse [K, n_nodes] of ``corner_sums``: each query a row of its C weights, in corner
+    order; its product with any values over the nodes is their ``corner_sums``."""
     C, K = indices.shape
-    rows = sparse.csr_matrix(
+    return sparse.csr_matrix(
         (np.ascontiguousarray(weights.T).ravel(), np.ascontiguousarray(indices.T).ravel(),
-         np.arange(0, C * K + 1, C)), shape=(K, flat.shape[0]))
-    return np.asarray(rows @ flat)
+         np.arange(0, C * K + 1, C)), shape=(K, n_nodes))
 
 
 def model_stacks(models: Sequence[LinearModel], shape: tuple[int, ...]) -> dict[str, np.ndarray]:

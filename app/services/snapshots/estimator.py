@@ -40,7 +40,7 @@ from estimation.detection import CusumDesign, design_cusum
 from estimation.engine.power_setting import held_speed_aux_gains
 from estimation.engine.schedule import EngineSchedule
 from estimation.engine.trim_table import TrimTable
-from estimation.grid import Grid, corner_sums
+from estimation.grid import Grid, corner_rows
 from estimation.model import LinearModel, Signal
 from estimation.schedule import SCHEDULE_FORMAT, ModelSchedule
 from estimation.shift_detector import SHIFT_LEVEL
@@ -173,19 +173,20 @@ def node_interpolation(
     blocks: Mapping[str, np.ndarray],
 ) -> Callable[[np.ndarray], dict[str, np.ndarray]]:
     """Interpolation of several node quantities at once: ``blocks`` name -> values over the
-    grid [*grid.shape, ...], every one a column of one array over the nodes [n_nodes, F],
-    interpolated in one pass (``Grid.corners``, given here as the schedule's ``corners``,
-    which reads the schedule's own conditions) -> name -> [S, ...]."""
+    grid [*grid.shape, ...] at the records' conditions (``Grid.corners``, given here as the
+    schedule's ``corners``, which reads the schedule's own conditions) -> name -> [S, ...].
+    One sparse matrix of the records' corner weights (``corner_rows``) times each block's
+    values over the nodes [n_nodes, F]: the same sums as ``corner_sums`` of all the blocks
+    side by side, each quantity a contiguous array of its own (what reads it reads
+    contiguous memory, and no array is the size of all of them)."""
     n_nodes = int(np.prod(grid.shape))
     shapes = {k: v.shape[len(grid.shape):] for k, v in blocks.items()}
-    flat = np.ascontiguousarray(
-        np.concatenate([v.reshape(n_nodes, -1) for v in blocks.values()], axis=1))
-    offsets = np.cumsum([0, *(int(np.prod(v)) for v in shapes.values())])
+    flats = {k: np.ascontiguousarray(v.reshape(n_nodes, -1)) for k, v in blocks.items()}
 
     def interpolate(c: np.ndarray) -> dict[str, np.ndarray]:
-        acc = corner_sums(*corners(c), flat)
-        return {name: acc[:, offsets[i]: offsets[i + 1]].reshape(-1, *shapes[name])
-                for i, name in enumerate(shapes)}
+        rows = corner_rows(*corners(c), n_nodes)
+        return {name: np.asarray(rows @ flat).reshape(-1, *shapes[name])
+                for name, flat in flats.items()}
 
     return interpolate
 
