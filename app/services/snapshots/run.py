@@ -546,7 +546,12 @@ def _per_slot(
 ) -> np.ndarray:
     """The chunk's per-record ``values`` [n, ...] (engine after engine, ``counts`` records
     each) laid out [E, S, ...]: engine e's records at the start of row ``row[e]``, the rest
-    of the row ``fill``."""
+    of the row ``fill``. When every engine has S records (rows in engine order, no fill)
+    that is the records' own layout: ``values`` seen as [E, S, ...], not copied (the filter
+    only reads it)."""
+    if (len(values) == len(counts) * S and values.dtype == np.float64
+            and values.flags.c_contiguous):
+        return values.reshape(len(counts), S, *values.shape[1:])
     out = np.empty((len(counts), S, *values.shape[1:]))
     at = 0
     for e, n in enumerate(counts.tolist()):
