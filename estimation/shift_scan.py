@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from estimation.stacked import batch_last, cholesky_lower, forward_substitute
+from estimation.stacked import cholesky_lower, forward_substitute
 
 
 class LevelScan(NamedTuple):
@@ -71,21 +71,25 @@ def level_scan(shift: np.ndarray, P: np.ndarray, H: np.ndarray) -> LevelScan:
     nf = H.shape[1]
     if K == 0:
         return LevelScan(np.zeros(0), np.zeros((0, nf)), np.zeros((0, nf)))
+    # The factors laid out records last, as ``forward_substitute`` takes them, written there
+    # by the factorisation itself.
+    L = np.empty((m, m, K))
     with np.errstate(invalid="ignore"):
-        L = cholesky_lower(P)
+        cholesky_lower(P, out=L.transpose(2, 0, 1))
     if not np.isfinite(L).all():
         raise np.linalg.LinAlgError("filter covariance not positive definite")
     # Right-hand sides [m, 1 + n_faults, K]: the shift, then every fault's tuner change.
     Y = np.empty((m, 1 + nf, K))
     Y[:, 0] = shift.T
     Y[:, 1:] = np.asarray(H, float)[:, :, None]
-    forward_substitute(batch_last(L), Y)
+    forward_substitute(L, Y)
     # Sums over Y's rows, row after row in order (each record's own).
     squares = Y[0] * Y[0]  # [1 + nf, K]: distance, then H_i^T P^-1 H_i
     cross = Y[0, 0] * Y[0, 1:]  # [nf, K]: H_i^T P^-1 shift
+    square, product = np.empty_like(squares), np.empty_like(cross)
     for k in range(1, m):
-        squares += Y[k] * Y[k]
-        cross += Y[k, 0] * Y[k, 1:]
+        squares += np.multiply(Y[k], Y[k], out=square)
+        cross += np.multiply(Y[k, 0], Y[k, 1:], out=product)
     distance = squares[0].copy()
     if nf == 0:
         return LevelScan(distance, np.zeros((K, 0)), np.zeros((K, 0)))

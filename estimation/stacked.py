@@ -4,7 +4,8 @@ matrices (the filter's innovation covariances, the detector's tuner covariances)
 LAPACK's general solve and inverse on matrices of a dozen rows cost 2-3 us each, mostly per
 call; a stack of them is thousands. With the factor L of each matrix (one LAPACK ``potrf``,
 a third of that) only a forward substitution is left, and it runs as a dozen array
-operations over the whole stack with the stack on the last axis (``forward_substitute``).
+operations over the whole stack with the stack on the last axis (``forward_substitute``;
+``cholesky_lower`` writes the factors there itself, given that memory seen stack first).
 
 Every figure of a matrix is computed by the same operations in the same order whatever the
 other matrices of the stack, so results do not depend on how records are grouped.
@@ -38,12 +39,6 @@ def cholesky_lower(a: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     if out is None:
         return _GUFUNC_CHOLESKY(a, signature="d->d")
     return _GUFUNC_CHOLESKY(a, signature="d->d", out=out)
-
-
-def batch_last(L: np.ndarray) -> np.ndarray:
-    """Factors [K, n, n] laid out [n, n, K] (contiguous), as ``forward_substitute`` takes
-    them."""
-    return np.ascontiguousarray(L.transpose(1, 2, 0))
 
 
 def forward_substitute(L: np.ndarray, X: np.ndarray) -> np.ndarray:
