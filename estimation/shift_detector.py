@@ -470,12 +470,13 @@ def shift_scan(
                 at = next_checkpoint
                 checkpoints.append((j + at, _kept(series, L, warm0, at, S, s_mean0, s_count)))
                 next_checkpoint += checkpoint_every
+        mean_rate = S_MEAN_RATE
         for i in range(learning, armed):
             if S == 0.0:
                 s_k = distance[i - first]
                 s_count += 1
                 inverse = 1.0 / s_count
-                rate = S_MEAN_RATE if S_MEAN_RATE > inverse else inverse
+                rate = mean_rate if mean_rate > inverse else inverse
                 s_mean += ((cap if cap < s_k else s_k) - s_mean) * rate
             S = 0.0
             if i == next_checkpoint:
@@ -488,9 +489,10 @@ def shift_scan(
             if S == 0.0:
                 s_count += 1
                 inverse = 1.0 / s_count
-                rate = S_MEAN_RATE if S_MEAN_RATE > inverse else inverse
+                rate = mean_rate if mean_rate > inverse else inverse
                 s_mean += ((cap if cap < s_k else s_k) - s_mean) * rate
-            S = cusum_step(S, scaled, m, reference)
+            S = S + scaled - m - reference  # ``cusum_step``, inline: the same operations
+            S = S if S > 0.0 else 0.0
             if S > threshold:
                 jj = j + i
                 pending = PendingAlarm(seq0 + jj, float(epoch[jj]), S, N_CONFIRM,

@@ -83,13 +83,10 @@ def level_scan(shift: np.ndarray, P: np.ndarray, H: np.ndarray) -> LevelScan:
     Y[:, 0] = shift.T
     Y[:, 1:] = np.asarray(H, float)[:, :, None]
     forward_substitute(L, Y)
-    # Sums over Y's rows, row after row in order (each record's own).
-    squares = Y[0] * Y[0]  # [1 + nf, K]: distance, then H_i^T P^-1 H_i
-    cross = Y[0, 0] * Y[0, 1:]  # [nf, K]: H_i^T P^-1 shift
-    square, product = np.empty_like(squares), np.empty_like(cross)
-    for k in range(1, m):
-        squares += np.multiply(Y[k], Y[k], out=square)
-        cross += np.multiply(Y[k, 0], Y[k, 1:], out=product)
+    # Sums over Y's rows, row after row in order (each record's own): numpy reduces over
+    # the outer axis row by row, as ``np.mean`` over axis 0 does (``sliding_baselines``).
+    squares = np.add.reduce(Y * Y, axis=0)  # [1 + nf, K]: distance, then H_i^T P^-1 H_i
+    cross = np.add.reduce(Y[:, :1] * Y[:, 1:], axis=0)  # [nf, K]: H_i^T P^-1 shift
     distance = squares[0].copy()
     if nf == 0:
         return LevelScan(distance, np.zeros((K, 0)), np.zeros((K, 0)))
