@@ -4,6 +4,7 @@ by the trend; a design of an imported model is refused (no simulator of that eng
 from __future__ import annotations
 
 import uuid
+from typing import Any
 
 import numpy as np
 import pytest
@@ -101,16 +102,10 @@ def test_the_calibration_job_stores_it_with_the_design(
     coarse_schedule: EngineSchedule, monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     monkeypatch.setattr(estimator, "builtin_schedule", lambda: coarse_schedule)
-    tenant = make_tenant(session, "Calibration Job Air")
-    design = _design(session, coarse_schedule, tenant.operator_id)
-    session.commit()
-    job = client.post(
-        "/api/v1/jobs",
-        json={"kind": "calibrate_design", "parameters": {
-            "design_id": design.id, "seeds": [5], "aircraft": 1, "flights": 200,
-            "stream_seed": 7, "stream_aircraft": 2, "stream_duration_s": 400}},
-        headers=tenant.headers(),
-    )
+    design, job = _post_calibration(
+        client, session, coarse_schedule, "Calibration Job Air",
+        {"seeds": [5], "aircraft": 1, "flights": 200, "stream_seed": 7, "stream_aircraft": 2,
+         "stream_duration_s": 400})
     assert job.status_code == 202, job.text
     assert run_pending(session_factory) == [job.json()["id"]]
     session.expire_all()
@@ -123,21 +118,29 @@ def test_the_calibration_job_stores_it_with_the_design(
     assert streams.source["windows"] > 0 and streams.names == back.names
 
 
-
 def test_a_calibration_of_nothing_is_refused(
     client: TestClient, session: Session, coarse_schedule: EngineSchedule,
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     monkeypatch.setattr(estimator, "builtin_schedule", lambda: coarse_schedule)
-    tenant = make_tenant(session, "Calibration Nothing Air")
-    design = _design(session, coarse_schedule, tenant.operator_id)
+    design, reply = _post_calibration(client, session, coarse_schedule, "Calibration Nothing Air",
+                                      {"snapshots": False, "streams": False})
+    assert reply.status_code == 422, reply.text
+    assert "nothing to calibrate" in reply.text
+    assert session.scalars(select(Job).where(Job.operator_id == design.operator_id)).all() == []
+
+
+def _post_calibration(
+    client: TestClient, session: Session, schedule: EngineSchedule, operator: str,
+    parameters: dict[str, object],
+) -> tuple[EstimatorDesign, Any]:
+    """A new operator's built-in design and the answer to its calibration job's POST."""
+    tenant = make_tenant(session, operator)
+    design = _design(session, schedule, tenant.operator_id)
     session.commit()
     reply = client.post(
         "/api/v1/jobs",
-        json={"kind": "calibrate_design", "parameters": {
-            "design_id": design.id, "snapshots": False, "streams": False}},
+        json={"kind": "calibrate_design", "parameters": {"design_id": design.id, **parameters}},
         headers=tenant.headers(),
     )
-    assert reply.status_code == 422, reply.text
-    assert "nothing to calibrate" in reply.text
-    assert session.scalars(select(Job).where(Job.operator_id == tenant.operator_id)).all() == []
+    return design, reply
