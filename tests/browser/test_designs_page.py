@@ -213,7 +213,19 @@ def test_calibration_state_and_the_button_that_runs_it(
             design.result = {**design.result, "stream_uncertainty": stream.to_dict()}
         state()
         streams = page.inner_text("#design-a .stream-calibration-state")
+        # Made before the calibration carried an engine's tuners from flight to flight.
         assert streams.startswith("stream estimates calibrated on 256 simulated flights"), streams
+        assert "calibrate again" in streams, streams
+        with transaction(server.factory) as session:
+            design = session.get(EstimatorDesign, design_id)
+            assert design is not None
+            stream = Calibration(**one, source={"flights": 256, "windows": 600000,
+                                                "carried": True})
+            design.result = {**design.result, "stream_uncertainty": stream.to_dict()}
+        state()
+        streams = page.inner_text("#design-a .stream-calibration-state")
+        assert streams.startswith("stream estimates calibrated on 256 simulated flights"), streams
+        assert "again" not in streams and "shown Fan efficiency" in streams, streams
         # The button queues the calibration job, watched with its progress (cancelled here: a
         # real calibration takes minutes).
         page.click("#design-a .run-calibration")
