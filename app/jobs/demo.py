@@ -49,8 +49,9 @@ def queue_demo_stream_calibration(
     session: Session, registry: JobRegistry | None = None
 ) -> int | None:
     """Queue ``calibrate_design`` of the stream estimates alone (the snapshots keep theirs) for
-    the demo's active design when it is of the built-in engine and has no stream calibration;
-    the job's id, or None.
+    the demo's active design when it is of the built-in engine and has no current stream
+    calibration (none, or one made before it followed an engine's recordings from one to the
+    next); the job's id, or None.
 
     Idempotent: the same job while it is queued or running, none once it has stored one."""
     registry = registry or load_kinds()
@@ -65,7 +66,8 @@ def queue_demo_stream_calibration(
         .order_by(EstimatorDesign.id)
         .limit(1)
     )
-    if design_id is None or stream_calibration.design_calibration(session, design_id) is not None:
+    if design_id is None or stream_calibration.is_current(
+            stream_calibration.design_calibration(session, design_id)):
         return None
     job, _created = submit(
         session, operator_id=operator_id, kind=calibration.JOB_KIND,

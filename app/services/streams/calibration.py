@@ -299,6 +299,13 @@ def design_calibration(session: Session, design_id: int) -> uncertainty.Calibrat
     return designs_calibration.design_calibration(session, design_id, RESULT_KEY)
 
 
+def is_current(calib: uncertainty.Calibration | None) -> bool:
+    """Whether a stored stream calibration was made as this module makes it now: its flights
+    filtered as the product filters an engine's recordings (``recorded_windows``; one made
+    before, every flight from nominal, is too narrow on an engine's later recordings)."""
+    return calib is not None and bool(calib.source.get("carried"))
+
+
 def store_calibration(session: Session, design: EstimatorDesign,
                       calib: uncertainty.Calibration) -> dict[str, Any]:
     """Put ``calib`` into the design's result document under ``RESULT_KEY``; flushed."""

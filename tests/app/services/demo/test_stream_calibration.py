@@ -3,13 +3,15 @@ only they: the snapshot calibration stays as the first start stored it."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.jobs.demo import queue_demo_stream_calibration
 from app.jobs.runner import run_pending
-from app.models import Job
+from app.models import EstimatorDesign, Job
 from app.services.demo import fleet as demo
 from app.services.demo.operator import DEMO_OPERATOR
 from app.services.designs import calibration, engine_models
@@ -74,6 +76,16 @@ def test_the_active_demo_design_gets_its_stream_calibration_once(
     assert done.result is not None and "observable" not in done.result
     assert isinstance(done.result["streams_observable"], list)
     assert queue_demo_stream_calibration(session) is None  # calibrated: nothing more
+    # One made before the calibration carried an engine's tuners from flight to flight is
+    # calibrated again.
+    assert streams.source["carried"] is True
+    design = session.get(EstimatorDesign, design_id)
+    assert design is not None
+    stream_calibration.store_calibration(session, design, replace(
+        streams, source={k: v for k, v in streams.source.items() if k != "carried"}))
+    session.commit()
+    again = queue_demo_stream_calibration(session)
+    assert again is not None and again != job_id
 
 
 def test_no_demo_operator_no_stream_calibration(session: Session) -> None:
