@@ -235,7 +235,6 @@ def calibrate(
     est: StreamEstimator, seed: int = SEED, aircraft: int = AIRCRAFT, groups: int = GROUPS,
     rounds: Sequence[int] = ROUNDS, rate_hz: float = RATE_HZ,
     duration_s: float | None = None, design: str = "", progress: ProgressFn | None = None,
-    carried: bool = True,
 ) -> uncertainty.Calibration:
     """Simulate the calibration fleet's flights (``simulate``) and ``calibrate_on`` them."""
 
@@ -249,8 +248,8 @@ def calibrate(
         if progress is not None:
             progress(0.85 + 0.15 * fraction, message)
 
-    return calibrate_on(est, flights, groups, design, rest, carried,
-                        {"seeds": [seed], "aircraft": aircraft, "rounds": list(rounds),
+    return calibrate_on(est, flights, groups, design, rest,
+                        source={"seeds": [seed], "aircraft": aircraft, "rounds": list(rounds),
                          "rate_hz": rate_hz, "duration_s": duration_s})
 
 
