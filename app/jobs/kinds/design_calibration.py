@@ -33,7 +33,7 @@ class CalibrateDesign(BaseModel):
         "closed-loop transient simulator"))
     stream_seed: int = Field(stream_calibration.SEED,
                              description="the simulated fleet of recorded flights")
-    stream_aircraft: int = Field(stream_calibration.AIRCRAFT, ge=2, le=64,
+    stream_aircraft: int = Field(stream_calibration.AIRCRAFT, ge=2, le=128,
                                  description="its aircraft (two engines each, four flights)")
     stream_duration_s: float | None = Field(
         None, ge=300.0, le=2500.0,

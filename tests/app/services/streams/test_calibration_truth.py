@@ -1,7 +1,8 @@
 """The recording page's bands against the simulator's truth (reduced, seeded).
 
 The demo's active design is calibrated for streams (``streams.calibration.calibrate``) on one
-small simulated fleet's recorded flights (the first 500 s: idle, take-off and climb, at 2 Hz)
+simulated fleet's recorded flights (half the product's fleet, the first 500 s: idle, take-off
+and climb, at 2 Hz)
 and scored on another fleet's: the stream filter's own 1-sigma holds the true health in a few
 percent of the windows; the calibrated band of every shown parameter and tuner holds it at
 2-sigma, and at 1-sigma in the issue's band for the median figure (the unobservable ones not
@@ -17,12 +18,13 @@ from app.services.streams import calibration
 from tests.support.stream_uncertainty import design_stream_estimator, score
 
 DURATION_S = 500.0
+AIRCRAFT = 32  # half the product's calibration fleet, over the first 500 s of each flight
 
 
 def test_calibrated_stream_bands_hold_the_truth_where_the_filters_did_not() -> None:
     est = design_stream_estimator("subset", 10)
-    calib = calibration.calibrate(est, seed=31, duration_s=DURATION_S)
-    assert calib.source["flights"] == calibration.AIRCRAFT * 2 * len(calibration.ROUNDS)
+    calib = calibration.calibrate(est, seed=31, aircraft=AIRCRAFT, duration_s=DURATION_S)
+    assert calib.source["flights"] == AIRCRAFT * 2 * len(calibration.ROUNDS)
     windows = calibration.fleet_windows(
         est, calibration.simulate(32, aircraft=12, duration_s=DURATION_S))
     figures = score(est, calib, windows)
