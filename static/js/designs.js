@@ -264,12 +264,12 @@ function calibrationRow(design, cal, streams, running) {
   const shown = streams ? streams.names.filter((_, i) => streams.observable[i]) : [];
   // A stream calibration made before it filtered each engine's flights in sequence, as the
   // product filters an engine's recordings, under-covers the later recordings: again.
-  const made = `stream estimates calibrated on ${src.flights ?? "?"} simulated flights (${src.windows ?? "?"} windows)`;
+  const streamsMade = `stream estimates calibrated on ${src.flights ?? "?"} simulated flights (${src.windows ?? "?"} windows)`;
   const streamText = !streams
     ? "stream estimates not calibrated: the recording page shows the stream filter's own 1-sigma"
     : src.carried
-      ? `${made}: shown ${shown.length ? shown.map(label).join(", ") : "none"}`
-      : `${made} each from nominal, before the calibration followed an engine's recordings from one to the next: its bands are too narrow on an engine's later recordings; calibrate again`;
+      ? `${streamsMade}: shown ${shown.length ? shown.map(label).join(", ") : "none"}`
+      : `${streamsMade} each from nominal, before the calibration followed an engine's recordings from one to the next: its bands are too narrow on an engine's later recordings; calibrate again`;
   return [h("dt", {}, "Calibration"), h("dd", {}, text, button(cal ? "Calibrate again" : "Calibrate against the simulator"),
     h("br"), h("span", { class: "stream-calibration-state muted" }, streamText))];
 }
