@@ -75,11 +75,14 @@ def resample(model: LinearModel, dt: float) -> LinearModel:
 def segment_gain(
     model: LinearModel, vstar: np.ndarray, Vp: np.ndarray, Q: np.ndarray, Qh: np.ndarray,
     dt: float, R_regions: Mapping[int, np.ndarray] | None = None,
+    noise_interval_s: float | None = None,
 ) -> SegmentGain:
     """The reduced model and steady-state gain of ``model`` at sample interval ``dt``, with the
     random walks and process noise Q, Qh given per sample of the model (they scale with the
     sample interval). ``R_regions`` (region -> R_b, seed 004 eq. 6) adds one gain per
-    transient-index region.
+    transient-index region. ``noise_interval_s``: the sample interval R (and each R_b) holds
+    at, scaled by noise_interval_s / dt at another interval, so that the sensors tell the
+    filter as much per second at every rate; None: R per sample at every interval.
 
     Where the sensors cannot estimate the tuners at this condition (no stabilising
     steady-state gain: at ground idle the demo's ten-tuner design has unobservable
@@ -89,8 +92,12 @@ def segment_gain(
     ratio = dt / model.dt
     model = resample(model, dt)
     red = reduced_model(model, vstar, Q * ratio, Qh * ratio)
+    per_sample = 1.0
+    if noise_interval_s is not None and not math.isclose(dt, noise_interval_s, rel_tol=1e-9):
+        per_sample = noise_interval_s / dt
+    R = model.R * per_sample
     try:
-        ss = steady_state_gain(red.A, red.C, red.Q, model.R)
+        ss = steady_state_gain(red.A, red.C, red.Q, R)
     except UnobservableDesignError:
         K = np.zeros((red.A.shape[0], red.C.shape[0]))
         sigma = np.full(vstar.shape[0] + Vp.shape[0] + red.F.shape[0], np.nan)
@@ -102,7 +109,7 @@ def segment_gain(
     sigma = np.sqrt(np.maximum(np.concatenate([
         np.diag(Pq), np.diag(Vp @ Pq @ Vp.T), np.diag(red.F @ P @ red.F.T)
     ]), 0.0))
-    regions = {r: steady_state_gain(red.A, red.C, red.Q, Rb).K
+    regions = {r: steady_state_gain(red.A, red.C, red.Q, Rb * per_sample).K
                for r, Rb in (R_regions or {}).items()}
     return SegmentGain(red.A, red.B, red.C, red.D, red.F, red.G, ss.K, sigma, regions)
 

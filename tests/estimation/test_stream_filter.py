@@ -70,3 +70,24 @@ def test_a_gains_run_follows_the_textbook_filter_and_its_own_gain_after_replace(
     assert not still.terms.KT.any()
     np.testing.assert_allclose(filter_run(still, ys, us, x0, u0), textbook(still.K),
                                rtol=1e-12, atol=1e-12)
+
+
+def test_r_held_at_an_interval_keeps_the_filters_information_per_second_at_every_rate() -> None:
+    """With R held at 0.5 s (``noise_interval_s``), the gain at 0.5 s is the one of R per sample,
+    bit for bit, and at 10 and 20 Hz the tuners' steady-state 1-sigma stays that of 2 Hz (the
+    sensors tell the filter as much per second); with R per sample it shrinks with the rate."""
+    model = reference_model()
+    noise = reference_noise(model)
+    vstar = svd_vstar(model, 4)
+    Vp = np.linalg.solve(vstar @ vstar.T, vstar).T
+
+    def gain(dt: float, interval: float | None) -> np.ndarray:
+        return segment_gain(model, vstar, Vp, noise["Q"], noise["Qh"], dt, None, interval)
+
+    held = gain(0.5, 0.5)
+    per_sample = gain(0.5, None)
+    np.testing.assert_array_equal(held.K, per_sample.K)
+    np.testing.assert_array_equal(held.sigma, per_sample.sigma)
+    for dt in (0.1, 0.05):
+        np.testing.assert_allclose(gain(dt, 0.5).sigma[:4], held.sigma[:4], rtol=0.03)
+        assert np.all(gain(dt, None).sigma[:4] < 0.75 * held.sigma[:4])

@@ -18,13 +18,18 @@ from estimation import uncertainty
 from estimation.model import MODEL_FORMAT, LinearModel
 
 
-def design_stream_estimator(method: str, m: int) -> StreamEstimator:
-    """A demo design of the built-in engine as the product stores it, ready for streams."""
+def design_stream_estimator(method: str, m: int,
+                            calib: uncertainty.Calibration | None = None) -> StreamEstimator:
+    """A demo design of the built-in engine as the product stores it, ready for streams; with
+    ``calib`` stored as its stream calibration (the filter then holds the calibration's gain
+    per second at every rate, ``estimator.calibrated_interval``)."""
     p = demo.DESIGN_POINT
     model = estimator.builtin_schedule().model_at(p["alt"], p["mach"], p["power"])
     sensors = [n for n in model.sensor_names if n != "Wf"]
     spec = demo.design_spec(method, m, sensors)
     result = designs.design_step(model, spec)
+    if calib is not None:
+        result[calibration.RESULT_KEY] = calib.to_dict()
     row = EngineModel(source="builtin", format=MODEL_FORMAT,
                       content=LinearModel.from_dict(result["model"]).to_dict())
     design = EstimatorDesign(id=0, status="ready", result=result, spec=spec)

@@ -32,7 +32,10 @@ the recording page's figures:
 - the tuners, V* times the calibrated level (``designs.calibration.fit_tuners``).
 
 It is stored in the design's result under ``RESULT_KEY`` with the sensors it was calibrated
-on: a recording without all of them keeps the filter's own sigma, said so.
+on: a recording without all of them keeps the filter's own sigma, said so. Its flights are
+recorded at ``RATE_HZ``; a calibrated design's filter then takes R as holding at that interval
+at every rate (``estimator.calibrated_interval``), so a 10 Hz recording's estimates err as the
+2 Hz flights' did and the same bands hold them.
 """
 
 from __future__ import annotations
@@ -49,7 +52,7 @@ from app.models import EstimatorDesign
 from app.services.demo.simulation_files import stream_table
 from app.services.demo.simulation_files import units as simulated_units
 from app.services.designs import calibration as designs_calibration
-from app.services.streams.estimator import StreamEstimator, estimator_for
+from app.services.streams.estimator import CALIBRATION_KEY, StreamEstimator, estimator_for
 from app.services.streams.run import (
     Carry,
     filter_inputs,
@@ -61,7 +64,7 @@ from estimation import uncertainty
 from estimation.engine.fleet import FleetConfig, StreamFlight, plan_fleet, stream_flights
 from estimation.engine.health import HEALTH_NAMES
 
-RESULT_KEY = "stream_uncertainty"
+RESULT_KEY = CALIBRATION_KEY
 # The calibration fleet: its engines' flights at four points of a year (young engines, worn
 # ones, a few faulted), simulated in one batch (the transient simulator's cost is per time
 # step, nearly whatever the batch), recorded at 2 Hz, one-second windows as stored; its

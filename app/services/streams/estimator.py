@@ -45,6 +45,7 @@ DEFAULT_Q_STD = 0.01
 DEFAULT_QH_STD = 0.01
 
 BIAS_KEY = "transient_bias"  # the design result's key of its bias model (docs/math.md section 7)
+CALIBRATION_KEY = "stream_uncertainty"  # the design result's key of its stream calibration
 
 STORED: dict[str, SignalSpec] = {s.name: s for s in SENSORS + ACTUATORS}
 
@@ -81,6 +82,8 @@ class StreamEstimator:
     bias: BiasModel | None = None  # transient bias compensation, for the sensors in use
     stream_filter: str = STREAM_FILTERS[0]
     model_schedule: ModelSchedule | None = None  # an imported model schedule (not built-in)
+    # The sample interval R holds at (``calibrated_interval``; None: R per sample at any rate).
+    noise_interval_s: float | None = None
     _gains: dict[tuple[Any, ...], SegmentGain] = field(default_factory=dict)
     _cgekf: dict[float, tuple[CgekfDesign, np.ndarray]] = field(default_factory=dict)
 
@@ -118,7 +121,8 @@ class StreamEstimator:
         R_regions = None if self.bias is None else {
             r: self.bias.covariance(r, model.R) for r in self.bias.regions()}
         try:
-            out = segment_gain(model, self.vstar, self.Vp, self.Q, self.Qh, dt, R_regions)
+            out = segment_gain(model, self.vstar, self.Vp, self.Q, self.Qh, dt, R_regions,
+                               self.noise_interval_s)
         except ResampleError as e:
             raise StreamEstimationError(str(e)) from e
         self._gains[(*key, dt)] = out
@@ -306,11 +310,28 @@ def stream_estimator(
             raise StreamEstimationError(
                 f"design {design.id}: the model schedule trims none of the signals {missing}")
     est = StreamEstimator(design.id, model, vstar, Vp, Q, Qh, sched, layout, bias=bias,
-                          stream_filter=stream_filter, model_schedule=model_schedule)
+                          stream_filter=stream_filter, model_schedule=model_schedule,
+                          noise_interval_s=calibrated_interval(result.get(CALIBRATION_KEY)))
     if len(_ESTIMATORS) > 32:
         _ESTIMATORS.clear()
     _ESTIMATORS[key] = est
     return est
+
+
+def calibrated_interval(stored: Any) -> float | None:
+    """The sample interval a design's sensor noise R holds at on streams: that of its stored
+    stream calibration (``streams.calibration``), whose bands hold for the filter's gain per
+    second at the rate it was fitted at; None (R per sample at every rate) uncalibrated.
+
+    A stream estimate errs by the model's own error far more than by the sensor noise, and that
+    error persists over seconds. With R per sample, a 10 Hz recording's gain took five times
+    the 2 Hz calibration's information per second, chased that error and left its bands
+    (bench_stream_uncertainty --score-rate-hz 10)."""
+    source = stored.get("source") if isinstance(stored, Mapping) else None
+    rate = source.get("rate_hz") if isinstance(source, Mapping) else None
+    if not isinstance(rate, (int, float)) or not math.isfinite(rate) or rate <= 0:
+        return None
+    return 1.0 / float(rate)
 
 
 def _check_cgekf(design_id: int, source: str, model: LinearModel) -> None:
