@@ -63,6 +63,7 @@ from estimation.errors import DimensionError
 from estimation.kalman import SteadyStateGain, steady_state_gain
 from estimation.model import LinearModel
 from estimation.reduced import ReducedModel, reduced_model
+from estimation.stream_filter import noise_scale
 
 __all__ = [
     "SEED001_SENSORS",
@@ -177,6 +178,7 @@ def cgekf_design(
     vstar: np.ndarray | None = None,
     Q: np.ndarray | None = None,
     Qh: np.ndarray | None = None,
+    noise_interval_s: float | None = None,
 ) -> CgekfDesign:
     """Linearise the built-in engine at the design point and compute the constant gain.
 
@@ -189,7 +191,9 @@ def cgekf_design(
 
     A stored design's own choice replaces the defaults: vstar [m, 10] over the ten
     component health parameters (any V*, not only rows of the identity; ``tuners``
-    then only names its rows), Q [4, 4] and Qh [10, 10] per sample at ``dt``.
+    then only names its rows), Q [4, 4] and Qh [10, 10] per sample at ``dt``;
+    ``noise_interval_s`` the interval R holds at (``stream_filter.noise_scale``; None: per
+    sample).
     """
     full = linearize(alt_ft, mach, power_pct, dt=dt)
     model = (full.select_sensors(list(sensors)).select_health(list(HEALTH_NAMES[:_TURBO]))
@@ -210,7 +214,7 @@ def cgekf_design(
     Q = q_std**2 * np.eye(nx) if Q is None else np.asarray(Q, float)
     Qh = qh_std**2 * np.eye(_TURBO) if Qh is None else np.asarray(Qh, float)
     red = reduced_model(model, np.asarray(vstar, float), Q, Qh)
-    ss = steady_state_gain(red.A, red.C, red.Q, model.R)
+    ss = steady_state_gain(red.A, red.C, red.Q, model.R * noise_scale(dt, noise_interval_s))
     trim = model.trim
     return CgekfDesign(
         K=ss.K, K_pred=red.A @ ss.K, reduced=red, gain=ss, model=model,

@@ -72,6 +72,14 @@ def resample(model: LinearModel, dt: float) -> LinearModel:
     return replace(model, A=Ar, B=BL[:, :nu], L=BL[:, nu:], dt=dt)
 
 
+def noise_scale(dt: float, noise_interval_s: float | None) -> float:
+    """The factor on a sensor noise R that holds at ``noise_interval_s`` for samples ``dt``
+    apart (noise_interval_s / dt; 1 at that interval, to the bit, or with None)."""
+    if noise_interval_s is None or math.isclose(dt, noise_interval_s, rel_tol=1e-9):
+        return 1.0
+    return noise_interval_s / dt
+
+
 def segment_gain(
     model: LinearModel, vstar: np.ndarray, Vp: np.ndarray, Q: np.ndarray, Qh: np.ndarray,
     dt: float, R_regions: Mapping[int, np.ndarray] | None = None,
@@ -92,9 +100,7 @@ def segment_gain(
     ratio = dt / model.dt
     model = resample(model, dt)
     red = reduced_model(model, vstar, Q * ratio, Qh * ratio)
-    per_sample = 1.0
-    if noise_interval_s is not None and not math.isclose(dt, noise_interval_s, rel_tol=1e-9):
-        per_sample = noise_interval_s / dt
+    per_sample = noise_scale(dt, noise_interval_s)
     R = model.R * per_sample
     try:
         ss = steady_state_gain(red.A, red.C, red.Q, R)

@@ -15,7 +15,7 @@ from estimation.engine.flight import FlightProfile
 from estimation.engine.linearize import linearize
 from estimation.engine.sensors import AUX_NAMES, SENSOR_NAMES, noise_std
 from estimation.engine.transient import simulate
-from estimation.kalman import filter_stream_states
+from estimation.kalman import filter_stream_states, steady_state_gain
 
 DT = 0.05
 
@@ -30,6 +30,17 @@ def test_gain_is_the_reduced_models_steady_state_gain(design):
     assert design.K.shape == (red.A.shape[0], len(design.sensors))
     np.testing.assert_allclose(design.K_pred, red.A @ design.K)
     assert design.gain.spectral_radius < 1.0
+
+
+def test_r_held_at_an_interval_is_r_per_sample_there_and_scaled_elsewhere(design):
+    """``noise_interval_s`` (a calibrated design's streams): at its own interval the gain is
+    the one of R per sample, bit for bit; at a tenth of it, the gain of R times ten."""
+    np.testing.assert_array_equal(cgekf_design(dt=DT, noise_interval_s=DT).K, design.K)
+    held = cgekf_design(dt=DT, noise_interval_s=10 * DT)
+    red = design.reduced
+    scaled = steady_state_gain(red.A, red.C, red.Q, 10.0 * design.model.R)
+    np.testing.assert_allclose(held.K, scaled.K, rtol=1e-12, atol=1e-15)
+    assert not np.allclose(held.K, design.K)
 
 
 def test_on_the_linear_plant_equals_the_steady_state_filter(design):

@@ -176,7 +176,8 @@ class StreamEstimator:
         Qh = np.zeros((len(turbo), len(turbo)))
         Qh[np.ix_(cols, cols)] = self.Qh * ratio
         design = cgekf_design(model.sensor_names, self.layout.tuners, model.aux_names, dt=dt,
-                              vstar=vstar, Q=self.Q * ratio, Qh=Qh)
+                              vstar=vstar, Q=self.Q * ratio, Qh=Qh,
+                              noise_interval_s=self.noise_interval_s)
         P = design.gain.P_post
         nx = self.nx
         Pq = P[nx:, nx:]
