@@ -257,7 +257,7 @@ def calibrate(
 
     return calibrate_on(est, flights, groups, design, rest,
                         source={"seeds": [seed], "aircraft": aircraft, "rounds": list(rounds),
-                         "rate_hz": rate_hz, "duration_s": duration_s})
+                                "duration_s": duration_s})
 
 
 def calibrate_on(
@@ -267,7 +267,12 @@ def calibrate_on(
 ) -> uncertainty.Calibration:
     """Filter ``flights`` with ``est`` as the product does (``recorded_windows``; ``carried``
     False: every flight from nominal, as the calibration did before it followed the product)
-    and ``fit`` them in ``groups`` groups of aircraft (``grouped``)."""
+    and ``fit`` them in ``groups`` groups of aircraft (``grouped``). The source names the
+    flights' sample rate (``rate_hz``: the rate the estimates' R then holds at,
+    ``estimator.calibrated_interval``); the flights are of one rate."""
+    rates = {float(f"{1.0 / float(f.time_s[1] - f.time_s[0]):.9g}") for f in flights}
+    if len(rates) != 1:
+        raise ValueError(f"a calibration's flights are of one sample rate, not {sorted(rates)} Hz")
 
     def filtered(fraction: float) -> None:
         if progress is not None:
@@ -284,8 +289,8 @@ def calibrate_on(
     layout = est.layout
     return fit(fleets, tuple(layout.health), tuple(layout.tuners), np.asarray(est.vstar),
                tuple(layout.sensors),
-               {"design": design, **(source or {}), "groups": len(parts),
-                "flights": len(flights), "carried": carried})
+               {"design": design, **(source or {}), "rate_hz": rates.pop(),
+                "groups": len(parts), "flights": len(flights), "carried": carried})
 
 
 def calibration_input(session: Session, *, operator_id: int,

@@ -5,6 +5,7 @@ carried, the engine states at zero deviation), the first from nominal."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from app.services.streams import calibration
 from app.services.streams.run import recording_start
@@ -43,3 +44,13 @@ def test_each_engines_flights_start_where_its_previous_one_ended() -> None:
         np.testing.assert_array_equal(nominal[second],
                                       calibration.flight_windows(est, given[second])[0])
         assert not np.allclose(carried[second], nominal[second], equal_nan=True)
+
+
+def test_a_calibration_is_of_one_sample_rate() -> None:
+    """The calibration names its flights' rate (the rate a calibrated design's R holds at on
+    every recording): flights of two rates are refused before anything is filtered."""
+    est = design_stream_estimator("subset", 10)
+    slow = calibration.simulate(11, aircraft=1, rounds=(30,), duration_s=60.0)
+    fast = calibration.simulate(11, aircraft=1, rounds=(30,), rate_hz=10.0, duration_s=60.0)
+    with pytest.raises(ValueError, match=r"one sample rate, not \[2.0, 10.0\] Hz"):
+        calibration.calibrate_on(est, [*slow, *fast])
