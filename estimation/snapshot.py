@@ -32,6 +32,11 @@ import numpy as np
 from estimation.errors import DimensionError
 from estimation.stacked import SubstitutionPlan, cholesky_lower
 
+# numpy's einsum without its dispatch and argument handling (what ``np.einsum`` calls when
+# not asked to optimise); the public one where a numpy does not have it there.
+_einsum: Any = getattr(getattr(getattr(np, "_core", None), "multiarray", None), "c_einsum",
+                       np.einsum)
+
 SNAPSHOT_STATE_FORMAT = "fleethealth.snapshot-state/1"
 
 GainSource = np.ndarray | Callable[[int], np.ndarray]
@@ -130,10 +135,24 @@ def snapshot_deviation(
     return dy
 
 
+def tuner_pseudo_inverse(vstar: np.ndarray) -> np.ndarray:
+    """V*^+ = V*^T (V* V*^T)^-1 [p, m] of V* [m, p], as the filter computes it (h = V*^+ q)."""
+    V = np.asarray(vstar, float)
+    return np.linalg.solve(V @ V.T, V).T
+
+
+def tuner_measurement_matrix(G_y: np.ndarray, vstar: np.ndarray) -> np.ndarray:
+    """H = G_y V*^+ [..., ny, m] of gains in health space G_y [..., ny, p]: the measurement
+    matrix of the tuners that ``snapshot_filter`` updates with. Each snapshot's product is its
+    own matrix product, so it is the same number whether taken record by record or laid out
+    per engine and snapshot (``snapshot_filter(..., tuner_gains=...)``)."""
+    return np.asarray(G_y, float) @ tuner_pseudo_inverse(vstar)
+
+
 def snapshot_filter(
     state: SnapshotState,
     dy: np.ndarray,
-    gains: GainSource,
+    gains: GainSource | None,
     vstar: np.ndarray,
     Qq: np.ndarray,
     noise_std: np.ndarray,
@@ -141,6 +160,7 @@ def snapshot_filter(
     block: int = 1024,
     keep_covariance: bool = False,
     workers: int | None = None,
+    tuner_gains: np.ndarray | None = None,
 ) -> SnapshotResult:
     """Time-varying tuner filter over snapshots, batched over engines (docs/math.md section 8).
 
@@ -161,6 +181,10 @@ def snapshot_filter(
                 value gives the same result
     keep_covariance: store P per snapshot (P in the result is None otherwise; the
                 final P is always in ``state``)
+    tuner_gains: H = G_y V*^+ per engine and snapshot [E, S, ny, m], computed by the
+                caller (``tuner_measurement_matrix``, for instance record by record before
+                the records are laid out) and read instead of multiplying ``gains`` laid
+                out that way: the same numbers; ``gains`` is then not read
 
     Each snapshot: predict P += s_j Qq, then update with each present sensor in
     turn (scalar Kalman update, exact for diagonal R).
@@ -175,7 +199,7 @@ def snapshot_filter(
     m, p = V.shape
     if state.q_hat.shape[1] != m:
         raise DimensionError(f"state has {state.q_hat.shape[1]} tuners but V* has {m} rows")
-    Vp = np.linalg.solve(V @ V.T, V).T  # V*^+ [p, m]
+    Vp = tuner_pseudo_inverse(V)  # V*^+ [p, m]
     if workers is None:
         workers = min(8, os.cpu_count() or 1)
     Qq = np.asarray(Qq, float)
@@ -186,7 +210,16 @@ def snapshot_filter(
     var = np.broadcast_to(np.asarray(noise_std, float) ** 2, (E, S, ny))
     scale = np.broadcast_to(np.asarray(walk_scale, float), (E, S))
     G_all: np.ndarray | None = None  # gains laid out per engine and snapshot
-    if callable(gains):
+    HV_all: np.ndarray | None = None  # ... or their H V*^+ (``tuner_gains``)
+    if tuner_gains is not None:
+        HV_all = np.asarray(tuner_gains, float)
+        if HV_all.shape != (E, S, ny, m):
+            raise DimensionError(
+                f"tuner_gains must be ({E}, {S}, {ny}, {m}), found {HV_all.shape}"
+            )
+    elif gains is None:
+        raise ValueError("snapshot_filter needs gains or tuner_gains")
+    elif callable(gains):
         gain_at = gains
     else:
         G_arr = np.asarray(gains, float)
@@ -223,14 +256,15 @@ def snapshot_filter(
     P_end = np.empty((E, m, m))
     W_diag = (Vp[:, :, None] * Vp[:, None, :]).reshape(p, m * m)
     # Gains laid out per engine and snapshot are read per block (``run_block``).
-    G_steps = [] if G_all is not None else [np.asarray(gain_at(j), float) for j in range(S)]
+    laid_out = G_all is not None or HV_all is not None
+    G_steps = [] if laid_out else [np.asarray(gain_at(j), float) for j in range(S)]
     for j, G in enumerate(G_steps):
         if G.shape[-2:] != (ny, p):
             raise DimensionError(
                 f"gains at snapshot {j}: expected (..., {ny}, {p}), found {G.shape}"
             )
 
-    shared_all = G_all is None and all(G.ndim == 2 for G in G_steps)
+    shared_all = not laid_out and all(G.ndim == 2 for G in G_steps)
     if shared_all:
         HV_steps = [G @ Vp for G in G_steps]  # [ny, m] per snapshot, fleet-wide
         packed = _PackedUpdate(m, Vp, Qq, HV_steps)
@@ -277,6 +311,7 @@ def snapshot_filter(
         spaces: dict[int, _StepSpace] = {}
         for b in np.flatnonzero(ends):
             updated[: ends[b]] = b + 1
+        n_updated = updated.tolist()
         # A singular H P H^T + R leaves NaN (raised below, as numpy's solve raises), not a
         # warning per snapshot.
         with np.errstate(invalid="ignore"):
@@ -286,11 +321,14 @@ def snapshot_filter(
                     w1 = min(S, j + window)
                     present_w = np.isfinite(dy_b[:, j:w1])  # [Bn, window, ny]
                     walk_w = scale_b[:, j:w1, None, None] * Qq  # [Bn, window, m, m]
-                    if G_all is not None:
+                    if HV_all is not None:
+                        HV_w = HV_all[c0:c1, j:w1]  # [Bn, window, ny, m]
+                        Hm_w = HV_w * present_w[..., None]
+                    elif G_all is not None:
                         HV_w = G_all[c0:c1, j:w1] @ Vp  # [Bn, window, ny, m]
                         Hm_w = HV_w * present_w[..., None]
                 present = present_w[:, w]
-                if G_all is not None:
+                if laid_out:
                     HV, Hm = HV_w[:, w], Hm_w[:, w]
                 else:
                     G = G_steps[j]
@@ -298,40 +336,20 @@ def snapshot_filter(
                         G = np.broadcast_to(G, (E, ny, p))[c0:c1]
                     HV = np.broadcast_to(G @ Vp, (Bn, ny, m))  # [Bn, ny, m]
                     Hm = HV * present[:, :, None]  # [Bn, ny, m]
-                nb = int(updated[j])
+                nb = n_updated[j]
                 if nb == Bn:
-                    q_j, P_j, sym_j, walk_j = q, P, sym, walk_w[:, w]
-                    dy_j, var_j, innov_j = dy_b[:, j], var_b[:, j], innov_blk[:, j]
+                    walk_j, dy_j = walk_w[:, w], dy_b[:, j]
+                    var_j, innov_j = var_b[:, j], innov_blk[:, j]
                 else:
                     innov_blk[nb:, j] = dy_b[nb:, j]  # NaN - HV q is the NaN
-                    q_j, P_j, sym_j, walk_j = q[:nb], P[:nb], sym[:nb], walk_w[:nb, w]
-                    dy_j, var_j, innov_j = dy_b[:nb, j], var_b[:nb, j], innov_blk[:nb, j]
+                    walk_j, dy_j = walk_w[:nb, w], dy_b[:nb, j]
+                    var_j, innov_j = var_b[:nb, j], innov_blk[:nb, j]
                     HV, Hm, present = HV[:nb], Hm[:nb], present[:nb]
                 if nb:
                     ws = spaces.get(nb)
                     if ws is None:
-                        ws = spaces[nb] = _StepSpace(nb, m, ny)
-                    P_j += walk_j
-                    np.subtract(dy_j, np.einsum("bim,bm->bi", HV, q_j, out=ws.Hq), out=innov_j)
-                    PHt = np.matmul(P_j, Hm.transpose(0, 2, 1), out=ws.PHt)  # [nb, m, ny]
-                    Sm = np.matmul(Hm, PHt, out=ws.Sm)
-                    np.add(ws.Sm_diag, var_j, out=ws.Sm_diag)  # + R on the diagonal
-                    # Y = L^-1 [H P, resid] with Sm = L L^T, engines last: q += Y_P^T Y_r
-                    # and P -= Y_P^T Y_P (K = P H^T Sm^-1 through the factor).
-                    plan = ws.plan
-                    Y = plan.X
-                    Y[:, :m] = PHt.transpose(2, 1, 0)
-                    np.copyto(Y[:, m], np.where(present, innov_j, 0.0).T)
-                    cholesky_lower(Sm, out=plan.L_stack)
-                    plan.run()
-                    # [nb, ny, m + 1], laid out alike whatever nb (the products' BLAS use).
-                    Y_b = ws.Y_b
-                    np.copyto(Y_b, Y.transpose(2, 0, 1))
-                    Y_P = Y_b[:, :, :m]
-                    q_j += np.matmul(Y_b[:, None, :, m], Y_P, out=ws.dq)[:, 0]
-                    P_j -= np.matmul(Y_P.transpose(0, 2, 1), Y_P, out=ws.dP)
-                    np.add(P_j, P_j.transpose(0, 2, 1), out=sym_j)
-                    np.multiply(0.5, sym_j, out=P_j)
+                        ws = spaces[nb] = _StepSpace(q[:nb], P[:nb], sym[:nb], ny)
+                    ws.update(walk_j, HV, Hm, present, dy_j, var_j, innov_j)
                 q_blk[:, j] = q
                 if P_blk is not None:
                     P_blk[:, j] = P
@@ -367,21 +385,63 @@ def snapshot_filter(
 
 
 class _StepSpace:
-    """The per-engine update's working arrays for nb engines, written snapshot after snapshot
-    (products into them with ``out``: the same products, no allocation a snapshot): P H^T
-    [nb, m, ny], the innovation covariance [nb, ny, ny] and its diagonal, the forward
+    """The per-engine update of the first nb engines of a block (``q`` [nb, m], ``P``
+    [nb, m, m] and ``sym``, a working array like P: views of the block's), snapshot after
+    snapshot. Its working arrays and every view of them are made once, and the products are
+    written into them with ``out`` (the same products, no allocation or indexing a snapshot):
+    P H^T [nb, m, ny], the innovation covariance [nb, ny, ny] and its diagonal, the forward
     substitution (``SubstitutionPlan``), its result engines first [nb, ny, m + 1], the
-    changes of q [nb, 1, m] and P [nb, m, m], and the predicted deviations H V*^+ q [nb, ny]."""
+    changes of q [nb, 1, m] and P [nb, m, m], and the predicted deviations H V*^+ q
+    [nb, ny]."""
 
-    def __init__(self, nb: int, m: int, ny: int):
+    def __init__(self, q: np.ndarray, P: np.ndarray, sym: np.ndarray, ny: int):
+        nb, m = q.shape
+        self.q, self.P, self.sym = q, P, sym
+        self.P_T = P.transpose(0, 2, 1)
         self.Hq = np.empty((nb, ny))
         self.PHt = np.empty((nb, m, ny))
+        self.PHt_T = self.PHt.transpose(2, 1, 0)  # [ny, m, nb], as the substitution takes it
         self.Sm = np.empty((nb, ny, ny))
         self.Sm_diag = self.Sm.reshape(nb, ny * ny)[:, :: ny + 1]
-        self.plan = SubstitutionPlan(ny, m + 1, nb)
+        self.plan = plan = SubstitutionPlan(ny, m + 1, nb)
+        self.Y_HP, self.Y_r = plan.X[:, :m], plan.X[:, m]  # L^-1 [H P, resid], engines last
+        self.Y_T = plan.X.transpose(2, 0, 1)
         self.Y_b = np.empty((nb, ny, m + 1))
+        self.Y_P = self.Y_b[:, :, :m]
+        self.Y_P_T = self.Y_P.transpose(0, 2, 1)
+        self.Y_rb = self.Y_b[:, None, :, m]
         self.dq = np.empty((nb, 1, m))
+        self.dq_rows = self.dq[:, 0]
         self.dP = np.empty((nb, m, m))
+
+    def update(self, walk: np.ndarray, HV: np.ndarray, Hm: np.ndarray, present: np.ndarray,
+               dy: np.ndarray, var: np.ndarray, innov: np.ndarray) -> None:
+        """One snapshot of the nb engines: predict P += walk, write the innovations ``innov``
+        = dy - HV q, then update q and P in place. HV [nb, ny, m] = H V*^+, Hm the same with a
+        missing sensor's row zeroed, ``present`` [nb, ny]."""
+        q, P = self.q, self.P
+        add, subtract, multiply, matmul, copyto = (np.add, np.subtract, np.multiply,
+                                                   np.matmul, np.copyto)
+        # (Outputs given by position: the same operations, without parsing a keyword a call.)
+        add(P, walk, P)
+        subtract(dy, _einsum("bim,bm->bi", HV, q, out=self.Hq), innov)
+        PHt = matmul(P, Hm.transpose(0, 2, 1), self.PHt)  # [nb, m, ny]
+        matmul(Hm, PHt, self.Sm)
+        add(self.Sm_diag, var, self.Sm_diag)  # + R on the diagonal
+        # Y = L^-1 [H P, resid] with Sm = L L^T, engines last: q += Y_P^T Y_r and
+        # P -= Y_P^T Y_P (K = P H^T Sm^-1 through the factor).
+        copyto(self.Y_HP, self.PHt_T)
+        copyto(self.Y_r, np.where(present, innov, 0.0).T)
+        plan = self.plan
+        cholesky_lower(self.Sm, out=plan.L_stack)
+        plan.run()
+        # [nb, ny, m + 1], laid out alike whatever nb (the products' BLAS use).
+        copyto(self.Y_b, self.Y_T)
+        matmul(self.Y_rb, self.Y_P, self.dq)
+        add(q, self.dq_rows, q)
+        subtract(P, matmul(self.Y_P_T, self.Y_P, self.dP), P)
+        add(P, self.P_T, self.sym)
+        multiply(0.5, self.sym, P)
 
 
 class _PackedUpdate:

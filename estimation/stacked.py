@@ -70,18 +70,21 @@ class SubstitutionPlan:
         self.X = np.empty((n, r, K))
         terms = np.empty((max(n - 1, 0), r, K))
         L, X = self.L, self.X
-        self._rows = [(X[k], L[k, k]) for k in range(n)]
-        self._below = [(L[k + 1:, k, None, :], X[k, None], terms[: n - k - 1], X[k + 1:])
-                       for k in range(n - 1)]
+        # Row by row: (the row, its pivot) and, but for the last row, (the column below the
+        # pivot, the solved row, the products' buffer, the rows below), as ``run`` takes them.
+        self._steps = [(X[k], L[k, k], L[k + 1:, k, None, :], X[k, None], terms[: n - k - 1],
+                        X[k + 1:]) for k in range(n - 1)]
+        self._last = (X[n - 1], L[n - 1, n - 1]) if n else None
 
     def run(self) -> np.ndarray:
-        """X <- L^-1 X in place, as ``forward_substitute``; returns X."""
+        """X <- L^-1 X in place, as ``forward_substitute``; returns X. (The ufuncs' outputs
+        given by position: the same operations, without parsing a keyword a call.)"""
         divide, multiply, subtract = np.divide, np.multiply, np.subtract
-        below = self._below
-        for k, (row, pivot) in enumerate(self._rows):
-            divide(row, pivot, out=row)
-            if k < len(below):
-                column, solved, terms, rest = below[k]
-                multiply(column, solved, out=terms)
-                subtract(rest, terms, out=rest)
+        for row, pivot, column, solved, terms, rest in self._steps:
+            divide(row, pivot, row)
+            multiply(column, solved, terms)
+            subtract(rest, terms, rest)
+        if self._last is not None:
+            row, pivot = self._last
+            divide(row, pivot, row)
         return self.X

@@ -55,7 +55,16 @@ def held_speed_aux_gains(
     if np.any(pivot == 0.0):
         raise ValueError("the loop input does not move the held sensor (zero gain)")
     k = G_uz[..., :, loop] / pivot[..., None]  # [..., nz]
-    closed_z = G_z - k[..., :, None] * G_y_held[..., None, :]
-    closed_uz = G_uz - k[..., :, None] * G_u_held[..., None, :]
+    closed_z = _minus(G_z, k[..., :, None] * G_y_held[..., None, :])
+    closed_uz = _minus(G_uz, k[..., :, None] * G_u_held[..., None, :])
     closed_uz[..., loop] = 0.0  # exactly, not to rounding
     return closed_z, closed_uz
+
+
+def _minus(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a - b, written over ``b`` (a product made for it) when that has the result's shape: one
+    array where there would be two (a schedule's gains are tens of megabytes per chunk of
+    records); the same differences."""
+    if b.shape == np.broadcast_shapes(a.shape, b.shape):
+        return np.subtract(a, b, out=b)
+    return a - b

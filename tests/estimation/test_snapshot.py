@@ -7,7 +7,13 @@ import json
 import numpy as np
 import pytest
 
-from estimation.snapshot import SnapshotState, snapshot_deviation, snapshot_filter
+from estimation.snapshot import (
+    SnapshotState,
+    snapshot_deviation,
+    snapshot_filter,
+    tuner_measurement_matrix,
+)
+from estimation.stacked import SubstitutionPlan, cholesky_lower, forward_substitute
 
 E, S, NY, P, M = 7, 12, 5, 8, 4
 
@@ -204,3 +210,53 @@ def test_padding_after_an_engines_last_snapshot_leaves_its_numbers_bit_for_bit(
         assert np.isnan(got.innovation[e, n:]).all()
         assert got.state.q_hat[e].tobytes() == last_q.tobytes()
         assert got.state.P[e].tobytes() == last_P.tobytes()
+
+
+@pytest.mark.parametrize("engines_per_block", [7, 3])
+def test_tuner_gains_laid_out_by_the_caller_give_the_gains_numbers_bit_for_bit(
+    engines_per_block: int,
+) -> None:
+    """The measurement matrix H = G_y V*^+ taken record by record before the records are laid
+    out (as the pipeline does, ``tuner_measurement_matrix``) and handed in as ``tuner_gains``
+    filters to the same numbers as the gains in health space laid out, bit for bit: each
+    product is its own matrix's, however the records are stacked."""
+    V, G, dy, std, scale, Qq, P0 = _case(7)
+    lengths = [12, 11, 9, 9, 5, 2, 0]
+    for e, n in enumerate(lengths):
+        dy[e, n:] = np.nan
+        scale[e, n:] = 0.0
+    start = SnapshotState.initial(E, P0)
+    # Record by record: each engine's records one after the other, padding left out.
+    records = np.concatenate([G[e, :n] for e, n in enumerate(lengths)])
+    H_records = tuner_measurement_matrix(records, V)
+    H = np.zeros((E, S, NY, M))
+    at = 0
+    for e, n in enumerate(lengths):
+        H[e, :n] = H_records[at : at + n]
+        at += n
+    want = snapshot_filter(start, dy, G, V, Qq, std, walk_scale=scale, keep_covariance=True,
+                           block=engines_per_block)
+    got = snapshot_filter(start, dy, None, V, Qq, std, walk_scale=scale, keep_covariance=True,
+                          block=engines_per_block, tuner_gains=H)
+    for name in ("q_hat", "P", "h_hat", "h_std", "innovation"):
+        assert getattr(got, name).tobytes() == getattr(want, name).tobytes(), name
+    assert got.state.q_hat.tobytes() == want.state.q_hat.tobytes()
+    assert got.state.P.tobytes() == want.state.P.tobytes()
+    with pytest.raises(ValueError, match="gains or tuner_gains"):
+        snapshot_filter(start, dy, None, V, Qq, std)
+
+
+def test_substitution_plan_equals_forward_substitution_bit_for_bit() -> None:
+    """The plan's views made once, run again and again on new factors and right-hand sides,
+    give ``forward_substitute``'s numbers."""
+    rng = np.random.default_rng(3)
+    n, r, K = 6, 4, 9
+    plan = SubstitutionPlan(n, r, K)
+    for _ in range(3):
+        A = rng.standard_normal((K, n, n))
+        A = A @ A.transpose(0, 2, 1) + n * np.eye(n)
+        X = rng.standard_normal((n, r, K))
+        cholesky_lower(A, out=plan.L_stack)
+        plan.X[...] = X
+        want = forward_substitute(np.ascontiguousarray(plan.L), X.copy())
+        assert plan.run().tobytes() == want.tobytes()

@@ -36,7 +36,12 @@ from estimation.shift_detector import (
     shift_scan,
     shift_steps,
 )
-from estimation.snapshot import SnapshotState, snapshot_deviation, snapshot_filter
+from estimation.snapshot import (
+    SnapshotState,
+    snapshot_deviation,
+    snapshot_filter,
+    tuner_measurement_matrix,
+)
 from estimation.wear import (
     MatchedParts,
     WearDetector,
@@ -273,8 +278,11 @@ def _run_part(
         dy = _per_slot(dy_rec, S, row, counts, np.nan)
         noise = (np.broadcast_to(est.noise_std, (E, S, ny)) if g.noise_std is None
                  else _per_slot(noise_rec, S, row, counts, est.noise_std))
-        G_y = (np.broadcast_to(g.G_y[0], (E, S, *g.G_y.shape[1:])) if g.constant
-               else _per_slot(g.G_y, S, row, counts, 0.0))
+        # The filter's measurement matrix H V*^+ of each record, laid out (less to lay out
+        # than the gains in health space, and the same products as taken laid out).
+        G_y = np.broadcast_to(g.G_y[0], (E, S, *g.G_y.shape[1:])) if g.constant else None
+        HV = (None if g.constant
+              else _per_slot(tuner_measurement_matrix(g.G_y, est.vstar), S, row, counts, 0.0))
         resets = np.zeros((E, S), dtype=bool)
         flights = np.zeros((E, S), dtype=bool)
         scale = np.zeros((E, S))
@@ -302,7 +310,8 @@ def _run_part(
         state = SnapshotState(np.concatenate([filt[e].q_hat for e in by_row]),
                               np.concatenate([filt[e].P for e in by_row]))
         result = snapshot_filter(
-            state, dy, G_y, est.vstar, est.Qq, noise, scale, keep_covariance=True
+            state, dy, G_y, est.vstar, est.Qq, noise, scale, keep_covariance=True,
+            tuner_gains=HV,
         )
         assert result.P is not None
         q_all, P_all = result.q_hat, result.P

@@ -42,3 +42,26 @@ def test_held_speed_gains_predict_the_deteriorated_engine_at_the_same_power_sett
 def test_a_loop_input_that_does_not_move_the_held_sensor_is_refused() -> None:
     with pytest.raises(ValueError, match="zero gain"):
         held_speed_aux_gains(np.ones((2, 3)), np.ones((2, 2)), np.ones(3), np.zeros(2), loop=0)
+
+
+def test_closed_loop_gains_of_stacked_records_are_the_plain_differences_bit_for_bit() -> None:
+    """Each record's gains [S, nz, p] are G - k g, computed into one array per result; the
+    inputs are left as they were, and a held row shared by every record broadcasts."""
+    rng = np.random.default_rng(0)
+    S, nz, p, nu = 5, 4, 6, 3
+    G_z, G_uz = rng.standard_normal((S, nz, p)), rng.standard_normal((S, nz, nu))
+    G_y, G_u = rng.standard_normal((S, p)), rng.standard_normal((S, nu)) + 3.0
+    before = [a.copy() for a in (G_z, G_uz, G_y, G_u)]
+    for held_y, held_u in ((G_y, G_u), (G_y[0], G_u[0])):
+        closed_z, closed_uz = held_speed_aux_gains(G_z, G_uz, held_y, held_u, loop=1)
+        k = G_uz[..., :, 1] / held_u[..., 1, None]
+        want_uz = G_uz - k[..., :, None] * held_u[..., None, :]
+        want_uz[..., 1] = 0.0
+        assert closed_z.tobytes() == (G_z - k[..., :, None] * held_y[..., None, :]).tobytes()
+        assert closed_uz.tobytes() == want_uz.tobytes()
+    for now, then in zip((G_z, G_uz, G_y, G_u), before, strict=True):
+        assert now.tobytes() == then.tobytes()
+    # A held row with more records than the gains (broadcast the other way): still right.
+    closed_z, _ = held_speed_aux_gains(G_z[0], G_uz[0], G_y, G_u, loop=1)
+    k = G_uz[0][:, 1] / G_u[:, 1, None]
+    assert closed_z.tobytes() == (G_z[0] - k[..., :, None] * G_y[:, None, :]).tobytes()
