@@ -531,14 +531,24 @@ def audit(session: Session, operator_id: int) -> dict[int, datetime]:
 def estimate_group(
     session: Session, operator_id: int, engine_ids: Sequence[int], *, wait: bool,
     commit: Callable[[], None], progress: Callable[[float, str], None] | None = None,
+    leftover_of: Mapping[int, backlog.Mark] | None = None,
 ) -> dict[str, Any]:
     """Estimate the backlog of those of ``engine_ids`` whose locks this process gets
     (``groups.engine_locks``: all, waiting for each, or those free now), committing batch by
-    batch; the counts, zero when another process had done them."""
+    batch; the counts, zero when another process had done them.
+
+    ``leftover_of``: the backlog of a pass (``_spread``): only the engines that still have a
+    mark of it (a group no other process started, or what one left undone) are estimated.
+    An engine another process estimated in the pass is left with what was marked since (an
+    upload stored meanwhile) for the next pass, whose groups spread it over the processes,
+    instead of estimating it in this process alone while the others idle."""
     bind = session.get_bind()
     engine = bind if isinstance(bind, SqlEngine) else bind.engine
     with groups.engine_locks(engine, engine_ids, wait=wait) as held:
         work = backlog.pending(session, operator_id, held) if held else {}
+        if leftover_of is not None:
+            work = {e: m for e, m in work.items()
+                    if e in leftover_of and not set(m.ids).isdisjoint(leftover_of[e].ids)}
         if not work:
             commit()  # end the read: no transaction left open while the others write
             return empty_summary()
@@ -563,14 +573,17 @@ def _spread(
     """One pass over the backlog in engine groups (``groups``): every group but the first goes
     to ``launcher``; this process estimates the first, then whatever group no one started, from
     the last backwards, then waits for the groups still running elsewhere and estimates what
-    they left (a worker that died). Returns the counts of what this process estimated."""
+    they left (a worker that died). Only the pass's ``work`` is done here: what is marked
+    meanwhile on engines another process estimated is the next pass's (``estimate_group``'s
+    ``leftover_of``). Returns the counts of what this process estimated."""
     parts = groups.split(work, groups.GROUPS_PER_WORKER * launcher.workers)
     launcher.launch(operator_id, parts[1:])
     totals = empty_summary()
     order = [(p, False) for p in [parts[0], *reversed(parts[1:])]]
     order += [(p, True) for p in parts[1:]]
     for done, (part, wait) in enumerate(order, start=1):
-        result = estimate_group(session, operator_id, part, wait=wait, commit=commit)
+        result = estimate_group(session, operator_id, part, wait=wait, commit=commit,
+                                leftover_of=work)
         for key in COUNTS:
             totals[key] += result[key]
         if progress is not None:

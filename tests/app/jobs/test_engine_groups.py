@@ -230,6 +230,34 @@ def test_a_backlog_cut_into_batches_by_records_equals_one_batch(
     _same(_stored(factory, cut), _stored(factory, whole))
 
 
+def test_a_group_done_elsewhere_leaves_what_was_marked_since_to_the_next_pass(
+    two_fleets: tuple[str, sessionmaker[Session], int, int],
+) -> None:
+    """The job's pass over its backlog estimates only what is left of that backlog: an engine
+    another process estimated in the pass keeps what was marked on it since (an upload stored
+    meanwhile) for the next pass, whose groups spread it, while a group no one did is done."""
+    _url, factory, operator_id, _other = two_fleets
+    with transaction(factory, write=False) as session:
+        work = backlog.pending(session, operator_id)
+    done, left = groups.split(work, 2)
+    with factory() as session:  # another process estimates the first group ...
+        assert store.run_group(session, operator_id, done)["engines"] == len(done)
+    with transaction(factory) as session:  # ... and an upload marks its engines again
+        backlog.mark(session, operator_id, {e: (None, None) for e in done})
+    with factory() as session:
+        skipped = store.estimate_group(session, operator_id, done, wait=True,
+                                       commit=session.commit, leftover_of=work)
+        assert skipped["engines"] == 0
+        taken = store.estimate_group(session, operator_id, left, wait=True,
+                                     commit=session.commit, leftover_of=work)
+        assert taken["engines"] == len(left) and taken["records"] > 0
+        assert sorted(backlog.pending(session, operator_id)) == sorted(done)
+        # The next pass (here the job alone) takes the new marks.
+        store.catch_up(session, operator_id, commit=session.commit)
+        session.commit()
+        assert backlog.pending(session, operator_id) == {}
+
+
 class StuckWorker:
     """A launcher whose worker takes its groups' engines and dies holding them (SIGKILL by the
     test): the job must wait for them and estimate them itself."""
