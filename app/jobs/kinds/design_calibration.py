@@ -11,6 +11,7 @@ from sqlalchemy.orm import Session
 from app.services.designs import calibration
 from app.services.jobs.registry import Progress, registry
 from app.services.streams import calibration as stream_calibration
+from app.services.streams import store as stream_store
 
 
 class CalibrateDesign(BaseModel):
@@ -70,7 +71,10 @@ def calibrate_design(
         progress(share * fraction, message)
 
     def streams_part(fraction: float, message: str | None = None) -> None:
-        progress(share + (1.0 - share) * fraction, message)
+        progress(share + (1.0 - share) * 0.95 * fraction, message)
+
+    def recordings_part(fraction: float, message: str | None = None) -> None:
+        progress(share + (1.0 - share) * (0.95 + 0.05 * fraction), message)
 
     calib = calibration.run_calibration(
         data, seeds=parameters.seeds, aircraft=parameters.aircraft, flights=parameters.flights,
@@ -90,4 +94,10 @@ def calibrate_design(
         streams = stream_calibration.store_calibration(session, design, stream_calib)
         out["streams_observable"] = [
             n for n, o in zip(streams["names"], streams["observable"], strict=True) if o]
+        # The design's recordings at another rate than the calibration's were filtered with R
+        # per sample; its filter now holds R at the calibration's interval.
+        from app.config import get_settings
+
+        out["recordings_estimated_again"] = stream_store.estimate_held(
+            session, get_settings().data_dir, design, recordings_part)
     return out

@@ -52,7 +52,11 @@ from app.models.stream_estimates import StreamEstimate, StreamFilterState
 from app.services import common
 from app.services.designs import service as designs
 from app.services.streams import calibration, recordings, samples
-from app.services.streams.estimator import StreamEstimationError, estimator_for
+from app.services.streams.estimator import (
+    StreamEstimationError,
+    StreamEstimator,
+    estimator_for,
+)
 from app.services.streams.run import (
     Carry,
     filter_inputs,
@@ -61,6 +65,7 @@ from app.services.streams.run import (
     window_means,
 )
 from app.services.trends import health as health_view
+from estimation.stream_filter import noise_scale
 
 WINDOW_S = 1.0  # stored window length (seconds of recording)
 PIECE = 65_536  # samples filtered per pass (bounds memory; aligned on windows)
@@ -113,8 +118,9 @@ def estimate_one(
     )
     dt = float(recording.dt_s)
     W = max(1, round(WINDOW_S / dt))
-    if state_row is not None and state_row.layout != est.layout.to_dict():
-        session.delete(state_row)  # another sensor set: start over
+    if state_row is not None and (state_row.layout != est.layout.to_dict()
+                                  or not _same_noise(state_row, est, dt)):
+        session.delete(state_row)  # another sensor set, or another filter: start over
         session.flush()
         state_row = None
     if state_row is None:
@@ -125,7 +131,7 @@ def estimate_one(
             design_id=design.id, recording_id=recording.id, started_at=recording.started_at,
             window=W, n_samples=0, restart_sample=0, n_segments=0, layout=est.layout.to_dict(),
             state={"x": x0, "u_prev": [0.0] * nu, "anchor": None, "switches": 0,
-                   "x_end": x0, "x_initial": x0},
+                   "x_end": x0, "x_initial": x0, "noise_interval_s": est.noise_interval_s},
         )
         session.add(state_row)
         session.flush()
@@ -192,6 +198,46 @@ def estimate_one(
     session.flush()
     return {"recording_id": recording.id, "samples": N - start, "windows": n_windows,
             "segments": carry.switches}
+
+
+def _same_noise(state_row: StreamFilterState, est: StreamEstimator, dt: float) -> bool:
+    """Whether the stored estimates were filtered with the sensor noise ``est`` takes at this
+    interval (a design calibrated for streams since holds R at the calibration's interval,
+    ``estimator.calibrated_interval``; a state from before says nothing: R per sample)."""
+    stored = state_row.state.get("noise_interval_s")
+    return noise_scale(dt, stored) == noise_scale(dt, est.noise_interval_s)
+
+
+def estimate_held(
+    session: Session, data_dir: Path, design: EstimatorDesign,
+    progress: Progress | None = None,
+) -> list[int]:
+    """Estimate again, from their first sample, the design's recordings whose stored estimates
+    were filtered with another sensor noise than the design's estimator now takes (after a
+    stream calibration is stored: recordings at another rate than the calibration's), and the
+    later recordings of their engines whose starting tuners changed; their ids."""
+    rows = session.scalars(
+        select(StreamFilterState).where(StreamFilterState.design_id == design.id)
+        .order_by(StreamFilterState.engine_id, StreamFilterState.started_at)
+    ).all()
+    stale = []
+    for row in rows:
+        recording = session.get(StreamRecording, row.recording_id)
+        if recording is None or recording.samples_removed_at is not None:
+            continue  # samples removed by the retention: its estimates stay
+        est = estimator_for(session, design, recording.signals)
+        if not _same_noise(row, est, float(recording.dt_s)):
+            stale.append(recording)
+    done: list[int] = []
+    for k, recording in enumerate(stale):
+        if recording.id in done:
+            continue  # estimated again as a later recording of its engine
+        estimate_one(session, data_dir, recording, design)
+        done += [recording.id, *_carry_forward(session, data_dir, recording, design)]
+        if progress is not None:
+            progress((k + 1) / len(stale), f"estimating again recording {recording.id} "
+                     "with the calibrated filter")
+    return done
 
 
 def _carry_forward(
