@@ -13,13 +13,10 @@ import numpy as np
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from app.models import StreamRecording
+from app.models import EstimatorDesign, StreamRecording
 from app.models.stream_estimates import StreamEstimate, StreamFilterState
 from app.services.demo import fleet as demo
-from app.services.designs import engine_models
-from app.services.designs import service as designs
 from app.services.fleet import service as fleet_service
-from app.services.snapshots import estimator
 from app.services.streams import calibration, recordings, store
 from app.services.streams.estimator import estimator_for
 from app.services.tenancy import service as tenancy
@@ -47,17 +44,9 @@ def test_recordings_at_another_rate_are_estimated_again_once_the_design_is_calib
     session: Session, tmp_path: Path,
 ) -> None:
     op = tenancy.create_operator(session, name=f"Held Air {datetime.now(UTC).timestamp()}")
-    engine_type = fleet_service.create_engine_type(session, operator_id=op.id, name="built-in")
-    p = demo.DESIGN_POINT
-    model = estimator.builtin_schedule().model_at(p["alt"], p["mach"], p["power"])
-    row, _ = engine_models.register_builtin_model(
-        session, operator_id=op.id, engine_type_id=engine_type.id, name="cruise", model=model)
-    method, tuners = demo.ACTIVE_DESIGN
-    design = designs.create_design(
-        session, operator_id=op.id, engine_model_id=row.id, name="all health",
-        spec=demo.design_spec(method, tuners, [n for n in model.sensor_names if n != "Wf"]))
-    designs.run_design(session, design, designs.design_step)
-    designs.activate_design(session, operator_id=op.id, design_id=design.id)
+    type_id, design_id = demo._designs(session, op.id, lambda _m: None)  # the demo's, active
+    design = session.get(EstimatorDesign, design_id)
+    assert design is not None
     # One aircraft's two engines: position 1 recorded at 10 Hz, position 2 at 2 Hz.
     fast = calibration.simulate(SEED, aircraft=1, rounds=(30, 250), rate_hz=10.0,
                                 duration_s=DURATION_S)
@@ -69,7 +58,7 @@ def test_recordings_at_another_rate_are_estimated_again_once_the_design_is_calib
     for position in (1, 2):
         esn = next(f.esn for f in flights if f.position == position)
         engine = fleet_service.create_engine(session, operator_id=op.id, esn=esn,
-                                             engine_type_id=engine_type.id)
+                                             engine_type_id=type_id)
         fleet_service.install(session, operator_id=op.id, engine_id=engine.id,
                               aircraft_id=tail.id, position=position,
                               installed_at=datetime.fromtimestamp(first, UTC))
