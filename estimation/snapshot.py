@@ -32,11 +32,6 @@ import numpy as np
 from estimation.errors import DimensionError
 from estimation.stacked import SubstitutionPlan, cholesky_lower
 
-# numpy's einsum without its dispatch and argument handling (what ``np.einsum`` calls when
-# not asked to optimise); the public one where a numpy does not have it there.
-_einsum: Any = getattr(getattr(getattr(np, "_core", None), "multiarray", None), "c_einsum",
-                       np.einsum)
-
 SNAPSHOT_STATE_FORMAT = "fleethealth.snapshot-state/1"
 
 GainSource = np.ndarray | Callable[[int], np.ndarray]
@@ -424,7 +419,7 @@ class _StepSpace:
                                                    np.matmul, np.copyto)
         # (Outputs given by position: the same operations, without parsing a keyword a call.)
         add(P, walk, P)
-        subtract(dy, _einsum("bim,bm->bi", HV, q, out=self.Hq), innov)
+        subtract(dy, np.einsum("bim,bm->bi", HV, q, out=self.Hq), innov)
         PHt = matmul(P, Hm.transpose(0, 2, 1), self.PHt)  # [nb, m, ny]
         matmul(Hm, PHt, self.Sm)
         add(self.Sm_diag, var, self.Sm_diag)  # + R on the diagonal

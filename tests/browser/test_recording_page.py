@@ -16,7 +16,7 @@ import pytest
 
 from app.db import transaction
 from app.models import EstimatorDesign
-from app.services.streams import calibration as stream_calibration
+from app.services.streams.estimator import CALIBRATION_KEY
 from estimation.uncertainty import Calibration, correction_width
 from tests.browser.conftest import (
     Console,
@@ -108,7 +108,7 @@ def test_recording_page_samples_estimates_events_and_links(
         design = session.get(EstimatorDesign, est["design_id"])
         assert design is not None
         before = design.result
-        design.result = {**before, stream_calibration.RESULT_KEY: calib.to_dict()}
+        design.result = {**before, CALIBRATION_KEY: calib.to_dict()}
     try:
         page.reload()
         page.wait_for_selector("body[data-ready=true]")

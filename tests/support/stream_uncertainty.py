@@ -12,7 +12,7 @@ from app.services.demo import fleet as demo
 from app.services.designs import service as designs
 from app.services.snapshots import estimator
 from app.services.streams import calibration
-from app.services.streams.estimator import StreamEstimator, stream_estimator
+from app.services.streams.estimator import CALIBRATION_KEY, StreamEstimator, stream_estimator
 from app.services.trends import health as health_view
 from estimation import uncertainty
 from estimation.model import MODEL_FORMAT, LinearModel
@@ -29,7 +29,7 @@ def design_stream_estimator(method: str, m: int,
     spec = demo.design_spec(method, m, sensors)
     result = designs.design_step(model, spec)
     if calib is not None:
-        result[calibration.RESULT_KEY] = calib.to_dict()
+        result[CALIBRATION_KEY] = calib.to_dict()
     row = EngineModel(source="builtin", format=MODEL_FORMAT,
                       content=LinearModel.from_dict(result["model"]).to_dict())
     design = EstimatorDesign(id=0, status="ready", result=result, spec=spec)

@@ -781,7 +781,7 @@ def fit(
 def design_calibration(session: Session, design_id: int,
                        key: str = RESULT_KEY) -> uncertainty.Calibration | None:
     """The design's stored calibration (None: uncalibrated); reads only that key (the
-    stream estimates' is another, ``streams.calibration.RESULT_KEY``)."""
+    stream estimates' is another, ``streams.estimator.CALIBRATION_KEY``)."""
     document = session.scalar(
         select(EstimatorDesign.__table__.c.result[key]).where(
             EstimatorDesign.id == design_id)

@@ -31,11 +31,11 @@ the recording page's figures:
   its band held on every calibration fleet alone), the others null and named;
 - the tuners, V* times the calibrated level (``designs.calibration.fit_tuners``).
 
-It is stored in the design's result under ``RESULT_KEY`` with the sensors it was calibrated
-on: a recording without all of them keeps the filter's own sigma, said so. Its flights are
-recorded at ``RATE_HZ``; a calibrated design's filter then takes R as holding at that interval
-at every rate (``estimator.calibrated_interval``), so a 10 Hz recording's estimates err as the
-2 Hz flights' did and the same bands hold them.
+It is stored in the design's result under ``estimator.CALIBRATION_KEY`` with the sensors it
+was calibrated on: a recording without all of them keeps the filter's own sigma, said so. Its
+flights are recorded at ``RATE_HZ``; a calibrated design's filter then takes R as holding at
+that interval at every rate (``estimator.calibrated_interval``), so a 10 Hz recording's
+estimates err as the 2 Hz flights' did and the same bands hold them.
 """
 
 from __future__ import annotations
@@ -64,7 +64,6 @@ from estimation import uncertainty
 from estimation.engine.fleet import FleetConfig, StreamFlight, plan_fleet, stream_flights
 from estimation.engine.health import HEALTH_NAMES
 
-RESULT_KEY = CALIBRATION_KEY
 # The calibration fleet: its engines' flights at four points of a year (young engines, worn
 # ones, a few faulted), simulated in one batch (the transient simulator's cost is per time
 # step, nearly whatever the batch), recorded at 2 Hz, one-second windows as stored; its
@@ -307,7 +306,7 @@ def calibration_input(session: Session, *, operator_id: int,
 
 def design_calibration(session: Session, design_id: int) -> uncertainty.Calibration | None:
     """The design's stored stream calibration (None: uncalibrated)."""
-    return designs_calibration.design_calibration(session, design_id, RESULT_KEY)
+    return designs_calibration.design_calibration(session, design_id, CALIBRATION_KEY)
 
 
 def is_current(calib: uncertainty.Calibration | None) -> bool:
@@ -319,5 +318,5 @@ def is_current(calib: uncertainty.Calibration | None) -> bool:
 
 def store_calibration(session: Session, design: EstimatorDesign,
                       calib: uncertainty.Calibration) -> dict[str, Any]:
-    """Put ``calib`` into the design's result document under ``RESULT_KEY``; flushed."""
-    return designs_calibration.store_calibration(session, design, calib, RESULT_KEY)
+    """Put ``calib`` into the design's result document under ``CALIBRATION_KEY``; flushed."""
+    return designs_calibration.store_calibration(session, design, calib, CALIBRATION_KEY)
