@@ -29,6 +29,7 @@ from app.db import make_engine, make_sessionmaker
 from app.migrate import upgrade
 from app.services import fresh_records
 from app.services.snapshots import estimator, groups, store
+from app.services.snapshots.drifts import FleetDrifts
 from app.services.uploads.store import ingest_snapshots
 
 # Every column of these tables but those left out goes into the digests.
@@ -43,7 +44,8 @@ class NoWorkers:
 
     workers = 2
 
-    def launch(self, operator_id: int, parts: Sequence[Sequence[int]]) -> None:
+    def launch(self, operator_id: int, parts: Sequence[Sequence[int]],
+               drifts: FleetDrifts) -> None:
         pass
 
 

@@ -9,6 +9,7 @@ from celery import Celery
 
 from app.config import get_settings
 from app.jobs.scheduler import TICK_SECONDS
+from app.services.snapshots.drifts import FleetDrifts
 
 log = logging.getLogger("fleethealth.jobs")
 
@@ -71,12 +72,15 @@ class CeleryGroups:
         self.queue = queue
         self._celery = celery
 
-    def launch(self, operator_id: int, groups: Sequence[Sequence[int]]) -> None:
+    def launch(self, operator_id: int, groups: Sequence[Sequence[int]],
+               drifts: FleetDrifts) -> None:
         if self._celery is None:
             self._celery = make_celery()
+        message = drifts.message()
         for group in groups:
             try:
-                self._celery.send_task(ESTIMATE_GROUP_TASK, args=[operator_id, list(group)],
+                self._celery.send_task(ESTIMATE_GROUP_TASK,
+                                       args=[operator_id, list(group), message],
                                        queue=self.queue)
             except Exception:  # broker down: the job estimates the group itself
                 log.exception("could not send an engine group to the Celery broker")

@@ -40,6 +40,7 @@ from app.jobs.scheduler import submit_due
 from app.models.base import utcnow
 from app.services.jobs.registry import JobRegistry
 from app.services.snapshots import groups, store
+from app.services.snapshots.drifts import FleetDrifts
 
 log = logging.getLogger("fleethealth.jobs")
 
@@ -109,12 +110,16 @@ def run_job(self: Any, job_id: int) -> str:
 
 
 @celery.task(name=ESTIMATE_GROUP_TASK)
-def estimate_group(operator_id: int, engine_ids: list[int]) -> dict[str, Any]:
+def estimate_group(operator_id: int, engine_ids: list[int],
+                   drifts: list[list[Any]] | None = None) -> dict[str, Any]:
     """An engine group of an estimation job (``app.services.snapshots.groups``): whatever of
-    it no other process holds. A redelivered or late message finds its engines done."""
+    it no other process holds, learning from the pass's wear drifts (``drifts.FleetDrifts``
+    as a message; a message sent without them: as stored now). A redelivered or late message
+    finds its engines done."""
     context = worker_context()
     with context.factory() as session:
-        return store.run_group(session, operator_id, engine_ids)
+        return store.run_group(session, operator_id, engine_ids,
+                               None if drifts is None else FleetDrifts.from_message(drifts))
 
 
 @celery.task(name=TICK_TASK)

@@ -23,6 +23,7 @@ from typing import Any
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.config import Settings
+from app.services.snapshots.drifts import FleetDrifts
 
 log = logging.getLogger("fleethealth.jobs")
 
@@ -53,14 +54,17 @@ class PoolLauncher:
             for future in ready:
                 future.result()
 
-    def launch(self, operator_id: int, groups: Sequence[Sequence[int]]) -> None:
+    def launch(self, operator_id: int, groups: Sequence[Sequence[int]],
+               drifts: FleetDrifts) -> None:
         with self._lock:
             for group in groups:
                 try:
-                    future = self._executor().submit(_run_group, operator_id, list(group))
+                    future = self._executor().submit(_run_group, operator_id, list(group),
+                                                     drifts)
                 except BrokenProcessPool:  # a process of it died: a new pool for the rest
                     self._pool = None
-                    future = self._executor().submit(_run_group, operator_id, list(group))
+                    future = self._executor().submit(_run_group, operator_id, list(group),
+                                                     drifts)
                 future.add_done_callback(_report)
 
     def stop(self) -> None:
@@ -109,9 +113,9 @@ def _ready() -> None:
     estimator.prepare()
 
 
-def _run_group(operator_id: int, engine_ids: list[int]) -> dict[str, Any]:
+def _run_group(operator_id: int, engine_ids: list[int], drifts: FleetDrifts) -> dict[str, Any]:
     from app.services.snapshots import store
 
     assert _factory is not None, "pool process not started"
     with _factory() as session:
-        return store.run_group(session, operator_id, engine_ids)
+        return store.run_group(session, operator_id, engine_ids, drifts)

@@ -32,6 +32,7 @@ from sqlalchemy import Engine, text
 from sqlalchemy.orm import Session
 
 from app.services.snapshots import backlog
+from app.services.snapshots.drifts import FleetDrifts
 
 GROUPS_PER_WORKER = 2  # smaller groups let the job and the workers even out at the end
 ENGINE_LOCK = 0x46480011  # first key of the engines' advisory locks (the second: the engine id)
@@ -47,9 +48,10 @@ class Launcher(Protocol):
 
     workers: int  # processes that estimate groups, the job's own included
 
-    def launch(self, operator_id: int, groups: Sequence[Sequence[int]]) -> None:
+    def launch(self, operator_id: int, groups: Sequence[Sequence[int]],
+               drifts: FleetDrifts) -> None:
         """Start ``estimate_group`` on each group elsewhere (it may start late, or never:
-        the job does what no one started)."""
+        the job does what no one started), each learning from the pass's ``drifts``."""
 
 
 _launcher: Launcher | None = None

@@ -47,6 +47,7 @@ from app.services import fresh_records
 from app.services.common import no_gc_pauses
 from app.services.notifications import outbox
 from app.services.snapshots import backlog, buckets, detector, egt, groups, rows
+from app.services.snapshots.drifts import FleetDrifts
 from app.services.snapshots.estimator import RESET_STD, SnapshotEstimator, estimator_for_design
 from app.services.snapshots.run import EngineOutput, EngineRun, PipelineState, run_filters
 from estimation.snapshot import SnapshotState
@@ -216,6 +217,7 @@ def estimate_engines(
     commit: Callable[[], None] | None = None,
     from_backlog: bool = False,
     new_records: Mapping[int, int | None] | None = None,
+    drifts: FleetDrifts | None = None,
 ) -> dict[str, Any]:
     """Bring every affected engine's estimates up to date.
 
@@ -226,7 +228,9 @@ def estimate_engines(
     after each batch so finished engines survive a restart, else all stays in the caller's
     transaction. ``from_backlog``: each batch's restart points come from the engines' backlog
     marks (read once the batch's rows kept in memory are taken, so no kept row is newer than
-    the marks), and those marks go with the batch. Returns counts per outcome.
+    the marks), and those marks go with the batch. ``drifts``: the fleet's wear drifts as the
+    pass found them (``drifts.FleetDrifts``; None: as stored now), which each batch learns from
+    together with the drifts of this call's earlier batches. Returns counts per outcome.
     """
     phases = commit is not None  # a job's reads and computation hold no SQLite write lock
     with read_phase(session, phases):
@@ -236,6 +240,8 @@ def estimate_engines(
             .order_by(Engine.id)
         ).all()
         designs, by_design, skipped = _active_designs(session, operator_id, engines, design_id)
+        if drifts is None:
+            drifts = FleetDrifts.read(session, operator_id)
     summary = empty_summary()
     summary["skipped_no_design"] = skipped
     total = sum(len(v) for v in by_design.values()) or 1
@@ -256,7 +262,7 @@ def estimate_engines(
                         affected if marks is None else {e: m.earliest for e, m in marks.items()},
                         marks or {},
                     )
-                    fleet = fleet_drifts(session, est.design_id, ids)
+                    fleet = drifts.others(est.design_id, ids)
                     if apart:  # computed now, written once the lock is taken
                         computed = []
                         outputs = run_filters(est, runs, sink=computed.append, fleet=fleet)
@@ -271,6 +277,9 @@ def estimate_engines(
                     for block in computed or ():
                         writer.add(block)
                 _store_batch(session, est, runs, states, outputs)
+                drifts = drifts.updated(est.design_id, {
+                    run.engine_id: out.state.wear.drift
+                    for run, out in zip(runs, outputs, strict=True)})
                 egt.refresh(session, est.design_id, [run.engine_id for run in runs])
                 if marks is not None:
                     backlog.settle(session, marks.values())
@@ -288,20 +297,6 @@ def estimate_engines(
             if progress is not None:
                 progress(done / total, f"estimated {done} of {total} engines")
     return summary
-
-
-def fleet_drifts(
-    session: Session, design_id: int, exclude: Sequence[int]
-) -> list[tuple[float, ...]]:
-    """The wear drifts (``estimation.wear.latest_drift``) stored in the states of the design's
-    engines other than ``exclude``: what the fleet direction of the engines estimated now
-    learns from besides their own run's others (``run.run_filters``)."""
-    drifts = session.scalars(
-        select(FilterState.state["wear"]["drift"])  # the drift alone, not the whole state
-        .where(FilterState.design_id == design_id, FilterState.engine_id.not_in(list(exclude)))
-        .order_by(FilterState.engine_id)
-    )
-    return [tuple(float(v) for v in drift) for drift in drifts if drift is not None]
 
 
 def _prepare_runs(
@@ -531,7 +526,7 @@ def audit(session: Session, operator_id: int) -> dict[int, datetime]:
 def estimate_group(
     session: Session, operator_id: int, engine_ids: Sequence[int], *, wait: bool,
     commit: Callable[[], None], progress: Callable[[float, str], None] | None = None,
-    leftover_of: Mapping[int, backlog.Mark] | None = None,
+    leftover_of: Mapping[int, backlog.Mark] | None = None, drifts: FleetDrifts | None = None,
 ) -> dict[str, Any]:
     """Estimate the backlog of those of ``engine_ids`` whose locks this process gets
     (``groups.engine_locks``: all, waiting for each, or those free now), committing batch by
@@ -541,7 +536,10 @@ def estimate_group(
     mark of it (a group no other process started, or what one left undone) are estimated.
     An engine another process estimated in the pass is left with what was marked since (an
     upload stored meanwhile) for the next pass, whose groups spread it over the processes,
-    instead of estimating it in this process alone while the others idle."""
+    instead of estimating it in this process alone while the others idle.
+
+    ``drifts``: the fleet's wear drifts as the pass found them (``drifts.FleetDrifts``), the
+    same for every group of the pass whichever commits first (None: as stored now)."""
     bind = session.get_bind()
     engine = bind if isinstance(bind, SqlEngine) else bind.engine
     with groups.engine_locks(engine, engine_ids, wait=wait) as held:
@@ -555,35 +553,39 @@ def estimate_group(
         return estimate_engines(
             session, operator_id, {e: m.earliest for e, m in work.items()}, progress,
             commit=commit, from_backlog=True,
-            new_records={e: m.rows for e, m in work.items()},
+            new_records={e: m.rows for e, m in work.items()}, drifts=drifts,
         )
 
 
-def run_group(session: Session, operator_id: int, engine_ids: Sequence[int]) -> dict[str, Any]:
+def run_group(session: Session, operator_id: int, engine_ids: Sequence[int],
+              drifts: FleetDrifts | None = None) -> dict[str, Any]:
     """An engine group in a worker (a pool process, a Celery task), in the worker's own
-    session: those of its engines no other process holds."""
-    return estimate_group(session, operator_id, engine_ids, wait=False, commit=session.commit)
+    session: those of its engines no other process holds; ``drifts``: the pass's (None, a
+    message sent without them: as stored now)."""
+    return estimate_group(session, operator_id, engine_ids, wait=False, commit=session.commit,
+                          drifts=drifts)
 
 
 def _spread(
     session: Session, operator_id: int, work: Mapping[int, backlog.Mark],
     launcher: groups.Launcher, progress: Callable[[float, str], None] | None,
-    commit: Callable[[], None],
+    commit: Callable[[], None], drifts: FleetDrifts,
 ) -> dict[str, Any]:
     """One pass over the backlog in engine groups (``groups``): every group but the first goes
     to ``launcher``; this process estimates the first, then whatever group no one started, from
     the last backwards, then waits for the groups still running elsewhere and estimates what
     they left (a worker that died). Only the pass's ``work`` is done here: what is marked
     meanwhile on engines another process estimated is the next pass's (``estimate_group``'s
-    ``leftover_of``). Returns the counts of what this process estimated."""
+    ``leftover_of``). Every group learns from the fleet's wear drifts as the pass found them,
+    ``drifts``. Returns the counts of what this process estimated."""
     parts = groups.split(work, groups.GROUPS_PER_WORKER * launcher.workers)
-    launcher.launch(operator_id, parts[1:])
+    launcher.launch(operator_id, parts[1:], drifts)
     totals = empty_summary()
     order = [(p, False) for p in [parts[0], *reversed(parts[1:])]]
     order += [(p, True) for p in parts[1:]]
     for done, (part, wait) in enumerate(order, start=1):
         result = estimate_group(session, operator_id, part, wait=wait, commit=commit,
-                                leftover_of=work)
+                                leftover_of=work, drifts=drifts)
         for key in COUNTS:
             totals[key] += result[key]
         if progress is not None:
@@ -613,19 +615,20 @@ def catch_up(
     for _ in range(max_passes):
         with read_phase(session, commit is not None):
             work = backlog.pending(session, operator_id)
+            drifts = FleetDrifts.read(session, operator_id) if work else FleetDrifts()
         if not work or work == previous:
             break  # nothing left, or nothing any process could estimate (no ready design)
         previous = work
         spread = launcher is not None and commit is not None and len(work) > 1
         if spread:
             assert launcher is not None and commit is not None
-            result = _spread(session, operator_id, work, launcher, progress, commit)
+            result = _spread(session, operator_id, work, launcher, progress, commit, drifts)
             totals["groups"] = result["groups"]
         else:
             result = estimate_engines(
                 session, operator_id, {e: m.earliest for e, m in work.items()}, progress,
                 commit=commit, from_backlog=True,
-                new_records={e: m.rows for e, m in work.items()},
+                new_records={e: m.rows for e, m in work.items()}, drifts=drifts,
             )
         totals["passes"] += 1
         for key in COUNTS:

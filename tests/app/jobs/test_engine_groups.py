@@ -42,6 +42,7 @@ from app.models.estimates import (
     FleetPeriod,
 )
 from app.services.snapshots import backlog, groups, store
+from app.services.snapshots.drifts import FleetDrifts
 from tests.support.fleet_fixture import add_reference_design, csv_bytes, make_fleet, reference_rows
 from tests.support.jobs import live_database, wait_until
 from tests.support.paths import ROOT
@@ -269,7 +270,8 @@ class StuckWorker:
         self.process: multiprocessing.process.BaseProcess | None = None
         self.holding = multiprocessing.get_context("spawn").Event()
 
-    def launch(self, operator_id: int, parts: Sequence[Sequence[int]]) -> None:
+    def launch(self, operator_id: int, parts: Sequence[Sequence[int]],
+               drifts: FleetDrifts) -> None:
         context = multiprocessing.get_context("spawn")
         engines = sorted(e for p in parts for e in p)
         self.process = context.Process(target=_hold_engines, args=(self.url, engines,

@@ -22,6 +22,7 @@ from app.models.estimates import (
 )
 from app.services.snapshots import backlog, estimator, run, store
 from app.services.snapshots.buckets import second_moments
+from app.services.snapshots.drifts import FleetDrifts
 from estimation import isolation, wear
 from estimation.model import LinearModel
 from estimation.tuners import svd_vstar
@@ -402,7 +403,8 @@ def test_fleet_direction_is_learnt_from_the_designs_other_engines_stored_drifts(
         state = wear_state(engine.id)
         assert state["drift"] is not None and len(state["drift"]) == det.H.shape[1]
         assert (state["direction"] is None) == (i < det.settings.fleet_min)
-    others = store.fleet_drifts(session, fleet.design.id, [engines[6].id])
+    others = FleetDrifts.read(session, fleet.operator_id).others(fleet.design.id,
+                                                                 [engines[6].id])
     assert len(others) == 6
     assert others == [tuple(wear_state(e.id)["drift"]) for e in engines[:6]]
     learnt = wear.fleet_direction(others, det.settings.fleet_min)
@@ -416,7 +418,8 @@ def test_fleet_direction_is_learnt_from_the_designs_other_engines_stored_drifts(
     times, y = _records(seed=47, fault="LPT", at=300)
     start = _store(session, fleet, extra.id, aircraft.id, times, y, range(N))
     store.estimate_engines(session, fleet.operator_id, {extra.id: start})
-    moved = wear.fleet_direction(store.fleet_drifts(session, fleet.design.id, [engines[6].id]))
+    moved = wear.fleet_direction(
+        FleetDrifts.read(session, fleet.operator_id).others(fleet.design.id, [engines[6].id]))
     assert moved is not None and not np.allclose(moved, learnt)
     times, y = records[engines[6].id]
     start = _store(session, fleet, engines[6].id, aircraft.id, times, y, [800])
