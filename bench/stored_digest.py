@@ -4,7 +4,7 @@ change to the estimation's code leaves every stored number as it was, bit for bi
 On a throw-away PostgreSQL database, the bench's operator (the demo's engine type, designs and
 fleet) is sent the bench's warm-up records and then its ``--rows`` records through
 ``ingest_snapshots``, each followed by the estimation they queue (``store.catch_up``) in this
-process: in four engine groups, as the job spreads them over two processes (here every group
+process: in two engine groups, as the job spreads them over two processes (here every group
 in turn by the job's own process, in the job's order), or with ``--single`` in one call. The
 CPU seconds of the second estimation are printed, then per table the row count and an MD5 of
 its rows as JSON (sorted; ids and timestamps of the write left out): estimates, events, filter
@@ -40,7 +40,7 @@ LEFT_OUT = ("id", "created_at", "updated_at", "acknowledged_at")
 
 
 class NoWorkers:
-    """A launcher with a second worker that never starts a group: the job does all four."""
+    """A launcher with a second worker that never starts a group: the job does both."""
 
     workers = 2
 

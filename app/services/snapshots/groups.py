@@ -34,7 +34,11 @@ from sqlalchemy.orm import Session
 from app.services.snapshots import backlog
 from app.services.snapshots.drifts import FleetDrifts
 
-GROUPS_PER_WORKER = 2  # smaller groups let the job and the workers even out at the end
+# One group per worker: the snapshot filter steps through a group's engines together, so a
+# group twice as wide costs little more per step, and half the steps (at 2,000,000 records of
+# 58 engines, two groups took 14 % less of the estimation's CPU than four, in one process; the
+# smaller groups' evening out at the end bought less than that).
+GROUPS_PER_WORKER = 1
 ENGINE_LOCK = 0x46480011  # first key of the engines' advisory locks (the second: the engine id)
 _LOCKS = text("SELECT pg_advisory_lock(:key, e) FROM unnest(CAST(:ids AS integer[])) AS t(e)")
 _TRY_LOCKS = text(

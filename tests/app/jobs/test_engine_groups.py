@@ -173,7 +173,7 @@ def test_engine_groups_in_pool_processes_equal_the_job_alone(
         pool.stop()
     job = _estimation(factory, spread)
     assert job.status == "succeeded", job.error
-    assert job.result is not None and job.result["groups"] == 4
+    assert job.result is not None and job.result["groups"] == 2
     # Some engines were estimated by the pool, not by the job's own process.
     assert job.result["records"] < ROWS
     assert _estimation(factory, alone).result["records"] == ROWS  # type: ignore[index]
@@ -374,7 +374,7 @@ def test_under_celery_the_groups_go_to_the_worker_processes_as_tasks(
         print(log_path.read_text()[-4000:])
     job = _estimation(factory, spread)
     assert job.status == "succeeded", job.error
-    assert job.result is not None and job.result["groups"] == 4
+    assert job.result is not None and job.result["groups"] == 2
     assert job.result["records"] < ROWS  # the other worker process estimated some engines
     _same(_stored(factory, spread), _stored(factory, alone))
     with transaction(factory, write=False) as session:
