@@ -6,6 +6,7 @@ those at the calibration's rate keep their estimates, bit for bit."""
 
 from __future__ import annotations
 
+import functools
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -25,6 +26,28 @@ from tests.app.services.streams.simulated import stream_csv
 
 SEED = 41
 DURATION_S = 400.0  # idle, take-off and climb (at idle the tuners are not estimated)
+
+
+# The calibration fleet: ``calibration.calibrate``'s simulation, of two aircraft.
+CALIBRATION_SOURCE: dict[str, object] = {
+    "seeds": [7], "aircraft": 2, "rounds": list(calibration.ROUNDS), "duration_s": DURATION_S}
+
+
+@functools.cache
+def _recorded() -> tuple[StreamFlight, ...]:
+    """One aircraft's two engines' flights: position 1 recorded at 10 Hz, position 2 at 2 Hz
+    (simulated once for both databases: the simulator is most of the test's time)."""
+    fast = calibration.simulate(SEED, aircraft=1, rounds=(30, 250), rate_hz=10.0,
+                                duration_s=DURATION_S)
+    slow = calibration.simulate(SEED, aircraft=1, rounds=(30, 250), duration_s=DURATION_S)
+    return tuple([f for f in fast if f.position == 1] + [f for f in slow if f.position == 2])
+
+
+@functools.cache
+def _calibration_flights() -> tuple[StreamFlight, ...]:
+    """The calibration fleet's flights, as ``calibration.calibrate`` simulates them."""
+    return tuple(calibration.simulate(7, 2, calibration.ROUNDS, calibration.RATE_HZ,
+                                      DURATION_S))
 
 
 def _packed(session: Session, recording_id: int) -> list[bytes]:
@@ -47,12 +70,7 @@ def test_recordings_at_another_rate_are_estimated_again_once_the_design_is_calib
     type_id, design_id = demo._designs(session, op.id, lambda _m: None)  # the demo's, active
     design = session.get(EstimatorDesign, design_id)
     assert design is not None
-    # One aircraft's two engines: position 1 recorded at 10 Hz, position 2 at 2 Hz.
-    fast = calibration.simulate(SEED, aircraft=1, rounds=(30, 250), rate_hz=10.0,
-                                duration_s=DURATION_S)
-    slow = calibration.simulate(SEED, aircraft=1, rounds=(30, 250), duration_s=DURATION_S)
-    flights: list[StreamFlight] = [f for f in fast if f.position == 1] + \
-        [f for f in slow if f.position == 2]
+    flights = _recorded()
     tail = fleet_service.create_aircraft(session, operator_id=op.id, tail=flights[0].tail)
     first = min(f.started_at for f in flights) - 86400.0
     for position in (1, 2):
@@ -79,7 +97,7 @@ def test_recordings_at_another_rate_are_estimated_again_once_the_design_is_calib
     assert store.estimate_held(session, tmp_path, design) == []  # uncalibrated: nothing to do
 
     est = estimator_for(session, design, session.get(StreamRecording, next(iter(rate))).signals)
-    calib = calibration.calibrate(est, seed=7, aircraft=2, duration_s=DURATION_S)
+    calib = calibration.calibrate_on(est, _calibration_flights(), source=CALIBRATION_SOURCE)
     calibration.store_calibration(session, design, calib)
     again = store.estimate_held(session, tmp_path, design)
     assert sorted(again) == sorted(k for k, hz in rate.items() if hz == 10.0)
