@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import pickle
 import time
 from pathlib import Path
 
@@ -202,6 +203,10 @@ def main() -> None:
     ap.add_argument("--designs", default=",".join(DESIGNS))
     ap.add_argument("--cache", type=Path, default=Path("/tmp/fh/cache"))
     ap.add_argument("--json", type=Path, default=None, help="write the calibrations here")
+    ap.add_argument("--pieces", type=Path, default=None,
+                    help="pickle each design's trend pieces of every fleet here (calibration "
+                         "fleets first), its observable parameters and their names, for "
+                         "comparing slope fits offline")
     ap.add_argument("--actuators", action="store_true",
                     help="also measure how much of each level's error is the engines' actuator "
                          "biases (rigging), over the scoring fleets")
@@ -221,6 +226,8 @@ def main() -> None:
           f"{time.perf_counter() - t0:.0f} s")
     print(TARGETS)
     stored = {}
+    all_pieces: dict[str, tuple[list[uncertainty.TrendPieces], np.ndarray, tuple[str, ...],
+                                int]] = {}
     for item in args.designs.split(","):
         method, m = item.split(":")
         biases = m.endswith("+bias")
@@ -304,14 +311,19 @@ def main() -> None:
         print(slope_coverage(calib.names, slope_rows))
         if args.actuators:
             print(health_uncertainty.actuator_share(est, test_fleets).report())
-        if args.rotations:
+        if args.rotations or args.pieces:
             pieces = [calibration.trend_pieces(calibration.tracks(est, *f))
                       for f in cal_fleets + test_fleets]
+            all_pieces[item] = (pieces, np.asarray(calib.observable), calib.names,
+                                len(cal_fleets))
+        if args.rotations:
             print(rotations(pieces, calib.observable, len(cal_fleets), args.rotations,
                             calib.names))
         print(_common.load_line())
     if args.json:
         args.json.write_text(json.dumps(stored, indent=1))
+    if args.pieces:
+        args.pieces.write_bytes(pickle.dumps(all_pieces))
 
 
 if __name__ == "__main__":

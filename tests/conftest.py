@@ -136,6 +136,23 @@ def client(app: FastAPI) -> Iterator[TestClient]:
         yield test_client
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The files marked ``long`` first, longest first, the rest in their order. The test
+    processes (``pytest -n``, ``--dist loadfile --no-loadscope-reorder``) are handed files in
+    this order as they free up, so a long file is never the last one handed out while the
+    other process idles (longest first: the usual greedy split of jobs over two workers)."""
+
+    first: dict[Path, int] = {}
+    for index, item in enumerate(items):
+        first.setdefault(item.path, index)
+
+    def order(item: pytest.Item) -> tuple[float, int]:
+        mark = item.get_closest_marker("long")
+        return (0.0 if mark is None else -float(mark.kwargs["seconds"]), first[item.path])
+
+    items.sort(key=order)  # stable: each file's tests stay in their order
+
+
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
     """Counts the backends from the reports, which reach the controlling process from every
     worker when the suite runs in parallel (``pytest -n``)."""

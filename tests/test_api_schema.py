@@ -23,6 +23,8 @@ from app.models import Operator
 from app.services.tenancy import service as tenancy
 from tests.support.fleet_fixture import make_fleet
 
+pytestmark = pytest.mark.long(seconds=30)
+
 EXAMPLES = 3
 # Valid requests, and requests that break the schema on purpose (each must be a 4xx).
 MODES = (schemathesis.GenerationMode.POSITIVE, schemathesis.GenerationMode.NEGATIVE)

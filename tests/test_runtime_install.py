@@ -31,6 +31,8 @@ import pytest
 
 from tests.support.server import free_port
 
+pytestmark = pytest.mark.long(seconds=55)
+
 ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = ("app", "estimation", "migrations")
 

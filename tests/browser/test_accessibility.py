@@ -64,7 +64,8 @@ def test_progress_bars_are_named_and_the_upload_detail_comes_into_view(
     page.wait_for_selector("#upload-errors")
     page.wait_for_function("window.scrollY > 0")
     top = page.evaluate("document.querySelector('#upload-errors').getBoundingClientRect().top")
-    assert 0 <= top < 480
+    # Scrolled to its top: at 0, or half a pixel off where the layout's heights are fractional.
+    assert -1 < top < 480
     assert page.evaluate("document.activeElement.closest('#upload-errors') !== null")
     screenshot(page, "upload-detail-in-view")
     assert console.unexpected() == []

@@ -23,7 +23,7 @@ from tests.browser.conftest import (
     sign_in,
 )
 
-pytestmark = pytest.mark.browser
+pytestmark = [pytest.mark.browser, pytest.mark.long(seconds=35)]
 
 
 def _ready(page: Any, url: str) -> None:

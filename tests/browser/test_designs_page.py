@@ -20,7 +20,7 @@ from tests.browser.conftest import (
     traces,
 )
 
-pytestmark = pytest.mark.browser
+pytestmark = [pytest.mark.browser, pytest.mark.long(seconds=30)]
 
 
 

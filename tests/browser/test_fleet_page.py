@@ -25,7 +25,7 @@ from tests.app.services.trends.test_trends import (
 )
 from tests.browser.conftest import Console, Server, screenshot, sign_in, traces
 
-pytestmark = pytest.mark.browser
+pytestmark = [pytest.mark.browser, pytest.mark.long(seconds=20)]
 
 
 def test_wrong_key_is_refused_with_the_api_message(page: Any, console: Console) -> None:

@@ -17,7 +17,7 @@ import pytest
 from tests.browser.conftest import Console, Server, api_get, screenshot, sign_in, traces
 from tests.browser.test_accessibility import contrast
 
-pytestmark = pytest.mark.browser
+pytestmark = [pytest.mark.browser, pytest.mark.long(seconds=50)]
 
 
 def _rgb(hex_colour: str) -> str:

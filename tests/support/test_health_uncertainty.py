@@ -30,6 +30,8 @@ from estimation.engine.schedule import EngineSchedule, build_schedule
 from estimation.uncertainty import Calibration
 from tests.support import health_accuracy, health_uncertainty
 
+pytestmark = pytest.mark.long(seconds=50)
+
 SIZE = fleet.DemoSize(aircraft=3, flights=400)
 
 

@@ -47,6 +47,8 @@ from tests.support.fleet_fixture import add_reference_design, csv_bytes, make_fl
 from tests.support.jobs import live_database, wait_until
 from tests.support.paths import ROOT
 
+pytestmark = pytest.mark.long(seconds=40)
+
 ROWS = 6000
 
 

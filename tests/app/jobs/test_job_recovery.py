@@ -30,6 +30,8 @@ from tests.support.fleet_fixture import (
 from tests.support.jobs import live_database
 from tests.support.server import serving
 
+pytestmark = pytest.mark.long(seconds=35)
+
 ROOT = Path(__file__).resolve().parents[3]
 FINISH_WITHIN_S = 30.0
 ROWS = 20_000

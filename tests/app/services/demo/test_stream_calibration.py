@@ -23,6 +23,8 @@ from app.services.tenancy import service as tenancy
 from estimation.uncertainty import Calibration
 from tests.support.builtin_fleet import coarse_schedule
 
+pytestmark = pytest.mark.long(seconds=50)
+
 
 def test_the_active_demo_design_gets_its_stream_calibration_once(
     session: Session, session_factory: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch

@@ -26,6 +26,8 @@ from estimation.engine.schedule import EngineSchedule, build_schedule
 from estimation.uncertainty import Calibration
 from tests.support.fleetkit import make_tenant
 
+pytestmark = pytest.mark.long(seconds=60)
+
 
 @pytest.fixture(scope="module")
 def coarse_schedule() -> EngineSchedule:

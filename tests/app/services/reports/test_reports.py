@@ -31,6 +31,8 @@ from estimation.engine.schedule import build_schedule
 from tests.browser.seed import Seeded, seed
 from tests.conftest import BACKENDS, fresh_database_url
 
+pytestmark = pytest.mark.long(seconds=25)
+
 PDF = "application/pdf"
 XLSX = "application/vnd.openxmlformats-officedocument.spreadsheetml.sheet"
 PNG = b"\x89PNG\r\n\x1a\n"

@@ -33,6 +33,8 @@ from tests.estimation.models import reference_model
 from tests.support import detection_replay, fd001_replay
 from tests.support.paths import FD001
 
+pytestmark = pytest.mark.long(seconds=35)
+
 # All 100 units (about 8 s an import): the median lead is the figure on the whole
 # train set, 121.5 cycles against the naive's 121.5 (the fleet CUSUM's direction learnt from
 # the 99 other units). On a subset it need not hold: units 1-10 give 130.5 against the naive

@@ -11,6 +11,8 @@ from app.services.streams import calibration
 from app.services.streams.run import recording_start
 from tests.support.stream_uncertainty import design_stream_estimator
 
+pytestmark = pytest.mark.long(seconds=30)
+
 
 def test_recording_start_carries_the_tuners_alone() -> None:
     end = np.arange(1.0, 8.0)

@@ -18,10 +18,13 @@ times as much (hpc_flow RMS 2.76 % against 1.49 %) and left the band (2-sigma 0.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from app.services.streams import calibration
 from estimation import uncertainty
 from tests.support.stream_uncertainty import design_stream_estimator, score
+
+pytestmark = pytest.mark.long(seconds=130)
 
 DURATION_S = 500.0
 AIRCRAFT = 32  # half the product's calibration fleet, over the first 500 s of each flight

@@ -11,6 +11,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
+import pytest
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -23,6 +24,8 @@ from app.services.streams.estimator import estimator_for
 from app.services.tenancy import service as tenancy
 from estimation.engine.fleet import StreamFlight
 from tests.app.services.streams.simulated import stream_csv
+
+pytestmark = pytest.mark.long(seconds=85)
 
 SEED = 41
 DURATION_S = 400.0  # idle, take-off and climb (at idle the tuners are not estimated)

@@ -57,6 +57,8 @@ from tests.app.services.streams.simulated import (
     stream_csv,
 )
 
+pytestmark = pytest.mark.long(seconds=85)
+
 CSV = {"Content-Type": "text/csv"}
 SETTLE = 60  # snapshots after the first before they are scored (filter start-up)
 

@@ -68,6 +68,8 @@ from estimation.engine.schedule import EngineSchedule, build_schedule
 from estimation.engine.sensors import AUX_NAMES, SENSOR_NAMES
 from estimation.engine.steady import steady_state
 
+pytestmark = pytest.mark.long(seconds=35)
+
 SEED = 11
 # Small fleets differ: several (six or more also correct the aux outputs).
 CALIBRATION_SEEDS = tuple(range(12, 20))
