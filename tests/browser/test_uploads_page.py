@@ -132,7 +132,8 @@ def test_upload_with_progress_then_refused_file_with_row_errors(
     assert "API" in detail.inner_text()
     page.wait_for_function(
         """() => { const r = document.querySelector('#upload-errors').getBoundingClientRect();
-          return r.top >= 0 && r.top < window.innerHeight; }""", timeout=5_000)
+          return r.top > -1 && r.top < window.innerHeight; }""", timeout=5_000)  # a fractional
+    # layout may leave the scrolled-to top half a pixel above the window
     assert page.evaluate("document.activeElement.closest('#upload-errors') !== null")
     screenshot(page, "uploads-detail-in-view")
     assert console.unexpected("422") == []
