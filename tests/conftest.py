@@ -145,12 +145,15 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     first: dict[Path, int] = {}
     for index, item in enumerate(items):
         first.setdefault(item.path, index)
+    position = {id(item): index for index, item in enumerate(items)}
 
     def order(item: pytest.Item) -> tuple[float, int]:
         mark = item.get_closest_marker("long")
-        return (0.0 if mark is None else -float(mark.kwargs["seconds"]), first[item.path])
+        if mark is None:
+            return (0.0, position[id(item)])  # where pytest put it
+        return (-float(mark.kwargs["seconds"]), first[item.path])
 
-    items.sort(key=order)  # stable: each file's tests stay in their order
+    items.sort(key=order)  # stable: a long file's tests stay in their order
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
