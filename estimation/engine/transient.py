@@ -41,15 +41,16 @@ Sensors are recorded at t_k, at the states and commands of the first stage.
 Only recorded stages compute every station; the others stop at the state
 derivatives and the sensors the controller reads.
 
-One engine (B = 1) runs by default on Python floats (``transient_one.py``):
-the same cycle, control law and steps on the ``SCALAR`` namespace, about 15
-times less CPU than numpy on one-element arrays, equal to rounding.
+A small batch (B <= FLOATS_BATCH) runs by default engine by engine on Python
+floats (``transient_one.py``): the same cycle, control law, steps and noise on
+the ``SCALAR`` namespace, about 15 times less CPU per engine than numpy on
+one-element arrays, equal to rounding.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
@@ -96,6 +97,9 @@ _REFRESH_EVERY = 200
 _FD_EPS = 1e-7
 _N_SENS = 7  # sensitivities of the unknowns: 4 states and 3 commands
 _DERIVATIVES = ("dnf", "dnc", "dtm_hpc", "dtm_hpt")
+# Batches of at most this many engines run engine by engine on Python floats
+# (``transient_one.py``): numpy's cost per step is mostly per call, nearly whatever the batch.
+FLOATS_BATCH = 16
 
 Schedule = Callable[[float], OperatingPoint]
 
@@ -307,9 +311,10 @@ def simulate(
     carries one chord correction to the next stage, so the mismatch is of the
     order of the prediction error in a transient and vanishes at rest.
     on_progress(fraction) is called every 1000 steps and at the end.
-    scalar_path: one engine (B = 1) runs the same cycle, control law and steps on
-    Python floats (``transient_one.py``, an order of magnitude faster than numpy
-    on one-element arrays; equal to rounding); False keeps it on numpy arrays.
+    scalar_path: a batch of at most FLOATS_BATCH engines runs the same cycle,
+    control law, steps and noise engine by engine on Python floats
+    (``transient_one.py``, an order of magnitude faster than numpy on small
+    arrays; equal to rounding); False keeps it on numpy arrays.
     """
     if gas_path_solution not in ("converged", "one_pass"):
         raise ValueError(f"gas_path_solution must be 'converged' or 'one_pass', "
@@ -350,16 +355,17 @@ def simulate(
     rec_cond = np.empty((4, n_rec, b))
     rec_lim = np.zeros((n_rec, b), dtype=np.int8)
 
-    if b == 1 and scalar_path:
-        from estimation.engine.transient_one import ScalarGasPath, run_one, scalar_schedule
+    if b <= FLOATS_BATCH and scalar_path:
+        from estimation.engine.transient_one import ScalarGasPath, run_engines, scalar_schedule
 
-        one = ScalarGasPath(d, (h[0] / 100.0).tolist(), _CHORD_TOL, _CHORD_POLISH,
-                            _CHORD_MAX, _ONE_PASS_LIMIT, _REFRESH_EVERY, _FD_EPS)
-        scalar_state: tuple[Any, ...] = (float(ctrl.integrator[0]), ctrl.sensed[0].tolist())
-        ctrl1 = ControllerState(*scalar_state)
-        run_one(
-            scalar_schedule(schedule), n_steps, dt, record_every, x[0].tolist(),
-            z[0].tolist(), ys[0].tolist(), ctrl1, h, noise_std, rng, gains, d, one,
+        solvers = [ScalarGasPath(d, (h[e] / 100.0).tolist(), _CHORD_TOL, _CHORD_POLISH,
+                                 _CHORD_MAX, _ONE_PASS_LIMIT, _REFRESH_EVERY, _FD_EPS, engine=e)
+                   for e in range(b)]
+        ctrls = [ControllerState(float(ctrl.integrator[e]), ctrl.sensed[e].tolist())  # type: ignore[arg-type]
+                 for e in range(b)]
+        run_engines(
+            [scalar_schedule(schedule, e) for e in range(b)], n_steps, dt, record_every,
+            x.tolist(), z.tolist(), ys.tolist(), ctrls, noise_std, rng, gains, d, solvers,
             gas_path_solution == "one_pass",
             dict(x=rec_x, u=rec_u, y=rec_y, m=rec_m, aux=rec_aux, cond=rec_cond, lim=rec_lim),
             on_progress, (_NF, _NC, _T24, _PS30),

@@ -1,12 +1,14 @@
-"""The closed-loop transient of ``transient.simulate`` for one engine, on Python floats.
+"""The closed-loop transient of ``transient.simulate`` for a small batch, engine by engine
+on Python floats.
 
-A batch of one engine spends nearly all its time in numpy's per-call overhead
-(about 150 calls on one-element arrays per gas-path evaluation). Here the same
+A small batch spends nearly all its time in numpy's per-call overhead (about
+150 calls on small arrays per gas-path evaluation). Here the same
 cycle (``turbofan.gas_path_columns``), atmosphere and control law
 (``controller.control_step``) run with the ``SCALAR`` namespace of ``xp.py``,
 and the integration, the chord iteration and its Jacobian refresh follow
 ``transient.simulate`` and its ``_GasPathSolver`` step by step, so the
-trajectory equals the batched one to rounding (tests/estimation/engine/test_transient_one.py).
+trajectory of every engine equals its row of the batch to rounding, sensor noise
+included (tests/estimation/engine/test_transient_one.py).
 The 5 x 5 inverse Jacobian is applied as nested lists; it is computed with
 numpy (one call per refresh).
 
@@ -18,7 +20,7 @@ nan and the batched path's convergence error.
 from __future__ import annotations
 
 from bisect import bisect_right
-from collections.abc import Callable
+from collections.abc import Callable, Generator, Sequence
 from typing import Any
 
 import numpy as np
@@ -44,7 +46,7 @@ def _operating(*fields: Any) -> Operating:
     """Operating of one engine on floats: nf, nc, tm_hpc, tm_hpt, wf, vsv, vbv, fc
     (health is taken from the solver, not from here)."""
     return Operating(*fields, None)  # type: ignore[arg-type,call-arg]
-_NOISE_BLOCK = 4096  # steps of sensor noise drawn at once
+_BLOCK = 1000  # steps the engines advance together (noise drawn, progress reported)
 _DERIVATIVES = ("dnf", "dnc", "dtm_hpc", "dtm_hpt")
 
 
@@ -63,22 +65,23 @@ def _change(a: Operating, b: Operating) -> tuple[float, ...]:
             b.wf - a.wf, b.vsv - a.vsv, b.vbv - a.vbv)
 
 
-def scalar_schedule(schedule: FlightProfile | Callable[[float], OperatingPoint]
+def scalar_schedule(schedule: FlightProfile | Callable[[float], OperatingPoint], row: int = 0
                     ) -> Callable[[float], tuple[float, float, float, float]]:
-    """Operating condition (alt ft, Mach, dTamb K, power %) of one flight against time.
+    """Operating condition (alt ft, Mach, dTamb K, power %) of the batch's flight ``row``
+    against time (a condition given for one flight holds for all of them).
 
     For a FlightProfile: ``flight.condition_at``'s interpolation on floats.
     """
     if not isinstance(schedule, FlightProfile):
         def call(t: float) -> tuple[float, float, float, float]:
             c = schedule(t)
-            a, m, dt_, p = (float(np.asarray(v, dtype=float).reshape(-1)[0]) for v in c)
+            a, m, dt_, p = (_element(v, row) for v in c)
             return a, m, dt_, p
         return call
     ts = schedule.time_s.tolist()
-    alt, mach, power = (v[0].tolist() for v in (schedule.alt_ft, schedule.mach,
-                                                 schedule.power_pct))
-    dtamb = float(schedule.dtamb_k[0])
+    alt, mach, power = (v[min(row, v.shape[0] - 1)].tolist()
+                        for v in (schedule.alt_ft, schedule.mach, schedule.power_pct))
+    dtamb = _element(schedule.dtamb_k, row)
     last = len(ts) - 2
 
     def at(t: float) -> tuple[float, float, float, float]:
@@ -90,13 +93,20 @@ def scalar_schedule(schedule: FlightProfile | Callable[[float], OperatingPoint]
     return at
 
 
+def _element(v: Any, row: int) -> float:
+    flat = np.asarray(v, dtype=float).reshape(-1)
+    return float(flat[row if flat.size > 1 else 0])
+
+
 class ScalarGasPath:
     """``transient._GasPathSolver`` for one engine on floats (same steps and thresholds)."""
 
     def __init__(self, design: EngineDesign, hs: Vector,
                  chord_tol: float, chord_polish: float, chord_max: int,
-                 one_pass_limit: float, refresh_every: int, fd_eps: float) -> None:
+                 one_pass_limit: float, refresh_every: int, fd_eps: float,
+                 engine: int = 0) -> None:
         self.d = design
+        self.engine = engine  # its row in the batch (error messages)
         self.hs = hs  # health / 100, floats
         self.jinv: list[Vector] | None = None
         self.dzdu: list[Vector] = [[0.0] * 7 for _ in range(5)]
@@ -220,7 +230,7 @@ class ScalarGasPath:
         err = max(map(abs, res))
         if not err <= self.tol:
             raise EngineConvergenceError(
-                f"gas path did not converge in the transient for engines [0] "
+                f"gas path did not converge in the transient for engines [{self.engine}] "
                 f"(max relative flow mismatch {err:.2e})"
             )
         return z, st
@@ -235,17 +245,58 @@ class ScalarGasPath:
         return self._chord(z0, res), st
 
 
-def run_one(
-    sched: Callable[[float], tuple[float, float, float, float]],
+def run_engines(
+    scheds: Sequence[Callable[[float], tuple[float, float, float, float]]],
     n_steps: int, dt: float, record_every: int,
-    x: Vector, z: Vector, y_ctrl: list[Any], ctrl: ControllerState, h: np.ndarray,
+    x: list[Vector], z: list[Vector], y_ctrl: list[list[Any]], ctrl: Sequence[ControllerState],
     noise_std: np.ndarray | None, rng: np.random.Generator | None,
-    gains: ControllerGains, d: EngineDesign, solver: ScalarGasPath, one_pass: bool,
+    gains: ControllerGains, d: EngineDesign, solvers: Sequence[ScalarGasPath], one_pass: bool,
     rec: dict[str, np.ndarray], on_progress: Callable[[float], None] | None,
     idx: tuple[int, int, int, int],
 ) -> None:
-    """The step loop of ``transient.simulate`` for B = 1; fills the record arrays ``rec``
-    (keys x, u, y, m, aux, cond, lim, shapes as there)."""
+    """The step loop of ``transient.simulate`` for a small batch, engine by engine on floats;
+    fills the record arrays ``rec`` (keys x, u, y, m, aux, cond, lim, shapes as there).
+
+    The engines advance together by blocks of ``_BLOCK`` steps: each block's sensor noise is
+    drawn for all of them at once, [steps, B, 12], the same numbers in the same order as the
+    batch path's one draw of [B, 12] per step, and exactly as many. on_progress(fraction) is
+    called before every block and at the end.
+    """
+    b = len(scheds)
+    noisy = rng is not None and noise_std is not None
+    ns = np.broadcast_to(np.asarray(noise_std, float), (b, 12)) if noisy else None
+    runs = [_engine_steps(e, scheds[e], n_steps, dt, record_every, x[e], z[e], y_ctrl[e],
+                          ctrl[e], gains, d, solvers[e], one_pass, rec, idx)
+            for e in range(b)]
+    for run in runs:
+        next(run)  # to its first block
+    for start in range(0, n_steps + 1, _BLOCK):
+        if on_progress is not None:
+            on_progress(start / max(n_steps, 1))
+        size = min(_BLOCK, n_steps + 1 - start)
+        noise = None
+        if noisy:
+            assert rng is not None and ns is not None
+            noise = rng.standard_normal((size, b, 12)) * ns
+        for e, run in enumerate(runs):
+            try:
+                run.send(None if noise is None else noise[:, e])
+            except StopIteration:
+                pass
+    if on_progress is not None:
+        on_progress(1.0)
+
+
+def _engine_steps(
+    engine: int, sched: Callable[[float], tuple[float, float, float, float]],
+    n_steps: int, dt: float, record_every: int,
+    x: Vector, z: Vector, y_ctrl: list[Any], ctrl: ControllerState,
+    gains: ControllerGains, d: EngineDesign, solver: ScalarGasPath, one_pass: bool,
+    rec: dict[str, np.ndarray], idx: tuple[int, int, int, int],
+) -> Generator[None, np.ndarray | None, None]:
+    """One engine's steps, a generator: at the start of every block of ``_BLOCK`` steps it
+    waits for the block's sensor noise [steps, 12] (None: none) and fills row ``engine`` of
+    the records."""
     i_nf, i_nc, i_t24, i_ps30 = idx
     # The four sensors the controller reads (the rest of y_ctrl is not used).
     y_nf, y_nc, y_t24, y_ps30 = y_ctrl[i_nf], y_ctrl[i_nc], y_ctrl[i_t24], y_ctrl[i_ps30]
@@ -254,8 +305,6 @@ def run_one(
     # second stage (moved by the sensitivities) instead of a gas-path evaluation.
     reuse = one_pass
     k2: Any = [0.0] * 4  # the last second stage's derivatives
-    noisy = rng is not None and noise_std is not None
-    ns = None if not noisy else np.broadcast_to(np.asarray(noise_std, float), (1, 12))[0]
     rec_x, rec_u, rec_y, rec_m = rec["x"], rec["u"], rec["y"], rec["m"]
     rec_aux, rec_cond, rec_lim = rec["aux"], rec["cond"], rec["lim"]
     half = 0.5 * dt
@@ -267,18 +316,15 @@ def run_one(
     cond = sched(0.0)
     fc: Any = flight_condition(cond[0], cond[1], cond[2], SCALAR)  # floats in the fields
     fc_key = cond[:3]  # the flight condition is recomputed only when these move
+    block: np.ndarray | None = None
     noise_rows: list[Vector] = []
-    # Noise is drawn in blocks of steps: the same numbers, in the same order, as
-    # one draw of 12 per step (the batch path's), and exactly as many.
-    block = np.empty((0, 12))
     for k in range(n_steps + 1):
         t = k * dt
-        if noisy:
-            assert rng is not None and ns is not None
-            j = k % _NOISE_BLOCK
-            if j == 0:
-                block = rng.standard_normal((min(_NOISE_BLOCK, n_steps + 1 - k), 12)) * ns
-                noise_rows = block.tolist()
+        j = k % _BLOCK
+        if j == 0:
+            block = yield
+            noise_rows = [] if block is None else block.tolist()
+        if block is not None:
             noise = block[j]
             nz = noise_rows[j]
             m_nf, m_nc = y_nf + nz[i_nf], y_nc + nz[i_nc]
@@ -306,12 +352,11 @@ def run_one(
         if recorded:
             y, aux = outputs_from_stations(st, op, SCALAR)
             i = k // record_every
-            rec_x[i, 0], rec_u[i, 0], rec_y[i, 0], rec_aux[i, 0] = x, u, y, aux
-            rec_m[i, 0] = y if noise is None else np.add(y, noise)
-            rec_cond[:, i, 0] = cond
-            rec_lim[i, 0] = limited
-        if on_progress is not None and (k % 1000 == 0 or k == n_steps):
-            on_progress(k / max(n_steps, 1))
+            rec_x[i, engine], rec_u[i, engine], rec_y[i, engine] = x, u, y
+            rec_aux[i, engine] = aux
+            rec_m[i, engine] = y if noise is None else np.add(y, noise)
+            rec_cond[:, i, engine] = cond
+            rec_lim[i, engine] = limited
         if k == n_steps:
             break
         cond = sched(t + dt)

@@ -25,13 +25,13 @@ STD = noise_std(steady_state(np.zeros(3), power=100.0).sensors)
 FIELDS = ("x", "u", "sensors", "measured", "aux")
 
 
-def _assert_same(fast, batch, row: int = 0, rtol: float = 1e-8) -> None:
+def _assert_same(fast, batch, row: int = 0, rtol: float = 1e-8, fast_row: int = 0) -> None:
     for name in FIELDS:
-        a, b = getattr(fast, name)[:, 0], getattr(batch, name)[:, row]
+        a, b = getattr(fast, name)[:, fast_row], getattr(batch, name)[:, row]
         np.testing.assert_allclose(a, b, rtol=rtol, atol=1e-12, err_msg=name)
-    np.testing.assert_array_equal(fast.limited[:, 0], batch.limited[:, row])
+    np.testing.assert_array_equal(fast.limited[:, fast_row], batch.limited[:, row])
     for a, b in zip(fast.condition, batch.condition, strict=True):
-        np.testing.assert_allclose(a[:, 0], b[:, row], rtol=1e-14)
+        np.testing.assert_allclose(a[:, fast_row], b[:, row], rtol=1e-14)
 
 
 def test_scalar_path_follows_the_batch_through_a_throttle_slam_with_noise() -> None:
@@ -66,8 +66,29 @@ def test_scalar_path_equals_a_row_of_a_batch_on_a_flight_profile() -> None:
     h2 = np.stack([HEALTH, np.zeros(13)])
     for mode in ("one_pass", "converged"):
         fast = simulate(prof2, 3.75, health=HEALTH, record_every=5, gas_path_solution=mode)
-        batch = simulate(batch_prof, 3.75, health=h2, record_every=5, gas_path_solution=mode)
+        batch = simulate(batch_prof, 3.75, health=h2, record_every=5, gas_path_solution=mode,
+                         scalar_path=False)
         _assert_same(fast, batch)
+
+
+def test_a_small_batch_on_floats_equals_the_numpy_batch_row_by_row_with_noise() -> None:
+    # Three engines of different health and ambient on the profile's start, past a
+    # block of steps (the engines advance on floats block by block, each block's
+    # noise drawn for all of them at once): each row equals the numpy batch's, and
+    # both drew the same noise.
+    prof = flight_profile()
+    prof3 = prof._replace(
+        alt_ft=np.repeat(prof.alt_ft[:1], 3, axis=0), mach=np.repeat(prof.mach[:1], 3, axis=0),
+        power_pct=np.repeat(prof.power_pct[:1], 3, axis=0), dtamb_k=np.array([5.0, -10.0, 0.0]))
+    h3 = np.stack([HEALTH, np.zeros(13), -0.5 * HEALTH])
+    rngs = [np.random.default_rng(11), np.random.default_rng(11)]
+    fast, batch = (simulate(prof3, 16.0, health=h3, noise_std=STD, rng=rng, record_every=7,
+                            scalar_path=floats)
+                   for floats, rng in zip((True, False), rngs, strict=True))
+    assert fast.time_s.size == batch.time_s.size > 1000 // 7
+    for row in range(3):
+        _assert_same(fast, batch, row, fast_row=row)
+    assert rngs[0].standard_normal() == rngs[1].standard_normal()
 
 
 def test_scalar_cycle_equals_the_numpy_cycle_and_falls_back_where_math_fails() -> None:
