@@ -10,6 +10,8 @@ the one to compare on a shared, loaded machine):
 - one engine on the numpy path (``scalar_path=False``: the batch code with
   B = 1, which is how one engine ran before the scalar path existed), the peer;
 - a batch of engines on the numpy path, per engine;
+- small batches (2 to ``FLOATS_BATCH`` engines), engine by engine on floats (the
+  default) against the numpy batch, per engine;
 - one engine with the gas path converged at every stage (the other peer);
 - the batched steady-state snapshots of a fleet.
 
@@ -96,7 +98,7 @@ from estimation.engine.flight import (  # noqa: E402
     random_parameters,
     seed001_parameters,
 )
-from estimation.engine.transient import simulate  # noqa: E402
+from estimation.engine.transient import FLOATS_BATCH, simulate  # noqa: E402
 
 TARGET_ONE_ENGINE_S = 5.0
 
@@ -208,6 +210,14 @@ def main() -> None:
     print(_fmt("scalar path", sw, sc, f"  ({pc / sc:.1f}x faster in CPU)"))
     cw, cc = (v * peer_scale for v in run(1, args.peer_seconds, "converged"))
     print(_fmt("scalar path, converged gas path", cw, cc, f"  ({cc / sc:.2f}x one-pass)"))
+    print(f"small batches, same slice, per engine (up to {FLOATS_BATCH} engines run engine by "
+          f"engine on floats by default; the peer is the numpy batch):")
+    for n in sorted({2, FLOATS_BATCH // 2, FLOATS_BATCH}):
+        nw, nc = (v * peer_scale / n for v in run(n, args.peer_seconds, "one_pass",
+                                                  scalar_path=False))
+        fw, fc = (v * peer_scale / n for v in run(n, args.peer_seconds, "one_pass"))
+        print(_fmt(f"{n} engines, numpy batch", nw, nc))
+        print(_fmt(f"{n} engines, floats", fw, fc, f"  ({nc / fc:.1f}x less CPU)"))
 
     budget()
 

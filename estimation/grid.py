@@ -12,7 +12,7 @@ and by the model schedules of other engine types (``estimation.schedule``).
 from __future__ import annotations
 
 import itertools
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,52 +33,57 @@ class Grid:
     def shape(self) -> tuple[int, ...]:
         return tuple(len(a) for a in self.axes)
 
-    def weights(self, cond: np.ndarray) -> list[tuple[tuple[np.ndarray, ...], np.ndarray]]:
+    def weights(self, cond: np.ndarray) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
         """Corner indices and weights of multilinear interpolation for cond [K, n_axes]: one
-        (index per axis [K], weight [K]) per corner of the cell (2^n_axes corners; a corner
-        beyond a one-node axis has weight 0)."""
-        lo, frac = [], []
+        index array [C, K] per axis and the weights [C, K] of the cell's C = 2^n_axes corners
+        (``itertools.product`` order; a corner beyond a one-node axis has weight 0). Each
+        weight is the product of the fractions along the axes, taken in axis order."""
+        bits = np.array(list(itertools.product((0, 1), repeat=len(self.axes))), dtype=int)
+        w = np.ones((bits.shape[0], cond.shape[0]))
+        idx = []
         for k, ax in enumerate(self.axes):
             c = np.clip(cond[:, k], ax[0], ax[-1])
+            bit = bits[:, k, None]
             if len(ax) == 1:
-                lo.append(np.zeros(len(c), dtype=int))
-                frac.append(np.zeros(len(c)))
-                continue
-            i = np.clip(np.searchsorted(ax, c, side="right") - 1, 0, len(ax) - 2)
-            lo.append(i)
-            frac.append((c - ax[i]) / (ax[i + 1] - ax[i]))
-        out = []
-        for corner in itertools.product((0, 1), repeat=len(self.axes)):
-            w = np.ones(cond.shape[0])
-            idx = []
-            for k, bit in enumerate(corner):
-                if len(self.axes[k]) == 1 and bit:
-                    w = w * 0.0
-                w = w * (frac[k] if bit else 1.0 - frac[k])
-                idx.append(np.minimum(lo[k] + bit, len(self.axes[k]) - 1))
-            out.append((tuple(idx), w))
-        return out
+                lo = np.zeros(len(c), dtype=int)
+                frac = np.zeros(len(c))
+                w = w * np.where(bit == 1, 0.0, 1.0)
+            else:
+                lo = np.clip(np.searchsorted(ax, c, side="right") - 1, 0, len(ax) - 2)
+                frac = (c - ax[lo]) / (ax[lo + 1] - ax[lo])
+            w = w * np.where(bit == 1, frac, 1.0 - frac)
+            idx.append(np.minimum(lo + bit, len(ax) - 1))
+        return tuple(idx), w
 
     def interpolate(self, values: np.ndarray, cond: np.ndarray) -> np.ndarray:
         """``values`` [*shape, ...] at conditions cond [K, n_axes]: [K, ...]."""
-        acc = np.zeros((cond.shape[0],) + values.shape[len(self.axes):])
-        for idx, w in self.weights(cond):
-            acc += w.reshape((-1,) + (1,) * (acc.ndim - 1)) * values[idx]
-        return acc
+        return _corner_sum(values, *self.weights(cond))
+
+    def interpolate_all(self, values: Mapping[str, np.ndarray], names: Iterable[str],
+                        cond: np.ndarray) -> dict[str, np.ndarray]:
+        """Several stacks over the grid at the same conditions (the weights found once):
+        name -> [K, ...], each as ``interpolate`` gives it."""
+        idx, w = self.weights(cond)
+        return {n: _corner_sum(values[n], idx, w) for n in names}
 
     def corners(self, cond: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Flat node indices and weights [C, K] of multilinear interpolation at conditions
         cond [K, n_axes], the corners of a one-node axis left out: with ``flat`` the values
         over the grid's nodes [n_nodes, F] (C-order), the interpolated values are
         sum_c weights[c, :, None] * flat[indices[c]]."""
-        idx, wts = [], []
-        for corner, (i, w) in zip(itertools.product((0, 1), repeat=len(self.axes)),
-                                  self.weights(cond), strict=True):
-            if any(bit and len(a) == 1 for bit, a in zip(corner, self.axes, strict=True)):
-                continue
-            idx.append(np.ravel_multi_index(i, self.shape))
-            wts.append(w)
-        return np.stack(idx), np.stack(wts)
+        idx, w = self.weights(cond)
+        bits = np.array(list(itertools.product((0, 1), repeat=len(self.axes))), dtype=bool)
+        kept = ~(bits & (np.array(self.shape) == 1)).any(axis=1)
+        return np.ravel_multi_index(tuple(i[kept] for i in idx), self.shape), w[kept]
+
+
+def _corner_sum(values: np.ndarray, idx: tuple[np.ndarray, ...], w: np.ndarray) -> np.ndarray:
+    """sum_c w[c] values[idx[c]] over the corners in order: [K, ...]."""
+    acc = np.zeros(w.shape[1:] + values.shape[len(idx):])
+    shape = (-1,) + (1,) * (acc.ndim - 1)
+    for c in range(w.shape[0]):
+        acc += w[c].reshape(shape) * values[tuple(i[c] for i in idx)]
+    return acc
 
 
 def corner_sums(indices: np.ndarray, weights: np.ndarray, flat: np.ndarray) -> np.ndarray:

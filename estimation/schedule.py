@@ -123,19 +123,25 @@ class ModelSchedule:
 
     def trims_at(self, conditions: np.ndarray) -> dict[str, np.ndarray]:
         """Trim values at conditions [K, 4] in the models' units: name -> [K]."""
-        t = self.interpolate("trim_corrected", conditions) * self.factors(conditions)
-        t = t - self.offsets
+        return self._trims(self.interpolate("trim_corrected", conditions), conditions)
+
+    def _trims(self, corrected: np.ndarray, conditions: np.ndarray) -> dict[str, np.ndarray]:
+        """The corrected trims interpolated at conditions [K, n_trim], in the models' units:
+        name -> [K]."""
+        t = corrected * self.factors(conditions) - self.offsets
         return {n: t[:, i] for i, n in enumerate(self.trim_names)}
 
     def model_at(self, condition: Sequence[float]) -> LinearModel:
         """The interpolated LinearModel at one condition (alt_ft, mach, dtamb_k, power_pct)."""
         cond = np.asarray(condition, dtype=float).reshape(1, len(CONDITIONS))
-        mats = {m: self.interpolate(m, cond)[0] for m in MATRIX_NAMES}
-        trim = {k: float(v[0]) for k, v in self.trims_at(cond).items()}
+        at = self.grid.interpolate_all(self.values, (*MATRIX_NAMES, "trim_corrected", "noise"),
+                                       self._axes(cond))
+        mats = {m: at[m][0] for m in MATRIX_NAMES}
+        trim = {k: float(v[0]) for k, v in self._trims(at["trim_corrected"], cond).items()}
         oc = {**{c: float(cond[0, CONDITIONS.index(c)]) for c in self.variables},
               "interpolated": True}
         return replace(self.template, **mats, trim=trim, operating_condition=oc,
-                       sensor_noise_std=self.interpolate("noise", cond)[0])
+                       sensor_noise_std=at["noise"][0])
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready ``fleethealth.model-schedule/1`` dict (the models in grid order)."""

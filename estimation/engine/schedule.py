@@ -99,8 +99,9 @@ class EngineSchedule:
     ) -> LinearModel:
         """Interpolated LinearModel at one operating condition."""
         cond = np.array([[alt, mach, power, dtamb]], dtype=float)
-        mats = {m: self.interpolate(m, cond)[0] for m in MATRIX_NAMES}
-        trim = {k: float(v[0]) for k, v in self.trims_at(cond).items()}
+        at = self.grid.interpolate_all(self.values, (*MATRIX_NAMES, "trim_corrected"), cond)
+        mats = {m: at[m][0] for m in MATRIX_NAMES}
+        trim = {k: float(v[0]) for k, v in self._trims(at["trim_corrected"], cond).items()}
         oc = {"alt_ft": float(alt), "mach": float(mach), "dtamb_K": float(dtamb),
               "power_pct": float(power), "interpolated": True}
         return replace(self.template, **mats, trim=trim, operating_condition=oc)
@@ -108,7 +109,11 @@ class EngineSchedule:
     def trims_at(self, cond: np.ndarray) -> dict[str, np.ndarray]:
         """Trim values at conditions [K, 4] (alt, mach, power, dtamb): name -> [K]."""
         cond = np.atleast_2d(np.asarray(cond, dtype=float))
-        t = self.interpolate("trim_corrected", cond) * _correction(self.trim_names, cond)
+        return self._trims(self.interpolate("trim_corrected", cond), cond)
+
+    def _trims(self, corrected: np.ndarray, cond: np.ndarray) -> dict[str, np.ndarray]:
+        """The corrected trims interpolated at cond [K, n_trim], uncorrected: name -> [K]."""
+        t = corrected * _correction(self.trim_names, cond)
         return {n: t[:, i] for i, n in enumerate(self.trim_names)}
 
     def to_dict(self) -> dict[str, Any]:
