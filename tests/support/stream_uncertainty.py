@@ -5,7 +5,10 @@ bench/bench_stream_uncertainty.py and tests/app/services/streams/test_calibratio
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+
 import numpy as np
+import pytest
 
 from app.models import EngineModel, EstimatorDesign
 from app.services.demo import fleet as demo
@@ -15,6 +18,7 @@ from app.services.streams import calibration
 from app.services.streams.estimator import CALIBRATION_KEY, StreamEstimator, stream_estimator
 from app.services.trends import health as health_view
 from estimation import uncertainty
+from estimation.engine.fleet import StreamFlight
 from estimation.model import MODEL_FORMAT, LinearModel
 
 
@@ -62,3 +66,27 @@ def score(est: StreamEstimator, calib: uncertainty.Calibration,
             out[name] = (float(np.mean(z <= 1.0)), float(np.mean(z <= 2.0)),
                          float(np.sqrt(np.mean(err[:, k] ** 2))), float(np.mean(before <= 1.0)))
     return out
+
+
+_SIMULATED: dict[tuple[object, ...], list[StreamFlight]] = {}
+
+
+def simulate_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The stream calibration's fleet (``streams.calibration.simulate``) simulated once per test
+    process for each set of arguments: a calibration job run on both databases simulates its
+    fleet once (the simulator is most of such a test's time). The flights are the simulator's
+    own; only the second run of the same arguments reuses them."""
+    real = calibration.simulate
+
+    def simulate(seed: int, aircraft: int = calibration.AIRCRAFT,
+                 rounds: Sequence[int] = calibration.ROUNDS,
+                 rate_hz: float = calibration.RATE_HZ, duration_s: float | None = None,
+                 progress: Callable[[float], None] | None = None) -> list[StreamFlight]:
+        key = (seed, aircraft, tuple(rounds), rate_hz, duration_s)
+        if key not in _SIMULATED:
+            _SIMULATED[key] = real(seed, aircraft, rounds, rate_hz, duration_s, progress)
+        elif progress is not None:
+            progress(1.0)
+        return list(_SIMULATED[key])
+
+    monkeypatch.setattr(calibration, "simulate", simulate)

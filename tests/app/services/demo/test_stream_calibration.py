@@ -22,6 +22,7 @@ from app.services.streams import calibration as stream_calibration
 from app.services.tenancy import service as tenancy
 from estimation.uncertainty import Calibration
 from tests.support.builtin_fleet import coarse_schedule
+from tests.support.stream_uncertainty import simulate_once
 
 pytestmark = pytest.mark.long(seconds=50)
 
@@ -31,6 +32,7 @@ def test_the_active_demo_design_gets_its_stream_calibration_once(
 ) -> None:
     schedule = coarse_schedule()
     monkeypatch.setattr(estimator, "builtin_schedule", lambda: schedule)
+    simulate_once(monkeypatch)  # one simulation for both databases
     operator = tenancy.create_operator(session, name=DEMO_OPERATOR)
     engine_type = fleet_service.create_engine_type(
         session, operator_id=operator.id, name=demo.ENGINE_TYPE, description="")

@@ -25,6 +25,7 @@ from app.services.tenancy.service import create_operator
 from estimation.engine.schedule import EngineSchedule, build_schedule
 from estimation.uncertainty import Calibration
 from tests.support.fleetkit import make_tenant
+from tests.support.stream_uncertainty import simulate_once
 
 pytestmark = pytest.mark.long(seconds=60)
 
@@ -104,6 +105,7 @@ def test_the_calibration_job_stores_it_with_the_design(
     coarse_schedule: EngineSchedule, monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     monkeypatch.setattr(estimator, "builtin_schedule", lambda: coarse_schedule)
+    simulate_once(monkeypatch)  # one simulation for both databases
     design, job = _post_calibration(
         client, session, coarse_schedule, "Calibration Job Air",
         {"seeds": [5], "aircraft": 1, "flights": 200, "stream_seed": 7, "stream_aircraft": 2,
