@@ -44,10 +44,9 @@ class Grid:
         for k, ax in enumerate(self.axes):
             c = np.clip(cond[:, k], ax[0], ax[-1])
             bit = bits[:, k, None]
-            if len(ax) == 1:
+            if len(ax) == 1:  # the corner beyond it: a fraction of 0
                 lo = np.zeros(len(c), dtype=int)
                 frac = np.zeros(len(c))
-                w = w * np.where(bit == 1, 0.0, 1.0)
             else:
                 lo = np.clip(np.searchsorted(ax, c, side="right") - 1, 0, len(ax) - 2)
                 frac = (c - ax[lo]) / (ax[lo + 1] - ax[lo])
